@@ -1,0 +1,15 @@
+//! Plain geometric types shared by every stage: yarn curves, yarn frame sequences,
+//! units and up axes. Pure: no files, no printing, no environment.
+//!
+//! Conventions: knitvox works in metres, kilograms and seconds, with **+Y up**
+//! (as glTF). Readers convert from a file's unit and up axis into this frame;
+//! writers convert back out to the target format's convention.
+
+mod units;
+mod yarns;
+
+pub use units::{UpAxis, Units};
+pub use yarns::{Bounds, GeomError, YarnFrames, Yarns};
+
+/// A 3D point or vector in metres.
+pub type Vec3 = [f64; 3];

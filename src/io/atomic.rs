@@ -1,0 +1,88 @@
+//! Atomic file output: write to a dot-prefixed temporary file in the target's
+//! directory, fsync it, rename it over the target, fsync the directory. A
+//! reader (or a crash) never sees a half-written file.
+
+use std::fs::File;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use super::IoError;
+
+fn write_err(path: &Path, source: std::io::Error) -> IoError {
+    IoError::Write { path: path.to_path_buf(), source }
+}
+
+fn dir_of(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_with(path, |tmp| {
+        let mut f = File::create(tmp)?;
+        f.write_all(bytes)?;
+        f.flush()
+    })
+}
+
+/// Lets `produce` write a complete file at a temporary path (dot-prefixed,
+/// same directory), then fsyncs and renames it onto `path`. On failure the
+/// temporary file is removed and `path` is untouched. Used directly by
+/// writers that need a path of their own (libhdf5).
+pub fn write_with(path: &Path, produce: impl FnOnce(&Path) -> std::io::Result<()>) -> Result<(), IoError> {
+    let dir = dir_of(path);
+    let name = path.file_name().ok_or_else(|| {
+        write_err(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, "output path has no file name"))
+    })?;
+    // tempfile picks a unique name and removes it if we bail out early.
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!(".{}.", name.to_string_lossy()))
+        .suffix(".tmp")
+        .tempfile_in(&dir)
+        .map_err(|e| write_err(path, e))?;
+    let tmp_path = tmp.path().to_path_buf();
+    produce(&tmp_path).map_err(|e| write_err(path, e))?;
+    File::open(&tmp_path).and_then(|f| f.sync_all()).map_err(|e| write_err(path, e))?;
+    tmp.persist(path).map_err(|e| write_err(path, e.error))?;
+    // fsync the directory so the rename itself is durable.
+    if let Ok(d) = File::open(&dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_and_replaces_without_leftovers() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.bin");
+        write_bytes(&p, b"first").unwrap();
+        write_bytes(&p, b"second").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"second");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1, "temporary files left behind: {names:?}");
+    }
+
+    #[test]
+    fn failed_producer_leaves_target_untouched() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("keep.bin");
+        write_bytes(&p, b"keep").unwrap();
+        let r = write_with(&p, |_| Err(std::io::Error::other("disk on fire")));
+        assert!(matches!(r, Err(IoError::Write { .. })));
+        assert_eq!(std::fs::read(&p).unwrap(), b"keep");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn missing_directory_is_write_error() {
+        let r = write_bytes(Path::new("/nonexistent-knitvox-dir/x.ply"), b"x");
+        assert!(matches!(r, Err(IoError::Write { .. })));
+    }
+}
