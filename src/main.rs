@@ -1,1 +1,33 @@
-fn main(){}
+//! The `knitvox` binary: parse the command line, run it, map errors to the
+//! documented exit codes (see `knitvox::cli::exit`).
+
+use clap::Parser;
+use knitvox::cli::{self, exit_code_for, Cli, ExitCode};
+
+fn main() -> std::process::ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return std::process::ExitCode::from(if e.use_stderr() {
+                ExitCode::Usage.code()
+            } else {
+                0
+            });
+        }
+    };
+    // A panic is a bug: report it and exit with the internal-error code, not 101.
+    let outcome = std::panic::catch_unwind(|| cli::run(cli));
+    let code = match outcome {
+        Ok(Ok(code)) => code,
+        Ok(Err(e)) => {
+            eprintln!("error: {e:#}");
+            exit_code_for(&e)
+        }
+        Err(_) => {
+            eprintln!("error: internal error (a bug in knitvox; please report it with the input that caused it)");
+            ExitCode::Internal
+        }
+    };
+    std::process::ExitCode::from(code.code())
+}

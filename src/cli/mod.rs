@@ -1,1 +1,223 @@
-//! Command-line interface (clap definitions).
+//! Command-line interface: clap definitions and the glue from arguments to the
+//! library. Only this module and `main` know about processes and terminals.
+
+mod bench;
+mod commands;
+pub mod exit;
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+use crate::geom::{Units, UpAxis};
+use crate::io::{ReadOptions, WriteOptions, DEFAULT_RADIUS_M};
+
+pub use exit::{exit_code_for, ExitCode};
+
+/// knitvox: yarn-level knitwear to homogenized tetrahedral simulation, for render farms.
+#[derive(Debug, Parser)]
+#[command(name = "knitvox", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Summarise yarn files: format, curves, points, length, bbox, radius, units and axes.
+    Inspect(InspectArgs),
+    /// Convert a yarn file (or frame sequence) into another format, unit or up axis.
+    Convert(ConvertArgs),
+    /// Run a benchmark and print its figures (`--json` for machine-readable output).
+    Bench(BenchArgs),
+    /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.
+    Demo(DemoArgs),
+    /// Print a shell completion script.
+    Completions {
+        /// The shell: bash, zsh, fish, elvish or powershell.
+        shell: clap_complete::Shell,
+    },
+}
+
+/// How to interpret input files.
+#[derive(Debug, Clone, Args)]
+pub struct ReadArgs {
+    /// Unit of unitless inputs (bcc, obj, poly, ply): mm, cm, m or metres per unit [default: the file's, else m].
+    #[arg(long, value_name = "mm|cm|m|SCALE")]
+    pub units: Option<Units>,
+    /// Up axis of the input [default: the file's (BCC header, glTF +Y), else y].
+    #[arg(long, value_name = "y|z")]
+    pub up_axis: Option<UpAxis>,
+    /// Repeat a periodic .pyp tile N x M times along its two periods.
+    #[arg(long, value_name = "NxM", default_value = "1x1", value_parser = parse_tile)]
+    pub tile: [usize; 2],
+    /// Polyline samples per span of BCC spline curves (C0, BS); 1 keeps the C0 control points.
+    #[arg(long, value_name = "K")]
+    pub spline_samples: Option<usize>,
+    /// Yarn radius in metres for files without one (or for all, with --override-radius).
+    #[arg(long, value_name = "METRES", default_value_t = DEFAULT_RADIUS_M)]
+    pub radius: f64,
+    /// Use --radius even where the file gives radii.
+    #[arg(long)]
+    pub override_radius: bool,
+}
+
+impl ReadArgs {
+    pub fn options(&self) -> ReadOptions {
+        ReadOptions {
+            units: self.units,
+            up_axis: self.up_axis,
+            spline_samples: self.spline_samples,
+            tile: self.tile,
+            radius: self.radius,
+            override_radius: self.override_radius,
+            ..ReadOptions::default()
+        }
+    }
+}
+
+fn parse_tile(s: &str) -> Result<[usize; 2], String> {
+    let (a, b) = s
+        .to_ascii_lowercase()
+        .split_once('x')
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .ok_or_else(|| format!("'{s}': expected NxM, e.g. 3x3"))?;
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=10_000).contains(n))
+    };
+    match (parse(&a), parse(&b)) {
+        (Some(n), Some(m)) => Ok([n, m]),
+        _ => Err(format!(
+            "'{s}': expected NxM with N and M between 1 and 10000"
+        )),
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// Yarn files (a `name.####.ext` pattern reads a frame sequence).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Print one JSON array instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct ConvertArgs {
+    /// Input yarn file or `name.####.ext` frame sequence.
+    pub input: PathBuf,
+    /// Output file; `name.####.ext` writes one file per frame; .h5 holds all frames.
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    /// Unit of the written coordinates for bcc, obj, ply (glTF and HDF5 are always metres).
+    #[arg(long, value_name = "mm|cm|m|SCALE", default_value = "m")]
+    pub out_units: Units,
+    /// Up axis of the written coordinates for bcc, obj, ply (glTF and HDF5 are always +Y up).
+    #[arg(long, value_name = "y|z", default_value = "y")]
+    pub out_up_axis: UpAxis,
+    /// First frame number of a written sequence.
+    #[arg(long, default_value_t = 1)]
+    pub first_frame: i64,
+    /// Print what was written as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl ConvertArgs {
+    pub fn write_options(&self) -> WriteOptions {
+        WriteOptions {
+            units: self.out_units,
+            up_axis: self.out_up_axis,
+            first_frame: self.first_frame,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub target: BenchTarget,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchTarget {
+    /// Read and write times of every yarn format (median of --runs).
+    Io(BenchIoArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct BenchIoArgs {
+    /// Input yarn file [default: a built-in analytic swatch of --points points].
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Points of the built-in swatch.
+    #[arg(long, default_value_t = 184_000)]
+    pub points: usize,
+    /// Timed runs per measurement (the median is reported).
+    #[arg(long, default_value_t = 7)]
+    pub runs: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Output folder.
+    #[arg(long, short, default_value = "demo-out")]
+    pub out: PathBuf,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Inspect(a) => commands::inspect(&a),
+        Command::Convert(a) => commands::convert(&a),
+        Command::Bench(a) => match a.target {
+            BenchTarget::Io(b) => bench::io(&b),
+        },
+        Command::Demo(a) => commands::demo(&a),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            clap_complete::generate(
+                shell,
+                &mut Cli::command(),
+                "knitvox",
+                &mut std::io::stdout(),
+            );
+            Ok(ExitCode::Success)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cli_definition_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn tile_parsing() {
+        assert_eq!(parse_tile("3x4"), Ok([3, 4]));
+        assert_eq!(parse_tile("2X2"), Ok([2, 2]));
+        assert!(parse_tile("0x3").is_err());
+        assert!(parse_tile("3").is_err());
+        assert!(parse_tile("99999999999999999999x1").is_err());
+    }
+}

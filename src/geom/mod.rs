@@ -8,8 +8,8 @@
 mod units;
 mod yarns;
 
-pub use units::{UpAxis, Units};
-pub use yarns::{Bounds, GeomError, YarnFrames, Yarns};
+pub use units::{Units, UpAxis};
+pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};
 
 /// A 3D point or vector in metres.
 pub type Vec3 = [f64; 3];

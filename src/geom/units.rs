@@ -13,9 +13,15 @@ pub struct Units {
 }
 
 impl Units {
-    pub const METRES: Units = Units { metres_per_unit: 1.0 };
-    pub const CENTIMETRES: Units = Units { metres_per_unit: 0.01 };
-    pub const MILLIMETRES: Units = Units { metres_per_unit: 0.001 };
+    pub const METRES: Units = Units {
+        metres_per_unit: 1.0,
+    };
+    pub const CENTIMETRES: Units = Units {
+        metres_per_unit: 0.01,
+    };
+    pub const MILLIMETRES: Units = Units {
+        metres_per_unit: 0.001,
+    };
 
     /// Builds a unit from a positive finite scale (metres per file unit).
     pub fn from_scale(metres_per_unit: f64) -> Option<Units> {
@@ -125,8 +131,15 @@ mod tests {
         // Z-up "up" vector maps onto +Y.
         assert_eq!(UpAxis::Z.to_internal([0.0, 0.0, 1.0]), [0.0, 1.0, 0.0]);
         // Right-handedness kept: x cross y = z in both frames.
-        let (x, y) = (UpAxis::Z.to_internal([1.0, 0.0, 0.0]), UpAxis::Z.to_internal([0.0, 1.0, 0.0]));
-        let z = [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]];
+        let (x, y) = (
+            UpAxis::Z.to_internal([1.0, 0.0, 0.0]),
+            UpAxis::Z.to_internal([0.0, 1.0, 0.0]),
+        );
+        let z = [
+            x[1] * y[2] - x[2] * y[1],
+            x[2] * y[0] - x[0] * y[2],
+            x[0] * y[1] - x[1] * y[0],
+        ];
         assert_eq!(z, UpAxis::Z.to_internal([0.0, 0.0, 1.0]));
     }
 

@@ -1,6 +1,6 @@
 //! Yarn curves (`Yarns`) and time sequences of their vertex positions (`YarnFrames`).
 
-use super::{UpAxis, Units, Vec3};
+use super::{Units, UpAxis, Vec3};
 
 /// Why a set of yarns or frames is not well formed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -8,7 +8,11 @@ pub enum GeomError {
     #[error("curve {curve} has {points} point(s); a yarn needs at least 2")]
     TooFewPoints { curve: usize, points: usize },
     #[error("curve {curve}, point {point}: coordinate is not finite ({value:?})")]
-    NonFinitePoint { curve: usize, point: usize, value: Vec3 },
+    NonFinitePoint {
+        curve: usize,
+        point: usize,
+        value: Vec3,
+    },
     #[error("curve {curve}: radius {value} is not a positive finite number")]
     BadRadius { curve: usize, value: f64 },
     #[error("vertex {vertex}: radius {value} is not a positive finite number")]
@@ -30,7 +34,11 @@ pub struct Bounds {
 
 impl Bounds {
     pub fn size(&self) -> Vec3 {
-        [self.max[0] - self.min[0], self.max[1] - self.min[1], self.max[2] - self.min[2]]
+        [
+            self.max[0] - self.min[0],
+            self.max[1] - self.min[1],
+            self.max[2] - self.min[2],
+        ]
     }
     pub fn diagonal(&self) -> f64 {
         norm(self.size())
@@ -62,7 +70,10 @@ pub struct Yarns {
 impl Yarns {
     /// An empty collection.
     pub fn new() -> Yarns {
-        Yarns { offsets: vec![0], ..Default::default() }
+        Yarns {
+            offsets: vec![0],
+            ..Default::default()
+        }
     }
 
     /// Appends one curve with a per-curve radius (m).
@@ -129,7 +140,9 @@ impl Yarns {
 
     /// Length of curve `c` (m), including the closing segment of a loop.
     pub fn curve_length(&self, c: usize) -> f64 {
-        self.segments_of(c).map(|[a, b]| dist(self.points[a], self.points[b])).sum()
+        self.segments_of(c)
+            .map(|[a, b]| dist(self.points[a], self.points[b]))
+            .sum()
     }
 
     /// The segments of curve `c` as global vertex index pairs.
@@ -148,7 +161,9 @@ impl Yarns {
 
     /// Longest segment length (m), 0 for no segments.
     pub fn max_segment_length(&self) -> f64 {
-        self.segments().map(|[a, b]| dist(self.points[a], self.points[b])).fold(0.0, f64::max)
+        self.segments()
+            .map(|[a, b]| dist(self.points[a], self.points[b]))
+            .fold(0.0, f64::max)
     }
 
     /// Bounding box of all points, `None` when there are none.
@@ -169,7 +184,9 @@ impl Yarns {
             )));
         }
         if self.offsets[0] != 0 || self.offsets[n] != self.points.len() {
-            return Err(GeomError::Layout("offsets must start at 0 and end at the point count".into()));
+            return Err(GeomError::Layout(
+                "offsets must start at 0 and end at the point count".into(),
+            ));
         }
         for c in 0..n {
             let (a, b) = (self.offsets[c], self.offsets[c + 1]);
@@ -177,11 +194,18 @@ impl Yarns {
                 return Err(GeomError::Layout(format!("offsets decrease at curve {c}")));
             }
             if b - a < 2 {
-                return Err(GeomError::TooFewPoints { curve: c, points: b - a });
+                return Err(GeomError::TooFewPoints {
+                    curve: c,
+                    points: b - a,
+                });
             }
             for (i, p) in self.points[a..b].iter().enumerate() {
                 if !p.iter().all(|x| x.is_finite()) {
-                    return Err(GeomError::NonFinitePoint { curve: c, point: i, value: *p });
+                    return Err(GeomError::NonFinitePoint {
+                        curve: c,
+                        point: i,
+                        value: *p,
+                    });
                 }
             }
             let r = self.radius[c];
@@ -191,17 +215,35 @@ impl Yarns {
         }
         if let Some(vr) = &self.vertex_radius {
             if vr.len() != self.points.len() {
-                return Err(GeomError::Layout(format!("{} vertex radii for {} points", vr.len(), self.points.len())));
+                return Err(GeomError::Layout(format!(
+                    "{} vertex radii for {} points",
+                    vr.len(),
+                    self.points.len()
+                )));
             }
-            if let Some((v, &r)) = vr.iter().enumerate().find(|(_, r)| !(r.is_finite() && **r > 0.0)) {
-                return Err(GeomError::BadVertexRadius { vertex: v, value: r });
+            if let Some((v, &r)) = vr
+                .iter()
+                .enumerate()
+                .find(|(_, r)| !(r.is_finite() && **r > 0.0))
+            {
+                return Err(GeomError::BadVertexRadius {
+                    vertex: v,
+                    value: r,
+                });
             }
         }
         if let Some(ld) = &self.linear_density {
             if ld.len() != n {
-                return Err(GeomError::Layout(format!("{} linear densities for {n} curves", ld.len())));
+                return Err(GeomError::Layout(format!(
+                    "{} linear densities for {n} curves",
+                    ld.len()
+                )));
             }
-            if let Some((c, &d)) = ld.iter().enumerate().find(|(_, d)| !(d.is_finite() && **d >= 0.0)) {
+            if let Some((c, &d)) = ld
+                .iter()
+                .enumerate()
+                .find(|(_, d)| !(d.is_finite() && **d >= 0.0))
+            {
                 return Err(GeomError::BadLinearDensity { curve: c, value: d });
             }
         }
@@ -247,9 +289,16 @@ impl Yarns {
     /// The same curves with other vertex positions (e.g. one frame of a sequence).
     pub fn with_points(&self, points: &[Vec3]) -> Result<Yarns, GeomError> {
         if points.len() != self.points.len() {
-            return Err(GeomError::Layout(format!("{} positions for {} yarn vertices", points.len(), self.points.len())));
+            return Err(GeomError::Layout(format!(
+                "{} positions for {} yarn vertices",
+                points.len(),
+                self.points.len()
+            )));
         }
-        Ok(Yarns { points: points.to_vec(), ..self.clone() })
+        Ok(Yarns {
+            points: points.to_vec(),
+            ..self.clone()
+        })
     }
 
     /// True when `other` has the same curve structure (counts, offsets, closed flags).
@@ -272,7 +321,10 @@ pub struct YarnFrames {
 
 impl YarnFrames {
     pub fn new(num_vertices: usize) -> YarnFrames {
-        YarnFrames { num_vertices, ..Default::default() }
+        YarnFrames {
+            num_vertices,
+            ..Default::default()
+        }
     }
 
     pub fn num_frames(&self) -> usize {
@@ -289,7 +341,10 @@ impl YarnFrames {
             });
         }
         if !time.is_finite() {
-            return Err(GeomError::Frame { frame, message: format!("time {time} is not finite") });
+            return Err(GeomError::Frame {
+                frame,
+                message: format!("time {time} is not finite"),
+            });
         }
         self.times.push(time);
         self.points.extend_from_slice(points);
@@ -313,10 +368,20 @@ impl YarnFrames {
         }
         for f in 0..self.num_frames() {
             if !self.times[f].is_finite() {
-                return Err(GeomError::Frame { frame: f, message: format!("time {} is not finite", self.times[f]) });
+                return Err(GeomError::Frame {
+                    frame: f,
+                    message: format!("time {} is not finite", self.times[f]),
+                });
             }
-            if let Some(v) = self.frame(f).iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-                return Err(GeomError::Frame { frame: f, message: format!("vertex {v} is not finite") });
+            if let Some(v) = self
+                .frame(f)
+                .iter()
+                .position(|p| !p.iter().all(|x| x.is_finite()))
+            {
+                return Err(GeomError::Frame {
+                    frame: f,
+                    message: format!("vertex {v} is not finite"),
+                });
             }
         }
         Ok(())
@@ -340,7 +405,8 @@ impl YarnFrames {
     }
 }
 
-pub(crate) fn dist(a: Vec3, b: Vec3) -> f64 {
+/// Euclidean distance between two points.
+pub fn dist(a: Vec3, b: Vec3) -> f64 {
     norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]])
 }
 
@@ -350,7 +416,10 @@ fn norm(v: Vec3) -> f64 {
 
 fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
     let first = *points.first()?;
-    let mut b = Bounds { min: first, max: first };
+    let mut b = Bounds {
+        min: first,
+        max: first,
+    };
     for p in points {
         for k in 0..3 {
             b.min[k] = b.min[k].min(p[k]);
@@ -366,7 +435,16 @@ mod tests {
 
     fn square(closed: bool) -> Yarns {
         let mut y = Yarns::new();
-        y.push_curve(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], closed, 0.1);
+        y.push_curve(
+            &[
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ],
+            closed,
+            0.1,
+        );
         y
     }
 
@@ -374,7 +452,10 @@ mod tests {
     fn lengths_and_segments() {
         assert_eq!(square(false).total_length(), 3.0);
         assert_eq!(square(true).total_length(), 4.0);
-        assert_eq!(square(true).segments().collect::<Vec<_>>(), vec![[0, 1], [1, 2], [2, 3], [3, 0]]);
+        assert_eq!(
+            square(true).segments().collect::<Vec<_>>(),
+            vec![[0, 1], [1, 2], [2, 3], [3, 0]]
+        );
         assert_eq!(square(false).num_segments(), 3);
     }
 
@@ -383,10 +464,23 @@ mod tests {
         let mut y = square(false);
         assert!(y.validate().is_ok());
         y.points[2][1] = f64::NAN;
-        assert!(matches!(y.validate(), Err(GeomError::NonFinitePoint { curve: 0, point: 2, .. })));
+        assert!(matches!(
+            y.validate(),
+            Err(GeomError::NonFinitePoint {
+                curve: 0,
+                point: 2,
+                ..
+            })
+        ));
         let mut y = Yarns::new();
         y.push_curve(&[[0.0; 3]], false, 0.1);
-        assert_eq!(y.validate(), Err(GeomError::TooFewPoints { curve: 0, points: 1 }));
+        assert_eq!(
+            y.validate(),
+            Err(GeomError::TooFewPoints {
+                curve: 0,
+                points: 1
+            })
+        );
         let mut y = square(true);
         y.radius[0] = 0.0;
         assert!(matches!(y.validate(), Err(GeomError::BadRadius { .. })));

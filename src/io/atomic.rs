@@ -9,7 +9,10 @@ use std::path::{Path, PathBuf};
 use super::IoError;
 
 fn write_err(path: &Path, source: std::io::Error) -> IoError {
-    IoError::Write { path: path.to_path_buf(), source }
+    IoError::Write {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 fn dir_of(path: &Path) -> PathBuf {
@@ -32,10 +35,19 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 /// same directory), then fsyncs and renames it onto `path`. On failure the
 /// temporary file is removed and `path` is untouched. Used directly by
 /// writers that need a path of their own (libhdf5).
-pub fn write_with(path: &Path, produce: impl FnOnce(&Path) -> std::io::Result<()>) -> Result<(), IoError> {
+pub fn write_with(
+    path: &Path,
+    produce: impl FnOnce(&Path) -> std::io::Result<()>,
+) -> Result<(), IoError> {
     let dir = dir_of(path);
     let name = path.file_name().ok_or_else(|| {
-        write_err(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, "output path has no file name"))
+        write_err(
+            path,
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "output path has no file name",
+            ),
+        )
     })?;
     // tempfile picks a unique name and removes it if we bail out early.
     let tmp = tempfile::Builder::new()
@@ -45,7 +57,9 @@ pub fn write_with(path: &Path, produce: impl FnOnce(&Path) -> std::io::Result<()
         .map_err(|e| write_err(path, e))?;
     let tmp_path = tmp.path().to_path_buf();
     produce(&tmp_path).map_err(|e| write_err(path, e))?;
-    File::open(&tmp_path).and_then(|f| f.sync_all()).map_err(|e| write_err(path, e))?;
+    File::open(&tmp_path)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| write_err(path, e))?;
     tmp.persist(path).map_err(|e| write_err(path, e.error))?;
     // fsync the directory so the rename itself is durable.
     if let Ok(d) = File::open(&dir) {
@@ -65,7 +79,10 @@ mod tests {
         write_bytes(&p, b"first").unwrap();
         write_bytes(&p, b"second").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"second");
-        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names.len(), 1, "temporary files left behind: {names:?}");
     }
 

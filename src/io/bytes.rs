@@ -34,7 +34,10 @@ impl<'a> ByteReader<'a> {
         if n > self.remaining() {
             return Err(FormatError::at_byte(
                 self.pos as u64,
-                format!("file ends early: {what} needs {n} bytes, only {} left", self.remaining()),
+                format!(
+                    "file ends early: {what} needs {n} bytes, only {} left",
+                    self.remaining()
+                ),
             ));
         }
         let s = &self.data[self.pos..self.pos + n];
@@ -82,7 +85,10 @@ pub fn text_lines(data: &[u8]) -> impl Iterator<Item = Result<(usize, &str), For
             Ok(s) => Ok((i + 1, s)),
             Err(e) => Err(FormatError::at_line(
                 i + 1,
-                format!("not UTF-8 text (invalid byte at column {})", e.valid_up_to() + 1),
+                format!(
+                    "not UTF-8 text (invalid byte at column {})",
+                    e.valid_up_to() + 1
+                ),
             )),
         })
     })
@@ -92,8 +98,14 @@ pub fn text_lines(data: &[u8]) -> impl Iterator<Item = Result<(usize, &str), For
 pub fn parse_finite(token: &str, line: usize, what: &str) -> Result<f64, FormatError> {
     match token.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
-        Ok(v) => Err(FormatError::at_line(line, format!("{what} is not finite ({v})"))),
-        Err(_) => Err(FormatError::at_line(line, format!("{what}: '{token}' is not a number"))),
+        Ok(v) => Err(FormatError::at_line(
+            line,
+            format!("{what} is not finite ({v})"),
+        )),
+        Err(_) => Err(FormatError::at_line(
+            line,
+            format!("{what}: '{token}' is not a number"),
+        )),
     }
 }
 
@@ -111,7 +123,9 @@ mod tests {
 
     #[test]
     fn lines_numbered_and_utf8_checked() {
-        let lines: Vec<_> = text_lines(b"a\r\nb\n\nc").collect::<Result<_, _>>().unwrap();
+        let lines: Vec<_> = text_lines(b"a\r\nb\n\nc")
+            .collect::<Result<_, _>>()
+            .unwrap();
         assert_eq!(lines, vec![(1, "a"), (2, "b"), (3, ""), (4, "c")]);
         let lines: Vec<_> = text_lines(b"a\n").collect::<Result<_, _>>().unwrap();
         assert_eq!(lines, vec![(1, "a")]);

@@ -50,7 +50,10 @@ impl fmt::Display for FormatError {
 
 impl FormatError {
     pub fn new(location: Location, message: impl Into<String>) -> FormatError {
-        FormatError { location, message: message.into() }
+        FormatError {
+            location,
+            message: message.into(),
+        }
     }
     pub fn at_byte(offset: u64, message: impl Into<String>) -> FormatError {
         FormatError::new(Location::Byte(offset), message)
@@ -127,15 +130,20 @@ pub enum IoError {
 impl IoError {
     pub fn class(&self) -> ErrorClass {
         match self {
-            IoError::Format { .. } | IoError::UnknownFormat { .. } | IoError::Unsupported { .. } | IoError::Invalid { .. } => {
-                ErrorClass::BadInput
-            }
+            IoError::Format { .. }
+            | IoError::UnknownFormat { .. }
+            | IoError::Unsupported { .. }
+            | IoError::Invalid { .. } => ErrorClass::BadInput,
             IoError::Read { source, .. } => match source.kind() {
-                std::io::ErrorKind::NotFound | std::io::ErrorKind::PermissionDenied => ErrorClass::MissingInput,
-                std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut => {
-                    ErrorClass::Transient
+                std::io::ErrorKind::NotFound | std::io::ErrorKind::PermissionDenied => {
+                    ErrorClass::MissingInput
                 }
-                std::io::ErrorKind::InvalidData | std::io::ErrorKind::UnexpectedEof => ErrorClass::BadInput,
+                std::io::ErrorKind::Interrupted
+                | std::io::ErrorKind::WouldBlock
+                | std::io::ErrorKind::TimedOut => ErrorClass::Transient,
+                std::io::ErrorKind::InvalidData | std::io::ErrorKind::UnexpectedEof => {
+                    ErrorClass::BadInput
+                }
                 _ => ErrorClass::MissingInput,
             },
             IoError::Write { .. } => ErrorClass::Output,

@@ -2,7 +2,11 @@
 use super::{Decoded, FormatError, ReadOptions, Resources};
 use crate::geom::Yarns;
 
-pub fn decode(_data: &[u8], _opts: &ReadOptions, _res: &dyn Resources) -> Result<Decoded, FormatError> {
+pub fn decode(
+    _data: &[u8],
+    _opts: &ReadOptions,
+    _res: &dyn Resources,
+) -> Result<Decoded, FormatError> {
     Err(FormatError::whole_file("gltf: not implemented yet"))
 }
 

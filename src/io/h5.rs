@@ -9,9 +9,19 @@ pub fn decode(_data: &[u8], _opts: &ReadOptions) -> Result<Decoded, FormatError>
 }
 
 pub fn read_file(path: &Path, _opts: &ReadOptions) -> Result<Decoded, IoError> {
-    Err(IoError::Unsupported { path: path.to_path_buf(), message: "hdf5: not implemented yet".into() })
+    Err(IoError::Unsupported {
+        path: path.to_path_buf(),
+        message: "hdf5: not implemented yet".into(),
+    })
 }
 
-pub fn write_file(path: &Path, _yarns: &Yarns, _frames: Option<&YarnFrames>) -> Result<(), IoError> {
-    Err(IoError::Unsupported { path: path.to_path_buf(), message: "hdf5: not implemented yet".into() })
+pub fn write_file(
+    path: &Path,
+    _yarns: &Yarns,
+    _frames: Option<&YarnFrames>,
+) -> Result<(), IoError> {
+    Err(IoError::Unsupported {
+        path: path.to_path_buf(),
+        message: "hdf5: not implemented yet".into(),
+    })
 }

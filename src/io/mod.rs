@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::{ErrorClass, FormatError, IoError, Location};
 
-use crate::geom::{GeomError, UpAxis, Units, YarnFrames, Yarns};
+use crate::geom::{GeomError, Units, UpAxis, YarnFrames, Yarns};
 
 /// Default yarn radius (m) when a file carries none: 1 mm, the HYLC papers' yarn radius.
 pub const DEFAULT_RADIUS_M: f64 = 1.0e-3;
@@ -54,8 +54,16 @@ pub enum Format {
 }
 
 impl Format {
-    pub const ALL: [Format; 8] =
-        [Format::Bcc, Format::Obj, Format::Poly, Format::Pyp, Format::Gltf, Format::Glb, Format::Ply, Format::Hdf5];
+    pub const ALL: [Format; 8] = [
+        Format::Bcc,
+        Format::Obj,
+        Format::Poly,
+        Format::Pyp,
+        Format::Gltf,
+        Format::Glb,
+        Format::Ply,
+        Format::Hdf5,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -101,7 +109,9 @@ impl Format {
     /// The format of a path, from its extension (case-insensitive).
     pub fn from_path(path: &Path) -> Option<Format> {
         let ext = path.extension()?.to_str()?.to_ascii_lowercase();
-        Format::ALL.into_iter().find(|f| f.extensions().contains(&ext.as_str()))
+        Format::ALL
+            .into_iter()
+            .find(|f| f.extensions().contains(&ext.as_str()))
     }
 }
 
@@ -166,7 +176,14 @@ pub struct Decoded {
 impl Decoded {
     /// A decoded set of curves with nothing declared.
     pub fn plain(yarns: Yarns) -> Decoded {
-        Decoded { yarns, frames: None, units: None, up_axis: None, radius_in_file: false, notes: Vec::new() }
+        Decoded {
+            yarns,
+            frames: None,
+            units: None,
+            up_axis: None,
+            radius_in_file: false,
+            notes: Vec::new(),
+        }
     }
 }
 
@@ -204,7 +221,9 @@ pub struct NoResources;
 
 impl Resources for NoResources {
     fn load(&self, uri: &str) -> Result<Vec<u8>, String> {
-        Err(format!("external resource '{uri}' cannot be loaded when parsing from bytes alone"))
+        Err(format!(
+            "external resource '{uri}' cannot be loaded when parsing from bytes alone"
+        ))
     }
 }
 
@@ -229,7 +248,9 @@ fn percent_decode(s: &str) -> String {
     let mut i = 0;
     while i < b.len() {
         if b[i] == b'%' && i + 2 < b.len() {
-            let hex = std::str::from_utf8(&b[i + 1..i + 3]).ok().and_then(|h| u8::from_str_radix(h, 16).ok());
+            let hex = std::str::from_utf8(&b[i + 1..i + 3])
+                .ok()
+                .and_then(|h| u8::from_str_radix(h, 16).ok());
             if let Some(v) = hex {
                 out.push(v);
                 i += 3;
@@ -243,7 +264,12 @@ fn percent_decode(s: &str) -> String {
 }
 
 /// Decodes the bytes of one file of `format` (no frame sequences, no unit conversion).
-pub fn decode(format: Format, data: &[u8], opts: &ReadOptions, res: &dyn Resources) -> Result<Decoded, FormatError> {
+pub fn decode(
+    format: Format,
+    data: &[u8],
+    opts: &ReadOptions,
+    res: &dyn Resources,
+) -> Result<Decoded, FormatError> {
     match format {
         Format::Bcc => bcc::decode(data, opts),
         Format::Obj => obj::decode(data, opts),
@@ -286,14 +312,25 @@ pub fn finish(format: Format, mut d: Decoded, opts: &ReadOptions) -> Result<Yarn
     if let Some(f) = &d.frames {
         f.validate()?;
     }
-    Ok(YarnData { format, yarns: d.yarns, frames: d.frames, units, up_axis: up, radius, notes: d.notes })
+    Ok(YarnData {
+        format,
+        yarns: d.yarns,
+        frames: d.frames,
+        units,
+        up_axis: up,
+        radius,
+        notes: d.notes,
+    })
 }
 
 /// The format of `path`, or an error naming it.
 pub fn format_of(path: &Path) -> Result<Format, IoError> {
     Format::from_path(path).ok_or_else(|| IoError::UnknownFormat {
         path: path.to_path_buf(),
-        ext: path.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default(),
+        ext: path
+            .extension()
+            .map(|e| e.to_string_lossy().into_owned())
+            .unwrap_or_default(),
     })
 }
 
@@ -312,12 +349,22 @@ pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError>
     let decoded = if format == Format::Hdf5 {
         h5::read_file(path, opts)?
     } else {
-        let data = std::fs::read(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+        let data = std::fs::read(path).map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        decode(format, &data, opts, &DirResources(dir))
-            .map_err(|source| IoError::Format { path: path.to_path_buf(), format, source })?
+        decode(format, &data, opts, &DirResources(dir)).map_err(|source| IoError::Format {
+            path: path.to_path_buf(),
+            format,
+            source,
+        })?
     };
-    finish(format, decoded, opts).map_err(|source| IoError::Invalid { path: path.to_path_buf(), format, source })
+    finish(format, decoded, opts).map_err(|source| IoError::Invalid {
+        path: path.to_path_buf(),
+        format,
+        source,
+    })
 }
 
 /// Options for writing yarn files.
@@ -335,7 +382,11 @@ pub struct WriteOptions {
 
 impl Default for WriteOptions {
     fn default() -> Self {
-        WriteOptions { units: Units::METRES, up_axis: UpAxis::Y, first_frame: 1 }
+        WriteOptions {
+            units: Units::METRES,
+            up_axis: UpAxis::Y,
+            first_frame: 1,
+        }
     }
 }
 
@@ -361,9 +412,9 @@ pub fn encode(format: Format, yarns: &Yarns, opts: &WriteOptions) -> Result<Vec<
         Format::Ply => ply::encode(&y),
         Format::Gltf => gltf::encode(&y, false),
         Format::Glb => gltf::encode(&y, true),
-        Format::Poly | Format::Pyp | Format::Hdf5 => {
-            Err(FormatError::whole_file(format!("knitvox does not write {format} as bytes")))
-        }
+        Format::Poly | Format::Pyp | Format::Hdf5 => Err(FormatError::whole_file(format!(
+            "knitvox does not write {format} as bytes"
+        ))),
     }
 }
 
@@ -401,7 +452,11 @@ pub fn write_path(
     if sequence::is_pattern(path) {
         return sequence::write_sequence(path, format, yarns, frames, opts);
     }
-    let bytes = encode(format, yarns, opts).map_err(|source| IoError::Format { path: path.to_path_buf(), format, source })?;
+    let bytes = encode(format, yarns, opts).map_err(|source| IoError::Format {
+        path: path.to_path_buf(),
+        format,
+        source,
+    })?;
     atomic::write_bytes(path, &bytes)?;
     Ok(vec![path.to_path_buf()])
 }
@@ -414,7 +469,10 @@ mod tests {
     fn formats_from_extensions() {
         assert_eq!(Format::from_path(Path::new("a/b.BCC")), Some(Format::Bcc));
         assert_eq!(Format::from_path(Path::new("x.hdf5")), Some(Format::Hdf5));
-        assert_eq!(Format::from_path(Path::new("x.0001.glb")), Some(Format::Glb));
+        assert_eq!(
+            Format::from_path(Path::new("x.0001.glb")),
+            Some(Format::Glb)
+        );
         assert_eq!(Format::from_path(Path::new("x.txt")), None);
         assert_eq!(Format::from_path(Path::new("noext")), None);
     }

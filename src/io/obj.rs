@@ -1,6 +1,6 @@
 //! Wavefront OBJ `v` / `l` polylines. (stub)
 use super::{Decoded, FormatError, ReadOptions};
-use crate::geom::{UpAxis, Units, Yarns};
+use crate::geom::{Units, UpAxis, Yarns};
 
 pub fn decode(_data: &[u8], _opts: &ReadOptions) -> Result<Decoded, FormatError> {
     Err(FormatError::whole_file("obj: not implemented yet"))

@@ -34,13 +34,20 @@ impl Pattern {
 
     /// The path of frame `n`.
     pub fn path_of(&self, n: i64) -> PathBuf {
-        let num = if n < 0 { format!("-{:0w$}", -n, w = self.width) } else { format!("{:0w$}", n, w = self.width) };
-        self.dir.join(format!("{}{}{}", self.prefix, num, self.suffix))
+        let num = if n < 0 {
+            format!("-{:0w$}", -n, w = self.width)
+        } else {
+            format!("{:0w$}", n, w = self.width)
+        };
+        self.dir
+            .join(format!("{}{}{}", self.prefix, num, self.suffix))
     }
 
     /// The frame number of a file name matching this pattern.
     pub fn frame_of(&self, name: &str) -> Option<i64> {
-        let digits = name.strip_prefix(&self.prefix)?.strip_suffix(&self.suffix)?;
+        let digits = name
+            .strip_prefix(&self.prefix)?
+            .strip_suffix(&self.suffix)?;
         let body = digits.strip_prefix('-').unwrap_or(digits);
         if body.len() < self.width || !body.bytes().all(|b| b.is_ascii_digit()) {
             return None;
@@ -50,7 +57,11 @@ impl Pattern {
 
     /// Existing frames on disk, sorted by frame number.
     pub fn existing_frames(&self) -> std::io::Result<Vec<(i64, PathBuf)>> {
-        let dir = if self.dir.as_os_str().is_empty() { Path::new(".") } else { self.dir.as_path() };
+        let dir = if self.dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            self.dir.as_path()
+        };
         let mut frames: Vec<(i64, PathBuf)> = std::fs::read_dir(dir)?
             .filter_map(|e| e.ok())
             .filter_map(|e| {
@@ -65,7 +76,9 @@ impl Pattern {
 
 /// Whether `path` names a frame sequence (its file name holds a `#`).
 pub fn is_pattern(path: &Path) -> bool {
-    path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.contains('#'))
+    path.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.contains('#'))
 }
 
 /// Reads every existing frame of a sequence. The first frame's curves become
@@ -73,17 +86,27 @@ pub fn is_pattern(path: &Path) -> bool {
 /// time = frame number / [`SEQUENCE_FPS`]. All frames must share one curve structure.
 pub fn read_sequence(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError> {
     let pattern = Pattern::parse(path).expect("is_pattern checked");
-    let frames = pattern.existing_frames().map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+    let frames = pattern.existing_frames().map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     let Some((_, first_path)) = frames.first() else {
         return Err(IoError::Read {
             path: path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::NotFound, "no frame file matches this sequence pattern"),
+            source: std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "no frame file matches this sequence pattern",
+            ),
         });
     };
     let mut data = read_single(first_path, opts)?;
     let mut seq = YarnFrames::new(data.yarns.num_points());
     for (n, p) in &frames {
-        let frame = if p == first_path { data.clone() } else { read_single(p, opts)? };
+        let frame = if p == first_path {
+            data.clone()
+        } else {
+            read_single(p, opts)?
+        };
         if !frame.yarns.same_topology(&data.yarns) {
             return Err(IoError::Invalid {
                 path: p.clone(),
@@ -99,7 +122,11 @@ pub fn read_sequence(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoErro
             });
         }
         seq.push_frame(*n as f64 / SEQUENCE_FPS, &frame.yarns.points)
-            .map_err(|source| IoError::Invalid { path: p.clone(), format: frame.format, source })?;
+            .map_err(|source| IoError::Invalid {
+                path: p.clone(),
+                format: frame.format,
+                source,
+            })?;
     }
     data.frames = Some(seq);
     Ok(data)
@@ -124,12 +151,20 @@ pub fn write_sequence(
             Some(f) => {
                 posed = yarns
                     .with_points(f.frame(i))
-                    .map_err(|source| IoError::Invalid { path: out.clone(), format, source })?;
+                    .map_err(|source| IoError::Invalid {
+                        path: out.clone(),
+                        format,
+                        source,
+                    })?;
                 &posed
             }
             None => yarns,
         };
-        let bytes = encode(format, y, opts).map_err(|source| IoError::Format { path: out.clone(), format, source })?;
+        let bytes = encode(format, y, opts).map_err(|source| IoError::Format {
+            path: out.clone(),
+            format,
+            source,
+        })?;
         atomic::write_bytes(&out, &bytes)?;
         written.push(out);
     }
@@ -143,7 +178,10 @@ mod tests {
     #[test]
     fn pattern_parse_and_format() {
         let p = Pattern::parse(Path::new("out/shot.####.ply")).unwrap();
-        assert_eq!((p.prefix.as_str(), p.width, p.suffix.as_str()), ("shot.", 4, ".ply"));
+        assert_eq!(
+            (p.prefix.as_str(), p.width, p.suffix.as_str()),
+            ("shot.", 4, ".ply")
+        );
         assert_eq!(p.path_of(7), PathBuf::from("out/shot.0007.ply"));
         assert_eq!(p.path_of(12345), PathBuf::from("out/shot.12345.ply"));
         assert_eq!(p.frame_of("shot.0042.ply"), Some(42));

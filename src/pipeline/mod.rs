@@ -1,1 +1,5 @@
-//! Filled by a later issue (see DESIGN.md, method map).
+//! Orchestration: stages that combine io and the solvers. Later issues add the
+//! job manifest, stage caching and resume.
+
+pub mod demo;
+pub mod inspect;

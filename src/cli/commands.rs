@@ -1,0 +1,105 @@
+//! `inspect`, `convert` and `demo`.
+
+use anyhow::Context;
+
+use super::{exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
+use crate::io;
+use crate::pipeline::{demo, inspect::summarize};
+
+pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
+    let opts = a.read.options();
+    let mut code = ExitCode::Success;
+    let mut json = Vec::new();
+    for path in &a.files {
+        match io::read_path(path, &opts) {
+            Ok(d) => {
+                let r = summarize(&path.display().to_string(), &d);
+                if a.json {
+                    json.push(serde_json::to_value(&r)?);
+                } else {
+                    print!("{}", r.to_text());
+                }
+            }
+            Err(e) => {
+                let e = anyhow::Error::new(e);
+                if code == ExitCode::Success {
+                    code = exit_code_for(&e);
+                }
+                eprintln!("error: {e:#}");
+                if a.json {
+                    json.push(serde_json::json!({ "path": path.display().to_string(), "error": format!("{e:#}") }));
+                }
+            }
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    }
+    Ok(code)
+}
+
+pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
+    let d = io::read_path(&a.input, &a.read.options())?;
+    let out_format = io::format_of(&a.output)?;
+    let frames = d.frames.as_ref();
+    if let Some(f) = frames {
+        if !out_format.holds_frames() && !io::sequence::is_pattern(&a.output) {
+            eprintln!(
+                "warning: {} holds {} frames but {} keeps only the first frame's curves; \
+                 write name.####.{} or .h5 to keep every frame",
+                a.input.display(),
+                f.num_frames(),
+                a.output.display(),
+                out_format.extensions()[0]
+            );
+        }
+    }
+    let written = io::write_path(&a.output, &d.yarns, frames, &a.write_options())
+        .with_context(|| format!("converting {} to {}", a.input.display(), a.output.display()))?;
+    if a.json {
+        let files: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        println!(
+            "{}",
+            serde_json::json!({
+                "input": a.input.display().to_string(),
+                "curves": d.yarns.num_curves(),
+                "points": d.yarns.num_points(),
+                "frames": frames.map_or(0, |f| f.num_frames()),
+                "written": files,
+            })
+        );
+    } else {
+        eprintln!(
+            "wrote {} file(s): {} curves, {} points{}",
+            written.len(),
+            d.yarns.num_curves(),
+            d.yarns.num_points(),
+            frames.map_or(String::new(), |f| format!(", {} frames", f.num_frames()))
+        );
+        for p in &written {
+            println!("{}", p.display());
+        }
+    }
+    Ok(ExitCode::Success)
+}
+
+pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
+    let r = demo::run(&a.out)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "knitvox demo: generated example input {}",
+            r.input.display()
+        );
+        print!("{}", r.input_report.to_text());
+        println!(
+            "converted to every output format ({} frames for the sequences):",
+            r.frames
+        );
+        for p in &r.outputs {
+            println!("  {}", p.display());
+        }
+    }
+    Ok(ExitCode::Success)
+}

@@ -1,0 +1,48 @@
+//! Documented process exit codes (sysexits.h values, which farm schedulers
+//! and shell scripts already understand).
+
+use crate::io::{ErrorClass, IoError};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum ExitCode {
+    /// Everything worked.
+    Success = 0,
+    /// Usage error: bad flags or arguments (clap's own code).
+    Usage = 2,
+    /// Bad input data: malformed, inconsistent or unsupported file. Do not retry.
+    BadInput = 65,
+    /// An input file is missing or unreadable.
+    MissingInput = 66,
+    /// Internal error (a bug): please report it.
+    Internal = 70,
+    /// Output failure: could not write (disk full, permissions, missing folder).
+    Output = 74,
+    /// Transient: e.g. an input is still being written by another process. Retry later.
+    Transient = 75,
+}
+
+impl ExitCode {
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+/// The exit code for an error: looks through the error chain for a library
+/// error that knows its class.
+pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
+    for cause in err.chain() {
+        if let Some(e) = cause.downcast_ref::<IoError>() {
+            return match e.class() {
+                ErrorClass::BadInput => ExitCode::BadInput,
+                ErrorClass::MissingInput => ExitCode::MissingInput,
+                ErrorClass::Output => ExitCode::Output,
+                ErrorClass::Transient => ExitCode::Transient,
+            };
+        }
+        if cause.downcast_ref::<crate::geom::GeomError>().is_some() {
+            return ExitCode::BadInput;
+        }
+    }
+    ExitCode::Internal
+}
