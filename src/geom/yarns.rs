@@ -5,8 +5,8 @@ use super::{Units, UpAxis, Vec3};
 /// Why a set of yarns or frames is not well formed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GeomError {
-    #[error("curve {curve} has {points} point(s); a yarn needs at least 2")]
-    TooFewPoints { curve: usize, points: usize },
+    #[error("curve {curve} has {points} point(s); an open yarn needs at least 2, a closed one 3")]
+    TooFewPoints { curve: usize, points: usize, closed: bool },
     #[error("curve {curve}, point {point}: coordinate is not finite ({value:?})")]
     NonFinitePoint {
         curve: usize,
@@ -193,10 +193,11 @@ impl Yarns {
             if b < a {
                 return Err(GeomError::Layout(format!("offsets decrease at curve {c}")));
             }
-            if b - a < 2 {
+            if b - a < 2 || (self.closed[c] && b - a < 3) {
                 return Err(GeomError::TooFewPoints {
                     curve: c,
                     points: b - a,
+                    closed: self.closed[c],
                 });
             }
             for (i, p) in self.points[a..b].iter().enumerate() {
@@ -478,9 +479,13 @@ mod tests {
             y.validate(),
             Err(GeomError::TooFewPoints {
                 curve: 0,
-                points: 1
+                points: 1,
+                closed: false
             })
         );
+        let mut y = Yarns::new();
+        y.push_curve(&[[0.0; 3], [1.0; 3]], true, 0.1);
+        assert!(y.validate().is_err(), "a closed curve needs 3 points");
         let mut y = square(true);
         y.radius[0] = 0.0;
         assert!(matches!(y.validate(), Err(GeomError::BadRadius { .. })));

@@ -195,10 +195,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         let n = r.i32_le(&format!("the point count of curve {c}"))?;
         let closed = n < 0;
         let count = (n as i64).unsigned_abs();
-        if count < 2 {
+        if count < 2 || (closed && count < 3) {
             return Err(FormatError::at_byte(
                 at,
-                format!("curve {c} has {count} control point(s); a yarn needs at least 2"),
+                format!("curve {c} has {count} control point(s); an open yarn needs at least 2, a closed one 3"),
             ));
         }
         total += count;
