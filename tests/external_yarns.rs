@@ -18,6 +18,6 @@ fn every_external_yarn_file_reads() {
         d.yarns.validate().unwrap();
         read += 1;
     }
-    // 10 BCC, 6 PYP and 1 OBJ model.
-    assert_eq!(read, 17, "expected 17 yarn models");
+    // 8 BCC, 6 PYP and 1 OBJ model.
+    assert_eq!(read, 15, "expected 15 yarn models");
 }
