@@ -37,7 +37,7 @@ use std::fmt::Write as _;
 
 use super::bytes::{parse_finite, text_lines};
 use super::{Decoded, FormatError, ReadOptions};
-use crate::geom::{UpAxis, Units, Vec3, Yarns};
+use crate::geom::{Units, UpAxis, Vec3, Yarns};
 
 /// How a line element (OBJ `l`, `.poly` polygon) takes part in building curves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -65,10 +65,17 @@ const NONE: usize = usize::MAX;
 /// become one curve each, segments are chained through shared vertices.
 /// Curves come out in the order of their first element in the file. Every
 /// index must already be `< points.len()`.
-pub(crate) fn assemble(points: &[Vec3], indices: &[usize], pieces: &[Piece], radius: f64) -> Result<Yarns, FormatError> {
+pub(crate) fn assemble(
+    points: &[Vec3],
+    indices: &[usize],
+    pieces: &[Piece],
+    radius: f64,
+) -> Result<Yarns, FormatError> {
     let mut yarns = Yarns::new();
     // Segment graph: for each vertex, the (at most two) segments ending there.
-    let seg_ids: Vec<usize> = (0..pieces.len()).filter(|&p| pieces[p].kind == PieceKind::Segment).collect();
+    let seg_ids: Vec<usize> = (0..pieces.len())
+        .filter(|&p| pieces[p].kind == PieceKind::Segment)
+        .collect();
     let mut adj: Vec<[usize; 2]> = Vec::new();
     if !seg_ids.is_empty() {
         adj = vec![[NONE; 2]; points.len()];
@@ -123,7 +130,10 @@ pub(crate) fn assemble(points: &[Vec3], indices: &[usize], pieces: &[Piece], rad
                 if buf.len() < 2 {
                     return Err(FormatError::at_line(
                         piece.line,
-                        format!("a curve needs at least 2 different vertices, this one has {}", buf.len()),
+                        format!(
+                            "a curve needs at least 2 different vertices, this one has {}",
+                            buf.len()
+                        ),
                     ));
                 }
                 yarns.push_curve(&buf, piece.kind == PieceKind::Closed, radius);
@@ -145,7 +155,10 @@ pub(crate) fn assemble(points: &[Vec3], indices: &[usize], pieces: &[Piece], rad
                     seg = t;
                     steps += 1;
                     if steps > seg_ids.len() {
-                        return Err(FormatError::at_line(piece.line, "internal error: segment chain does not end"));
+                        return Err(FormatError::at_line(
+                            piece.line,
+                            "internal error: segment chain does not end",
+                        ));
                     }
                 }
                 let (start_v, start_seg) = if closed { (a, p) } else { (v, seg) };
@@ -227,20 +240,26 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             "v" => {
                 let mut p = [0.0; 3];
                 for (k, name) in ["x", "y", "z"].iter().enumerate() {
-                    let t = tok
-                        .next()
-                        .ok_or_else(|| FormatError::at_line(ln, format!("vertex has no {name} coordinate")))?;
+                    let t = tok.next().ok_or_else(|| {
+                        FormatError::at_line(ln, format!("vertex has no {name} coordinate"))
+                    })?;
                     p[k] = parse_finite(t, ln, &format!("vertex {name}"))?;
                 }
                 for t in tok {
                     if t.parse::<f64>().is_err() {
-                        return Err(FormatError::at_line(ln, format!("vertex: '{t}' after the coordinates is not a number")));
+                        return Err(FormatError::at_line(
+                            ln,
+                            format!("vertex: '{t}' after the coordinates is not a number"),
+                        ));
                     }
                 }
                 if points.len() as u64 >= opts.max_points {
                     return Err(FormatError::at_line(
                         ln,
-                        format!("more than {} vertices (the reader's limit, max_points)", opts.max_points),
+                        format!(
+                            "more than {} vertices (the reader's limit, max_points)",
+                            opts.max_points
+                        ),
                     ));
                 }
                 points.push(p);
@@ -251,14 +270,20 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                 for t in tok {
                     let vpart = t.split('/').next().unwrap_or("");
                     let i: i64 = vpart.parse().map_err(|_| {
-                        FormatError::at_line(ln, format!("line element: '{t}' is not a vertex index"))
+                        FormatError::at_line(
+                            ln,
+                            format!("line element: '{t}' is not a vertex index"),
+                        )
                     })?;
                     let v = if i > 0 {
                         let v = (i - 1) as u64;
                         if v >= opts.max_points {
                             return Err(FormatError::at_line(
                                 ln,
-                                format!("vertex index {i} is beyond the reader's limit of {} vertices", opts.max_points),
+                                format!(
+                                    "vertex index {i} is beyond the reader's limit of {} vertices",
+                                    opts.max_points
+                                ),
                             ));
                         }
                         max_forward = max_forward.max(v as usize + 1);
@@ -276,12 +301,18 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                         }
                         points.len() - back as usize
                     } else {
-                        return Err(FormatError::at_line(ln, "vertex index 0 (OBJ indices start at 1)"));
+                        return Err(FormatError::at_line(
+                            ln,
+                            "vertex index 0 (OBJ indices start at 1)",
+                        ));
                     };
                     if indices.len() as u64 >= opts.max_points {
                         return Err(FormatError::at_line(
                             ln,
-                            format!("more than {} vertex references (the reader's limit, max_points)", opts.max_points),
+                            format!(
+                                "more than {} vertex references (the reader's limit, max_points)",
+                                opts.max_points
+                            ),
                         ));
                     }
                     indices.push(v);
@@ -305,14 +336,19 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                 if max_forward > points.len() {
                     forward_check.push((pieces.len(), max_forward));
                 }
-                pieces.push(Piece { start, end, line: ln, kind });
+                pieces.push(Piece {
+                    start,
+                    end,
+                    line: ln,
+                    kind,
+                });
             }
             "f" | "fo" => faces += 1,
             "p" => point_elems += 1,
-            "vn" | "vt" | "vp" | "g" | "o" | "s" | "usemtl" | "mtllib" | "lod" | "maplib" | "usemap" | "shadow_obj"
-            | "trace_obj" | "bevel" | "c_interp" | "d_interp" => {}
-            "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim" | "hole" | "scrv" | "sp"
-            | "end" | "con" | "ctech" | "stech" => freeform += 1,
+            "vn" | "vt" | "vp" | "g" | "o" | "s" | "usemtl" | "mtllib" | "lod" | "maplib"
+            | "usemap" | "shadow_obj" | "trace_obj" | "bevel" | "c_interp" | "d_interp" => {}
+            "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
+            | "hole" | "scrv" | "sp" | "end" | "con" | "ctech" | "stech" => freeform += 1,
             other => {
                 unknown_count += 1;
                 if unknown.len() < 5 && !unknown.iter().any(|u| u == other) {
@@ -326,7 +362,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         if max > points.len() {
             return Err(FormatError::at_line(
                 pieces[p].line,
-                format!("vertex index {max} is out of range: the file has {} vertices", points.len()),
+                format!(
+                    "vertex index {max} is out of range: the file has {} vertices",
+                    points.len()
+                ),
             ));
         }
     }
@@ -342,7 +381,11 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     if let Some(h) = header {
         notes.push(format!("header comment: {h}"));
     }
-    notes.push(format!("{} vertices, {} line elements", points.len(), pieces.len()));
+    notes.push(format!(
+        "{} vertices, {} line elements",
+        points.len(),
+        pieces.len()
+    ));
     let mut used = vec![false; points.len()];
     indices.iter().for_each(|&v| used[v] = true);
     let unused = used.iter().filter(|u| !**u).count();
@@ -350,7 +393,9 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         notes.push(format!("{unused} vertices are used by no line element"));
     }
     if faces > 0 {
-        notes.push(format!("ignored {faces} faces (knitvox reads only `l` polylines)"));
+        notes.push(format!(
+            "ignored {faces} faces (knitvox reads only `l` polylines)"
+        ));
     }
     if point_elems > 0 {
         notes.push(format!("ignored {point_elems} point (`p`) elements"));
@@ -359,7 +404,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         notes.push(format!("ignored {freeform} free-form curve/surface statements (knitvox reads only `l` polylines)"));
     }
     if unknown_count > 0 {
-        notes.push(format!("ignored {unknown_count} statements of unknown kinds ({})", unknown.join(", ")));
+        notes.push(format!(
+            "ignored {unknown_count} statements of unknown kinds ({})",
+            unknown.join(", ")
+        ));
     }
     let mut d = Decoded::plain(yarns);
     d.notes = notes;
@@ -369,25 +417,50 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
 /// Writes curves (already in the file's unit and axes) as OBJ `v` / `l`.
 pub fn encode(yarns: &Yarns, units: Units, up: UpAxis) -> Result<Vec<u8>, FormatError> {
     let n = yarns.num_curves();
-    if yarns.offsets.len() != n + 1 || yarns.offsets.first() != Some(&0) || yarns.offsets[n] != yarns.points.len() {
-        return Err(FormatError::whole_file("inconsistent curve offsets; nothing written"));
+    if yarns.offsets.len() != n + 1
+        || yarns.offsets.first() != Some(&0)
+        || yarns.offsets[n] != yarns.points.len()
+    {
+        return Err(FormatError::whole_file(
+            "inconsistent curve offsets; nothing written",
+        ));
     }
     for c in 0..n {
         let (a, b) = (yarns.offsets[c], yarns.offsets[c + 1]);
         if b < a + 2 {
-            return Err(FormatError::whole_file(format!("curve {c} has fewer than 2 points; nothing written")));
+            return Err(FormatError::whole_file(format!(
+                "curve {c} has fewer than 2 points; nothing written"
+            )));
         }
-        if let Some(i) = yarns.points[a..b].iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-            return Err(FormatError::whole_file(format!("curve {c}, point {i} is not finite; nothing written")));
+        if let Some(i) = yarns.points[a..b]
+            .iter()
+            .position(|p| !p.iter().all(|x| x.is_finite()))
+        {
+            return Err(FormatError::whole_file(format!(
+                "curve {c}, point {i} is not finite; nothing written"
+            )));
         }
     }
     let np = yarns.points.len();
     // ~3 x 22 characters per vertex line, ~8 per index.
     let mut s = String::with_capacity(256 + np * 80 + n * 16);
     let _ = writeln!(s, "# knitvox {}", env!("CARGO_PKG_VERSION"));
-    let _ = writeln!(s, "# yarn polylines: one `l` element per curve; a closed curve repeats its first vertex");
-    let _ = writeln!(s, "# units: {} ({} m per unit), up axis: +{}", units, units.metres_per_unit, up);
-    let _ = writeln!(s, "# {} curves ({} closed), {} vertices", n, yarns.num_closed(), np);
+    let _ = writeln!(
+        s,
+        "# yarn polylines: one `l` element per curve; a closed curve repeats its first vertex"
+    );
+    let _ = writeln!(
+        s,
+        "# units: {} ({} m per unit), up axis: +{}",
+        units, units.metres_per_unit, up
+    );
+    let _ = writeln!(
+        s,
+        "# {} curves ({} closed), {} vertices",
+        n,
+        yarns.num_closed(),
+        np
+    );
     s.push_str("o yarns\n");
     for p in &yarns.points {
         // `{:?}` on f64 prints the shortest text that parses back to the same value.
@@ -434,7 +507,9 @@ mod tests {
     }
 
     fn curves(y: &Yarns) -> Vec<(Vec<Vec3>, bool)> {
-        (0..y.num_curves()).map(|c| (y.curve(c).to_vec(), y.closed[c])).collect()
+        (0..y.num_curves())
+            .map(|c| (y.curve(c).to_vec(), y.closed[c]))
+            .collect()
     }
 
     const SQUARE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
@@ -444,7 +519,13 @@ mod tests {
         let d = dec(&format!("{SQUARE}l 1 2 3\nl 1 2 3 4 1\n")).unwrap();
         let c = curves(&d.yarns);
         assert_eq!(c.len(), 2);
-        assert_eq!(c[0], (vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]], false));
+        assert_eq!(
+            c[0],
+            (
+                vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]],
+                false
+            )
+        );
         assert_eq!(c[1].0.len(), 4);
         assert!(c[1].1);
         assert_eq!(d.units, None);
@@ -455,7 +536,10 @@ mod tests {
     #[test]
     fn negative_indices_and_slashes() {
         let d = dec("v 0 0 0\nv 1 0 0\nv 2 0 0\nl -3/1 -2/2 -1//7\n").unwrap();
-        assert_eq!(d.yarns.curve(0), &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]);
+        assert_eq!(
+            d.yarns.curve(0),
+            &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+        );
     }
 
     #[test]
@@ -465,15 +549,35 @@ mod tests {
             .unwrap();
         let c = curves(&d.yarns);
         assert_eq!(c.len(), 2);
-        assert_eq!(c[0], (vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]], false));
-        assert_eq!(c[1], (vec![[1.0, 5.0, 0.0], [1.0, 6.0, 0.0], [0.0, 5.0, 0.0]], true));
+        assert_eq!(
+            c[0],
+            (
+                vec![
+                    [0.0, 0.0, 0.0],
+                    [1.0, 0.0, 0.0],
+                    [2.0, 0.0, 0.0],
+                    [3.0, 0.0, 0.0]
+                ],
+                false
+            )
+        );
+        assert_eq!(
+            c[1],
+            (
+                vec![[1.0, 5.0, 0.0], [1.0, 6.0, 0.0], [0.0, 5.0, 0.0]],
+                true
+            )
+        );
     }
 
     #[test]
     fn chain_starts_from_its_far_end() {
         // 2-3 written first, 1-2 later: chain is 1 2 3 (keeps 2->3 direction).
         let d = dec("v 0 0 0\nv 1 0 0\nv 2 0 0\nl 2 3\nl 1 2\n").unwrap();
-        assert_eq!(d.yarns.curve(0), &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]);
+        assert_eq!(
+            d.yarns.curve(0),
+            &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+        );
     }
 
     #[test]
@@ -481,7 +585,11 @@ mod tests {
         let d = dec("# made by hand\nmtllib x.mtl\no a\ng b\nv 0 0 0 1\nv 1 0 0 # c\nvn 0 0 1\nvt 0 0\nv 2 0 0\nf 1 2 3\nl 1 \\\n 2 \\\n  3\nfoo bar\n")
             .unwrap();
         assert_eq!(d.yarns.num_points(), 3);
-        assert!(d.notes.iter().any(|n| n.contains("1 faces")), "{:?}", d.notes);
+        assert!(
+            d.notes.iter().any(|n| n.contains("1 faces")),
+            "{:?}",
+            d.notes
+        );
         assert!(d.notes.iter().any(|n| n.contains("foo")), "{:?}", d.notes);
         assert!(d.notes.iter().any(|n| n.contains("made by hand")));
     }
@@ -506,7 +614,11 @@ mod tests {
             ("v 0 inf 0\n", 1, "not finite"),
             ("v 0 a 0\n", 1, "not a number"),
             ("v 0 0 0\nv 1 0 0\nl 1 x\n", 3, "not a vertex index"),
-            ("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nl 1 2\nl 1 3\nl 1 4\n", 7, "branch"),
+            (
+                "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nl 1 2\nl 1 3\nl 1 4\n",
+                7,
+                "branch",
+            ),
         ];
         for (src, line, what) in cases {
             let e = dec(src).unwrap_err();
@@ -521,7 +633,10 @@ mod tests {
 
     #[test]
     fn max_points_guard() {
-        let opts = ReadOptions { max_points: 2, ..Default::default() };
+        let opts = ReadOptions {
+            max_points: 2,
+            ..Default::default()
+        };
         assert!(decode(b"v 0 0 0\nv 1 0 0\nl 1 2\n", &opts).is_ok());
         let e = decode(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nl 1 2\n", &opts).unwrap_err();
         assert_eq!(e.location, Location::Line(3));
@@ -533,7 +648,11 @@ mod tests {
     fn encode_format_and_round_trip() {
         let mut y = Yarns::new();
         y.push_curve(&[[0.1, -2.5e-7, 3.0], [1e20, 0.3, -0.0]], false, 1.0);
-        y.push_curve(&[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]], true, 1.0);
+        y.push_curve(
+            &[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]],
+            true,
+            1.0,
+        );
         let bytes = encode(&y, Units::CENTIMETRES, UpAxis::Z).unwrap();
         let text = String::from_utf8(bytes.clone()).unwrap();
         assert!(text.starts_with("# knitvox "));

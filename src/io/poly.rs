@@ -48,15 +48,30 @@ enum Section {
 }
 
 /// Splits `N: rest` and checks that the label is `expected` (1-based).
-fn label<'a>(text: &'a str, ln: usize, what: &str, expected: usize) -> Result<&'a str, FormatError> {
-    let (id, rest) = text
-        .split_once(':')
-        .ok_or_else(|| FormatError::at_line(ln, format!("{what} line must start with its number and a colon ('N: ...')")))?;
+fn label<'a>(
+    text: &'a str,
+    ln: usize,
+    what: &str,
+    expected: usize,
+) -> Result<&'a str, FormatError> {
+    let (id, rest) = text.split_once(':').ok_or_else(|| {
+        FormatError::at_line(
+            ln,
+            format!("{what} line must start with its number and a colon ('N: ...')"),
+        )
+    })?;
     let id = id.trim();
-    let n: u64 =
-        id.parse().map_err(|_| FormatError::at_line(ln, format!("{what} number '{id}' is not a positive integer")))?;
+    let n: u64 = id.parse().map_err(|_| {
+        FormatError::at_line(
+            ln,
+            format!("{what} number '{id}' is not a positive integer"),
+        )
+    })?;
     if n != expected as u64 {
-        return Err(FormatError::at_line(ln, format!("{what} number {n} out of sequence: expected {expected}")));
+        return Err(FormatError::at_line(
+            ln,
+            format!("{what} number {n} out of sequence: expected {expected}"),
+        ));
     }
     Ok(rest)
 }
@@ -64,7 +79,9 @@ fn label<'a>(text: &'a str, ln: usize, what: &str, expected: usize) -> Result<&'
 /// True for the start of trailing attribute text such as `c(0, 0, 0, 1)`:
 /// a name of letters followed by `(`.
 fn is_attribute(token: &str) -> bool {
-    token.split_once('(').is_some_and(|(name, _)| !name.is_empty() && name.chars().all(|c| c.is_ascii_alphabetic()))
+    token
+        .split_once('(')
+        .is_some_and(|(name, _)| !name.is_empty() && name.chars().all(|c| c.is_ascii_alphabetic()))
 }
 
 /// Decodes a `.poly` file (file units and axes; radii are placeholders).
@@ -102,7 +119,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                     Section::Points => "POLYS or END",
                     Section::Polys => "END",
                 };
-                return Err(FormatError::at_line(ln, format!("unexpected {text}: expected {expected}")));
+                return Err(FormatError::at_line(
+                    ln,
+                    format!("unexpected {text}: expected {expected}"),
+                ));
             }
             _ => {}
         }
@@ -118,8 +138,9 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                 let mut tok = rest.split_ascii_whitespace().peekable();
                 let mut p = [0.0; 3];
                 for (k, name) in ["x", "y", "z"].iter().enumerate() {
-                    let t =
-                        tok.next().ok_or_else(|| FormatError::at_line(ln, format!("point has no {name} coordinate")))?;
+                    let t = tok.next().ok_or_else(|| {
+                        FormatError::at_line(ln, format!("point has no {name} coordinate"))
+                    })?;
                     p[k] = parse_finite(t, ln, &format!("point {name}"))?;
                 }
                 if let Some(t) = tok.next_if(|t| !is_attribute(t)) {
@@ -127,14 +148,20 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                 }
                 if let Some(t) = tok.next() {
                     if !is_attribute(t) {
-                        return Err(FormatError::at_line(ln, format!("unexpected '{t}' after the point coordinates")));
+                        return Err(FormatError::at_line(
+                            ln,
+                            format!("unexpected '{t}' after the point coordinates"),
+                        ));
                     }
                     attributes = true;
                 }
                 if points.len() as u64 >= opts.max_points {
                     return Err(FormatError::at_line(
                         ln,
-                        format!("more than {} points (the reader's limit, max_points)", opts.max_points),
+                        format!(
+                            "more than {} points (the reader's limit, max_points)",
+                            opts.max_points
+                        ),
                     ));
                 }
                 points.push(p);
@@ -159,20 +186,29 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                     if i == 0 || i > points.len() as u64 {
                         return Err(FormatError::at_line(
                             ln,
-                            format!("point number {i} is out of range: the file has points 1 to {}", points.len()),
+                            format!(
+                                "point number {i} is out of range: the file has points 1 to {}",
+                                points.len()
+                            ),
                         ));
                     }
                     if indices.len() as u64 >= opts.max_points {
                         return Err(FormatError::at_line(
                             ln,
-                            format!("more than {} point references (the reader's limit, max_points)", opts.max_points),
+                            format!(
+                                "more than {} point references (the reader's limit, max_points)",
+                                opts.max_points
+                            ),
                         ));
                     }
                     indices.push(i as usize - 1);
                 }
                 if let Some(t) = tok.next() {
                     if !is_attribute(t) {
-                        return Err(FormatError::at_line(ln, format!("unexpected '{t}' after the polygon's points")));
+                        return Err(FormatError::at_line(
+                            ln,
+                            format!("unexpected '{t}' after the polygon's points"),
+                        ));
                     }
                     attributes = true;
                 }
@@ -193,7 +229,12 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                     }
                     PieceKind::Closed
                 };
-                pieces.push(Piece { start, end: indices.len(), line: ln, kind });
+                pieces.push(Piece {
+                    start,
+                    end: indices.len(),
+                    line: ln,
+                    kind,
+                });
             }
         }
     }
@@ -203,18 +244,29 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             Section::Points => "the POINTS section is not followed by POLYS and END",
             Section::Polys => "no END after the POLYS section",
         };
-        return Err(FormatError::whole_file(format!("{what} (empty or truncated file?)")));
+        return Err(FormatError::whole_file(format!(
+            "{what} (empty or truncated file?)"
+        )));
     }
     if pieces.is_empty() {
         return Err(FormatError::at_line(
             polys_line.max(1),
-            format!("no polygons: {} points but nothing connects them into yarns", points.len()),
+            format!(
+                "no polygons: {} points but nothing connects them into yarns",
+                points.len()
+            ),
         ));
     }
     let yarns = assemble(&points, &indices, &pieces, opts.radius)?;
     let mut d = Decoded::plain(yarns);
-    d.notes.push(format!("{} points, {} polygons", points.len(), pieces.len()));
-    d.notes.push("YarnBall reads .poly coordinates as centimetres (use --units cm for its files)".into());
+    d.notes.push(format!(
+        "{} points, {} polygons",
+        points.len(),
+        pieces.len()
+    ));
+    d.notes.push(
+        "YarnBall reads .poly coordinates as centimetres (use --units cm for its files)".into(),
+    );
     if attributes {
         d.notes.push("point/polygon attributes were ignored".into());
     }
@@ -234,20 +286,32 @@ mod tests {
 
     #[test]
     fn segments_open_and_closed_polygons() {
-        let d = dec(&format!("{PTS}POLYS\n1: 1 2\n2: 2 3\n3: 1 2 3 4\n4: 4 3 2 <\nEND\n")).unwrap();
+        let d = dec(&format!(
+            "{PTS}POLYS\n1: 1 2\n2: 2 3\n3: 1 2 3 4\n4: 4 3 2 <\nEND\n"
+        ))
+        .unwrap();
         let y = &d.yarns;
         assert_eq!(y.num_curves(), 3);
-        assert_eq!(y.curve(0), &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]);
+        assert_eq!(
+            y.curve(0),
+            &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]
+        );
         assert!(!y.closed[0]);
         assert_eq!(y.curve(1).len(), 4);
         assert!(y.closed[1]);
-        assert_eq!(y.curve(2), &[[0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]);
+        assert_eq!(
+            y.curve(2),
+            &[[0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
+        );
         assert!(!y.closed[2]);
     }
 
     #[test]
     fn segment_loop_is_closed() {
-        let d = dec(&format!("{PTS}POLYS\n1: 1 2 <\n2: 2 3 <\n3: 3 4 <\n4: 4 1 <\nEND\n")).unwrap();
+        let d = dec(&format!(
+            "{PTS}POLYS\n1: 1 2 <\n2: 2 3 <\n3: 3 4 <\n4: 4 1 <\nEND\n"
+        ))
+        .unwrap();
         assert_eq!(d.yarns.num_curves(), 1);
         assert!(d.yarns.closed[0]);
         assert_eq!(d.yarns.num_points(), 4);
@@ -261,11 +325,31 @@ mod tests {
             ("POINTS\n1: 0 nan 0\n", 2, "not finite"),
             ("POINTS\n1 0 0 0\n", 2, "colon"),
             ("POINTS\n1: 0 0 0 1 2\n", 2, "unexpected"),
-            ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 3\nEND\n", 5, "out of range"),
-            ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 0 1\nEND\n", 5, "out of range"),
-            ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1\nEND\n", 5, "at least 2"),
-            ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 1\nEND\n", 5, "at least 2"),
-            ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 x\nEND\n", 5, "not a point number"),
+            (
+                "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 3\nEND\n",
+                5,
+                "out of range",
+            ),
+            (
+                "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 0 1\nEND\n",
+                5,
+                "out of range",
+            ),
+            (
+                "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1\nEND\n",
+                5,
+                "at least 2",
+            ),
+            (
+                "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 1\nEND\n",
+                5,
+                "at least 2",
+            ),
+            (
+                "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 x\nEND\n",
+                5,
+                "not a point number",
+            ),
             ("POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\nEND\n", 4, "no polygons"),
             ("1: 0 0 0\n", 1, "expected POINTS"),
             ("POLYS\n", 1, "expected POINTS"),
@@ -276,7 +360,11 @@ mod tests {
             assert_eq!(e.location, Location::Line(*line), "{src:?}: {e}");
             assert!(e.message.contains(what), "{src:?}: {e}");
         }
-        for src in ["", "POINTS\n1: 0 0 0\n", "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 2\n"] {
+        for src in [
+            "",
+            "POINTS\n1: 0 0 0\n",
+            "POINTS\n1: 0 0 0\n2: 1 0 0\nPOLYS\n1: 1 2\n",
+        ] {
             let e = dec(src).unwrap_err();
             assert_eq!(e.location, Location::File, "{src:?}: {e}");
             assert!(e.message.contains("truncated"), "{src:?}: {e}");

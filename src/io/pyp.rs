@@ -49,7 +49,7 @@
 
 use super::bytes::{parse_finite, text_lines};
 use super::{Decoded, FormatError, ReadOptions};
-use crate::geom::{UpAxis, Units, Vec3, Yarns};
+use crate::geom::{Units, UpAxis, Vec3, Yarns};
 
 /// One section: its header line and its data rows `(line, text)`.
 struct SectionRows<'a> {
@@ -58,7 +58,13 @@ struct SectionRows<'a> {
 }
 
 /// Rest-state sections: name and number of values per row.
-const REST_SECTIONS: [(&str, usize); 5] = [("*RL", 1), ("*RK", 2), ("*RT", 1), ("*RefD1", 3), ("*RefT", 1)];
+const REST_SECTIONS: [(&str, usize); 5] = [
+    ("*RL", 1),
+    ("*RK", 2),
+    ("*RT", 1),
+    ("*RefD1", 3),
+    ("*RefT", 1),
+];
 
 fn section<'s, 'a>(
     sections: &'s [(&'a str, SectionRows<'a>)],
@@ -68,12 +74,24 @@ fn section<'s, 'a>(
 }
 
 /// Splits a row into exactly `cols` tokens.
-fn columns<'a>(text: &'a str, ln: usize, what: &str, cols: usize) -> Result<Vec<&'a str>, FormatError> {
+fn columns<'a>(
+    text: &'a str,
+    ln: usize,
+    what: &str,
+    cols: usize,
+) -> Result<Vec<&'a str>, FormatError> {
     let t: Vec<&str> = text.split_ascii_whitespace().take(cols + 1).collect();
     if t.len() != cols {
         return Err(FormatError::at_line(
             ln,
-            format!("{what} row needs {cols} values, found {}", if t.len() > cols { "more".to_string() } else { t.len().to_string() }),
+            format!(
+                "{what} row needs {cols} values, found {}",
+                if t.len() > cols {
+                    "more".to_string()
+                } else {
+                    t.len().to_string()
+                }
+            ),
         ));
     }
     Ok(t)
@@ -102,9 +120,18 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         if text.starts_with('*') {
             let name = text.split_ascii_whitespace().next().unwrap_or(text);
             if let Some((_, prev)) = sections.iter().find(|(n, _)| *n == name) {
-                return Err(FormatError::at_line(ln, format!("section {name} appears twice (first at line {})", prev.line)));
+                return Err(FormatError::at_line(
+                    ln,
+                    format!("section {name} appears twice (first at line {})", prev.line),
+                ));
             }
-            sections.push((name, SectionRows { line: ln, rows: Vec::new() }));
+            sections.push((
+                name,
+                SectionRows {
+                    line: ln,
+                    rows: Vec::new(),
+                },
+            ));
             continue;
         }
         match sections.last_mut() {
@@ -117,9 +144,18 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             }
         }
     }
+    if let Some((name, s)) = sections.iter().find(|(_, s)| s.rows.is_empty()) {
+        return Err(FormatError::at_line(
+            s.line,
+            format!("section {name} has no rows (truncated file?)"),
+        ));
+    }
     let require = |name: &str| {
-        section(&sections, name)
-            .ok_or_else(|| FormatError::whole_file(format!("missing section {name} (not a .pyp file, or truncated?)")))
+        section(&sections, name).ok_or_else(|| {
+            FormatError::whole_file(format!(
+                "missing section {name} (not a .pyp file, or truncated?)"
+            ))
+        })
     };
 
     // *pattern: px py radius n
@@ -137,24 +173,38 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     let radius = parse_finite(t[2], pl, "radius")?;
     for (v, name) in [(px, "period px"), (py, "period py"), (radius, "radius")] {
         if v <= 0.0 {
-            return Err(FormatError::at_line(pl, format!("{name} must be positive, got {v}")));
+            return Err(FormatError::at_line(
+                pl,
+                format!("{name} must be positive, got {v}"),
+            ));
         }
     }
-    let n: u64 = t[3]
-        .parse()
-        .map_err(|_| FormatError::at_line(pl, format!("vertex count '{}' is not a non-negative integer", t[3])))?;
+    let n: u64 = t[3].parse().map_err(|_| {
+        FormatError::at_line(
+            pl,
+            format!("vertex count '{}' is not a non-negative integer", t[3]),
+        )
+    })?;
     if n == 0 {
-        return Err(FormatError::at_line(pl, "vertex count is 0: the tile has no yarn"));
+        return Err(FormatError::at_line(
+            pl,
+            "vertex count is 0: the tile has no yarn",
+        ));
     }
     if n > opts.max_points {
         return Err(FormatError::at_line(
             pl,
-            format!("vertex count {n} exceeds the reader's limit of {} points (max_points)", opts.max_points),
+            format!(
+                "vertex count {n} exceeds the reader's limit of {} points (max_points)",
+                opts.max_points
+            ),
         ));
     }
     let [tn, tm] = opts.tile;
     if tn == 0 || tm == 0 {
-        return Err(FormatError::whole_file(format!("tile counts must be at least 1, got {tn} x {tm}")));
+        return Err(FormatError::whole_file(format!(
+            "tile counts must be at least 1, got {tn} x {tm}"
+        )));
     }
     let total = (tn as u64)
         .checked_mul(tm as u64)
@@ -197,26 +247,35 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         let t = columns(text, ln, "*E", 4)?;
         let mut vs = [0usize; 2];
         for k in 0..2 {
-            let v: u64 = t[k]
-                .parse()
-                .map_err(|_| FormatError::at_line(ln, format!("edge vertex '{}' is not a non-negative integer", t[k])))?;
+            let v: u64 = t[k].parse().map_err(|_| {
+                FormatError::at_line(
+                    ln,
+                    format!("edge vertex '{}' is not a non-negative integer", t[k]),
+                )
+            })?;
             if v >= n as u64 {
                 return Err(FormatError::at_line(
                     ln,
-                    format!("edge vertex {v} is out of range: the tile has vertices 0 to {}", n - 1),
+                    format!(
+                        "edge vertex {v} is out of range: the tile has vertices 0 to {}",
+                        n - 1
+                    ),
                 ));
             }
             vs[k] = v as usize;
         }
         let mut d = [0i64; 2];
         for k in 0..2 {
-            d[k] = t[k + 2]
-                .parse()
-                .map_err(|_| FormatError::at_line(ln, format!("edge offset '{}' is not an integer", t[k + 2])))?;
+            d[k] = t[k + 2].parse().map_err(|_| {
+                FormatError::at_line(ln, format!("edge offset '{}' is not an integer", t[k + 2]))
+            })?;
         }
         let (v0, v1) = (vs[0], vs[1]);
         if v0 == v1 && d == [0, 0] {
-            return Err(FormatError::at_line(ln, format!("edge from vertex {v0} to itself in the same tile")));
+            return Err(FormatError::at_line(
+                ln,
+                format!("edge from vertex {v0} to itself in the same tile"),
+            ));
         }
         if out_edge[v0] != NONE {
             return Err(FormatError::at_line(
@@ -235,7 +294,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         edges.push((v0, v1, d[0], d[1]));
     }
     if let Some(v) = (0..n).find(|&v| out_edge[v] == NONE && in_edge[v] == NONE) {
-        return Err(FormatError::at_line(es.line, format!("vertex {v} lies on no edge")));
+        return Err(FormatError::at_line(
+            es.line,
+            format!("vertex {v} lies on no edge"),
+        ));
     }
 
     // Rest-state sections: validated, not used.
@@ -269,8 +331,12 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     for j in 0..tm {
         for i in 0..tn {
             for &(v0, v1, di, dj) in &edges {
-                let ii = (i as i64).checked_add(di).filter(|&x| x >= 0 && x < tn as i64);
-                let jj = (j as i64).checked_add(dj).filter(|&x| x >= 0 && x < tm as i64);
+                let ii = (i as i64)
+                    .checked_add(di)
+                    .filter(|&x| x >= 0 && x < tn as i64);
+                let jj = (j as i64)
+                    .checked_add(dj)
+                    .filter(|&x| x >= 0 && x < tm as i64);
                 if let (Some(ii), Some(jj)) = (ii, jj) {
                     let (a, b) = (copy(v0, i, j), copy(v1, ii as usize, jj as usize));
                     next[a] = b;
@@ -318,9 +384,13 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         yarns.num_curves(),
         yarns.num_closed()
     ));
-    notes.push("tile plane x-y with z across the fabric: declared +Z up, so the swatch lies flat".into());
+    notes.push(
+        "tile plane x-y with z across the fabric: declared +Z up, so the swatch lies flat".into(),
+    );
     if dropped > 0 {
-        notes.push(format!("dropped {dropped} single-vertex yarn pieces cut off at the block boundary"));
+        notes.push(format!(
+            "dropped {dropped} single-vertex yarn pieces cut off at the block boundary"
+        ));
     }
     if !missing.is_empty() {
         notes.push(format!("rest-state sections absent: {}", missing.join(" ")));
@@ -348,7 +418,13 @@ mod tests {
     const TILE: &str = "*pattern # px py radius n\n1 1 0.1 4\n\n*Q\n0 0.25 0 0\n0.5 0.25 0 0\n0 0.75 0 0\n0.5 0.75 0 0\n\n*E\n0 1 0 0\n1 0 1 0\n2 3 0 0\n3 2 1 0\n";
 
     fn dec_tiled(src: &str, tile: [usize; 2]) -> Result<Decoded, FormatError> {
-        decode(src.as_bytes(), &ReadOptions { tile, ..Default::default() })
+        decode(
+            src.as_bytes(),
+            &ReadOptions {
+                tile,
+                ..Default::default()
+            },
+        )
     }
 
     #[test]
@@ -359,7 +435,14 @@ mod tests {
         assert_eq!(y.num_points(), 24);
         assert_eq!(
             y.curve(0),
-            &[[0.0, 0.25, 0.0], [0.5, 0.25, 0.0], [1.0, 0.25, 0.0], [1.5, 0.25, 0.0], [2.0, 0.25, 0.0], [2.5, 0.25, 0.0]]
+            &[
+                [0.0, 0.25, 0.0],
+                [0.5, 0.25, 0.0],
+                [1.0, 0.25, 0.0],
+                [1.5, 0.25, 0.0],
+                [2.0, 0.25, 0.0],
+                [2.5, 0.25, 0.0]
+            ]
         );
         assert_eq!(y.curve(3)[0], [0.0, 1.75, 0.0]);
         assert!(y.closed.iter().all(|c| !c));
@@ -383,21 +466,74 @@ mod tests {
     fn errors() {
         let with_e = |e: &str| format!("*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0.5 0 0 0\n*E\n{e}");
         let cases: Vec<(String, Location, &str)> = vec![
-            (with_e("0 1 0 0\n0 1 1 0\n"), Location::Line(8), "second outgoing"),
-            (with_e("0 1 0 0\n1 1 1 0\n"), Location::Line(8), "second incoming"),
-            (with_e("0 2 0 0\n1 0 1 0\n"), Location::Line(7), "out of range"),
+            (
+                with_e("0 1 0 0\n0 1 1 0\n"),
+                Location::Line(8),
+                "second outgoing",
+            ),
+            (
+                with_e("0 1 0 0\n1 1 1 0\n"),
+                Location::Line(8),
+                "second incoming",
+            ),
+            (
+                with_e("0 2 0 0\n1 0 1 0\n"),
+                Location::Line(7),
+                "out of range",
+            ),
             (with_e("0 0 0 0\n1 1 1 0\n"), Location::Line(7), "itself"),
             (with_e("0 1 0 0\n"), Location::Line(6), "1 rows"),
             (with_e("0 1 0\n1 0 1 0\n"), Location::Line(7), "needs 4"),
-            (with_e("0 1 0 0\n1 0 x 0\n"), Location::Line(8), "not an integer"),
-            ("*pattern\n1 1 0.1 1152921504606846976\n".into(), Location::Line(2), "limit"),
-            ("*pattern\n1 1 0.1 0\n".into(), Location::Line(2), "count is 0"),
-            ("*pattern\n1 -1 0.1 2\n".into(), Location::Line(2), "positive"),
-            ("*pattern\n1 nan 0.1 2\n".into(), Location::Line(2), "not finite"),
-            ("*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0 inf 0 0\n".into(), Location::Line(5), "not finite"),
-            ("1 1 0.1 2\n".into(), Location::Line(1), "before the first section"),
-            ("*pattern\n1 1 0.1 2\n*pattern\n".into(), Location::Line(3), "twice"),
-            ("*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0.5 0 0 0\n".into(), Location::File, "missing section *E"),
+            (
+                with_e("0 1 0 0\n1 0 x 0\n"),
+                Location::Line(8),
+                "not an integer",
+            ),
+            (
+                "*pattern\n1 1 0.1 1152921504606846976\n".into(),
+                Location::Line(2),
+                "limit",
+            ),
+            (
+                "*pattern\n1 1 0.1 0\n".into(),
+                Location::Line(2),
+                "count is 0",
+            ),
+            (
+                "*pattern\n1 -1 0.1 2\n".into(),
+                Location::Line(2),
+                "positive",
+            ),
+            (
+                "*pattern\n1 nan 0.1 2\n".into(),
+                Location::Line(2),
+                "not finite",
+            ),
+            (
+                "*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0 inf 0 0\n".into(),
+                Location::Line(5),
+                "not finite",
+            ),
+            (
+                "1 1 0.1 2\n".into(),
+                Location::Line(1),
+                "before the first section",
+            ),
+            (
+                "*pattern\n1 1 0.1 2\n*pattern\n".into(),
+                Location::Line(3),
+                "twice",
+            ),
+            (
+                "*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0.5 0 0 0\n".into(),
+                Location::File,
+                "missing section *E",
+            ),
+            (
+                "*pattern\n1 1 0.1 2\n*Q\n0 0 0 0\n0.5 0 0 0\n*E\n".into(),
+                Location::Line(6),
+                "no rows",
+            ),
             ("".into(), Location::File, "missing section *pattern"),
         ];
         for (src, loc, what) in cases {
@@ -410,7 +546,14 @@ mod tests {
         assert!(e.message.contains("*RL has 3 rows"), "{e}");
         let e = dec_tiled(TILE, [0, 1]).unwrap_err();
         assert!(e.message.contains("at least 1"), "{e}");
-        let e = decode(TILE.as_bytes(), &ReadOptions { tile: [usize::MAX, 2], ..Default::default() }).unwrap_err();
+        let e = decode(
+            TILE.as_bytes(),
+            &ReadOptions {
+                tile: [usize::MAX, 2],
+                ..Default::default()
+            },
+        )
+        .unwrap_err();
         assert!(e.message.contains("limit"), "{e}");
     }
 
@@ -419,6 +562,10 @@ mod tests {
         let src = "*pattern\n1 1 0.1 3\n*Q\n0 0 0 0\n0.5 0 0 0\n0.7 0 0 0\n*E\n0 1 0 0\n1 0 1 0\n2 2 1 0\n";
         assert!(dec_tiled(src, [1, 1]).is_ok()); // 2 -> 2 across tiles: a one-vertex-per-tile yarn
         let d = dec_tiled(src, [1, 1]).unwrap();
-        assert!(d.notes.iter().any(|n| n.contains("dropped 1")), "{:?}", d.notes);
+        assert!(
+            d.notes.iter().any(|n| n.contains("dropped 1")),
+            "{:?}",
+            d.notes
+        );
     }
 }
