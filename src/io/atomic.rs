@@ -50,7 +50,15 @@ pub fn write_with(
         )
     })?;
     // tempfile picks a unique name and removes it if we bail out early.
-    let tmp = tempfile::Builder::new()
+    let mut builder = tempfile::Builder::new();
+    // Outputs are for other users too (renderers, farm accounts): the mode a plain
+    // File::create gives (0o666 less the umask), not tempfile's private 0o600.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let tmp = builder
         .prefix(&format!(".{}.", name.to_string_lossy()))
         .suffix(".tmp")
         .tempfile_in(&dir)
@@ -84,6 +92,19 @@ mod tests {
             .map(|e| e.unwrap().file_name())
             .collect();
         assert_eq!(names.len(), 1, "temporary files left behind: {names:?}");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn outputs_get_the_usual_file_mode() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let reference = dir.path().join("plain");
+        File::create(&reference).unwrap();
+        let p = dir.path().join("atomic");
+        write_bytes(&p, b"x").unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode(&p), mode(&reference));
     }
 
     #[test]
