@@ -63,7 +63,7 @@ use serde_json::json;
 
 use super::bytes::ByteReader;
 use super::{Decoded, FormatError, ReadOptions, Resources};
-use crate::geom::{UpAxis, Units, Vec3, Yarns};
+use crate::geom::{Units, UpAxis, Vec3, Yarns};
 
 const GLB_MAGIC: &[u8; 4] = b"glTF";
 const GLB_HEADER_LEN: usize = 12;
@@ -74,7 +74,11 @@ const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 /// Extensions that change how mesh geometry is stored: a reader that ignores
 /// them would read the wrong numbers, so files requiring them are refused.
-const GEOMETRY_EXTENSIONS: &[&str] = &["KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_mesh_quantization"];
+const GEOMETRY_EXTENSIONS: &[&str] = &[
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "KHR_mesh_quantization",
+];
 
 /// base64 as in data URIs; some writers drop the `=` padding.
 const BASE64: GeneralPurpose = GeneralPurpose::new(
@@ -93,9 +97,15 @@ fn at(path: impl Into<String>, message: impl Into<String>) -> FormatError {
 /// Decodes a `.gltf` (JSON) or `.glb` (binary, detected by its `glTF` magic)
 /// file into its line primitives' curves, in the file's frame (metres, +Y up,
 /// both declared). External buffers are loaded through `res`.
-pub fn decode(data: &[u8], opts: &ReadOptions, res: &dyn Resources) -> Result<Decoded, FormatError> {
+pub fn decode(
+    data: &[u8],
+    opts: &ReadOptions,
+    res: &dyn Resources,
+) -> Result<Decoded, FormatError> {
     if data.is_empty() {
-        return Err(FormatError::whole_file("empty file: neither glTF JSON nor GLB"));
+        return Err(FormatError::whole_file(
+            "empty file: neither glTF JSON nor GLB",
+        ));
     }
     let (json_bytes, json_offset, bin) = if data.starts_with(GLB_MAGIC) {
         let glb = parse_glb(data)?;
@@ -134,13 +144,19 @@ fn parse_glb(data: &[u8]) -> Result<Glb<'_>, FormatError> {
     r.take(4, "GLB magic")?;
     let version = r.u32_le("GLB version")?;
     if version != 2 {
-        return Err(FormatError::at_byte(4, format!("GLB container version {version}; only version 2 (glTF 2.0) is supported")));
+        return Err(FormatError::at_byte(
+            4,
+            format!("GLB container version {version}; only version 2 (glTF 2.0) is supported"),
+        ));
     }
     let length = r.u32_le("GLB total length")?;
     if u64::from(length) != data.len() as u64 {
         return Err(FormatError::at_byte(
             8,
-            format!("GLB header declares {length} bytes but the file has {} (truncated or padded file)", data.len()),
+            format!(
+                "GLB header declares {length} bytes but the file has {} (truncated or padded file)",
+                data.len()
+            ),
         ));
     }
     debug_assert_eq!(r.pos(), GLB_HEADER_LEN);
@@ -156,13 +172,20 @@ fn parse_glb(data: &[u8]) -> Result<Glb<'_>, FormatError> {
         let (offset, kind, body) = read_chunk(&mut r, "chunk")?;
         if kind == CHUNK_BIN {
             if bin.is_some() {
-                return Err(FormatError::at_byte(offset - 8, "a GLB file may hold only one BIN chunk"));
+                return Err(FormatError::at_byte(
+                    offset - 8,
+                    "a GLB file may hold only one BIN chunk",
+                ));
             }
             bin = Some(body);
         }
         // Other chunk types are reserved for extensions: skipped, as the spec says.
     }
-    Ok(Glb { json, json_offset, bin })
+    Ok(Glb {
+        json,
+        json_offset,
+        bin,
+    })
 }
 
 /// Reads one chunk header and body; returns (offset of the body, type, body).
@@ -170,7 +193,8 @@ fn read_chunk<'a>(r: &mut ByteReader<'a>, what: &str) -> Result<(u64, u32, &'a [
     let len = r.u32_le(&format!("GLB {what} length"))?;
     let kind = r.u32_le(&format!("GLB {what} type"))?;
     let body_at = r.pos() as u64;
-    let len = usize::try_from(len).map_err(|_| FormatError::at_byte(body_at - 8, "chunk length does not fit in memory"))?;
+    let len = usize::try_from(len)
+        .map_err(|_| FormatError::at_byte(body_at - 8, "chunk length does not fit in memory"))?;
     let body = r.take(len, &format!("GLB {what} body (type 0x{kind:08X})"))?;
     Ok((body_at, kind, body))
 }
@@ -182,7 +206,9 @@ fn parse_json(bytes: &[u8], glb_offset: Option<u64>) -> Result<gltf::json::Root,
         Err(e) => {
             let bad = e.valid_up_to();
             return Err(match glb_offset {
-                Some(o) => FormatError::at_byte(o + bad as u64, "the GLB JSON chunk is not UTF-8 text"),
+                Some(o) => {
+                    FormatError::at_byte(o + bad as u64, "the GLB JSON chunk is not UTF-8 text")
+                }
                 None => {
                     let line = bytes[..bad].iter().filter(|&&b| b == b'\n').count() + 1;
                     FormatError::at_line(line, "not UTF-8 text: a .gltf file is UTF-8 JSON")
@@ -231,7 +257,10 @@ fn parse_json(bytes: &[u8], glb_offset: Option<u64>) -> Result<gltf::json::Root,
 fn check_root(root: &gltf::json::Root) -> Result<(), FormatError> {
     let version = root.asset.version.as_str();
     if !version.starts_with("2.") {
-        return Err(at("/asset/version", format!("glTF version '{version}': only glTF 2.x is supported")));
+        return Err(at(
+            "/asset/version",
+            format!("glTF version '{version}': only glTF 2.x is supported"),
+        ));
     }
     for (i, ext) in root.extensions_required.iter().enumerate() {
         if GEOMETRY_EXTENSIONS.contains(&ext.as_str()) {
@@ -256,7 +285,9 @@ struct PrimCurves {
 /// A column-major 4x4 matrix, as glTF stores them.
 type Mat4 = [f64; 16];
 
-const IDENTITY: Mat4 = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+const IDENTITY: Mat4 = [
+    1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+];
 
 fn mat_mul(a: &Mat4, b: &Mat4) -> Mat4 {
     let mut c = [0.0; 16];
@@ -289,22 +320,38 @@ fn node_matrix(node: &gltf::json::Node, path: &str) -> Result<Mat4, FormatError>
     if let Some(m) = &node.matrix {
         let m: Mat4 = m.map(f64::from);
         if let Some(k) = m.iter().position(|x| !x.is_finite()) {
-            return Err(at(format!("{path}/matrix/{k}"), format!("matrix element is not finite ({})", m[k])));
+            return Err(at(
+                format!("{path}/matrix/{k}"),
+                format!("matrix element is not finite ({})", m[k]),
+            ));
         }
         return Ok(m);
     }
     let t = node.translation.unwrap_or([0.0; 3]).map(f64::from);
     let s = node.scale.unwrap_or([1.0; 3]).map(f64::from);
-    let q = node.rotation.map_or([0.0, 0.0, 0.0, 1.0], |r| r.0).map(f64::from);
-    for (name, vals) in [("translation", &t[..]), ("scale", &s[..]), ("rotation", &q[..])] {
+    let q = node
+        .rotation
+        .map_or([0.0, 0.0, 0.0, 1.0], |r| r.0)
+        .map(f64::from);
+    for (name, vals) in [
+        ("translation", &t[..]),
+        ("scale", &s[..]),
+        ("rotation", &q[..]),
+    ] {
         if let Some(k) = vals.iter().position(|x| !x.is_finite()) {
-            return Err(at(format!("{path}/{name}/{k}"), format!("{name} element is not finite ({})", vals[k])));
+            return Err(at(
+                format!("{path}/{name}/{k}"),
+                format!("{name} element is not finite ({})", vals[k]),
+            ));
         }
     }
     // The spec asks for a unit quaternion; normalising forgives writers that round.
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     if !(n > 0.0 && n.is_finite()) {
-        return Err(at(format!("{path}/rotation"), "rotation quaternion has zero length"));
+        return Err(at(
+            format!("{path}/rotation"),
+            "rotation quaternion has zero length",
+        ));
     }
     let [x, y, z, w] = q.map(|v| v / n);
     let r = [
@@ -372,22 +419,47 @@ struct Out {
 impl<'a> Reader<'a> {
     fn read_scenes(mut self) -> Result<Decoded, FormatError> {
         let root = self.root;
-        let mut out = Out { yarns: Yarns::new(), ..Default::default() };
+        let mut out = Out {
+            yarns: Yarns::new(),
+            ..Default::default()
+        };
         // (label for errors, root node indices with the path each was referenced from)
         let mut sources: Vec<Vec<(usize, String)>> = Vec::new();
         if let Some(s) = root.scene {
             let s = s.value();
-            let scene = root
-                .scenes
-                .get(s)
-                .ok_or_else(|| at("/scene", format!("default scene {s} does not exist (the file has {})", root.scenes.len())))?;
-            sources.push(scene.nodes.iter().enumerate().map(|(k, n)| (n.value(), format!("/scenes/{s}/nodes/{k}"))).collect());
+            let scene = root.scenes.get(s).ok_or_else(|| {
+                at(
+                    "/scene",
+                    format!(
+                        "default scene {s} does not exist (the file has {})",
+                        root.scenes.len()
+                    ),
+                )
+            })?;
+            sources.push(
+                scene
+                    .nodes
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (n.value(), format!("/scenes/{s}/nodes/{k}")))
+                    .collect(),
+            );
         } else if !root.scenes.is_empty() {
             if root.scenes.len() > 1 {
-                self.notes.push(format!("no default scene: read all {} scenes", root.scenes.len()));
+                self.notes.push(format!(
+                    "no default scene: read all {} scenes",
+                    root.scenes.len()
+                ));
             }
             for (s, scene) in root.scenes.iter().enumerate() {
-                sources.push(scene.nodes.iter().enumerate().map(|(k, n)| (n.value(), format!("/scenes/{s}/nodes/{k}"))).collect());
+                sources.push(
+                    scene
+                        .nodes
+                        .iter()
+                        .enumerate()
+                        .map(|(k, n)| (n.value(), format!("/scenes/{s}/nodes/{k}")))
+                        .collect(),
+                );
             }
         } else {
             // No scenes: every node that is nobody's child is a root.
@@ -402,7 +474,12 @@ impl<'a> Reader<'a> {
             if !root.nodes.is_empty() {
                 self.notes.push("no scenes: read every root node".into());
             }
-            sources.push((0..root.nodes.len()).filter(|&n| !is_child[n]).map(|n| (n, format!("/nodes/{n}"))).collect());
+            sources.push(
+                (0..root.nodes.len())
+                    .filter(|&n| !is_child[n])
+                    .map(|n| (n, format!("/nodes/{n}")))
+                    .collect(),
+            );
         }
         for roots in sources {
             self.read_tree(&roots, &mut out)?;
@@ -416,13 +493,21 @@ impl<'a> Reader<'a> {
         // Each node may appear once per scene (the spec makes scenes strict trees);
         // refusing repeats also stops cycles and exponential diamond graphs.
         let mut visited = vec![false; root.nodes.len()];
-        let mut stack: Vec<(usize, String, Mat4)> =
-            roots.iter().rev().map(|(n, p)| (*n, p.clone(), IDENTITY)).collect();
+        let mut stack: Vec<(usize, String, Mat4)> = roots
+            .iter()
+            .rev()
+            .map(|(n, p)| (*n, p.clone(), IDENTITY))
+            .collect();
         while let Some((n, referrer, parent)) = stack.pop() {
-            let node = root
-                .nodes
-                .get(n)
-                .ok_or_else(|| at(referrer.clone(), format!("node {n} does not exist (the file has {})", root.nodes.len())))?;
+            let node = root.nodes.get(n).ok_or_else(|| {
+                at(
+                    referrer.clone(),
+                    format!(
+                        "node {n} does not exist (the file has {})",
+                        root.nodes.len()
+                    ),
+                )
+            })?;
             if std::mem::replace(&mut visited[n], true) {
                 return Err(at(
                     referrer,
@@ -431,29 +516,58 @@ impl<'a> Reader<'a> {
             }
             let path = format!("/nodes/{n}");
             let local = node_matrix(node, &path)?;
-            let world = if parent == IDENTITY { local } else { mat_mul(&parent, &local) };
+            let world = if parent == IDENTITY {
+                local
+            } else {
+                mat_mul(&parent, &local)
+            };
             if let Some(m) = node.mesh {
                 // A skinned mesh ignores its node's transform (spec 3.7.3.3); without
                 // animation the joints sit in bind pose, so the vertices are the rest shape.
-                let (world_for_mesh, skinned) = if node.skin.is_some() { (IDENTITY, true) } else { (world, false) };
+                let (world_for_mesh, skinned) = if node.skin.is_some() {
+                    (IDENTITY, true)
+                } else {
+                    (world, false)
+                };
                 if skinned {
-                    self.notes.push(format!("node {n} is skinned: its mesh is read in bind pose"));
+                    self.notes.push(format!(
+                        "node {n} is skinned: its mesh is read in bind pose"
+                    ));
                 }
-                self.emit_mesh(m.value(), &format!("{path}/mesh"), &world_for_mesh, out)?;
+                self.emit_mesh(m.value(), &path, &world_for_mesh, out)?;
             }
-            for (k, c) in node.children.as_deref().unwrap_or(&[]).iter().enumerate().rev() {
+            for (k, c) in node
+                .children
+                .as_deref()
+                .unwrap_or(&[])
+                .iter()
+                .enumerate()
+                .rev()
+            {
                 stack.push((c.value(), format!("{path}/children/{k}"), world));
             }
         }
         Ok(())
     }
 
-    fn emit_mesh(&mut self, m: usize, referrer: &str, world: &Mat4, out: &mut Out) -> Result<(), FormatError> {
+    fn emit_mesh(
+        &mut self,
+        m: usize,
+        node: &str,
+        world: &Mat4,
+        out: &mut Out,
+    ) -> Result<(), FormatError> {
         let root = self.root;
-        let mesh = root
-            .meshes
-            .get(m)
-            .ok_or_else(|| at(referrer, format!("mesh {m} does not exist (the file has {})", root.meshes.len())))?;
+        let referrer = format!("{node}/mesh");
+        let mesh = root.meshes.get(m).ok_or_else(|| {
+            at(
+                referrer.clone(),
+                format!(
+                    "mesh {m} does not exist (the file has {})",
+                    root.meshes.len()
+                ),
+            )
+        })?;
         for p in 0..mesh.primitives.len() {
             let prim = match self.prim_cache.get(&(m, p)) {
                 Some(c) => c.clone(),
@@ -464,16 +578,35 @@ impl<'a> Reader<'a> {
                 }
             };
             if let Some(prim) = prim {
-                self.emit_prim(&prim, &format!("/meshes/{m}/primitives/{p}"), world, out)?;
+                self.emit_prim(
+                    &prim,
+                    &format!("/meshes/{m}/primitives/{p}"),
+                    node,
+                    world,
+                    out,
+                )?;
             }
         }
         Ok(())
     }
 
     /// Transforms one primitive's curves by `world` and appends them.
-    fn emit_prim(&mut self, prim: &PrimCurves, path: &str, world: &Mat4, out: &mut Out) -> Result<(), FormatError> {
+    fn emit_prim(
+        &mut self,
+        prim: &PrimCurves,
+        path: &str,
+        node: &str,
+        world: &Mat4,
+        out: &mut Out,
+    ) -> Result<(), FormatError> {
         let identity = *world == IDENTITY;
         let scale = length_scale(world);
+        if prim.radii.is_some() && !(scale > 0.0 && scale.is_finite()) {
+            return Err(at(
+                node,
+                format!("the node's world transform is singular (scale {scale}): the radii of {path} would vanish"),
+            ));
+        }
         for (idx, closed) in &prim.curves {
             self.total_points = self.total_points.saturating_add(idx.len() as u64);
             if self.total_points > self.opts.max_points {
@@ -492,9 +625,16 @@ impl<'a> Reader<'a> {
                     Some(s) => [f64::from(s[0]), f64::from(s[1]), f64::from(s[2])],
                     None => return Err(at(path, format!("vertex {v} out of range"))), // checked on read
                 };
-                let q = if identity { p } else { transform_point(world, p) };
+                let q = if identity {
+                    p
+                } else {
+                    transform_point(world, p)
+                };
                 if !q.iter().all(|x| x.is_finite()) {
-                    return Err(at(path, format!("vertex {v} is not finite after the node transform ({q:?})")));
+                    return Err(at(
+                        path,
+                        format!("vertex {v} is not finite after the node transform ({q:?})"),
+                    ));
                 }
                 pts.push(q);
             }
@@ -510,7 +650,8 @@ impl<'a> Reader<'a> {
                     rs.iter().sum::<f64>() / rs.len().max(1) as f64
                 }
                 None => {
-                    out.vertex_radius.extend(std::iter::repeat_n(f64::NAN, idx.len()));
+                    out.vertex_radius
+                        .extend(std::iter::repeat_n(f64::NAN, idx.len()));
                     out.has_radius.push(false);
                     self.opts.radius
                 }
@@ -521,7 +662,11 @@ impl<'a> Reader<'a> {
     }
 
     fn finish(mut self, out: Out) -> Result<Decoded, FormatError> {
-        let Out { mut yarns, mut vertex_radius, has_radius } = out;
+        let Out {
+            mut yarns,
+            mut vertex_radius,
+            has_radius,
+        } = out;
         let with = has_radius.iter().filter(|h| **h).count();
         let radius_in_file = with > 0;
         if radius_in_file {
@@ -532,7 +677,10 @@ impl<'a> Reader<'a> {
                     has_radius.len(),
                     self.opts.radius
                 ));
-                vertex_radius.iter_mut().filter(|r| r.is_nan()).for_each(|r| *r = self.opts.radius);
+                vertex_radius
+                    .iter_mut()
+                    .filter(|r| r.is_nan())
+                    .for_each(|r| *r = self.opts.radius);
             }
             // Constant radius along every curve: the per-curve radius says it all.
             let uniform = (0..yarns.num_curves()).all(|c| {
@@ -558,11 +706,20 @@ impl<'a> Reader<'a> {
             ),
         );
         if !self.skipped.is_empty() {
-            let list: Vec<String> = self.skipped.iter().map(|(m, n)| format!("{n} {m}")).collect();
-            self.notes.push(format!("skipped primitives that are not lines: {}", list.join(", ")));
+            let list: Vec<String> = self
+                .skipped
+                .iter()
+                .map(|(m, n)| format!("{n} {m}"))
+                .collect();
+            self.notes.push(format!(
+                "skipped primitives that are not lines: {}",
+                list.join(", ")
+            ));
         }
         for ext in &self.root.extensions_required {
-            self.notes.push(format!("the file requires extension {ext}; ignored (it does not change line geometry)"));
+            self.notes.push(format!(
+                "the file requires extension {ext}; ignored (it does not change line geometry)"
+            ));
         }
         Ok(Decoded {
             yarns,
@@ -583,7 +740,12 @@ impl<'a> Reader<'a> {
         };
         let mode = match prim.mode {
             Checked::Valid(mode) => mode,
-            Checked::Invalid => return Err(at(format!("{path}/mode"), "unknown primitive mode (valid: 0 to 6)")),
+            Checked::Invalid => {
+                return Err(at(
+                    format!("{path}/mode"),
+                    "unknown primitive mode (valid: 0 to 6)",
+                ))
+            }
         };
         let slot = match mode {
             Mode::Lines => 0,
@@ -602,23 +764,42 @@ impl<'a> Reader<'a> {
             }
         };
         if prim.targets.as_ref().is_some_and(|t| !t.is_empty()) {
-            self.notes.push(format!("{path}: morph targets ignored (base shape read)"));
+            self.notes
+                .push(format!("{path}: morph targets ignored (base shape read)"));
         }
         let pos_acc = prim
             .attributes
             .get(&Checked::Valid(Semantic::Positions))
-            .ok_or_else(|| at(format!("{path}/attributes"), "line primitive has no POSITION attribute"))?
+            .ok_or_else(|| {
+                at(
+                    format!("{path}/attributes"),
+                    "line primitive has no POSITION attribute",
+                )
+            })?
             .value();
-        let positions = self.read_floats(pos_acc, Type::Vec3, &format!("{path}/attributes/POSITION"))?;
+        let positions =
+            self.read_floats(pos_acc, Type::Vec3, &format!("{path}/attributes/POSITION"))?;
         let nv = positions.len() / 3;
-        let radii = match prim.attributes.get(&Checked::Valid(Semantic::Extras("RADIUS".into()))) {
+        let radii = match prim
+            .attributes
+            .get(&Checked::Valid(Semantic::Extras("RADIUS".into())))
+        {
             Some(a) => {
                 let rpath = format!("{path}/attributes/_RADIUS");
                 let r = self.read_floats(a.value(), Type::Scalar, &rpath)?;
                 if r.len() != nv {
-                    return Err(at(rpath, format!("_RADIUS has {} values but POSITION has {nv} vertices", r.len())));
+                    return Err(at(
+                        rpath,
+                        format!(
+                            "_RADIUS has {} values but POSITION has {nv} vertices",
+                            r.len()
+                        ),
+                    ));
                 }
-                if let Some(k) = r.iter().position(|x| !(*x > 0.0)) {
+                if let Some(k) = r
+                    .iter()
+                    .position(|x| x.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater))
+                {
                     return Err(at(
                         format!("/accessors/{}", a.value()),
                         format!("_RADIUS value {} at element {k} is not positive", r[k]),
@@ -635,7 +816,10 @@ impl<'a> Reader<'a> {
                 if let Some(k) = idx.iter().position(|&i| i as usize >= nv) {
                     return Err(at(
                         format!("/accessors/{}", a.value()),
-                        format!("index {} at element {k} is out of range: POSITION has {nv} vertices", idx[k]),
+                        format!(
+                            "index {} at element {k} is out of range: POSITION has {nv} vertices",
+                            idx[k]
+                        ),
                     ));
                 }
                 Some(idx)
@@ -649,15 +833,23 @@ impl<'a> Reader<'a> {
             a == b
                 || (!indexed && {
                     let (a, b) = (a as usize, b as usize);
-                    positions[a * 3..a * 3 + 3].iter().zip(&positions[b * 3..b * 3 + 3]).all(|(x, y)| x.to_bits() == y.to_bits())
-                        && radii.as_ref().is_none_or(|r| r[a].to_bits() == r[b].to_bits())
+                    positions[a * 3..a * 3 + 3]
+                        .iter()
+                        .zip(&positions[b * 3..b * 3 + 3])
+                        .all(|(x, y)| x.to_bits() == y.to_bits())
+                        && radii
+                            .as_ref()
+                            .is_none_or(|r| r[a].to_bits() == r[b].to_bits())
                 })
         };
         let mut curves = Vec::new();
         match mode {
             Mode::Lines => {
                 if n % 2 != 0 {
-                    return Err(at(path, format!("LINES primitive has an odd number of vertices ({n})")));
+                    return Err(at(
+                        path,
+                        format!("LINES primitive has an odd number of vertices ({n})"),
+                    ));
                 }
                 let mut cur: Vec<u32> = Vec::new();
                 for s in 0..n / 2 {
@@ -683,9 +875,16 @@ impl<'a> Reader<'a> {
                 }
             }
             Mode::LineLoop | Mode::LineStrip => {
-                let what = if mode == Mode::LineLoop { "LINE_LOOP" } else { "LINE_STRIP" };
+                let what = if mode == Mode::LineLoop {
+                    "LINE_LOOP"
+                } else {
+                    "LINE_STRIP"
+                };
                 if n < 2 {
-                    return Err(at(path, format!("{what} primitive has {n} vertex; a curve needs at least 2")));
+                    return Err(at(
+                        path,
+                        format!("{what} primitive has {n} vertex; a curve needs at least 2"),
+                    ));
                 }
                 let mut c: Vec<u32> = (0..n).map(vertex).collect();
                 let mut closed = mode == Mode::LineLoop;
@@ -699,36 +898,60 @@ impl<'a> Reader<'a> {
             _ => {}
         }
         self.modes_read[slot] += 1;
-        Ok(Some(PrimCurves { positions, radii, curves }))
+        Ok(Some(PrimCurves {
+            positions,
+            radii,
+            curves,
+        }))
     }
 
     /// Makes sure buffer `b` is loaded; returns its bytes.
     fn buffer(&mut self, b: usize, referrer: &str) -> Result<&[u8], FormatError> {
         let root = self.root;
-        let buf = root
-            .buffers
-            .get(b)
-            .ok_or_else(|| at(referrer, format!("buffer {b} does not exist (the file has {})", root.buffers.len())))?;
+        let buf = root.buffers.get(b).ok_or_else(|| {
+            at(
+                referrer,
+                format!(
+                    "buffer {b} does not exist (the file has {})",
+                    root.buffers.len()
+                ),
+            )
+        })?;
         if self.buffers[b].is_none() {
             let path = format!("/buffers/{b}");
-            let data: Cow<'a, [u8]> = match &buf.uri {
-                None => match self.bin {
-                    Some(bin) if b == 0 => Cow::Borrowed(bin),
-                    Some(_) => return Err(at(path, "only buffer 0 may refer to the GLB BIN chunk; this buffer has no uri")),
-                    None => return Err(at(path, "buffer has no uri and the file has no GLB BIN chunk")),
-                },
-                Some(uri) if uri.starts_with("data:") => Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?),
-                Some(uri) => Cow::Owned(
-                    self.res
-                        .load(uri)
-                        .map_err(|e| at(format!("{path}/uri"), format!("cannot load external buffer '{uri}': {e}")))?,
-                ),
-            };
+            let data: Cow<'a, [u8]> =
+                match &buf.uri {
+                    None => match self.bin {
+                        Some(bin) if b == 0 => Cow::Borrowed(bin),
+                        Some(_) => return Err(at(
+                            path,
+                            "only buffer 0 may refer to the GLB BIN chunk; this buffer has no uri",
+                        )),
+                        None => {
+                            return Err(at(
+                                path,
+                                "buffer has no uri and the file has no GLB BIN chunk",
+                            ))
+                        }
+                    },
+                    Some(uri) if uri.starts_with("data:") => {
+                        Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?)
+                    }
+                    Some(uri) => Cow::Owned(self.res.load(uri).map_err(|e| {
+                        at(
+                            format!("{path}/uri"),
+                            format!("cannot load external buffer '{uri}': {e}"),
+                        )
+                    })?),
+                };
             let declared = buf.byte_length.0;
             if (data.len() as u64) < declared {
                 return Err(at(
                     format!("{path}/byteLength"),
-                    format!("buffer declares {declared} bytes but its data holds only {}", data.len()),
+                    format!(
+                        "buffer declares {declared} bytes but its data holds only {}",
+                        data.len()
+                    ),
                 ));
             }
             let declared = declared as usize; // <= data.len(), so it fits
@@ -747,10 +970,15 @@ impl<'a> Reader<'a> {
     /// The bytes of buffer view `v` and its stride, bounds-checked against the buffer.
     fn view(&mut self, v: usize, referrer: &str) -> Result<(&[u8], Option<usize>), FormatError> {
         let root = self.root;
-        let view = root
-            .buffer_views
-            .get(v)
-            .ok_or_else(|| at(referrer, format!("bufferView {v} does not exist (the file has {})", root.buffer_views.len())))?;
+        let view = root.buffer_views.get(v).ok_or_else(|| {
+            at(
+                referrer,
+                format!(
+                    "bufferView {v} does not exist (the file has {})",
+                    root.buffer_views.len()
+                ),
+            )
+        })?;
         let path = format!("/bufferViews/{v}");
         let offset = view.byte_offset.map_or(0, |o| o.0);
         let len = view.byte_length.0;
@@ -765,11 +993,19 @@ impl<'a> Reader<'a> {
                 ),
             )
         })?;
-        Ok((&data[offset as usize..end as usize], view.byte_stride.map(|s| s.0)))
+        Ok((
+            &data[offset as usize..end as usize],
+            view.byte_stride.map(|s| s.0),
+        ))
     }
 
     /// Decodes a float accessor (positions, radii) into a flat array, checking everything.
-    fn read_floats(&mut self, a: usize, want: Type, referrer: &str) -> Result<Rc<Vec<f32>>, FormatError> {
+    fn read_floats(
+        &mut self,
+        a: usize,
+        want: Type,
+        referrer: &str,
+    ) -> Result<Rc<Vec<f32>>, FormatError> {
         if let Some(v) = self.float_cache.get(&a) {
             // The cache key is the accessor; the type check must still hold for this use.
             let acc = &self.root.accessors[a];
@@ -778,12 +1014,17 @@ impl<'a> Reader<'a> {
             }
         }
         let vals = self.read_accessor(a, want, &[ComponentType::F32], referrer)?;
-        let out: Vec<f32> = vals.into_iter().map(|x| f32::from_bits(x)).collect();
+        let out: Vec<f32> = vals.into_iter().map(f32::from_bits).collect();
         if let Some(k) = out.iter().position(|x| !x.is_finite()) {
             let ncomp = want.multiplicity();
             return Err(at(
                 format!("/accessors/{a}"),
-                format!("element {} component {} is not finite ({})", k / ncomp, k % ncomp, out[k]),
+                format!(
+                    "element {} component {} is not finite ({})",
+                    k / ncomp,
+                    k % ncomp,
+                    out[k]
+                ),
             ));
         }
         let out = Rc::new(out);
@@ -792,7 +1033,12 @@ impl<'a> Reader<'a> {
     }
 
     fn read_indices(&mut self, a: usize, referrer: &str) -> Result<Vec<u32>, FormatError> {
-        self.read_accessor(a, Type::Scalar, &[ComponentType::U8, ComponentType::U16, ComponentType::U32], referrer)
+        self.read_accessor(
+            a,
+            Type::Scalar,
+            &[ComponentType::U8, ComponentType::U16, ComponentType::U32],
+            referrer,
+        )
     }
 
     /// Reads accessor `a` as raw little-endian components widened to u32 (float bits for
@@ -805,10 +1051,15 @@ impl<'a> Reader<'a> {
         referrer: &str,
     ) -> Result<Vec<u32>, FormatError> {
         let root = self.root;
-        let acc = root
-            .accessors
-            .get(a)
-            .ok_or_else(|| at(referrer, format!("accessor {a} does not exist (the file has {})", root.accessors.len())))?;
+        let acc = root.accessors.get(a).ok_or_else(|| {
+            at(
+                referrer,
+                format!(
+                    "accessor {a} does not exist (the file has {})",
+                    root.accessors.len()
+                ),
+            )
+        })?;
         let path = format!("/accessors/{a}");
         let ty = match acc.type_ {
             Checked::Valid(t) => t,
@@ -816,7 +1067,12 @@ impl<'a> Reader<'a> {
         };
         let ct = match acc.component_type {
             Checked::Valid(GenericComponentType(c)) => c,
-            Checked::Invalid => return Err(at(format!("{path}/componentType"), "unknown component type")),
+            Checked::Invalid => {
+                return Err(at(
+                    format!("{path}/componentType"),
+                    "unknown component type",
+                ))
+            }
         };
         let use_ = referrer.rsplit('/').next().unwrap_or(referrer);
         if ty != want || !comps.contains(&ct) {
@@ -832,7 +1088,10 @@ impl<'a> Reader<'a> {
             ));
         }
         if acc.normalized {
-            return Err(at(format!("{path}/normalized"), format!("{use_} must not be a normalized accessor")));
+            return Err(at(
+                format!("{path}/normalized"),
+                format!("{use_} must not be a normalized accessor"),
+            ));
         }
         let count = acc.count.0;
         if count == 0 {
@@ -841,7 +1100,10 @@ impl<'a> Reader<'a> {
         if count > self.opts.max_points {
             return Err(at(
                 format!("{path}/count"),
-                format!("accessor count {count} exceeds the read limit of {} points", self.opts.max_points),
+                format!(
+                    "accessor count {count} exceeds the read limit of {} points",
+                    self.opts.max_points
+                ),
             ));
         }
         let ncomp = ty.multiplicity();
@@ -850,7 +1112,14 @@ impl<'a> Reader<'a> {
         let Some(bv) = acc.buffer_view else {
             return Err(at(
                 path,
-                format!("accessor has no bufferView (all zeros{}); not supported for {use_}", if acc.sparse.is_some() { " plus sparse values" } else { "" }),
+                format!(
+                    "accessor has no bufferView (all zeros{}); not supported for {use_}",
+                    if acc.sparse.is_some() {
+                        " plus sparse values"
+                    } else {
+                        ""
+                    }
+                ),
             ));
         };
         let offset = acc.byte_offset.map_or(0, |o| o.0);
@@ -859,7 +1128,9 @@ impl<'a> Reader<'a> {
         if stride < elem {
             return Err(at(
                 format!("/bufferViews/{}/byteStride", bv.value()),
-                format!("byteStride {stride} is smaller than the {elem}-byte elements of accessor {a}"),
+                format!(
+                    "byteStride {stride} is smaller than the {elem}-byte elements of accessor {a}"
+                ),
             ));
         }
         let need = (count - 1)
@@ -906,31 +1177,59 @@ impl<'a> Reader<'a> {
         let path = format!("/accessors/{a}/sparse");
         let n = sp.count.0;
         if n == 0 || n > count as u64 {
-            return Err(at(format!("{path}/count"), format!("sparse count {n} must be between 1 and the accessor count {count}")));
+            return Err(at(
+                format!("{path}/count"),
+                format!("sparse count {n} must be between 1 and the accessor count {count}"),
+            ));
         }
         let n = n as usize;
         let ict = match sp.indices.component_type {
             Checked::Valid(gltf::json::accessor::IndexComponentType(c)) => c,
-            Checked::Invalid => return Err(at(format!("{path}/indices/componentType"), "unknown sparse index component type")),
+            Checked::Invalid => {
+                return Err(at(
+                    format!("{path}/indices/componentType"),
+                    "unknown sparse index component type",
+                ))
+            }
         };
         let isize = ict.size();
-        let (ibytes, _) = self.view(sp.indices.buffer_view.value(), &format!("{path}/indices/bufferView"))?;
+        let (ibytes, _) = self.view(
+            sp.indices.buffer_view.value(),
+            &format!("{path}/indices/bufferView"),
+        )?;
         let ioff = sp.indices.byte_offset.0;
-        if ioff.checked_add((n * isize) as u64).is_none_or(|e| e > ibytes.len() as u64) {
+        if ioff
+            .checked_add((n * isize) as u64)
+            .is_none_or(|e| e > ibytes.len() as u64)
+        {
             return Err(at(
                 format!("{path}/indices"),
                 format!("{n} sparse indices of {isize} bytes from byteOffset {ioff} run past the bufferView ({} bytes)", ibytes.len()),
             ));
         }
-        let idx: Vec<usize> = (0..n).map(|k| read_component(ibytes, ioff as usize + k * isize, ict) as usize).collect();
+        let idx: Vec<usize> = (0..n)
+            .map(|k| read_component(ibytes, ioff as usize + k * isize, ict) as usize)
+            .collect();
         if let Some(k) = idx.iter().position(|&i| i >= count) {
-            return Err(at(format!("{path}/indices"), format!("sparse index {} at element {k} is out of range (count {count})", idx[k])));
+            return Err(at(
+                format!("{path}/indices"),
+                format!(
+                    "sparse index {} at element {k} is out of range (count {count})",
+                    idx[k]
+                ),
+            ));
         }
         let csize = ct.size();
         let elem = ncomp * csize;
-        let (vbytes, _) = self.view(sp.values.buffer_view.value(), &format!("{path}/values/bufferView"))?;
+        let (vbytes, _) = self.view(
+            sp.values.buffer_view.value(),
+            &format!("{path}/values/bufferView"),
+        )?;
         let voff = sp.values.byte_offset.0;
-        if voff.checked_add((n * elem) as u64).is_none_or(|e| e > vbytes.len() as u64) {
+        if voff
+            .checked_add((n * elem) as u64)
+            .is_none_or(|e| e > vbytes.len() as u64)
+        {
             return Err(at(
                 format!("{path}/values"),
                 format!("{n} sparse values of {elem} bytes from byteOffset {voff} run past the bufferView ({} bytes)", vbytes.len()),
@@ -938,7 +1237,8 @@ impl<'a> Reader<'a> {
         }
         for (k, &i) in idx.iter().enumerate() {
             for c in 0..ncomp {
-                out[i * ncomp + c] = read_component(vbytes, voff as usize + k * elem + c * csize, ct);
+                out[i * ncomp + c] =
+                    read_component(vbytes, voff as usize + k * elem + c * csize, ct);
             }
         }
         Ok(())
@@ -983,9 +1283,13 @@ fn decode_data_uri(uri: &str) -> Result<Vec<u8>, String> {
         return Err("data URI has no ',' before its data".into());
     };
     if !header.ends_with(";base64") {
-        return Err(format!("data URI '{header},...' is not base64; only base64 data URIs are supported"));
+        return Err(format!(
+            "data URI '{header},...' is not base64; only base64 data URIs are supported"
+        ));
     }
-    BASE64.decode(payload.trim_end()).map_err(|e| format!("data URI holds invalid base64: {e}"))
+    BASE64
+        .decode(payload.trim_end())
+        .map_err(|e| format!("data URI holds invalid base64: {e}"))
 }
 
 // ---------------------------------------------------------------------------
@@ -1002,7 +1306,9 @@ pub fn encode(yarns: &Yarns, binary: bool) -> Result<Vec<u8>, FormatError> {
     let nv = yarns.num_points();
     let index_count = nv + yarns.num_closed();
     if u32::try_from(nv).is_err() || u32::try_from(index_count).is_err() {
-        return Err(FormatError::whole_file(format!("{nv} vertices are more than glTF's 32-bit indices can address")));
+        return Err(FormatError::whole_file(format!(
+            "{nv} vertices are more than glTF's 32-bit indices can address"
+        )));
     }
     // One buffer: positions | radii | indices, every section a multiple of 4 bytes.
     let pos_len = nv * 12;
@@ -1013,7 +1319,9 @@ pub fn encode(yarns: &Yarns, binary: bool) -> Result<Vec<u8>, FormatError> {
         for &x in p {
             let f = x as f32;
             if !f.is_finite() {
-                return Err(FormatError::whole_file(format!("vertex {v}: coordinate {x} does not fit in a 32-bit float")));
+                return Err(FormatError::whole_file(format!(
+                    "vertex {v}: coordinate {x} does not fit in a 32-bit float"
+                )));
             }
             bin.extend_from_slice(&f.to_le_bytes());
         }
@@ -1072,7 +1380,10 @@ pub fn encode(yarns: &Yarns, binary: bool) -> Result<Vec<u8>, FormatError> {
     if n > 0 {
         let mut buffer = json!({ "byteLength": bin.len() });
         if !binary {
-            buffer["uri"] = json!(format!("data:application/octet-stream;base64,{}", BASE64.encode(&bin)));
+            buffer["uri"] = json!(format!(
+                "data:application/octet-stream;base64,{}",
+                BASE64.encode(&bin)
+            ));
         }
         doc["nodes"][0]["mesh"] = json!(0);
         doc["meshes"] = json!([ { "name": "yarns", "primitives": primitives } ]);
@@ -1084,7 +1395,8 @@ pub fn encode(yarns: &Yarns, binary: bool) -> Result<Vec<u8>, FormatError> {
         ]);
         doc["accessors"] = serde_json::Value::Array(accessors);
     }
-    let json_bytes = serde_json::to_vec(&doc).map_err(|e| FormatError::whole_file(format!("cannot serialise glTF JSON: {e}")))?;
+    let json_bytes = serde_json::to_vec(&doc)
+        .map_err(|e| FormatError::whole_file(format!("cannot serialise glTF JSON: {e}")))?;
     if !binary {
         return Ok(json_bytes);
     }
@@ -1100,8 +1412,11 @@ fn glb_container(mut json: Vec<u8>, bin: Option<Vec<u8>>) -> Result<Vec<u8>, For
         b
     });
     let total = GLB_HEADER_LEN + 8 + json.len() + bin.as_ref().map_or(0, |b| 8 + b.len());
-    let total32 = u32::try_from(total)
-        .map_err(|_| FormatError::whole_file(format!("a GLB holds at most 4 GiB; these yarns need {total} bytes (write .gltf)")))?;
+    let total32 = u32::try_from(total).map_err(|_| {
+        FormatError::whole_file(format!(
+            "a GLB holds at most 4 GiB; these yarns need {total} bytes (write .gltf)"
+        ))
+    })?;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(GLB_MAGIC);
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -1127,11 +1442,22 @@ mod tests {
     }
 
     /// A minimal glTF with one primitive over an embedded buffer.
-    fn doc(mode: u32, positions: &[[f32; 3]], indices: Option<&[u32]>, extra_node: serde_json::Value) -> Vec<u8> {
-        let mut bin: Vec<u8> = positions.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+    fn doc(
+        mode: u32,
+        positions: &[[f32; 3]],
+        indices: Option<&[u32]>,
+        extra_node: serde_json::Value,
+    ) -> Vec<u8> {
+        let mut bin: Vec<u8> = positions
+            .iter()
+            .flatten()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         let pos_len = bin.len();
         let mut prim = json!({ "attributes": { "POSITION": 0 }, "mode": mode });
-        let mut accessors = vec![json!({ "bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3" })];
+        let mut accessors = vec![
+            json!({ "bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3" }),
+        ];
         let mut views = vec![json!({ "buffer": 0, "byteLength": pos_len })];
         if let Some(idx) = indices {
             bin.extend(idx.iter().flat_map(|i| i.to_le_bytes()));
@@ -1155,23 +1481,56 @@ mod tests {
         .unwrap()
     }
 
-    const SQ: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+    const SQ: [[f32; 3]; 4] = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [0.0, 1.0, 0.0],
+    ];
 
     #[test]
     fn strip_loop_and_lines_topology() {
         let d = decode(&doc(3, &SQ, None, json!({})), &opts(), &NoResources).unwrap();
-        assert_eq!((d.yarns.num_curves(), d.yarns.num_points(), d.yarns.closed.clone()), (1, 4, vec![false]));
+        assert_eq!(
+            (
+                d.yarns.num_curves(),
+                d.yarns.num_points(),
+                d.yarns.closed.clone()
+            ),
+            (1, 4, vec![false])
+        );
         let d = decode(&doc(2, &SQ, None, json!({})), &opts(), &NoResources).unwrap();
-        assert_eq!((d.yarns.num_points(), d.yarns.closed.clone()), (4, vec![true]));
+        assert_eq!(
+            (d.yarns.num_points(), d.yarns.closed.clone()),
+            (4, vec![true])
+        );
         // Strip that returns to its first index: closed, repeat dropped.
-        let d = decode(&doc(3, &SQ, Some(&[0, 1, 2, 3, 0]), json!({})), &opts(), &NoResources).unwrap();
-        assert_eq!((d.yarns.num_points(), d.yarns.closed.clone()), (4, vec![true]));
+        let d = decode(
+            &doc(3, &SQ, Some(&[0, 1, 2, 3, 0]), json!({})),
+            &opts(),
+            &NoResources,
+        )
+        .unwrap();
+        assert_eq!(
+            (d.yarns.num_points(), d.yarns.closed.clone()),
+            (4, vec![true])
+        );
         // LINES: chains [0 1 2] (open) and [3 0 1] (closed by the segment 1-3).
-        let d = decode(&doc(1, &SQ, Some(&[0, 1, 1, 2, 3, 0, 0, 1, 1, 3]), json!({})), &opts(), &NoResources).unwrap();
+        let d = decode(
+            &doc(1, &SQ, Some(&[0, 1, 1, 2, 3, 0, 0, 1, 1, 3]), json!({})),
+            &opts(),
+            &NoResources,
+        )
+        .unwrap();
         assert_eq!(d.yarns.offsets, vec![0, 3, 6]);
         assert_eq!(d.yarns.closed, vec![false, true]);
         assert_eq!(d.yarns.points[3], [0.0, 1.0, 0.0]);
-        let d = decode(&doc(1, &SQ, Some(&[0, 1, 1, 2, 2, 0, 3, 2]), json!({})), &opts(), &NoResources).unwrap();
+        let d = decode(
+            &doc(1, &SQ, Some(&[0, 1, 1, 2, 2, 0, 3, 2]), json!({})),
+            &opts(),
+            &NoResources,
+        )
+        .unwrap();
         assert_eq!(d.yarns.offsets, vec![0, 3, 5]);
         assert_eq!(d.yarns.closed, vec![true, false]);
         assert_eq!(d.units, Some(Units::METRES));
@@ -1186,7 +1545,10 @@ mod tests {
         let node = json!({ "translation": [10.0, 0.0, 0.0], "rotation": [0.0, 0.0, s, s], "scale": [2.0, 2.0, 2.0] });
         let d = decode(&doc(3, &SQ, None, node), &opts(), &NoResources).unwrap();
         let p = d.yarns.points[1]; // (1,0,0) -> scaled (2,0,0) -> rotated (0,2,0) -> (10,2,0)
-        assert!((p[0] - 10.0).abs() < 1e-6 && (p[1] - 2.0).abs() < 1e-6 && p[2].abs() < 1e-6, "{p:?}");
+        assert!(
+            (p[0] - 10.0).abs() < 1e-6 && (p[1] - 2.0).abs() < 1e-6 && p[2].abs() < 1e-6,
+            "{p:?}"
+        );
         let m = json!({ "matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 5.0, 1.0] });
         let d = decode(&doc(3, &SQ, None, m), &opts(), &NoResources).unwrap();
         assert_eq!(d.yarns.points[2], [1.0, 1.0, 5.0]);
@@ -1208,15 +1570,28 @@ mod tests {
     #[test]
     fn round_trip_both_containers() {
         let mut y = Yarns::new();
-        y.push_curve(&[[0.0, 0.1, 0.2], [1.0, 0.5, -0.25], [2.0, 0.0, 0.0]], true, 0.001);
+        y.push_curve(
+            &[[0.0, 0.1, 0.2], [1.0, 0.5, -0.25], [2.0, 0.0, 0.0]],
+            true,
+            0.001,
+        );
         y.push_curve(&[[0.0; 3], [0.0, 0.0, 3.0]], false, 0.002);
         for binary in [false, true] {
             let bytes = encode(&y, binary).unwrap();
             assert_eq!(bytes.starts_with(GLB_MAGIC), binary);
             let d = decode(&bytes, &opts(), &NoResources).unwrap();
             assert!(d.yarns.same_topology(&y));
-            assert_eq!(d.yarns.points, y.points.iter().map(|p| p.map(|x| f64::from(x as f32))).collect::<Vec<_>>());
-            assert_eq!(d.yarns.radius, vec![f64::from(0.001f32), f64::from(0.002f32)]);
+            assert_eq!(
+                d.yarns.points,
+                y.points
+                    .iter()
+                    .map(|p| p.map(|x| f64::from(x as f32)))
+                    .collect::<Vec<_>>()
+            );
+            assert_eq!(
+                d.yarns.radius,
+                vec![f64::from(0.001f32), f64::from(0.002f32)]
+            );
             assert!(d.yarns.vertex_radius.is_none());
         }
     }
@@ -1241,7 +1616,10 @@ mod tests {
         assert_eq!(e.location, Location::Byte(8), "{e}");
         let mut bad = good.clone();
         bad[4] = 1;
-        assert_eq!(decode(&bad, &opts(), &NoResources).unwrap_err().location, Location::Byte(4));
+        assert_eq!(
+            decode(&bad, &opts(), &NoResources).unwrap_err().location,
+            Location::Byte(4)
+        );
         let mut bad = good.clone();
         bad[12..16].copy_from_slice(&(1u32 << 31).to_le_bytes());
         let e = decode(&bad, &opts(), &NoResources).unwrap_err();
@@ -1250,18 +1628,70 @@ mod tests {
     }
 
     #[test]
+    fn scenes_optional_parts() {
+        // The spec makes scene.nodes optional (gltf-json does not); no scenes at all means root nodes.
+        let base: serde_json::Value =
+            serde_json::from_slice(&doc(3, &SQ, None, json!({}))).unwrap();
+        let mut v = base.clone();
+        v["scenes"] = json!([{}, { "nodes": [0] }]);
+        v.as_object_mut().unwrap().remove("scene");
+        let d = decode(&serde_json::to_vec(&v).unwrap(), &opts(), &NoResources).unwrap();
+        assert_eq!(d.yarns.num_curves(), 1);
+        let mut v = base.clone();
+        v.as_object_mut().unwrap().remove("scene");
+        v.as_object_mut().unwrap().remove("scenes");
+        let d = decode(&serde_json::to_vec(&v).unwrap(), &opts(), &NoResources).unwrap();
+        assert_eq!(d.yarns.num_curves(), 1);
+        assert!(d.notes.iter().any(|n| n.contains("root node")));
+        // A byte order mark is tolerated.
+        let mut bom = "\u{FEFF}".as_bytes().to_vec();
+        bom.extend(serde_json::to_vec(&base).unwrap());
+        assert_eq!(
+            decode(&bom, &opts(), &NoResources)
+                .unwrap()
+                .yarns
+                .num_curves(),
+            1
+        );
+    }
+
+    #[test]
+    fn singular_transform_with_radii_is_refused() {
+        let mut y = Yarns::new();
+        y.push_curve(&[[0.0; 3], [1.0, 0.0, 0.0]], false, 0.25);
+        let mut v: serde_json::Value = serde_json::from_slice(&encode(&y, false).unwrap()).unwrap();
+        v["nodes"][0]["scale"] = json!([1.0, 0.0, 1.0]);
+        let e = decode(&serde_json::to_vec(&v).unwrap(), &opts(), &NoResources).unwrap_err();
+        assert_eq!(e.location, Location::Path("/nodes/0".into()), "{e}");
+    }
+
+    #[test]
     fn data_uri_decoding() {
-        assert_eq!(decode_data_uri("data:application/octet-stream;base64,AAEC").unwrap(), vec![0, 1, 2]);
-        assert_eq!(decode_data_uri("data:application/gltf-buffer;base64,AAE").unwrap(), vec![0, 1]);
-        assert!(decode_data_uri("data:application/octet-stream;base64,A!EC").unwrap_err().contains("base64"));
-        assert!(decode_data_uri("data:text/plain,abc").unwrap_err().contains("not base64"));
+        assert_eq!(
+            decode_data_uri("data:application/octet-stream;base64,AAEC").unwrap(),
+            vec![0, 1, 2]
+        );
+        assert_eq!(
+            decode_data_uri("data:application/gltf-buffer;base64,AAE").unwrap(),
+            vec![0, 1]
+        );
+        assert!(decode_data_uri("data:application/octet-stream;base64,A!EC")
+            .unwrap_err()
+            .contains("base64"));
+        assert!(decode_data_uri("data:text/plain,abc")
+            .unwrap_err()
+            .contains("not base64"));
     }
 
     #[test]
     fn matrices() {
-        let s = length_scale(&[2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 1.0, 2.0, 3.0, 1.0]);
+        let s = length_scale(&[
+            2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 1.0, 2.0, 3.0, 1.0,
+        ]);
         assert!((s - 2.0).abs() < 1e-12);
-        let t: Mat4 = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 2.0, 3.0, 1.0];
+        let t: Mat4 = [
+            1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 2.0, 3.0, 1.0,
+        ];
         assert_eq!(transform_point(&mat_mul(&t, &t), [0.0; 3]), [2.0, 4.0, 6.0]);
         assert_eq!(mat_mul(&IDENTITY, &t), t);
     }
