@@ -1008,8 +1008,12 @@ impl<'a> Reader<'a> {
     ) -> Result<Rc<Vec<f32>>, FormatError> {
         if let Some(v) = self.float_cache.get(&a) {
             // The cache key is the accessor; the type check must still hold for this use.
-            let acc = &self.root.accessors[a];
-            if acc.type_ == Checked::Valid(want) {
+            if self
+                .root
+                .accessors
+                .get(a)
+                .is_some_and(|acc| acc.type_ == Checked::Valid(want))
+            {
                 return Ok(v.clone());
             }
         }
