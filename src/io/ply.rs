@@ -858,15 +858,17 @@ fn find_prop(el: &Element, names: &[&str], integer: bool) -> Result<Option<usize
                     ),
                 ))
             }
-            Kind::Scalar(t) if integer && !t.is_integer() => return Err(FormatError::at_line(
-                p.line,
-                format!(
+            Kind::Scalar(t) if integer && !t.is_integer() => {
+                return Err(FormatError::at_line(
+                    p.line,
+                    format!(
                     "element '{}': property '{}' is {}; vertex indices must have an integer type",
                     el.name,
                     p.name,
                     t.name()
                 ),
-            )),
+                ))
+            }
             Kind::Scalar(_) => found = Some(i),
         }
     }
@@ -877,8 +879,6 @@ fn find_prop(el: &Element, names: &[&str], integer: bool) -> Result<Option<usize
 /// what is read and how topology is found.
 pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     let h = parse_header(data)?;
-    let available = data.len() - h.payload_start;
-    check_counts(&h, available)?;
 
     let mut notes = vec![format!("PLY {} 1.0", h.encoding.name())];
     for c in h.comments.iter().take(MAX_COMMENT_NOTES) {
@@ -892,28 +892,12 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     }
 
     let Some(vi) = h.elements.iter().position(|e| e.name == "vertex") else {
-        return Err(FormatError::whole_file(
-            "PLY has no 'vertex' element: no curve points",
+        return Err(FormatError::at_line(
+            h.lines,
+            "the header declares no 'vertex' element: no curve points",
         ));
     };
     let vel = &h.elements[vi];
-    if vel.count > opts.max_points {
-        return Err(FormatError::at_line(
-            vel.line,
-            format!(
-                "vertex count {} exceeds the limit of {} points (max_points)",
-                vel.count, opts.max_points
-            ),
-        ));
-    }
-    // Bounded by max_points and by the bytes check above.
-    let nverts = usize::try_from(vel.count).map_err(|_| {
-        FormatError::at_line(
-            vel.line,
-            format!("vertex count {} does not fit in memory", vel.count),
-        )
-    })?;
-
     // Vertex slots.
     let mut vslots = vec![None; vel.props.len()];
     for (k, axis) in ["x", "y", "z"].into_iter().enumerate() {
@@ -968,7 +952,7 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         }
     } else if let Some(i) = id_prop {
         vslots[i] = Some(CURVE_ID);
-    } else if nverts > 0 {
+    } else if vel.count > 0 {
         return Err(FormatError::at_line(
             vel.line,
             format!(
@@ -987,6 +971,25 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     if !ignored.is_empty() {
         notes.push(format!("vertex properties ignored: {}", ignored.join(", ")));
     }
+
+    // Every count against the bytes that are left, before allocating for any.
+    check_counts(&h, data.len() - h.payload_start)?;
+    if vel.count > opts.max_points {
+        return Err(FormatError::at_line(
+            vel.line,
+            format!(
+                "vertex count {} exceeds the limit of {} points (max_points)",
+                vel.count, opts.max_points
+            ),
+        ));
+    }
+    // Bounded by max_points and by the bytes check.
+    let nverts = usize::try_from(vel.count).map_err(|_| {
+        FormatError::at_line(
+            vel.line,
+            format!("vertex count {} does not fit in memory", vel.count),
+        )
+    })?;
 
     let with_edges = ei.is_some();
     let nadj = if with_edges { nverts } else { 0 };
@@ -1064,7 +1067,7 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             "{nverts} vertices, {} edges chained into polylines",
             h.elements[ei.unwrap_or(0)].count
         ));
-        chain_edges(&sink, &mut order, &mut offsets, &mut closed, |v| pos_of(v))?;
+        chain_edges(&sink, &mut order, &mut offsets, &mut closed, pos_of)?;
     } else if let Some(ids) = &sink.ids {
         notes.push(format!(
             "curves from the curve-id property '{}'",
@@ -1410,11 +1413,12 @@ mod tests {
     fn counts_guarded_before_allocation() {
         let e = dec(
             "ply\nformat binary_little_endian 1.0\nelement vertex 1152921504606846976\n\
-                     property float x\nproperty float y\nproperty float z\nend_header\n",
+                     property float x\nproperty float y\nproperty float z\nproperty int strand\n\
+                     end_header\n",
         )
         .unwrap_err();
         assert_eq!(e.location, Location::Line(3));
-        assert!(e.message.contains("13835058055282163712 bytes"), "{e}");
+        assert!(e.message.contains("18446744073709551616 bytes"), "{e}");
     }
 
     #[test]
