@@ -26,7 +26,7 @@ use hdf5::types::{FixedAscii, FixedUnicode, TypeDescriptor, VarLenAscii, VarLenU
 use hdf5::{Dataset, Extent, Group, LinkType, LocationType};
 
 use super::{Decoded, Format, FormatError, IoError, ReadOptions};
-use crate::geom::{UpAxis, Units, Vec3, YarnFrames, Yarns};
+use crate::geom::{Units, UpAxis, Vec3, YarnFrames, Yarns};
 
 /// Value of the root attribute `knitvox_format` in a yarns file.
 pub const FORMAT_NAME: &str = "yarns";
@@ -53,10 +53,12 @@ const TIMES_CHUNK: usize = 1024;
 /// Deepest group nesting [`list_datasets`] follows.
 const MAX_LIST_DEPTH: usize = 32;
 
-const WRITE_FLAG_MESSAGE: &str = "the file is marked as being written by another process (its HDF5 \
+const WRITE_FLAG_MESSAGE: &str =
+    "the file is marked as being written by another process (its HDF5 \
 'open for write' consistency flag is set): wait for the writer to finish; if no writer is running, \
 the file was not closed cleanly and `h5clear -s FILE` clears the flag";
-const LOCK_MESSAGE: &str = "another process holds a lock on the file (it is being written): retry when \
+const LOCK_MESSAGE: &str =
+    "another process holds a lock on the file (it is being written): retry when \
 it is done; on file systems without working locks (some NFS) set HDF5_USE_FILE_LOCKING=FALSE";
 
 // ---------------------------------------------------------------------------
@@ -75,7 +77,10 @@ enum OpenError {
 fn error_frames(e: &hdf5::Error) -> Vec<String> {
     match e {
         hdf5::Error::HDF5(stack) => match stack.clone().expand() {
-            Ok(s) => s.iter().map(|f| f.description().trim().to_string()).collect(),
+            Ok(s) => s
+                .iter()
+                .map(|f| f.description().trim().to_string())
+                .collect(),
             Err(_) => vec![e.to_string()],
         },
         hdf5::Error::Internal(s) => vec![s.clone()],
@@ -106,22 +111,38 @@ fn classify_open_error(e: &hdf5::Error) -> OpenError {
             "not an HDF5 file: no HDF5 signature found (another format, or truncated before the superblock)",
         ))
     } else if all.contains("truncated file") {
-        OpenError::Format(FormatError::whole_file(format!("truncated HDF5 file ({})", h5_message(e))))
+        OpenError::Format(FormatError::whole_file(format!(
+            "truncated HDF5 file ({})",
+            h5_message(e)
+        )))
     } else {
-        OpenError::Format(FormatError::whole_file(format!("libhdf5 cannot open it: {}", h5_message(e))))
+        OpenError::Format(FormatError::whole_file(format!(
+            "libhdf5 cannot open it: {}",
+            h5_message(e)
+        )))
     }
 }
 
 fn busy(path: &Path, message: String) -> IoError {
-    IoError::Busy { path: path.to_path_buf(), message }
+    IoError::Busy {
+        path: path.to_path_buf(),
+        message,
+    }
 }
 
 fn format_err(path: &Path, source: FormatError) -> IoError {
-    IoError::Format { path: path.to_path_buf(), format: Format::Hdf5, source }
+    IoError::Format {
+        path: path.to_path_buf(),
+        format: Format::Hdf5,
+        source,
+    }
 }
 
 fn write_err(path: &Path, source: impl Into<std::io::Error>) -> IoError {
-    IoError::Write { path: path.to_path_buf(), source: source.into() }
+    IoError::Write {
+        path: path.to_path_buf(),
+        source: source.into(),
+    }
 }
 
 fn invalid_input(message: String) -> std::io::Error {
@@ -131,16 +152,25 @@ fn invalid_input(message: String) -> std::io::Error {
 /// Opens `path` read-only, classifying failures (missing file, busy, not HDF5).
 fn open_path(path: &Path) -> Result<hdf5::File, IoError> {
     // Let the OS report missing files and permissions first: clearer than libhdf5's text.
-    let meta = std::fs::metadata(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+    let meta = std::fs::metadata(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if meta.is_dir() {
         return Err(IoError::Read {
             path: path.to_path_buf(),
             source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "is a directory"),
         });
     }
-    std::fs::File::open(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+    std::fs::File::open(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if meta.len() == 0 {
-        return Err(format_err(path, FormatError::whole_file("empty file (0 bytes): not an HDF5 file")));
+        return Err(format_err(
+            path,
+            FormatError::whole_file("empty file (0 bytes): not an HDF5 file"),
+        ));
     }
     hdf5::File::open(path).map_err(|e| match classify_open_error(&e) {
         OpenError::Busy(m) => busy(path, m),
@@ -162,14 +192,20 @@ fn open_image(data: &[u8]) -> Result<hdf5::File, OpenError> {
     use hdf5_sys::h5p::{H5Pcreate, H5Pset_fapl_core, H5Pset_file_image};
 
     if data.is_empty() {
-        return Err(OpenError::Format(FormatError::whole_file("empty file (0 bytes): not an HDF5 file")));
+        return Err(OpenError::Format(FormatError::whole_file(
+            "empty file (0 bytes): not an HDF5 file",
+        )));
     }
     // The core driver treats two images with the same name as one open file,
     // so every image gets a name of its own.
     static IMAGE_COUNTER: AtomicU64 = AtomicU64::new(0);
     let n = IMAGE_COUNTER.fetch_add(1, Ordering::Relaxed);
-    let name = CString::new(format!("knitvox-image-{}-{n}.h5", std::process::id()))
-        .map_err(|_| OpenError::Format(FormatError::whole_file("internal error naming the file image")))?;
+    let name =
+        CString::new(format!("knitvox-image-{}-{n}.h5", std::process::id())).map_err(|_| {
+            OpenError::Format(FormatError::whole_file(
+                "internal error naming the file image",
+            ))
+        })?;
     let opened: hdf5::Result<hdf5::File> = hdf5::sync::sync(|| unsafe {
         let fapl_id = H5Pcreate(*hdf5::globals::H5P_FILE_ACCESS);
         if fapl_id < 0 {
@@ -245,7 +281,9 @@ fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
         let id = dt.id();
         let size = H5Tget_size(id);
         let kind = match H5Tget_class(id) {
-            H5T_class_t::H5T_INTEGER => Kind::Int { signed: H5Tget_sign(id) == H5T_sign_t::H5T_SGN_2 },
+            H5T_class_t::H5T_INTEGER => Kind::Int {
+                signed: H5Tget_sign(id) == H5T_sign_t::H5T_SGN_2,
+            },
             H5T_class_t::H5T_FLOAT => Kind::Float,
             H5T_class_t::H5T_ENUM => Kind::Enum,
             H5T_class_t::H5T_STRING => Kind::String,
@@ -275,7 +313,12 @@ struct Ds {
 }
 
 impl Ds {
-    fn open(group: &Group, group_path: &str, name: &str, required: bool) -> Result<Option<Ds>, FormatError> {
+    fn open(
+        group: &Group,
+        group_path: &str,
+        name: &str,
+        required: bool,
+    ) -> Result<Option<Ds>, FormatError> {
         let loc = format!("{}/{name}", group_path.trim_end_matches('/'));
         if !group.link_exists(name) {
             return if required {
@@ -287,7 +330,10 @@ impl Ds {
         match group.loc_type_by_name(name) {
             Ok(LocationType::Dataset) => {}
             Ok(other) => {
-                return Err(FormatError::at_path(&loc, format!("expected a dataset, found a {other:?}").to_lowercase()))
+                return Err(FormatError::at_path(
+                    &loc,
+                    format!("expected a dataset, found a {other:?}").to_lowercase(),
+                ))
             }
             Err(e) => return Err(loc_err(&loc, &e)),
         }
@@ -305,7 +351,11 @@ impl Ds {
     /// Checks the rank and the fixed extents (`None` = any length).
     fn expect_shape(&self, expected: &[Option<usize>], what: &str) -> Result<(), FormatError> {
         let ok = self.shape.len() == expected.len()
-            && self.shape.iter().zip(expected).all(|(s, e)| e.is_none_or(|e| e == *s));
+            && self
+                .shape
+                .iter()
+                .zip(expected)
+                .all(|(s, e)| e.is_none_or(|e| e == *s));
         if ok {
             Ok(())
         } else {
@@ -316,7 +366,10 @@ impl Ds {
     fn expect_float(&self) -> Result<(), FormatError> {
         match self.ty.kind {
             Kind::Float => Ok(()),
-            _ => Err(self.err(format!("type {}, expected floating point (float64)", self.ty.describe()))),
+            _ => Err(self.err(format!(
+                "type {}, expected floating point (float64)",
+                self.ty.describe()
+            ))),
         }
     }
 
@@ -333,7 +386,11 @@ impl Ds {
         }
         let stored = self.ds.storage_size();
         let filtered = !self.ds.filters().is_empty();
-        let justified = if filtered { stored.saturating_mul(MAX_COMPRESSION_RATIO) } else { stored };
+        let justified = if filtered {
+            stored.saturating_mul(MAX_COMPRESSION_RATIO)
+        } else {
+            stored
+        };
         if needed > justified {
             return Err(self.err(format!(
                 "declares {elems} values ({needed} bytes) but the file stores only {stored} bytes for it{}",
@@ -348,7 +405,10 @@ impl Ds {
             return Ok(());
         }
         self.guard_storage(buf.len())?;
-        self.ds.read_into_raw(buf).map(|_| ()).map_err(|e| loc_err(&self.loc, &e))
+        self.ds
+            .read_into_raw(buf)
+            .map(|_| ())
+            .map_err(|e| loc_err(&self.loc, &e))
     }
 
     fn read_f64(&self, elems: usize) -> Result<Vec<f64>, FormatError> {
@@ -368,7 +428,10 @@ impl Ds {
                 let v: Vec<i64> = self.ds.read_raw().map_err(|e| loc_err(&self.loc, &e))?;
                 v.into_iter()
                     .enumerate()
-                    .map(|(i, x)| u64::try_from(x).map_err(|_| self.err(format!("entry {i} is negative ({x})"))))
+                    .map(|(i, x)| {
+                        u64::try_from(x)
+                            .map_err(|_| self.err(format!("entry {i} is negative ({x})")))
+                    })
                     .collect()
             }
             Kind::Int { signed: false } => self.ds.read_raw().map_err(|e| loc_err(&self.loc, &e)),
@@ -386,7 +449,11 @@ fn attr_loc(owner: &str, name: &str) -> String {
 }
 
 /// A string attribute (variable- or fixed-length, ASCII or UTF-8), if present.
-fn read_str_attr(obj: &hdf5::Location, owner: &str, name: &str) -> Result<Option<String>, FormatError> {
+fn read_str_attr(
+    obj: &hdf5::Location,
+    owner: &str,
+    name: &str,
+) -> Result<Option<String>, FormatError> {
     let loc = attr_loc(owner, name);
     let names = obj.attr_names().map_err(|e| loc_err(owner, &e))?;
     if !names.iter().any(|n| n == name) {
@@ -394,23 +461,44 @@ fn read_str_attr(obj: &hdf5::Location, owner: &str, name: &str) -> Result<Option
     }
     let attr = obj.attr(name).map_err(|e| loc_err(&loc, &e))?;
     if attr.size() != 1 {
-        return Err(FormatError::at_path(&loc, format!("expected one string, found shape {:?}", attr.shape())));
+        return Err(FormatError::at_path(
+            &loc,
+            format!("expected one string, found shape {:?}", attr.shape()),
+        ));
     }
-    let desc = attr.dtype().and_then(|d| d.to_descriptor()).map_err(|e| loc_err(&loc, &e))?;
+    let desc = attr
+        .dtype()
+        .and_then(|d| d.to_descriptor())
+        .map_err(|e| loc_err(&loc, &e))?;
     let read = match desc {
-        TypeDescriptor::VarLenUnicode => attr.read_raw::<VarLenUnicode>().map(|v| v[0].as_str().to_string()),
-        TypeDescriptor::VarLenAscii => attr.read_raw::<VarLenAscii>().map(|v| v[0].as_str().to_string()),
-        TypeDescriptor::FixedAscii(n) if n <= 256 => attr.read_raw::<FixedAscii<256>>().map(|v| v[0].as_str().to_string()),
-        TypeDescriptor::FixedUnicode(n) if n <= 256 => {
-            attr.read_raw::<FixedUnicode<256>>().map(|v| v[0].as_str().to_string())
+        TypeDescriptor::VarLenUnicode => attr
+            .read_raw::<VarLenUnicode>()
+            .map(|v| v[0].as_str().to_string()),
+        TypeDescriptor::VarLenAscii => attr
+            .read_raw::<VarLenAscii>()
+            .map(|v| v[0].as_str().to_string()),
+        TypeDescriptor::FixedAscii(n) if n <= 256 => attr
+            .read_raw::<FixedAscii<256>>()
+            .map(|v| v[0].as_str().to_string()),
+        TypeDescriptor::FixedUnicode(n) if n <= 256 => attr
+            .read_raw::<FixedUnicode<256>>()
+            .map(|v| v[0].as_str().to_string()),
+        other => {
+            return Err(FormatError::at_path(
+                &loc,
+                format!("type {other}, expected a short string"),
+            ))
         }
-        other => return Err(FormatError::at_path(&loc, format!("type {other}, expected a short string"))),
     };
     read.map(Some).map_err(|e| loc_err(&loc, &e))
 }
 
 /// An integer attribute, if present.
-fn read_int_attr(obj: &hdf5::Location, owner: &str, name: &str) -> Result<Option<i64>, FormatError> {
+fn read_int_attr(
+    obj: &hdf5::Location,
+    owner: &str,
+    name: &str,
+) -> Result<Option<i64>, FormatError> {
     let loc = attr_loc(owner, name);
     let names = obj.attr_names().map_err(|e| loc_err(owner, &e))?;
     if !names.iter().any(|n| n == name) {
@@ -421,16 +509,37 @@ fn read_int_attr(obj: &hdf5::Location, owner: &str, name: &str) -> Result<Option
     if attr.size() != 1 || !matches!(ty.kind, Kind::Int { .. }) {
         return Err(FormatError::at_path(
             &loc,
-            format!("expected one integer, found {} of shape {:?}", ty.describe(), attr.shape()),
+            format!(
+                "expected one integer, found {} of shape {:?}",
+                ty.describe(),
+                attr.shape()
+            ),
         ));
     }
     let v: Vec<i64> = attr.read_raw().map_err(|e| loc_err(&loc, &e))?;
     Ok(v.first().copied())
 }
 
+/// Writes an ASCII string attribute as a fixed-length string of exactly its
+/// length. Fixed-length strings live in the (checksummed) object header;
+/// variable-length ones live in libhdf5's global heap, which carries no
+/// checksum and which libhdf5 trusts blindly when reading (a flipped byte
+/// there can crash the reader).
 fn write_str_attr(obj: &hdf5::Location, name: &str, value: &str) -> hdf5::Result<()> {
-    let v: VarLenUnicode = value.parse().map_err(|e| hdf5::Error::from(format!("attribute {name}: {e}")))?;
-    obj.new_attr::<VarLenUnicode>().shape(()).create(name)?.write_scalar(&v)
+    const MAX: usize = 256;
+    if value.len() > MAX {
+        return Err(hdf5::Error::from(format!(
+            "attribute {name}: longer than {MAX} bytes"
+        )));
+    }
+    let v = FixedAscii::<MAX>::from_ascii(value.as_bytes())
+        .map_err(|e| hdf5::Error::from(format!("attribute {name}: {e}")))?;
+    let attr = obj
+        .new_attr_builder()
+        .empty_as(TypeDescriptor::FixedAscii(value.len().max(1)))
+        .shape(())
+        .create(name)?;
+    attr.as_writer().write_scalar(&v)
 }
 
 // ---------------------------------------------------------------------------
@@ -512,24 +621,40 @@ fn open_group(parent: &Group, name: &str, loc: &str) -> Result<Option<Group>, Fo
     }
     match parent.loc_type_by_name(name) {
         Ok(LocationType::Group) => parent.group(name).map(Some).map_err(|e| loc_err(loc, &e)),
-        Ok(other) => Err(FormatError::at_path(loc, format!("expected a group, found a {other:?}").to_lowercase())),
+        Ok(other) => Err(FormatError::at_path(
+            loc,
+            format!("expected a group, found a {other:?}").to_lowercase(),
+        )),
         Err(e) => Err(loc_err(loc, &e)),
     }
 }
 
 /// Reads `/frames/points` and `/frames/times` (positions stay in file units).
 fn read_frames(g: &Group, n: usize, opts: &ReadOptions) -> Result<YarnFrames, FormatError> {
-    let pts = Ds::open(g, "/frames", "points", true)?.ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?;
-    pts.expect_shape(&[None, None, Some(3)], "F x N x 3 (frames x vertices x xyz)")?;
+    let pts = Ds::open(g, "/frames", "points", true)?
+        .ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?;
+    pts.expect_shape(
+        &[None, None, Some(3)],
+        "F x N x 3 (frames x vertices x xyz)",
+    )?;
     pts.expect_float()?;
     let (f, nv) = (pts.shape[0], pts.shape[1]);
     if nv != n {
-        return Err(pts.err(format!("frames have {nv} vertices but /yarns/points has {n}")));
+        return Err(pts.err(format!(
+            "frames have {nv} vertices but /yarns/points has {n}"
+        )));
     }
-    let total = f.checked_mul(n).filter(|&t| t as u64 <= opts.max_points).ok_or_else(|| {
-        pts.err(format!("{f} frames x {n} vertices exceeds the limit of {} positions (max_points)", opts.max_points))
-    })?;
-    let times = Ds::open(g, "/frames", "times", true)?.ok_or_else(|| FormatError::at_path("/frames/times", "missing"))?;
+    let total = f
+        .checked_mul(n)
+        .filter(|&t| t as u64 <= opts.max_points)
+        .ok_or_else(|| {
+            pts.err(format!(
+                "{f} frames x {n} vertices exceeds the limit of {} positions (max_points)",
+                opts.max_points
+            ))
+        })?;
+    let times = Ds::open(g, "/frames", "times", true)?
+        .ok_or_else(|| FormatError::at_path("/frames/times", "missing"))?;
     times.expect_shape(&[Some(f)], &format!("[{f}] (one time per frame)"))?;
     times.expect_float()?;
     let t = times.read_f64(f)?;
@@ -540,9 +665,16 @@ fn read_frames(g: &Group, n: usize, opts: &ReadOptions) -> Result<YarnFrames, Fo
     pts.read_f64_into(points.as_flattened_mut())?;
     if let Some(i) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         let (fi, v) = (i / n.max(1), i % n.max(1));
-        return Err(pts.err(format!("frame {fi}, vertex {v}: coordinate {:?} is not finite", points[i])));
+        return Err(pts.err(format!(
+            "frame {fi}, vertex {v}: coordinate {:?} is not finite",
+            points[i]
+        )));
     }
-    Ok(YarnFrames { num_vertices: n, times: t, points })
+    Ok(YarnFrames {
+        num_vertices: n,
+        times: t,
+        points,
+    })
 }
 
 /// Validates and reads an open knitvox yarns file.
@@ -559,25 +691,36 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     };
     let mut notes = check_format_attrs(root)?;
     let units = match read_str_attr(root, "", "units")? {
-        Some(u) => Some(u.parse::<Units>().map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?),
+        Some(u) => Some(
+            u.parse::<Units>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+        ),
         None => None,
     };
     let up_axis = match read_str_attr(root, "", "up_axis")? {
-        Some(a) => Some(a.parse::<UpAxis>().map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?),
+        Some(a) => Some(
+            a.parse::<UpAxis>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+        ),
         None => None,
     };
 
     // Points: N x 3 floats.
-    let pts = Ds::open(&yg, "/yarns", "points", true)?.ok_or_else(|| FormatError::at_path("/yarns/points", "missing"))?;
+    let pts = Ds::open(&yg, "/yarns", "points", true)?
+        .ok_or_else(|| FormatError::at_path("/yarns/points", "missing"))?;
     pts.expect_shape(&[None, Some(3)], "N x 3 (vertices x xyz)")?;
     pts.expect_float()?;
     let n = pts.shape[0];
     if n as u64 > opts.max_points {
-        return Err(pts.err(format!("{n} points exceeds the limit of {} (max_points)", opts.max_points)));
+        return Err(pts.err(format!(
+            "{n} points exceeds the limit of {} (max_points)",
+            opts.max_points
+        )));
     }
 
     // Offsets: C + 1 monotone integers from 0 to N, each curve >= 2 points.
-    let off = Ds::open(&yg, "/yarns", "offsets", true)?.ok_or_else(|| FormatError::at_path("/yarns/offsets", "missing"))?;
+    let off = Ds::open(&yg, "/yarns", "offsets", true)?
+        .ok_or_else(|| FormatError::at_path("/yarns/offsets", "missing"))?;
     off.expect_shape(&[None], "[C + 1] (one offset per curve, plus the end)")?;
     let len = off.len();
     if len == 0 {
@@ -585,7 +728,10 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     }
     // Checked before reading so the offsets cannot claim more memory than the points justify.
     if len > n + 1 {
-        return Err(off.err(format!("{} curves for {n} points: more curves than points", len - 1)));
+        return Err(off.err(format!(
+            "{} curves for {n} points: more curves than points",
+            len - 1
+        )));
     }
     let raw = off.read_index(len)?;
     if raw[0] != 0 {
@@ -601,12 +747,18 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
             return Err(off.err(format!("curve {c} ends at {b}, past the {n} points")));
         }
         if b - a < 2 {
-            return Err(off.err(format!("curve {c} has {} point(s); a yarn needs at least 2", b - a)));
+            return Err(off.err(format!(
+                "curve {c} has {} point(s); a yarn needs at least 2",
+                b - a
+            )));
         }
     }
     offsets.extend(raw.iter().map(|&o| o as usize)); // every entry <= n checked above
     if offsets[len - 1] != n {
-        return Err(off.err(format!("last offset is {}, expected the point count {n}", offsets[len - 1])));
+        return Err(off.err(format!(
+            "last offset is {}, expected the point count {n}",
+            offsets[len - 1]
+        )));
     }
     let c = len - 1;
 
@@ -622,7 +774,8 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     }
 
     // Closed flags: C integers 0/1 (or h5py's boolean enum).
-    let cl = Ds::open(&yg, "/yarns", "closed", true)?.ok_or_else(|| FormatError::at_path("/yarns/closed", "missing"))?;
+    let cl = Ds::open(&yg, "/yarns", "closed", true)?
+        .ok_or_else(|| FormatError::at_path("/yarns/closed", "missing"))?;
     cl.expect_shape(&[Some(c)], &format!("[{c}] (one flag per curve)"))?;
     let flags: Vec<u64> = match cl.ty.kind {
         Kind::Int { .. } => cl.read_index(c)?,
@@ -630,19 +783,28 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
         Kind::Enum => {
             cl.guard_storage(c)?;
             let b: Vec<bool> = cl.ds.read_raw().map_err(|e| {
-                cl.err(format!("enum flags are not a boolean (FALSE/TRUE) enum: {}", h5_message(&e)))
+                cl.err(format!(
+                    "enum flags are not a boolean (FALSE/TRUE) enum: {}",
+                    h5_message(&e)
+                ))
             })?;
             b.into_iter().map(u64::from).collect()
         }
         _ => return Err(cl.err(format!("type {}, expected uint8 flags", cl.ty.describe()))),
     };
     if let Some((i, v)) = flags.iter().enumerate().find(|(_, v)| **v > 1) {
-        return Err(cl.err(format!("curve {i}: flag {v}, expected 0 (open) or 1 (closed)")));
+        return Err(cl.err(format!(
+            "curve {i}: flag {v}, expected 0 (open) or 1 (closed)"
+        )));
     }
     let closed: Vec<bool> = flags.into_iter().map(|v| v == 1).collect();
 
     let positive = |ds: &Ds, v: &[f64], what: &str| -> Result<(), FormatError> {
-        match v.iter().enumerate().find(|(_, r)| !(r.is_finite() && **r > 0.0)) {
+        match v
+            .iter()
+            .enumerate()
+            .find(|(_, r)| !(r.is_finite() && **r > 0.0))
+        {
             Some((i, r)) => Err(ds.err(format!("{what} {i}: {r} is not a positive finite number"))),
             None => Ok(()),
         }
@@ -684,8 +846,14 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
             ds.expect_shape(&[Some(c)], &format!("[{c}] (one density per curve)"))?;
             ds.expect_float()?;
             let v = ds.read_f64(c)?;
-            if let Some((i, d)) = v.iter().enumerate().find(|(_, d)| !(d.is_finite() && **d >= 0.0)) {
-                return Err(ds.err(format!("curve {i}: {d} is not a non-negative finite number")));
+            if let Some((i, d)) = v
+                .iter()
+                .enumerate()
+                .find(|(_, d)| !(d.is_finite() && **d >= 0.0))
+            {
+                return Err(ds.err(format!(
+                    "curve {i}: {d} is not a non-negative finite number"
+                )));
             }
             Some(v)
         }
@@ -699,8 +867,22 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     if let Some(f) = &frames {
         notes.push(format!("{} frame(s)", f.num_frames()));
     }
-    let yarns = Yarns { points, offsets, closed, radius, vertex_radius, linear_density };
-    Ok(Decoded { yarns, frames, units, up_axis, radius_in_file, notes })
+    let yarns = Yarns {
+        points,
+        offsets,
+        closed,
+        radius,
+        vertex_radius,
+        linear_density,
+    };
+    Ok(Decoded {
+        yarns,
+        frames,
+        units,
+        up_axis,
+        radius_in_file,
+        notes,
+    })
 }
 
 /// Number of frames in a knitvox HDF5 file (0 when it has no `/frames`).
@@ -710,8 +892,10 @@ pub fn frame_count(path: &Path) -> Result<usize, IoError> {
         return Ok(0);
     };
     let pts = Ds::open(&g, "/frames", "points", true).map_err(|e| format_err(path, e))?;
-    let pts = pts.ok_or_else(|| format_err(path, FormatError::at_path("/frames/points", "missing")))?;
-    pts.expect_shape(&[None, None, Some(3)], "F x N x 3").map_err(|e| format_err(path, e))?;
+    let pts =
+        pts.ok_or_else(|| format_err(path, FormatError::at_path("/frames/points", "missing")))?;
+    pts.expect_shape(&[None, None, Some(3)], "F x N x 3")
+        .map_err(|e| format_err(path, e))?;
     Ok(pts.shape[0])
 }
 
@@ -726,23 +910,37 @@ pub fn read_frame(path: &Path, f: usize) -> Result<Vec<Vec3>, IoError> {
 fn read_frame_of(file: &hdf5::File, f: usize) -> Result<Vec<Vec3>, FormatError> {
     let root: &Group = file;
     let units = match read_str_attr(root, "", "units")? {
-        Some(u) => u.parse::<Units>().map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+        Some(u) => u
+            .parse::<Units>()
+            .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
         None => Units::METRES,
     };
     let up = match read_str_attr(root, "", "up_axis")? {
-        Some(a) => a.parse::<UpAxis>().map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+        Some(a) => a
+            .parse::<UpAxis>()
+            .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
         None => UpAxis::Y,
     };
-    let g = open_group(root, "frames", "/frames")?.ok_or_else(|| FormatError::at_path("/frames", "the file has no frames"))?;
-    let pts = Ds::open(&g, "/frames", "points", true)?.ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?;
-    pts.expect_shape(&[None, None, Some(3)], "F x N x 3 (frames x vertices x xyz)")?;
+    let g = open_group(root, "frames", "/frames")?
+        .ok_or_else(|| FormatError::at_path("/frames", "the file has no frames"))?;
+    let pts = Ds::open(&g, "/frames", "points", true)?
+        .ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?;
+    pts.expect_shape(
+        &[None, None, Some(3)],
+        "F x N x 3 (frames x vertices x xyz)",
+    )?;
     pts.expect_float()?;
     let (nf, n) = (pts.shape[0], pts.shape[1]);
     if f >= nf {
-        return Err(pts.err(format!("frame {f} requested but the file holds {nf} frame(s)")));
+        return Err(pts.err(format!(
+            "frame {f} requested but the file holds {nf} frame(s)"
+        )));
     }
     if n as u64 > super::DEFAULT_MAX_POINTS {
-        return Err(pts.err(format!("{n} vertices per frame exceeds the limit of {}", super::DEFAULT_MAX_POINTS)));
+        return Err(pts.err(format!(
+            "{n} vertices per frame exceeds the limit of {}",
+            super::DEFAULT_MAX_POINTS
+        )));
     }
     // One frame of a gzip dataset: at most the whole dataset's stored bytes times the ratio.
     pts.guard_storage(n.saturating_mul(3))?;
@@ -751,11 +949,15 @@ fn read_frame_of(file: &hdf5::File, f: usize) -> Result<Vec<Vec3>, FormatError> 
         .read_slice::<f64, _, ndarray::Ix3>(ndarray::s![f..f + 1, .., ..])
         .map_err(|e| loc_err(&pts.loc, &e))?;
     let flat = arr.as_standard_layout();
-    let flat = flat.as_slice().ok_or_else(|| pts.err("internal error: frame not contiguous"))?;
+    let flat = flat
+        .as_slice()
+        .ok_or_else(|| pts.err("internal error: frame not contiguous"))?;
     let mut out = Vec::with_capacity(n);
     for (v, p) in flat.chunks_exact(3).enumerate() {
         if !p.iter().all(|x| x.is_finite()) {
-            return Err(pts.err(format!("frame {f}, vertex {v}: coordinate {p:?} is not finite")));
+            return Err(pts.err(format!(
+                "frame {f}, vertex {v}: coordinate {p:?} is not finite"
+            )));
         }
         let s = units.metres_per_unit;
         out.push(up.to_internal([p[0] * s, p[1] * s, p[2] * s]));
@@ -767,7 +969,12 @@ fn read_frame_of(file: &hdf5::File, f: usize) -> Result<Vec<Vec3>, FormatError> 
 // Writing
 // ---------------------------------------------------------------------------
 
-fn write_1d<T: hdf5::H5Type>(g: &Group, name: &str, data: &[T], units: Option<&str>) -> hdf5::Result<()> {
+fn write_1d<T: hdf5::H5Type>(
+    g: &Group,
+    name: &str,
+    data: &[T],
+    units: Option<&str>,
+) -> hdf5::Result<()> {
     let ds = g.new_dataset::<T>().shape([data.len()]).create(name)?;
     if !data.is_empty() {
         ds.write_raw(data)?;
@@ -778,13 +985,31 @@ fn write_1d<T: hdf5::H5Type>(g: &Group, name: &str, data: &[T], units: Option<&s
     Ok(())
 }
 
+/// Creates (truncates) an HDF5 file for writing. The v1.10 object formats
+/// checksum every piece of metadata, so a corrupted file is detected on read
+/// instead of being misread; the upper bound keeps files readable by
+/// libhdf5 1.10 even when knitvox links a newer library.
+fn create_h5(path: &Path) -> hdf5::Result<hdf5::File> {
+    use hdf5::file::LibraryVersion;
+    hdf5::File::with_options()
+        .with_fapl(|p| p.libver_bounds(LibraryVersion::V110, LibraryVersion::V110))
+        .create(path)
+}
+
 /// Root attributes and `/yarns` (coordinates already in metres, +Y up).
 fn write_yarns(file: &hdf5::File, y: &Yarns) -> hdf5::Result<()> {
     write_str_attr(file, "knitvox_format", FORMAT_NAME)?;
-    file.new_attr::<i64>().shape(()).create("knitvox_format_version")?.write_scalar(&FORMAT_VERSION)?;
+    file.new_attr::<i64>()
+        .shape(())
+        .create("knitvox_format_version")?
+        .write_scalar(&FORMAT_VERSION)?;
     write_str_attr(file, "units", "m")?;
     write_str_attr(file, "up_axis", "y")?;
-    write_str_attr(file, "generator", &format!("knitvox {}", env!("CARGO_PKG_VERSION")))?;
+    write_str_attr(
+        file,
+        "generator",
+        &format!("knitvox {}", env!("CARGO_PKG_VERSION")),
+    )?;
     let g = file.create_group("yarns")?;
     let n = y.points.len();
     let pts = g.new_dataset::<f64>().shape([n, 3]).create("points")?;
@@ -819,7 +1044,11 @@ impl FramesOut {
         let g = file.create_group("frames")?;
         // Frames grow along the first axis; with no vertices the vertex axis must be
         // resizable too, since a chunk may not exceed a fixed extent of 0.
-        let vert_extent = if n == 0 { Extent::from(0..) } else { Extent::from(n) };
+        let vert_extent = if n == 0 {
+            Extent::from(0..)
+        } else {
+            Extent::from(n)
+        };
         let points = g
             .new_dataset::<f64>()
             .chunk([1, n.clamp(1, MAX_CHUNK_VERTICES), 3])
@@ -828,9 +1057,18 @@ impl FramesOut {
             .shape([Extent::from(0..), vert_extent, Extent::from(3)])
             .create("points")?;
         write_str_attr(&points, "units", "m")?;
-        let times = g.new_dataset::<f64>().chunk([TIMES_CHUNK]).shape([Extent::from(0..)]).create("times")?;
+        let times = g
+            .new_dataset::<f64>()
+            .chunk([TIMES_CHUNK])
+            .shape([Extent::from(0..)])
+            .create("times")?;
         write_str_attr(&times, "units", "s")?;
-        Ok(FramesOut { points, times, n, count: 0 })
+        Ok(FramesOut {
+            points,
+            times,
+            n,
+            count: 0,
+        })
     }
 
     fn push(&mut self, time: f64, points: &[Vec3]) -> hdf5::Result<()> {
@@ -838,10 +1076,14 @@ impl FramesOut {
         self.points.resize([f + 1, self.n, 3])?;
         if self.n > 0 {
             let view = ndarray::ArrayView3::from_shape((1, self.n, 3), points.as_flattened())?;
-            self.points.write_slice(view, ndarray::s![f..f + 1, .., ..])?;
+            self.points
+                .write_slice(view, ndarray::s![f..f + 1, .., ..])?;
         }
         self.times.resize([f + 1])?;
-        self.times.write_slice(ndarray::ArrayView1::from(&[time][..]), ndarray::s![f..f + 1])?;
+        self.times.write_slice(
+            ndarray::ArrayView1::from(&[time][..]),
+            ndarray::s![f..f + 1],
+        )?;
         self.count += 1;
         Ok(())
     }
@@ -849,13 +1091,21 @@ impl FramesOut {
 
 fn check_frame(n: usize, frame: usize, time: f64, points: &[Vec3]) -> Result<(), std::io::Error> {
     if points.len() != n {
-        return Err(invalid_input(format!("frame {frame}: {} positions for {n} yarn vertices", points.len())));
+        return Err(invalid_input(format!(
+            "frame {frame}: {} positions for {n} yarn vertices",
+            points.len()
+        )));
     }
     if !time.is_finite() {
-        return Err(invalid_input(format!("frame {frame}: time {time} is not finite")));
+        return Err(invalid_input(format!(
+            "frame {frame}: time {time} is not finite"
+        )));
     }
     if let Some(v) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-        return Err(invalid_input(format!("frame {frame}, vertex {v}: coordinate {:?} is not finite", points[v])));
+        return Err(invalid_input(format!(
+            "frame {frame}, vertex {v}: coordinate {:?} is not finite",
+            points[v]
+        )));
     }
     Ok(())
 }
@@ -864,18 +1114,32 @@ fn check_frame(n: usize, frame: usize, time: f64, points: &[Vec3]) -> Result<(),
 /// atomically: libhdf5 writes a dot-prefixed temporary file in the same
 /// directory, which is fsynced and renamed onto `path`.
 pub fn write_file(path: &Path, yarns: &Yarns, frames: Option<&YarnFrames>) -> Result<(), IoError> {
-    yarns.validate().map_err(|e| write_err(path, invalid_input(format!("refusing to write invalid yarns: {e}"))))?;
+    yarns.validate().map_err(|e| {
+        write_err(
+            path,
+            invalid_input(format!("refusing to write invalid yarns: {e}")),
+        )
+    })?;
     if let Some(fr) = frames {
         if fr.num_vertices != yarns.num_points() {
             return Err(write_err(
                 path,
-                invalid_input(format!("frames have {} vertices, the yarns {}", fr.num_vertices, yarns.num_points())),
+                invalid_input(format!(
+                    "frames have {} vertices, the yarns {}",
+                    fr.num_vertices,
+                    yarns.num_points()
+                )),
             ));
         }
-        fr.validate().map_err(|e| write_err(path, invalid_input(format!("refusing to write invalid frames: {e}"))))?;
+        fr.validate().map_err(|e| {
+            write_err(
+                path,
+                invalid_input(format!("refusing to write invalid frames: {e}")),
+            )
+        })?;
     }
     super::atomic::write_with(path, |tmp| {
-        let file = hdf5::File::create(tmp)?;
+        let file = create_h5(tmp)?;
         write_yarns(&file, yarns)?;
         if let Some(fr) = frames {
             let mut out = FramesOut::create(&file, fr.num_vertices)?;
@@ -904,28 +1168,44 @@ pub struct FrameWriter {
 impl FrameWriter {
     /// Starts a file at `path` holding `yarns` (metres, +Y up) and no frames yet.
     pub fn create(path: &Path, yarns: &Yarns) -> Result<FrameWriter, IoError> {
-        yarns.validate().map_err(|e| write_err(path, invalid_input(format!("refusing to write invalid yarns: {e}"))))?;
+        yarns.validate().map_err(|e| {
+            write_err(
+                path,
+                invalid_input(format!("refusing to write invalid yarns: {e}")),
+            )
+        })?;
         let dir = match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
-        let name = path.file_name().ok_or_else(|| write_err(path, invalid_input("output path has no file name".into())))?;
+        let name = path
+            .file_name()
+            .ok_or_else(|| write_err(path, invalid_input("output path has no file name".into())))?;
         let tmp = tempfile::Builder::new()
             .prefix(&format!(".{}.", name.to_string_lossy()))
             .suffix(".tmp")
             .tempfile_in(&dir)
             .map_err(|e| write_err(path, e))?
             .into_temp_path();
-        let file = hdf5::File::create(&tmp).map_err(|e| write_err(path, e))?;
+        let file = create_h5(&tmp).map_err(|e| write_err(path, e))?;
         write_yarns(&file, yarns).map_err(|e| write_err(path, e))?;
-        let frames = FramesOut::create(&file, yarns.num_points()).map_err(|e| write_err(path, e))?;
-        Ok(FrameWriter { frames: Some(frames), file: Some(file), tmp: Some(tmp), path: path.to_path_buf() })
+        let frames =
+            FramesOut::create(&file, yarns.num_points()).map_err(|e| write_err(path, e))?;
+        Ok(FrameWriter {
+            frames: Some(frames),
+            file: Some(file),
+            tmp: Some(tmp),
+            path: path.to_path_buf(),
+        })
     }
 
     /// Appends one frame: `points` (one position per yarn vertex, metres) at `time` (s).
     pub fn push(&mut self, time: f64, points: &[Vec3]) -> Result<(), IoError> {
         let path = self.path.clone();
-        let out = self.frames.as_mut().ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
+        let out = self
+            .frames
+            .as_mut()
+            .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
         check_frame(out.n, out.count, time, points).map_err(|e| write_err(&path, e))?;
         out.push(time, points).map_err(|e| write_err(&path, e))
     }
@@ -943,11 +1223,20 @@ impl FrameWriter {
         if let Some(file) = self.file.take() {
             file.close().map_err(|e| write_err(&path, e))?;
         }
-        let tmp = self.tmp.take().ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
-        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| write_err(&path, e))?;
+        let tmp = self
+            .tmp
+            .take()
+            .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
+        std::fs::File::open(&tmp)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| write_err(&path, e))?;
         tmp.persist(&path).map_err(|e| write_err(&path, e.error))?;
         if let Some(dir) = path.parent() {
-            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
             if let Ok(d) = std::fs::File::open(dir) {
                 let _ = d.sync_all();
             }
@@ -992,7 +1281,13 @@ fn describe_filter(f: &hdf5::filters::Filter) -> String {
     }
 }
 
-fn visit(group: &Group, prefix: &str, depth: usize, seen: &mut usize, out: &mut Vec<DatasetInfo>) -> hdf5::Result<()> {
+fn visit(
+    group: &Group,
+    prefix: &str,
+    depth: usize,
+    seen: &mut usize,
+    out: &mut Vec<DatasetInfo>,
+) -> hdf5::Result<()> {
     let mut links = Vec::new();
     group.iter_visit_default(|name, info| {
         links.push((name.to_string(), info.link_type));
@@ -1006,7 +1301,9 @@ fn visit(group: &Group, prefix: &str, depth: usize, seen: &mut usize, out: &mut 
         }
         let path = format!("{prefix}/{name}");
         match group.loc_type_by_name(&name)? {
-            LocationType::Group if depth < MAX_LIST_DEPTH => visit(&group.group(&name)?, &path, depth + 1, seen, out)?,
+            LocationType::Group if depth < MAX_LIST_DEPTH => {
+                visit(&group.group(&name)?, &path, depth + 1, seen, out)?
+            }
             LocationType::Dataset => {
                 let ds = group.dataset(&name)?;
                 let ty = type_info(&ds.dtype()?);
@@ -1030,8 +1327,12 @@ pub fn list_datasets(path: &Path) -> Result<Vec<DatasetInfo>, IoError> {
     let file = open_path(path)?;
     let mut out = Vec::new();
     let mut seen = 0;
-    visit(&file, "", 0, &mut seen, &mut out)
-        .map_err(|e| format_err(path, FormatError::whole_file(format!("cannot list its content: {}", h5_message(&e)))))?;
+    visit(&file, "", 0, &mut seen, &mut out).map_err(|e| {
+        format_err(
+            path,
+            FormatError::whole_file(format!("cannot list its content: {}", h5_message(&e))),
+        )
+    })?;
     Ok(out)
 }
 
@@ -1043,8 +1344,15 @@ pub fn read_dataset_f64(path: &Path, name: &str) -> Result<(Vec<usize>, Vec<f64>
     read_dataset_f64_of(&file, name).map_err(|e| format_err(path, e))
 }
 
-fn read_dataset_f64_of(file: &hdf5::File, name: &str) -> Result<(Vec<usize>, Vec<f64>), FormatError> {
-    let loc = if name.starts_with('/') { name.to_string() } else { format!("/{name}") };
+fn read_dataset_f64_of(
+    file: &hdf5::File,
+    name: &str,
+) -> Result<(Vec<usize>, Vec<f64>), FormatError> {
+    let loc = if name.starts_with('/') {
+        name.to_string()
+    } else {
+        format!("/{name}")
+    };
     let inner = loc.trim_start_matches('/');
     if inner.is_empty() || !file.link_exists(inner) {
         return Err(FormatError::at_path(&loc, "no such dataset"));
@@ -1055,13 +1363,21 @@ fn read_dataset_f64_of(file: &hdf5::File, name: &str) -> Result<(Vec<usize>, Vec
         None => (file.group("/").map_err(|e| loc_err(&loc, &e))?, inner),
     };
     let parent_path = &loc[..loc.len() - last.len() - 1];
-    let ds = Ds::open(&parent, parent_path, last, true)?.ok_or_else(|| FormatError::at_path(&loc, "no such dataset"))?;
+    let ds = Ds::open(&parent, parent_path, last, true)?
+        .ok_or_else(|| FormatError::at_path(&loc, "no such dataset"))?;
     if !ds.ty.is_numeric() {
         return Err(ds.err(format!("type {} is not numeric", ds.ty.describe())));
     }
-    let elems = ds.shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&e| e as u64 <= MAX_INSPECT_ELEMENTS);
+    let elems = ds
+        .shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&e| e as u64 <= MAX_INSPECT_ELEMENTS);
     let elems = elems.ok_or_else(|| {
-        ds.err(format!("shape {:?} exceeds the limit of {MAX_INSPECT_ELEMENTS} elements", ds.shape))
+        ds.err(format!(
+            "shape {:?} exceeds the limit of {MAX_INSPECT_ELEMENTS} elements",
+            ds.shape
+        ))
     })?;
     if elems == 0 {
         return Ok((ds.shape.clone(), Vec::new()));
@@ -1078,15 +1394,32 @@ mod tests {
 
     fn sample() -> Yarns {
         let mut y = Yarns::new();
-        y.push_curve(&[[0.0, 0.0, 0.0], [1.0, 0.5, -0.25], [2.0, 1.0, 0.125]], false, 0.001);
-        y.push_curve(&[[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9], [1.0, 1.1, 1.2]], true, 0.002);
+        y.push_curve(
+            &[[0.0, 0.0, 0.0], [1.0, 0.5, -0.25], [2.0, 1.0, 0.125]],
+            false,
+            0.001,
+        );
+        y.push_curve(
+            &[
+                [0.1, 0.2, 0.3],
+                [0.4, 0.5, 0.6],
+                [0.7, 0.8, 0.9],
+                [1.0, 1.1, 1.2],
+            ],
+            true,
+            0.002,
+        );
         y
     }
 
     fn frames_of(y: &Yarns, n: usize) -> YarnFrames {
         let mut fr = YarnFrames::new(y.num_points());
         for f in 0..n {
-            let pts: Vec<Vec3> = y.points.iter().map(|p| [p[0] + f as f64, p[1] * 0.5, p[2] - 1e-3 * f as f64]).collect();
+            let pts: Vec<Vec3> = y
+                .points
+                .iter()
+                .map(|p| [p[0] + f as f64, p[1] * 0.5, p[2] - 1e-3 * f as f64])
+                .collect();
             fr.push_frame(f as f64 / 24.0, &pts).unwrap();
         }
         fr
@@ -1162,10 +1495,16 @@ mod tests {
         let p = dir.path().join("bad.h5");
         let mut y = sample();
         y.points[1][0] = f64::INFINITY;
-        assert!(matches!(write_file(&p, &y, None), Err(IoError::Write { .. })));
+        assert!(matches!(
+            write_file(&p, &y, None),
+            Err(IoError::Write { .. })
+        ));
         let y = sample();
         let fr = YarnFrames::new(3);
-        assert!(matches!(write_file(&p, &y, Some(&fr)), Err(IoError::Write { .. })));
+        assert!(matches!(
+            write_file(&p, &y, Some(&fr)),
+            Err(IoError::Write { .. })
+        ));
         assert!(!p.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
     }
@@ -1174,8 +1513,15 @@ mod tests {
     fn garbage_bytes_are_errors() {
         let o = ReadOptions::default();
         assert!(decode(b"", &o).unwrap_err().message.contains("empty"));
-        assert!(decode(b"hello world, not hdf5", &o).unwrap_err().message.contains("not an HDF5 file"));
-        let e = decode(&[0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n', 0, 0, 0], &o).unwrap_err();
+        assert!(decode(b"hello world, not hdf5", &o)
+            .unwrap_err()
+            .message
+            .contains("not an HDF5 file"));
+        let e = decode(
+            &[0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n', 0, 0, 0],
+            &o,
+        )
+        .unwrap_err();
         assert_eq!(e.location, Location::File);
     }
 
