@@ -1290,4 +1290,26 @@ fn big_garment_writes_and_reads_quickly() {
     eprintln!("write + read of 184,159 points: {elapsed:?}");
     // Generous for unoptimised test builds; release is far below (see the schema doc).
     assert!(elapsed < std::time::Duration::from_secs(3), "{elapsed:?}");
+
+    // Streaming frames of that size (gzip): report the rate, check one back.
+    let q = dir.path().join("frames.h5");
+    let t = std::time::Instant::now();
+    let mut w = FrameWriter::create(&q, &y).unwrap();
+    for f in 0..3 {
+        let moved: Vec<Vec3> = y
+            .points
+            .iter()
+            .map(|p| [p[0], p[1] + f as f64 * 1e-3, p[2]])
+            .collect();
+        w.push(f as f64, &moved).unwrap();
+    }
+    w.finish().unwrap();
+    eprintln!("3 streamed frames of 184,159 points: {:?}", t.elapsed());
+    let t = std::time::Instant::now();
+    let f2 = h5::read_frame(&q, 2).unwrap();
+    eprintln!("read_frame of one frame: {:?}", t.elapsed());
+    assert_eq!(
+        f2[5],
+        [y.points[5][0], y.points[5][1] + 2e-3, y.points[5][2]]
+    );
 }
