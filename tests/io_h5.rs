@@ -106,7 +106,7 @@ fn arb_yarns() -> impl Strategy<Value = (Yarns, Option<YarnFrames>)> {
             |(curves, with_density, with_vertex_radius, nframes, with_frames, seed)| {
                 let mut y = Yarns::new();
                 for (pts, closed, r) in &curves {
-                    y.push_curve(pts, *closed, *r);
+                    y.push_curve(pts, *closed && pts.len() >= 3, *r);
                 }
                 if with_density {
                     y.linear_density = Some(
