@@ -127,3 +127,17 @@ fn bench_io_json_shape() {
         assert!(t["bytes"].as_u64().unwrap() > 0, "{f}");
     }
 }
+
+#[test]
+fn inspect_foreign_and_busy_hdf5() {
+    let Some(dir) = common::external_data("hdf5") else { return };
+    let o = knitvox(&["inspect", "--json", p(&dir.join("pyfive_chunked.hdf5"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v[0]["knitvox_yarns"], false);
+    assert_eq!(v[0]["datasets"][0]["path"], "/dataset1");
+    // Its "open for write" flag is set: transient (75) with the h5clear advice, not a crash.
+    let o = knitvox(&["inspect", p(&dir.join("jhdf_test_byteshuffle_compressed_datasets_latest.hdf5"))]);
+    assert_eq!(o.status.code(), Some(75), "{}", stderr(&o));
+    assert!(stderr(&o).contains("h5clear"), "{}", stderr(&o));
+}

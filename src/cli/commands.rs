@@ -11,6 +11,23 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
     let mut code = ExitCode::Success;
     let mut json = Vec::new();
     for path in &a.files {
+        if let Some(datasets) = foreign_hdf5(path) {
+            if a.json {
+                json.push(serde_json::json!({
+                    "path": path.display().to_string(),
+                    "format": "hdf5",
+                    "knitvox_yarns": false,
+                    "datasets": datasets,
+                }));
+            } else {
+                println!("{}\n  format        hdf5 (not a knitvox yarns file: no /yarns/points)", path.display());
+                for d in &datasets {
+                    let chunks = d.chunks.as_ref().map_or(String::new(), |c| format!(" chunks {c:?}"));
+                    println!("  dataset       {} {} {:?}{} {}", d.path, d.dtype, d.shape, chunks, d.filters.join(","));
+                }
+            }
+            continue;
+        }
         match io::read_path(path, &opts) {
             Ok(d) => {
                 let r = summarize(&path.display().to_string(), &d);
@@ -36,6 +53,16 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(code)
+}
+
+/// The datasets of an HDF5 file that is not a knitvox yarns file (None otherwise,
+/// and for anything list_datasets cannot open: read_path reports that properly).
+fn foreign_hdf5(path: &std::path::Path) -> Option<Vec<io::h5::DatasetInfo>> {
+    if io::sequence::is_pattern(path) || io::Format::from_path(path) != Some(io::Format::Hdf5) {
+        return None;
+    }
+    let datasets = io::h5::list_datasets(path).ok()?;
+    (!datasets.iter().any(|d| d.path == "/yarns/points")).then_some(datasets)
 }
 
 pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
