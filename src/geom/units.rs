@@ -30,11 +30,15 @@ impl Units {
 
     /// Short name: `m`, `cm`, `mm`, or the scale itself.
     pub fn name(&self) -> String {
-        match self.metres_per_unit {
-            x if x == 1.0 => "m".into(),
-            x if x == 0.01 => "cm".into(),
-            x if x == 0.001 => "mm".into(),
-            x => format!("{x}"),
+        let s = self.metres_per_unit;
+        if s == 1.0 {
+            "m".into()
+        } else if s == 0.01 {
+            "cm".into()
+        } else if s == 0.001 {
+            "mm".into()
+        } else {
+            format!("{s}")
         }
     }
 }

@@ -422,10 +422,8 @@ fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
         max: first,
     };
     for p in points {
-        for k in 0..3 {
-            b.min[k] = b.min[k].min(p[k]);
-            b.max[k] = b.max[k].max(p[k]);
-        }
+        b.min = std::array::from_fn(|k| b.min[k].min(p[k]));
+        b.max = std::array::from_fn(|k| b.max[k].max(p[k]));
     }
     Some(b)
 }
