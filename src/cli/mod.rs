@@ -42,10 +42,12 @@ pub enum Command {
 /// How to interpret input files.
 #[derive(Debug, Clone, Args)]
 pub struct ReadArgs {
-    /// Unit of unitless inputs (bcc, obj, poly, ply): mm, cm, m or metres per unit [default: the file's, else m].
+    /// Unit of the input: mm, cm, m or metres per unit. Overrides what the file declares
+    /// [default: the file's (glTF, HDF5, pyp: m); unitless bcc, obj, poly, ply: m, reported as assumed].
     #[arg(long, value_name = "mm|cm|m|SCALE")]
     pub units: Option<Units>,
-    /// Up axis of the input [default: the file's (BCC header, glTF +Y), else y].
+    /// Up axis of the input. Overrides what the file declares
+    /// [default: the file's (BCC header, glTF and HDF5 +Y, pyp +Z); others: y, reported as assumed].
     #[arg(long, value_name = "y|z")]
     pub up_axis: Option<UpAxis>,
     /// Repeat a periodic .pyp tile N x M times along its two periods.
