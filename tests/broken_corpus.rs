@@ -10,11 +10,18 @@ use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
 
 fn expect_bad(path: &Path, what: &str) {
     match read_path(path, &ReadOptions::default()) {
-        Ok(d) => panic!("{what}: {} was accepted ({} curves)", path.display(), d.yarns.num_curves()),
+        Ok(d) => panic!(
+            "{what}: {} was accepted ({} curves)",
+            path.display(),
+            d.yarns.num_curves()
+        ),
         Err(e) => {
             let msg = e.to_string();
             let name = path.file_name().unwrap().to_str().unwrap();
-            assert!(msg.contains(name), "{what}: error does not name the file: {msg}");
+            assert!(
+                msg.contains(name),
+                "{what}: error does not name the file: {msg}"
+            );
             assert!(
                 matches!(e.class(), ErrorClass::BadInput | ErrorClass::Transient),
                 "{what}: {} classed as {:?}: {msg}",
@@ -36,7 +43,12 @@ fn empty_garbage_and_non_utf8_files() {
         let cases: [(&str, Vec<u8>); 4] = [
             ("empty", Vec::new()),
             ("one-byte", vec![b'\n']),
-            ("garbage", (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect()),
+            (
+                "garbage",
+                (0..4096u32)
+                    .map(|i| (i.wrapping_mul(2654435761) >> 13) as u8)
+                    .collect(),
+            ),
             ("non-utf8", b"\xff\xfe\xfd not text \xc3\x28\n".repeat(20)),
         ];
         for (what, bytes) in cases {
@@ -50,7 +62,12 @@ fn empty_garbage_and_non_utf8_files() {
 #[test]
 fn truncated_binary_files() {
     let dir = tempfile::tempdir().unwrap();
-    let y = knit_swatch(&SwatchParams { courses: 2, wales: 2, points_per_loop: 6, ..Default::default() });
+    let y = knit_swatch(&SwatchParams {
+        courses: 2,
+        wales: 2,
+        points_per_loop: 6,
+        ..Default::default()
+    });
     for f in [Format::Bcc, Format::Ply, Format::Glb, Format::Hdf5] {
         let good = dir.path().join(format!("good.{}", f.extensions()[0]));
         write_path(&good, &y, None, &WriteOptions::default()).unwrap();
@@ -68,7 +85,12 @@ fn truncated_binary_files() {
 #[test]
 fn truncated_text_files_never_panic() {
     let dir = tempfile::tempdir().unwrap();
-    let y = knit_swatch(&SwatchParams { courses: 2, wales: 2, points_per_loop: 6, ..Default::default() });
+    let y = knit_swatch(&SwatchParams {
+        courses: 2,
+        wales: 2,
+        points_per_loop: 6,
+        ..Default::default()
+    });
     for f in [Format::Obj, Format::Gltf] {
         let good = dir.path().join(format!("good.{}", f.extensions()[0]));
         write_path(&good, &y, None, &WriteOptions::default()).unwrap();
@@ -79,7 +101,9 @@ fn truncated_text_files_never_panic() {
             // A text file cut at a line end can still be valid; anything accepted must validate.
             match read_path(&p, &ReadOptions::default()) {
                 Ok(d) => d.yarns.validate().unwrap(),
-                Err(e) => assert!(e.to_string().contains(p.file_name().unwrap().to_str().unwrap())),
+                Err(e) => assert!(e
+                    .to_string()
+                    .contains(p.file_name().unwrap().to_str().unwrap())),
             }
         }
     }

@@ -5,7 +5,10 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn knitvox(args: &[&str]) -> Output {
-    Command::new(common::knitvox_bin()).args(args).output().expect("run knitvox")
+    Command::new(common::knitvox_bin())
+        .args(args)
+        .output()
+        .expect("run knitvox")
 }
 
 fn p(path: &Path) -> &str {
@@ -18,10 +21,21 @@ fn stderr(o: &Output) -> String {
 
 #[test]
 fn help_on_every_subcommand() {
-    for args in [&["--help"][..], &["inspect", "--help"], &["convert", "--help"], &["bench", "--help"], &["bench", "io", "--help"], &["demo", "--help"], &["completions", "--help"]] {
+    for args in [
+        &["--help"][..],
+        &["inspect", "--help"],
+        &["convert", "--help"],
+        &["bench", "--help"],
+        &["bench", "io", "--help"],
+        &["demo", "--help"],
+        &["completions", "--help"],
+    ] {
         let o = knitvox(args);
         assert!(o.status.success(), "{args:?}: {}", stderr(&o));
-        assert!(String::from_utf8_lossy(&o.stdout).contains("Usage"), "{args:?}");
+        assert!(
+            String::from_utf8_lossy(&o.stdout).contains("Usage"),
+            "{args:?}"
+        );
     }
 }
 
@@ -36,8 +50,18 @@ fn completions_for_bash() {
 #[test]
 fn usage_errors_exit_2() {
     assert_eq!(knitvox(&["convert"]).status.code(), Some(2));
-    assert_eq!(knitvox(&["inspect", "x.bcc", "--tile", "0x0"]).status.code(), Some(2));
-    assert_eq!(knitvox(&["inspect", "x.bcc", "--units", "parsec"]).status.code(), Some(2));
+    assert_eq!(
+        knitvox(&["inspect", "x.bcc", "--tile", "0x0"])
+            .status
+            .code(),
+        Some(2)
+    );
+    assert_eq!(
+        knitvox(&["inspect", "x.bcc", "--units", "parsec"])
+            .status
+            .code(),
+        Some(2)
+    );
 }
 
 #[test]
@@ -50,14 +74,25 @@ fn demo_then_inspect_and_convert_everything() {
     let outputs = report["outputs"].as_array().unwrap();
     // Every writable format, once as a single file and once as frames.
     for ext in ["bcc", "obj", "ply", "gltf", "glb", "h5"] {
-        assert!(outputs.iter().any(|v| v.as_str().unwrap().ends_with(&format!("swatch.{ext}"))), "{ext}");
+        assert!(
+            outputs
+                .iter()
+                .any(|v| v.as_str().unwrap().ends_with(&format!("swatch.{ext}"))),
+            "{ext}"
+        );
     }
     for f in outputs {
         let f = f.as_str().unwrap();
         assert!(Path::new(f).is_file(), "{f}");
     }
     let input = out.join("example_swatch.bcc");
-    let o = knitvox(&["inspect", "--json", p(&input), p(&out.join("swatch.glb")), p(&out.join("swatch_frames.####.ply"))]);
+    let o = knitvox(&[
+        "inspect",
+        "--json",
+        p(&input),
+        p(&out.join("swatch.glb")),
+        p(&out.join("swatch_frames.####.ply")),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let reports = v.as_array().unwrap();
@@ -71,7 +106,19 @@ fn demo_then_inspect_and_convert_everything() {
 
     // Convert BCC (say it is in cm, Z up) to OBJ in mm: coordinates scale by 10.
     let obj = dir.path().join("x.obj");
-    let o = knitvox(&["convert", p(&input), p(&obj), "--units", "cm", "--up-axis", "z", "--out-units", "mm", "--out-up-axis", "z"]);
+    let o = knitvox(&[
+        "convert",
+        p(&input),
+        p(&obj),
+        "--units",
+        "cm",
+        "--up-axis",
+        "z",
+        "--out-units",
+        "mm",
+        "--out-up-axis",
+        "z",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let a = knitvox::io::read_path(&input, &Default::default()).unwrap();
     let b = knitvox::io::read_path(&obj, &Default::default()).unwrap();
@@ -107,10 +154,18 @@ fn bad_input_exit_codes() {
 
     // Output into a folder that does not exist: an output failure.
     knitvox(&["demo", "--out", p(&dir.path().join("d"))]);
-    let o = knitvox(&["convert", p(&dir.path().join("d/example_swatch.bcc")), "/nonexistent-knitvox/out.ply"]);
+    let o = knitvox(&[
+        "convert",
+        p(&dir.path().join("d/example_swatch.bcc")),
+        "/nonexistent-knitvox/out.ply",
+    ]);
     assert_eq!(o.status.code(), Some(74), "{}", stderr(&o));
     // Writing a read-only format.
-    let o = knitvox(&["convert", p(&dir.path().join("d/example_swatch.bcc")), p(&dir.path().join("o.pyp"))]);
+    let o = knitvox(&[
+        "convert",
+        p(&dir.path().join("d/example_swatch.bcc")),
+        p(&dir.path().join("o.pyp")),
+    ]);
     assert_eq!(o.status.code(), Some(65), "{}", stderr(&o));
 }
 
@@ -130,14 +185,19 @@ fn bench_io_json_shape() {
 
 #[test]
 fn inspect_foreign_and_busy_hdf5() {
-    let Some(dir) = common::external_data("hdf5") else { return };
+    let Some(dir) = common::external_data("hdf5") else {
+        return;
+    };
     let o = knitvox(&["inspect", "--json", p(&dir.join("pyfive_chunked.hdf5"))]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v[0]["knitvox_yarns"], false);
     assert_eq!(v[0]["datasets"][0]["path"], "/dataset1");
     // Its "open for write" flag is set: transient (75) with the h5clear advice, not a crash.
-    let o = knitvox(&["inspect", p(&dir.join("jhdf_test_byteshuffle_compressed_datasets_latest.hdf5"))]);
+    let o = knitvox(&[
+        "inspect",
+        p(&dir.join("jhdf_test_byteshuffle_compressed_datasets_latest.hdf5")),
+    ]);
     assert_eq!(o.status.code(), Some(75), "{}", stderr(&o));
     assert!(stderr(&o).contains("h5clear"), "{}", stderr(&o));
 }

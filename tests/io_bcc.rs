@@ -14,7 +14,9 @@ fn raw_curves(data: &[u8]) -> Vec<(bool, Vec<[f32; 3]>)> {
         let pts = (0..n.unsigned_abs() as usize)
             .map(|i| {
                 let b = pos + 12 * i;
-                std::array::from_fn(|k| f32::from_le_bytes(data[b + 4 * k..b + 4 * k + 4].try_into().unwrap()))
+                std::array::from_fn(|k| {
+                    f32::from_le_bytes(data[b + 4 * k..b + 4 * k + 4].try_into().unwrap())
+                })
             })
             .collect();
         pos += 12 * n.unsigned_abs() as usize;
@@ -25,14 +27,20 @@ fn raw_curves(data: &[u8]) -> Vec<(bool, Vec<[f32; 3]>)> {
 }
 
 fn bcc_files() -> Vec<std::path::PathBuf> {
-    let Some(dir) = common::external_data("yarns") else { return Vec::new() };
+    let Some(dir) = common::external_data("yarns") else {
+        return Vec::new();
+    };
     let mut v: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "bcc"))
         .collect();
     v.sort();
-    assert!(v.len() >= 8, "expected the 8 published BCC models, found {}", v.len());
+    assert!(
+        v.len() >= 8,
+        "expected the 8 published BCC models, found {}",
+        v.len()
+    );
     v
 }
 
@@ -43,8 +51,18 @@ fn every_bcc_reads_with_header_point_count() {
         let header = bcc::read_header(&data).unwrap();
         let d = decode(Format::Bcc, &data, &ReadOptions::default(), &NoResources)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        assert_eq!(d.yarns.num_points() as u64, header.point_count, "{}", path.display());
-        assert_eq!(d.yarns.num_curves() as u64, header.curve_count, "{}", path.display());
+        assert_eq!(
+            d.yarns.num_points() as u64,
+            header.point_count,
+            "{}",
+            path.display()
+        );
+        assert_eq!(
+            d.yarns.num_curves() as u64,
+            header.curve_count,
+            "{}",
+            path.display()
+        );
         d.yarns.validate().unwrap();
     }
 }
@@ -58,15 +76,28 @@ fn catmull_rom_polylines_pass_through_control_points() {
         }
         let raw = raw_curves(&data);
         let k = 3;
-        let opts = ReadOptions { spline_samples: Some(k), ..ReadOptions::default() };
+        let opts = ReadOptions {
+            spline_samples: Some(k),
+            ..ReadOptions::default()
+        };
         let d = decode(Format::Bcc, &data, &opts, &NoResources).unwrap();
         for (c, (closed, ctrl)) in raw.iter().enumerate() {
             let pts = d.yarns.curve(c);
             let spans = if *closed { ctrl.len() } else { ctrl.len() - 1 };
-            assert_eq!(pts.len(), spans * k + usize::from(!closed), "{} curve {c}", path.display());
+            assert_eq!(
+                pts.len(),
+                spans * k + usize::from(!closed),
+                "{} curve {c}",
+                path.display()
+            );
             for (i, p) in ctrl.iter().enumerate() {
                 let q = pts[i * k];
-                assert_eq!(q, [p[0] as f64, p[1] as f64, p[2] as f64], "{} curve {c} point {i}", path.display());
+                assert_eq!(
+                    q,
+                    [p[0] as f64, p[1] as f64, p[2] as f64],
+                    "{} curve {c} point {i}",
+                    path.display()
+                );
             }
         }
     }
@@ -74,7 +105,9 @@ fn catmull_rom_polylines_pass_through_control_points() {
 
 #[test]
 fn gloves_have_70_closed_curves() {
-    let Some(dir) = common::external_data("yarns") else { return };
+    let Some(dir) = common::external_data("yarns") else {
+        return;
+    };
     for name in ["qu2021_glove.bcc", "yuksel_glove.bcc"] {
         let d = knitvox::io::read_path(&dir.join(name), &ReadOptions::default()).unwrap();
         assert_eq!(d.yarns.num_curves(), 70, "{name}");
@@ -84,7 +117,9 @@ fn gloves_have_70_closed_curves() {
 
 #[test]
 fn bspline_tube_is_closed_and_smooth() {
-    let Some(dir) = common::external_data("yarns") else { return };
+    let Some(dir) = common::external_data("yarns") else {
+        return;
+    };
     let data = std::fs::read(dir.join("qu2021_knittubeinit.bcc")).unwrap();
     let raw = raw_curves(&data);
     let d = decode(Format::Bcc, &data, &ReadOptions::default(), &NoResources).unwrap();
@@ -104,7 +139,9 @@ fn bspline_tube_is_closed_and_smooth() {
 
 #[test]
 fn bcc_round_trips_published_model() {
-    let Some(dir) = common::external_data("yarns") else { return };
+    let Some(dir) = common::external_data("yarns") else {
+        return;
+    };
     let data = std::fs::read(dir.join("yuksel_openwork_trellis_pattern.bcc")).unwrap();
     let d = decode(Format::Bcc, &data, &ReadOptions::default(), &NoResources).unwrap();
     let again = bcc::encode(&d.yarns, d.up_axis.unwrap()).unwrap();

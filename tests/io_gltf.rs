@@ -280,7 +280,11 @@ fn mixed_yarns() -> Yarns {
         false,
         0.001,
     );
-    y.push_curve(&[[0.1, 0.1, 0.1], [0.2, 0.1, 0.1], [0.2, 0.2, 0.1]], true, 0.0012);
+    y.push_curve(
+        &[[0.1, 0.1, 0.1], [0.2, 0.1, 0.1], [0.2, 0.2, 0.1]],
+        true,
+        0.0012,
+    );
     // An open yarn whose ends coincide stays open (its strip never repeats an index).
     y.push_curve(
         &[

@@ -2,7 +2,7 @@
 //! axis handling) for every writable format, on random yarn sets.
 mod common;
 
-use knitvox::geom::{UpAxis, Units, YarnFrames, Yarns};
+use knitvox::geom::{Units, UpAxis, YarnFrames, Yarns};
 use knitvox::io::{read_path, write_path, Format, ReadOptions, WriteOptions};
 use proptest::prelude::*;
 
@@ -11,10 +11,19 @@ use proptest::prelude::*;
 fn arb_yarns() -> impl Strategy<Value = Yarns> {
     let curve = (any::<bool>(), 2usize..40).prop_flat_map(|(closed, n)| {
         let n = if closed { n.max(3) } else { n };
-        (Just(closed), prop::collection::vec(prop::array::uniform3(-1.0f64..1.0), n), 0.01f64..1.0)
+        (
+            Just(closed),
+            prop::collection::vec(prop::array::uniform3(-1.0f64..1.0), n),
+            0.01f64..1.0,
+        )
     });
-    (prop::collection::vec(curve, 1..5), -3i32..2, any::<bool>(), any::<u64>()).prop_map(
-        |(curves, exp, per_vertex, seed)| {
+    (
+        prop::collection::vec(curve, 1..5),
+        -3i32..2,
+        any::<bool>(),
+        any::<u64>(),
+    )
+        .prop_map(|(curves, exp, per_vertex, seed)| {
             let s = 10f64.powi(exp);
             let mut y = Yarns::new();
             for (closed, pts, r) in curves {
@@ -35,8 +44,7 @@ fn arb_yarns() -> impl Strategy<Value = Yarns> {
                 );
             }
             y
-        },
-    )
+        })
 }
 
 /// Formats whose files store the radius.
@@ -57,19 +65,42 @@ fn close(a: f64, b: f64, rel: f64, scale: f64) -> bool {
     (a - b).abs() <= rel * scale.max(b.abs()) + f64::MIN_POSITIVE
 }
 
-fn check_same(f: Format, orig: &Yarns, got: &Yarns, default_radius: f64) -> Result<(), TestCaseError> {
+fn check_same(
+    f: Format,
+    orig: &Yarns,
+    got: &Yarns,
+    default_radius: f64,
+) -> Result<(), TestCaseError> {
     prop_assert_eq!(&got.offsets, &orig.offsets, "{}: curve offsets", f);
     prop_assert_eq!(&got.closed, &orig.closed, "{}: closed flags", f);
     let scale = orig.bounds().unwrap().diagonal();
     let tol = precision(f);
     for (i, (a, b)) in got.points.iter().zip(&orig.points).enumerate() {
         for k in 0..3 {
-            prop_assert!(close(a[k], b[k], tol, scale), "{}: point {} {:?} vs {:?}", f, i, a, b);
+            prop_assert!(
+                close(a[k], b[k], tol, scale),
+                "{}: point {} {:?} vs {:?}",
+                f,
+                i,
+                a,
+                b
+            );
         }
     }
     for v in 0..orig.num_points() {
-        let want = if keeps_radius(f) { orig.radius_at(v) } else { default_radius };
-        prop_assert!(close(got.radius_at(v), want, tol.max(1e-15), 0.0), "{}: radius at {} {} vs {}", f, v, got.radius_at(v), want);
+        let want = if keeps_radius(f) {
+            orig.radius_at(v)
+        } else {
+            default_radius
+        };
+        prop_assert!(
+            close(got.radius_at(v), want, tol.max(1e-15), 0.0),
+            "{}: radius at {} {} vs {}",
+            f,
+            v,
+            got.radius_at(v),
+            want
+        );
     }
     Ok(())
 }
@@ -112,14 +143,34 @@ fn frame_sequences_round_trip() {
     let frames = knitvox::pipeline::demo::demo_frames(&y, 3);
     for f in Format::ALL.into_iter().filter(|f| f.is_writable()) {
         let ext = f.extensions()[0];
-        let path = if f.holds_frames() { dir.path().join(format!("seq.{ext}")) } else { dir.path().join(format!("seq.####.{ext}")) };
-        let written = write_path(&path, &y, Some(&frames), &WriteOptions { first_frame: 1001, ..Default::default() }).unwrap();
+        let path = if f.holds_frames() {
+            dir.path().join(format!("seq.{ext}"))
+        } else {
+            dir.path().join(format!("seq.####.{ext}"))
+        };
+        let written = write_path(
+            &path,
+            &y,
+            Some(&frames),
+            &WriteOptions {
+                first_frame: 1001,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let d = read_path(&path, &ReadOptions::default()).unwrap();
-        let got: &YarnFrames = d.frames.as_ref().unwrap_or_else(|| panic!("{f}: no frames read back"));
+        let got: &YarnFrames = d
+            .frames
+            .as_ref()
+            .unwrap_or_else(|| panic!("{f}: no frames read back"));
         assert_eq!(got.num_frames(), 3, "{f}");
         if !f.holds_frames() {
             assert_eq!(written.len(), 3);
-            assert!(written[0].ends_with(format!("seq.1001.{ext}")), "{:?}", written[0]);
+            assert!(
+                written[0].ends_with(format!("seq.1001.{ext}")),
+                "{:?}",
+                written[0]
+            );
         }
         for i in 0..3 {
             for (a, b) in got.frame(i).iter().zip(frames.frame(i)) {

@@ -20,10 +20,23 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
                     "datasets": datasets,
                 }));
             } else {
-                println!("{}\n  format        hdf5 (not a knitvox yarns file: no /yarns/points)", path.display());
+                println!(
+                    "{}\n  format        hdf5 (not a knitvox yarns file: no /yarns/points)",
+                    path.display()
+                );
                 for d in &datasets {
-                    let chunks = d.chunks.as_ref().map_or(String::new(), |c| format!(" chunks {c:?}"));
-                    println!("  dataset       {} {} {:?}{} {}", d.path, d.dtype, d.shape, chunks, d.filters.join(","));
+                    let chunks = d
+                        .chunks
+                        .as_ref()
+                        .map_or(String::new(), |c| format!(" chunks {c:?}"));
+                    println!(
+                        "  dataset       {} {} {:?}{} {}",
+                        d.path,
+                        d.dtype,
+                        d.shape,
+                        chunks,
+                        d.filters.join(",")
+                    );
                 }
             }
             continue;

@@ -6,7 +6,11 @@ use super::{Units, UpAxis, Vec3};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GeomError {
     #[error("curve {curve} has {points} point(s); an open yarn needs at least 2, a closed one 3")]
-    TooFewPoints { curve: usize, points: usize, closed: bool },
+    TooFewPoints {
+        curve: usize,
+        points: usize,
+        closed: bool,
+    },
     #[error("curve {curve}, point {point}: coordinate is not finite ({value:?})")]
     NonFinitePoint {
         curve: usize,
