@@ -5,9 +5,13 @@
 //! (as glTF). Readers convert from a file's unit and up axis into this frame;
 //! writers convert back out to the target format's convention.
 
+mod asset;
+mod mesh;
 mod units;
 mod yarns;
 
+pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use units::{Units, UpAxis};
 pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};
 

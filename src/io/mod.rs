@@ -16,6 +16,7 @@ pub mod ply;
 pub mod poly;
 pub mod pyp;
 pub mod sequence;
+pub mod vtkhdf;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
