@@ -1,1 +1,5 @@
-//! Filled by a later issue (see DESIGN.md, method map).
+//! Fitting: Y2V shape fitting (VH §5) now; elasticity fitting (VH §6) later.
+
+pub mod shapefit;
+
+pub use shapefit::{FitError, FitStats, ShapeFitParams, ShapeFitter};

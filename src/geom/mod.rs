@@ -6,11 +6,13 @@
 //! writers convert back out to the target format's convention.
 
 mod asset;
+mod frame_spec;
 mod mesh;
 mod units;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+pub use frame_spec::{FrameSpec, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use units::{Units, UpAxis};
 pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};

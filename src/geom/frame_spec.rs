@@ -1,0 +1,104 @@
+//! Frame specs as farm schedulers write them: `1001-1100`, `1-100x5`, `1,5,7-20`.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// A parsed frame spec: comma-separated items, each `N`, `A-B` or `A-BxS` (step S).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameSpec {
+    items: Vec<(i64, i64, i64)>,
+    text: String,
+}
+
+/// Largest number of frames a spec may expand to (guards `1-99999999999`).
+pub const MAX_SPEC_FRAMES: u64 = 10_000_000;
+
+impl FrameSpec {
+    /// The frames in spec order, duplicates removed (first occurrence kept).
+    pub fn frames(&self) -> Vec<i64> {
+        let mut seen = std::collections::BTreeSet::new();
+        let mut out = Vec::new();
+        for &(a, b, s) in &self.items {
+            let mut f = a;
+            while f <= b {
+                if seen.insert(f) {
+                    out.push(f);
+                }
+                f += s;
+            }
+        }
+        out
+    }
+
+    /// A spec selecting every frame in `0..n`.
+    pub fn all(n: usize) -> FrameSpec {
+        if n == 0 {
+            return FrameSpec { items: Vec::new(), text: String::new() };
+        }
+        FrameSpec { items: vec![(0, n as i64 - 1, 1)], text: format!("0-{}", n - 1) }
+    }
+}
+
+impl fmt::Display for FrameSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+impl FromStr for FrameSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let mut items = Vec::new();
+        let mut total: u64 = 0;
+        for raw in s.split(',') {
+            let item = raw.trim();
+            if item.is_empty() {
+                return Err(format!("frame spec '{s}': empty item"));
+            }
+            let (range, step) = match item.split_once(['x', 'X', ':']) {
+                Some((r, st)) => (r, st.trim().parse::<i64>().map_err(|_| format!("frame spec '{s}': bad step in '{item}'"))?),
+                None => (item, 1),
+            };
+            if step < 1 {
+                return Err(format!("frame spec '{s}': step must be at least 1 in '{item}'"));
+            }
+            // A leading '-' is a negative frame number, not a range separator.
+            let split_at = range.char_indices().skip(1).find(|&(_, c)| c == '-').map(|(i, _)| i);
+            let (a, b) = match split_at {
+                Some(i) => (&range[..i], &range[i + 1..]),
+                None => (range, range),
+            };
+            let parse = |t: &str| t.trim().parse::<i64>().map_err(|_| format!("frame spec '{s}': '{t}' is not a frame number"));
+            let (a, b) = (parse(a)?, parse(b)?);
+            if b < a {
+                return Err(format!("frame spec '{s}': range '{item}' runs backwards"));
+            }
+            total = total.saturating_add(((b - a) / step + 1) as u64);
+            if total > MAX_SPEC_FRAMES {
+                return Err(format!("frame spec '{s}' selects more than {MAX_SPEC_FRAMES} frames"));
+            }
+            items.push((a, b, step));
+        }
+        Ok(FrameSpec { items, text: s.trim().to_string() })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn farm_style_specs() {
+        let f = |s: &str| s.parse::<FrameSpec>().unwrap().frames();
+        assert_eq!(f("1001-1004"), vec![1001, 1002, 1003, 1004]);
+        assert_eq!(f("1-10x3"), vec![1, 4, 7, 10]);
+        assert_eq!(f("1,5,7-9"), vec![1, 5, 7, 8, 9]);
+        assert_eq!(f("3,1-3"), vec![3, 1, 2]);
+        assert_eq!(f("-2--1"), vec![-2, -1]);
+        assert_eq!(f("7"), vec![7]);
+        for bad in ["", "1-", "a", "5-1", "1-10x0", "1,,2", "0-99999999999"] {
+            assert!(bad.parse::<FrameSpec>().is_err(), "{bad}");
+        }
+        assert_eq!(FrameSpec::all(3).frames(), vec![0, 1, 2]);
+    }
+}
