@@ -31,14 +31,21 @@ impl ExitCode {
 /// The exit code for an error: looks through the error chain for a library
 /// error that knows its class.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
+    let of_class = |c: ErrorClass| match c {
+        ErrorClass::BadInput => ExitCode::BadInput,
+        ErrorClass::MissingInput => ExitCode::MissingInput,
+        ErrorClass::Output => ExitCode::Output,
+        ErrorClass::Transient => ExitCode::Transient,
+    };
     for cause in err.chain() {
         if let Some(e) = cause.downcast_ref::<IoError>() {
-            return match e.class() {
-                ErrorClass::BadInput => ExitCode::BadInput,
-                ErrorClass::MissingInput => ExitCode::MissingInput,
-                ErrorClass::Output => ExitCode::Output,
-                ErrorClass::Transient => ExitCode::Transient,
-            };
+            return of_class(e.class());
+        }
+        if let Some(e) = cause.downcast_ref::<crate::pipeline::asset::StageError>() {
+            return of_class(e.class());
+        }
+        if cause.downcast_ref::<crate::embed::EmbedError>().is_some() || cause.downcast_ref::<crate::fit::FitError>().is_some() {
+            return ExitCode::BadInput;
         }
         if cause.downcast_ref::<crate::geom::GeomError>().is_some() {
             return ExitCode::BadInput;

@@ -1,6 +1,7 @@
 //! Command-line interface: clap definitions and the glue from arguments to the
 //! library. Only this module and `main` know about processes and terminals.
 
+mod asset;
 mod bench;
 mod commands;
 pub mod exit;
@@ -28,6 +29,12 @@ pub enum Command {
     Inspect(InspectArgs),
     /// Convert a yarn file (or frame sequence) into another format, unit or up axis.
     Convert(ConvertArgs),
+    /// Embed yarns in a voxel tet mesh and write a homogenized asset (.vtkhdf).
+    Embed(asset::EmbedArgs),
+    /// Shape-fit yarn frames (Y2V, VH Eq. 5-6) into an asset's time series.
+    Shapefit(asset::ShapefitArgs),
+    /// Export an asset's stored steps as per-frame yarn curves (V2Y).
+    Export(asset::ExportArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
     /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.
@@ -187,6 +194,9 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Inspect(a) => commands::inspect(&a),
         Command::Convert(a) => commands::convert(&a),
+        Command::Embed(a) => asset::embed(&a),
+        Command::Shapefit(a) => asset::shapefit(&a),
+        Command::Export(a) => asset::export(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
         },

@@ -1,5 +1,6 @@
 //! Orchestration: stages that combine io and the solvers. Later issues add the
 //! job manifest, stage caching and resume.
 
+pub mod asset;
 pub mod demo;
 pub mod inspect;
