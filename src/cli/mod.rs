@@ -159,6 +159,8 @@ pub struct BenchArgs {
 pub enum BenchTarget {
     /// Read and write times of every yarn format (median of --runs).
     Io(BenchIoArgs),
+    /// Embedding and Y2V shape-fit times, mesh size and peak memory.
+    Embed(BenchEmbedArgs),
 }
 
 #[derive(Debug, Args)]
@@ -171,6 +173,30 @@ pub struct BenchIoArgs {
     pub points: usize,
     /// Timed runs per measurement (the median is reported).
     #[arg(long, default_value_t = 7)]
+    pub runs: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchEmbedArgs {
+    /// Input yarn file [default: a built-in analytic swatch of --points points].
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Points of the built-in swatch.
+    #[arg(long, default_value_t = 50_000)]
+    pub points: usize,
+    /// Voxel size (m) [default: the embedding's default rule].
+    #[arg(long)]
+    pub voxel_size: Option<f64>,
+    /// Frames to shape-fit (an analytic stretch of the rest yarns).
+    #[arg(long, default_value_t = 8)]
+    pub frames: usize,
+    /// Timed embedding runs (the median is reported).
+    #[arg(long, default_value_t = 5)]
     pub runs: usize,
     /// Print a JSON object.
     #[arg(long)]
@@ -199,6 +225,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Export(a) => asset::export(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
+            BenchTarget::Embed(b) => bench::embed(&b),
         },
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {
