@@ -2,7 +2,19 @@
 //! supercover), tetrahedralize (6 tets per voxel, conforming), lumped masses
 //! (VH Eq. 1-3), and the V2Y embedding (VH Eq. 4). Pure: no files, no printing.
 
-use crate::geom::{Embedding, TetMesh, VoxelGrid, YarnPiece, Yarns};
+mod keys;
+mod mass;
+mod size;
+mod tetrahedralize;
+mod voxelize;
+
+pub use size::default_voxel_size;
+pub use tetrahedralize::{kuhn_tet, kuhn_weights, locate, tetrahedralize, Location, PERMS};
+pub use voxelize::{default_origin, voxelize};
+
+use crate::geom::{dist, Embedding, TetMesh, VoxelGrid, YarnPiece, Yarns};
+use rayon::prelude::*;
+use std::time::Instant;
 
 /// Errors of the embedding stage.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -17,6 +29,9 @@ pub enum EmbedError {
     Yarns(#[from] crate::geom::GeomError),
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    /// A broken invariant of the embedding itself (a bug, not bad input).
+    #[error("internal embedding error: {0}")]
+    Internal(String),
 }
 
 /// Parameters of the embedding.
@@ -57,6 +72,9 @@ pub struct EmbedStats {
     pub nodes: usize,
     pub tets: usize,
     pub yarn_vertices: usize,
+    /// Yarn pieces (segments split at tet boundaries).
+    pub pieces: usize,
+    /// Sum of linear density x segment length (kg); equals the total node mass.
     pub total_yarn_mass: f64,
     pub voxelize_ms: f64,
     pub tetrahedralize_ms: f64,
@@ -73,17 +91,207 @@ pub struct Embedded {
     pub tet_voxel: Vec<u32>,
     /// Lumped node masses (kg).
     pub node_mass: Vec<f64>,
-    /// Per-curve linear density used (kg/m).
+    /// Per-curve linear density used (kg/m). With per-vertex radii it is the
+    /// curve's mass over its length (see `segment_linear_density`).
     pub linear_density: Vec<f64>,
+    /// Linear density (kg/m) of each segment in `Yarns::segments()` order.
+    pub segment_linear_density: Vec<f64>,
     pub embedding: Embedding,
     /// Every yarn segment split at tet boundaries.
     pub pieces: Vec<YarnPiece>,
     pub stats: EmbedStats,
 }
 
-/// Embeds yarns (m) in a voxel tet mesh. (Implementation in progress.)
-pub fn embed(_yarns: &Yarns, _params: &EmbedParams) -> Result<Embedded, EmbedError> {
-    Err(EmbedError::Parameter(
-        "embedding is not implemented yet".into(),
-    ))
+/// Embeds yarns (m) in a voxel tet mesh (VH §4-5):
+///
+/// 1. voxel size: `params.voxel_size`, else [`default_voxel_size`];
+/// 2. [`voxelize`]: closed-cube supercover of every segment (default origin);
+/// 3. [`tetrahedralize`]: 6 Kuhn tets per voxel, conforming;
+/// 4. every segment split at the tet boundaries into [`YarnPiece`]s, and the
+///    lumped node masses of VH Eq. 1-3 (exact line integrals of the linear
+///    shape functions times the linear density);
+/// 5. the V2Y embedding of VH Eq. 4: each yarn vertex's tet and barycentric
+///    weights ([`locate`]).
+///
+/// Linear density: `yarns.linear_density` per curve when present, else
+/// `material_density x pi r^2` with `r` the curve radius, or per segment the
+/// mean of its two vertex radii when the yarns carry per-vertex radii.
+/// Deterministic: the same input gives bit-identical output for any thread count.
+pub fn embed(yarns: &Yarns, params: &EmbedParams) -> Result<Embedded, EmbedError> {
+    voxelize::check_yarns(yarns)?;
+    check_params(params)?;
+    let start = Instant::now();
+    let (grid, extra, rule) = match params.voxel_size {
+        Some(h) => {
+            let (grid, extra) = voxelize(yarns, h, None, params.max_voxels)?;
+            (grid, extra, format!("given: {h} m"))
+        }
+        None => {
+            let c = size::choose(yarns, params)?;
+            (c.grid, c.extra, c.rule)
+        }
+    };
+    let voxelize_ms = ms_since(start);
+
+    let start = Instant::now();
+    let (mesh, tet_voxel) = tetrahedralize(&grid);
+    let tetrahedralize_ms = ms_since(start);
+
+    let start = Instant::now();
+    let g: Vec<_> = yarns.points.par_iter().map(|&p| grid.to_grid(p)).collect();
+    let segments: Vec<[usize; 2]> = yarns.segments().collect();
+    let lengths: Vec<f64> = segments
+        .iter()
+        .map(|&[a, b]| dist(yarns.points[a], yarns.points[b]))
+        .collect();
+    let (segment_linear_density, linear_density) =
+        linear_densities(yarns, params.material_density, &lengths);
+    let split = mass::split_segments(&grid, &g, &segments, &lengths)?;
+    let node_mass = mass::lump_masses(&mesh.tets, mesh.num_nodes(), &split, &segment_linear_density);
+    let pieces: Vec<YarnPiece> = split.into_iter().map(|p| p.piece).collect();
+    let total_yarn_mass = lengths
+        .iter()
+        .zip(&segment_linear_density)
+        .map(|(l, d)| l * d)
+        .sum();
+    let mass_ms = ms_since(start);
+
+    let start = Instant::now();
+    let embedding = embed_vertices(&grid, &g)?;
+    let embedding_ms = ms_since(start);
+
+    let stats = EmbedStats {
+        voxel_size: grid.h,
+        voxel_size_rule: rule,
+        voxels: grid.voxels.len(),
+        extra_voxels: extra,
+        nodes: mesh.num_nodes(),
+        tets: mesh.num_tets(),
+        yarn_vertices: yarns.num_points(),
+        pieces: pieces.len(),
+        total_yarn_mass,
+        voxelize_ms,
+        tetrahedralize_ms,
+        mass_ms,
+        embedding_ms,
+    };
+    Ok(Embedded {
+        grid,
+        mesh,
+        tet_voxel,
+        node_mass,
+        linear_density,
+        segment_linear_density,
+        embedding,
+        pieces,
+        stats,
+    })
+}
+
+impl Embedded {
+    /// The V2Y matrix `N` of VH Eq. 4 (yarn vertices x mesh nodes, 4 entries a
+    /// row: the barycentric weights of the vertex in its tet), so that
+    /// `x_yarn = N x_nodes` coordinate by coordinate.
+    pub fn v2y_matrix(&self) -> Result<faer::sparse::SparseColMat<usize, f64>, EmbedError> {
+        v2y_matrix(&self.embedding, &self.mesh)
+    }
+}
+
+/// The V2Y matrix (VH Eq. 4) of an embedding in `mesh`; see [`Embedded::v2y_matrix`].
+pub fn v2y_matrix(
+    embedding: &Embedding,
+    mesh: &TetMesh,
+) -> Result<faer::sparse::SparseColMat<usize, f64>, EmbedError> {
+    use faer::sparse::{SparseColMat, Triplet};
+    let mut triplets = Vec::with_capacity(4 * embedding.num_vertices());
+    for (row, (&t, w)) in embedding.tet.iter().zip(&embedding.weights).enumerate() {
+        let ids = mesh.tets.get(t as usize).ok_or_else(|| {
+            EmbedError::Parameter(format!("vertex {row} refers to tet {t}, beyond the mesh"))
+        })?;
+        for a in 0..4 {
+            triplets.push(Triplet::new(row, ids[a] as usize, w[a]));
+        }
+    }
+    SparseColMat::try_new_from_triplets(embedding.num_vertices(), mesh.num_nodes(), &triplets)
+        .map_err(|e| EmbedError::Parameter(format!("V2Y matrix: {e:?}")))
+}
+
+/// Checks the parameters that do not depend on the yarns.
+fn check_params(params: &EmbedParams) -> Result<(), EmbedError> {
+    if let Some(h) = params.voxel_size {
+        if !(h.is_finite() && h > 0.0) {
+            return Err(EmbedError::BadVoxelSize(h));
+        }
+    }
+    let r = params.target_node_ratio;
+    if !(r.is_finite() && r > 0.0) {
+        return Err(EmbedError::Parameter(format!(
+            "target_node_ratio {r} must be a positive finite number"
+        )));
+    }
+    let d = params.material_density;
+    if !(d.is_finite() && d > 0.0) {
+        return Err(EmbedError::Parameter(format!(
+            "material_density {d} kg/m^3 must be a positive finite number"
+        )));
+    }
+    Ok(())
+}
+
+/// Linear densities (kg/m): per segment (in `Yarns::segments()` order) and per
+/// curve (the curve's mass over its length when radii vary per vertex).
+fn linear_densities(yarns: &Yarns, density: f64, lengths: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let area = |r: f64| density * std::f64::consts::PI * r * r;
+    let mut per_segment = Vec::with_capacity(lengths.len());
+    let mut per_curve = Vec::with_capacity(yarns.num_curves());
+    for c in 0..yarns.num_curves() {
+        let first = per_segment.len();
+        for [a, b] in yarns.segments_of(c) {
+            per_segment.push(match (&yarns.linear_density, &yarns.vertex_radius) {
+                (Some(ld), _) => ld[c],
+                (None, Some(vr)) => area(0.5 * (vr[a] + vr[b])),
+                (None, None) => area(yarns.radius[c]),
+            });
+        }
+        let seg = first..per_segment.len();
+        let len: f64 = lengths[seg.clone()].iter().sum();
+        per_curve.push(match &yarns.linear_density {
+            Some(ld) => ld[c],
+            None if yarns.vertex_radius.is_some() && len > 0.0 => {
+                let m: f64 = per_segment[seg.clone()]
+                    .iter()
+                    .zip(&lengths[seg])
+                    .map(|(d, l)| d * l)
+                    .sum();
+                m / len
+            }
+            None => area(yarns.radius[c]),
+        });
+    }
+    (per_segment, per_curve)
+}
+
+/// The V2Y embedding (VH Eq. 4) of every yarn vertex (grid coordinates `g`).
+fn embed_vertices(grid: &VoxelGrid, g: &[crate::geom::Vec3]) -> Result<Embedding, EmbedError> {
+    let locs: Vec<Option<Location>> = g
+        .par_iter()
+        .map(|&p| tetrahedralize::locate_grid(grid, p))
+        .collect();
+    let mut embedding = Embedding {
+        tet: Vec::with_capacity(g.len()),
+        weights: Vec::with_capacity(g.len()),
+    };
+    for (v, l) in locs.into_iter().enumerate() {
+        // The supercover keeps every voxel whose closed cube holds a vertex.
+        let l = l.ok_or_else(|| {
+            EmbedError::Internal(format!("yarn vertex {v} lies in no voxel of the grid"))
+        })?;
+        embedding.tet.push(l.tet);
+        embedding.weights.push(l.weights);
+    }
+    Ok(embedding)
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
 }
