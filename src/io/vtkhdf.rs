@@ -9,13 +9,16 @@
 //! (rest nodes, voxel grid, embedding, rest yarns, parameters, provenance,
 //! per-step fit error) lives beside it in `/knitvox`, which VTK ignores.
 //!
-//! Fixed-topology time series, as checked against vtkHDFReader (VTK 9.7):
-//! `NumberOfPoints`, `NumberOfCells` and `NumberOfConnectivityIds` hold one
-//! value per step, `Steps/PartOffsets` and every topology and data offset are
-//! zero, and only `Steps/PointOffsets = step * nPoints` moves. With a single
-//! `NumberOf*` value the reader fails outright, and with `PartOffsets = step`
-//! it shows step 0's points at every step. The node masses are stored once
-//! (`Steps/PointDataOffsets/mass` all zero), which the reader replays at every step.
+//! Fixed-topology time series, as checked against vtkHDFReader (VTK 9.7.2,
+//! tests/io_vtkhdf.rs): `NumberOfPoints`, `NumberOfCells` and
+//! `NumberOfConnectivityIds` hold one value per step, `Steps/NumberOfParts` is
+//! 1 per step, `Steps/PartOffsets` and every topology and data offset are
+//! zero, and only `Steps/PointOffsets = step * nPoints` moves. Observed
+//! alternatives: single `NumberOf*` values without `NumberOfParts` make the
+//! reader fail at step 0; single values with `PartOffsets = step` (VTK's own
+//! example) show step 0's points at every step. The node masses are stored
+//! once (`Steps/PointDataOffsets/mass` all zero), which the reader replays at
+//! every step.
 //!
 //! Reading validates every dataset's rank, shape and type, bounds every count
 //! by [`MAX_ELEMENTS`] and by the bytes the file really stores before
