@@ -564,7 +564,7 @@ fn wrong_shapes_and_values_name_the_dataset() {
     expect_at(&p, "/VTKHDF/Steps/Values", "NSteps");
 
     let p = fresh("gamma.vtkhdf");
-    replace(&p, "VTKHDF/CellData/gamma_s", &[11], &vec![1.0f64; 11]);
+    replace(&p, "VTKHDF/CellData/gamma_s", &[11], &[1.0f64; 11]);
     expect_at(&p, "/VTKHDF/CellData/gamma_s", "one per tet");
 
     let p = fresh("domain.vtkhdf");

@@ -1045,15 +1045,15 @@ pub(crate) fn write_yarns_group(g: &Group, y: &Yarns) -> hdf5::Result<()> {
     }
     write_str_attr(&pts, "units", "m")?;
     let offsets: Vec<u64> = y.offsets.iter().map(|&o| o as u64).collect();
-    write_1d(&g, "offsets", &offsets, None)?;
+    write_1d(g, "offsets", &offsets, None)?;
     let closed: Vec<u8> = y.closed.iter().map(|&c| u8::from(c)).collect();
-    write_1d(&g, "closed", &closed, None)?;
-    write_1d(&g, "radius", &y.radius, Some("m"))?;
+    write_1d(g, "closed", &closed, None)?;
+    write_1d(g, "radius", &y.radius, Some("m"))?;
     if let Some(vr) = &y.vertex_radius {
-        write_1d(&g, "vertex_radius", vr, Some("m"))?;
+        write_1d(g, "vertex_radius", vr, Some("m"))?;
     }
     if let Some(ld) = &y.linear_density {
-        write_1d(&g, "linear_density", ld, Some("kg/m"))?;
+        write_1d(g, "linear_density", ld, Some("kg/m"))?;
     }
     Ok(())
 }
