@@ -89,7 +89,7 @@ fn error_frames(e: &hdf5::Error) -> Vec<String> {
 
 /// One readable line for a libhdf5 error: the innermost (root-cause) frame,
 /// with the function prefix (`H5F__super_read(): `) removed.
-fn h5_message(e: &hdf5::Error) -> String {
+pub(crate) fn h5_message(e: &hdf5::Error) -> String {
     let frames = error_frames(e);
     let deepest = frames.last().cloned().unwrap_or_else(|| e.to_string());
     let msg = match deepest.find("(): ") {
@@ -130,7 +130,7 @@ fn busy(path: &Path, message: String) -> IoError {
     }
 }
 
-fn format_err(path: &Path, source: FormatError) -> IoError {
+pub(crate) fn format_err(path: &Path, source: FormatError) -> IoError {
     IoError::Format {
         path: path.to_path_buf(),
         format: Format::Hdf5,
@@ -138,19 +138,19 @@ fn format_err(path: &Path, source: FormatError) -> IoError {
     }
 }
 
-fn write_err(path: &Path, source: impl Into<std::io::Error>) -> IoError {
+pub(crate) fn write_err(path: &Path, source: impl Into<std::io::Error>) -> IoError {
     IoError::Write {
         path: path.to_path_buf(),
         source: source.into(),
     }
 }
 
-fn invalid_input(message: String) -> std::io::Error {
+pub(crate) fn invalid_input(message: String) -> std::io::Error {
     std::io::Error::new(std::io::ErrorKind::InvalidInput, message)
 }
 
 /// Opens `path` read-only, classifying failures (missing file, busy, not HDF5).
-fn open_path(path: &Path) -> Result<hdf5::File, IoError> {
+pub(crate) fn open_path(path: &Path) -> Result<hdf5::File, IoError> {
     // Let the OS report missing files and permissions first: clearer than libhdf5's text.
     let meta = std::fs::metadata(path).map_err(|source| IoError::Read {
         path: path.to_path_buf(),
@@ -241,7 +241,7 @@ fn open_image(data: &[u8]) -> Result<hdf5::File, OpenError> {
 
 /// The class of an HDF5 datatype, as far as this module cares.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
+pub(crate) enum Kind {
     Int { signed: bool },
     Float,
     Enum,
@@ -250,14 +250,14 @@ enum Kind {
 }
 
 #[derive(Debug, Clone, Copy)]
-struct TypeInfo {
-    kind: Kind,
+pub(crate) struct TypeInfo {
+    pub(crate) kind: Kind,
     /// Bytes per element in the file.
-    size: usize,
+    pub(crate) size: usize,
 }
 
 impl TypeInfo {
-    fn describe(self) -> String {
+    pub(crate) fn describe(self) -> String {
         match self.kind {
             Kind::Int { signed: true } => format!("int{}", self.size * 8),
             Kind::Int { signed: false } => format!("uint{}", self.size * 8),
@@ -275,7 +275,7 @@ impl TypeInfo {
 
 /// Classifies a datatype with raw libhdf5 calls (hdf5-metno's descriptor
 /// cannot describe every type, e.g. float16 without its `f16` feature).
-fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
+pub(crate) fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
     use hdf5_sys::h5t::{H5T_class_t, H5T_sign_t, H5Tget_class, H5Tget_sign, H5Tget_size};
     hdf5::sync::sync(|| unsafe {
         let id = dt.id();
@@ -300,20 +300,20 @@ fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
     })
 }
 
-fn loc_err(loc: &str, e: &hdf5::Error) -> FormatError {
+pub(crate) fn loc_err(loc: &str, e: &hdf5::Error) -> FormatError {
     FormatError::at_path(loc, format!("libhdf5 cannot read it: {}", h5_message(e)))
 }
 
 /// A dataset's shape, type, and read helpers with its path for errors.
-struct Ds {
-    ds: Dataset,
-    loc: String,
-    shape: Vec<usize>,
-    ty: TypeInfo,
+pub(crate) struct Ds {
+    pub(crate) ds: Dataset,
+    pub(crate) loc: String,
+    pub(crate) shape: Vec<usize>,
+    pub(crate) ty: TypeInfo,
 }
 
 impl Ds {
-    fn open(
+    pub(crate) fn open(
         group: &Group,
         group_path: &str,
         name: &str,
@@ -344,12 +344,16 @@ impl Ds {
         Ok(Some(Ds { ds, loc, shape, ty }))
     }
 
-    fn err(&self, message: impl Into<String>) -> FormatError {
+    pub(crate) fn err(&self, message: impl Into<String>) -> FormatError {
         FormatError::at_path(&self.loc, message)
     }
 
     /// Checks the rank and the fixed extents (`None` = any length).
-    fn expect_shape(&self, expected: &[Option<usize>], what: &str) -> Result<(), FormatError> {
+    pub(crate) fn expect_shape(
+        &self,
+        expected: &[Option<usize>],
+        what: &str,
+    ) -> Result<(), FormatError> {
         let ok = self.shape.len() == expected.len()
             && self
                 .shape
@@ -363,7 +367,7 @@ impl Ds {
         }
     }
 
-    fn expect_float(&self) -> Result<(), FormatError> {
+    pub(crate) fn expect_float(&self) -> Result<(), FormatError> {
         match self.ty.kind {
             Kind::Float => Ok(()),
             _ => Err(self.err(format!(
@@ -373,13 +377,13 @@ impl Ds {
         }
     }
 
-    fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.shape.first().copied().unwrap_or(0)
     }
 
     /// Refuses to read `elems` elements when the file does not store enough
     /// bytes to hold them (uncompressed) or to plausibly expand into them (compressed).
-    fn guard_storage(&self, elems: usize) -> Result<(), FormatError> {
+    pub(crate) fn guard_storage(&self, elems: usize) -> Result<(), FormatError> {
         let needed = (elems as u64).saturating_mul(self.ty.size as u64);
         if needed == 0 {
             return Ok(());
@@ -400,7 +404,7 @@ impl Ds {
         Ok(())
     }
 
-    fn read_f64_into(&self, buf: &mut [f64]) -> Result<(), FormatError> {
+    pub(crate) fn read_f64_into(&self, buf: &mut [f64]) -> Result<(), FormatError> {
         if buf.is_empty() {
             return Ok(());
         }
@@ -411,14 +415,14 @@ impl Ds {
             .map_err(|e| loc_err(&self.loc, &e))
     }
 
-    fn read_f64(&self, elems: usize) -> Result<Vec<f64>, FormatError> {
+    pub(crate) fn read_f64(&self, elems: usize) -> Result<Vec<f64>, FormatError> {
         let mut v = vec![0.0; elems];
         self.read_f64_into(&mut v)?;
         Ok(v)
     }
 
     /// Reads a 1-D integer dataset as u64, refusing negative values.
-    fn read_index(&self, elems: usize) -> Result<Vec<u64>, FormatError> {
+    pub(crate) fn read_index(&self, elems: usize) -> Result<Vec<u64>, FormatError> {
         if elems == 0 {
             return Ok(Vec::new());
         }
@@ -444,12 +448,12 @@ impl Ds {
 // Attributes
 // ---------------------------------------------------------------------------
 
-fn attr_loc(owner: &str, name: &str) -> String {
+pub(crate) fn attr_loc(owner: &str, name: &str) -> String {
     format!("{}@{name}", if owner.is_empty() { "/" } else { owner })
 }
 
 /// A string attribute (variable- or fixed-length, ASCII or UTF-8), if present.
-fn read_str_attr(
+pub(crate) fn read_str_attr(
     obj: &hdf5::Location,
     owner: &str,
     name: &str,
@@ -494,7 +498,7 @@ fn read_str_attr(
 }
 
 /// An integer attribute, if present.
-fn read_int_attr(
+pub(crate) fn read_int_attr(
     obj: &hdf5::Location,
     owner: &str,
     name: &str,
@@ -525,7 +529,7 @@ fn read_int_attr(
 /// variable-length ones live in libhdf5's global heap, which carries no
 /// checksum and which libhdf5 trusts blindly when reading (a flipped byte
 /// there can crash the reader).
-fn write_str_attr(obj: &hdf5::Location, name: &str, value: &str) -> hdf5::Result<()> {
+pub(crate) fn write_str_attr(obj: &hdf5::Location, name: &str, value: &str) -> hdf5::Result<()> {
     const MAX: usize = 256;
     if value.len() > MAX {
         return Err(hdf5::Error::from(format!(
@@ -566,7 +570,7 @@ pub fn read_file(path: &Path, opts: &ReadOptions) -> Result<Decoded, IoError> {
 }
 
 /// A short list of what the root group holds, for "not a knitvox file" errors.
-fn describe_top_level(root: &Group) -> String {
+pub(crate) fn describe_top_level(root: &Group) -> String {
     let names = match root.member_names() {
         Ok(n) => n,
         Err(e) => return format!("its top level cannot be listed: {}", h5_message(&e)),
@@ -615,7 +619,11 @@ fn check_format_attrs(root: &Group) -> Result<Vec<String>, FormatError> {
     Ok(notes)
 }
 
-fn open_group(parent: &Group, name: &str, loc: &str) -> Result<Option<Group>, FormatError> {
+pub(crate) fn open_group(
+    parent: &Group,
+    name: &str,
+    loc: &str,
+) -> Result<Option<Group>, FormatError> {
     if !parent.link_exists(name) {
         return Ok(None);
     }
@@ -677,37 +685,17 @@ fn read_frames(g: &Group, n: usize, opts: &ReadOptions) -> Result<YarnFrames, Fo
     })
 }
 
-/// Validates and reads an open knitvox yarns file.
-fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatError> {
-    let root: &Group = file;
-    let yg = match open_group(root, "yarns", "/yarns")? {
-        Some(g) => g,
-        None => {
-            return Err(FormatError::whole_file(format!(
-                "not a knitvox yarns file: there is no /yarns group ({})",
-                describe_top_level(root)
-            )))
-        }
-    };
-    let mut notes = check_format_attrs(root)?;
-    let units = match read_str_attr(root, "", "units")? {
-        Some(u) => Some(
-            u.parse::<Units>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
-        ),
-        None => None,
-    };
-    let up_axis = match read_str_attr(root, "", "up_axis")? {
-        Some(a) => Some(
-            a.parse::<UpAxis>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
-        ),
-        None => None,
-    };
-
+/// Reads and validates a yarns group (the layout of `/yarns`, see
+/// schemas/yarns-hdf5.md) at `gp`; also used for the rest yarns of an asset
+/// (io::vtkhdf). Returns the yarns and whether the radii came from the file.
+pub(crate) fn read_yarns_group(
+    yg: &Group,
+    gp: &str,
+    opts: &ReadOptions,
+) -> Result<(Yarns, bool), FormatError> {
     // Points: N x 3 floats.
-    let pts = Ds::open(&yg, "/yarns", "points", true)?
-        .ok_or_else(|| FormatError::at_path("/yarns/points", "missing"))?;
+    let pts = Ds::open(yg, gp, "points", true)?
+        .ok_or_else(|| FormatError::at_path(format!("{gp}/points"), "missing"))?;
     pts.expect_shape(&[None, Some(3)], "N x 3 (vertices x xyz)")?;
     pts.expect_float()?;
     let n = pts.shape[0];
@@ -719,8 +707,8 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     }
 
     // Offsets: C + 1 monotone integers from 0 to N, each curve >= 2 points.
-    let off = Ds::open(&yg, "/yarns", "offsets", true)?
-        .ok_or_else(|| FormatError::at_path("/yarns/offsets", "missing"))?;
+    let off = Ds::open(yg, gp, "offsets", true)?
+        .ok_or_else(|| FormatError::at_path(format!("{gp}/offsets"), "missing"))?;
     off.expect_shape(&[None], "[C + 1] (one offset per curve, plus the end)")?;
     let len = off.len();
     if len == 0 {
@@ -774,8 +762,8 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
     }
 
     // Closed flags: C integers 0/1 (or h5py's boolean enum).
-    let cl = Ds::open(&yg, "/yarns", "closed", true)?
-        .ok_or_else(|| FormatError::at_path("/yarns/closed", "missing"))?;
+    let cl = Ds::open(yg, gp, "closed", true)?
+        .ok_or_else(|| FormatError::at_path(format!("{gp}/closed"), "missing"))?;
     cl.expect_shape(&[Some(c)], &format!("[{c}] (one flag per curve)"))?;
     let flags: Vec<u64> = match cl.ty.kind {
         Kind::Int { .. } => cl.read_index(c)?,
@@ -809,7 +797,7 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
             None => Ok(()),
         }
     };
-    let vertex_radius = match Ds::open(&yg, "/yarns", "vertex_radius", false)? {
+    let vertex_radius = match Ds::open(yg, gp, "vertex_radius", false)? {
         Some(ds) => {
             ds.expect_shape(&[Some(n)], &format!("[{n}] (one radius per vertex)"))?;
             ds.expect_float()?;
@@ -819,7 +807,7 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
         }
         None => None,
     };
-    let (radius, radius_in_file) = match Ds::open(&yg, "/yarns", "radius", false)? {
+    let (radius, radius_in_file) = match Ds::open(yg, gp, "radius", false)? {
         Some(ds) => {
             ds.expect_shape(&[Some(c)], &format!("[{c}] (one radius per curve)"))?;
             ds.expect_float()?;
@@ -841,7 +829,7 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
             None => (vec![opts.radius; c], false),
         },
     };
-    let linear_density = match Ds::open(&yg, "/yarns", "linear_density", false)? {
+    let linear_density = match Ds::open(yg, gp, "linear_density", false)? {
         Some(ds) => {
             ds.expect_shape(&[Some(c)], &format!("[{c}] (one density per curve)"))?;
             ds.expect_float()?;
@@ -860,13 +848,6 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
         None => None,
     };
 
-    let frames = match open_group(root, "frames", "/frames")? {
-        Some(g) => Some(read_frames(&g, n, opts)?),
-        None => None,
-    };
-    if let Some(f) = &frames {
-        notes.push(format!("{} frame(s)", f.num_frames()));
-    }
     let yarns = Yarns {
         points,
         offsets,
@@ -875,6 +856,46 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
         vertex_radius,
         linear_density,
     };
+    Ok((yarns, radius_in_file))
+}
+
+/// Validates and reads an open knitvox yarns file.
+fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatError> {
+    let root: &Group = file;
+    let yg = match open_group(root, "yarns", "/yarns")? {
+        Some(g) => g,
+        None => {
+            return Err(FormatError::whole_file(format!(
+                "not a knitvox yarns file: there is no /yarns group ({})",
+                describe_top_level(root)
+            )))
+        }
+    };
+    let mut notes = check_format_attrs(root)?;
+    let units = match read_str_attr(root, "", "units")? {
+        Some(u) => Some(
+            u.parse::<Units>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+        ),
+        None => None,
+    };
+    let up_axis = match read_str_attr(root, "", "up_axis")? {
+        Some(a) => Some(
+            a.parse::<UpAxis>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+        ),
+        None => None,
+    };
+
+    let (yarns, radius_in_file) = read_yarns_group(&yg, "/yarns", opts)?;
+    let n = yarns.num_points();
+    let frames = match open_group(root, "frames", "/frames")? {
+        Some(g) => Some(read_frames(&g, n, opts)?),
+        None => None,
+    };
+    if let Some(f) = &frames {
+        notes.push(format!("{} frame(s)", f.num_frames()));
+    }
     Ok(Decoded {
         yarns,
         frames,
@@ -969,7 +990,7 @@ fn read_frame_of(file: &hdf5::File, f: usize) -> Result<Vec<Vec3>, FormatError> 
 // Writing
 // ---------------------------------------------------------------------------
 
-fn write_1d<T: hdf5::H5Type>(
+pub(crate) fn write_1d<T: hdf5::H5Type>(
     g: &Group,
     name: &str,
     data: &[T],
@@ -989,7 +1010,7 @@ fn write_1d<T: hdf5::H5Type>(
 /// checksum every piece of metadata, so a corrupted file is detected on read
 /// instead of being misread; the upper bound keeps files readable by
 /// libhdf5 1.10 even when knitvox links a newer library.
-fn create_h5(path: &Path) -> hdf5::Result<hdf5::File> {
+pub(crate) fn create_h5(path: &Path) -> hdf5::Result<hdf5::File> {
     use hdf5::file::LibraryVersion;
     hdf5::File::with_options()
         .with_fapl(|p| p.libver_bounds(LibraryVersion::V110, LibraryVersion::V110))
@@ -1010,7 +1031,13 @@ fn write_yarns(file: &hdf5::File, y: &Yarns) -> hdf5::Result<()> {
         "generator",
         &format!("knitvox {}", env!("CARGO_PKG_VERSION")),
     )?;
-    let g = file.create_group("yarns")?;
+    write_yarns_group(&file.create_group("yarns")?, y)
+}
+
+/// The datasets of a yarns group (`points`, `offsets`, `closed`, `radius`, and
+/// `vertex_radius` / `linear_density` when present) into `g`. Also used by the
+/// asset file (`/knitvox/rest_yarns`, io::vtkhdf).
+pub(crate) fn write_yarns_group(g: &Group, y: &Yarns) -> hdf5::Result<()> {
     let n = y.points.len();
     let pts = g.new_dataset::<f64>().shape([n, 3]).create("points")?;
     if n > 0 {
@@ -1018,15 +1045,15 @@ fn write_yarns(file: &hdf5::File, y: &Yarns) -> hdf5::Result<()> {
     }
     write_str_attr(&pts, "units", "m")?;
     let offsets: Vec<u64> = y.offsets.iter().map(|&o| o as u64).collect();
-    write_1d(&g, "offsets", &offsets, None)?;
+    write_1d(g, "offsets", &offsets, None)?;
     let closed: Vec<u8> = y.closed.iter().map(|&c| u8::from(c)).collect();
-    write_1d(&g, "closed", &closed, None)?;
-    write_1d(&g, "radius", &y.radius, Some("m"))?;
+    write_1d(g, "closed", &closed, None)?;
+    write_1d(g, "radius", &y.radius, Some("m"))?;
     if let Some(vr) = &y.vertex_radius {
-        write_1d(&g, "vertex_radius", vr, Some("m"))?;
+        write_1d(g, "vertex_radius", vr, Some("m"))?;
     }
     if let Some(ld) = &y.linear_density {
-        write_1d(&g, "linear_density", ld, Some("kg/m"))?;
+        write_1d(g, "linear_density", ld, Some("kg/m"))?;
     }
     Ok(())
 }
