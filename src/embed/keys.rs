@@ -36,11 +36,7 @@ pub(crate) fn unique_corner_keys(voxels: &[[i32; 3]]) -> Vec<u128> {
         .par_iter()
         .flat_map_iter(|&v| {
             (0..8).map(move |c| {
-                corner_key([
-                    v[0] + (c & 1),
-                    v[1] + ((c >> 1) & 1),
-                    v[2] + ((c >> 2) & 1),
-                ])
+                corner_key([v[0] + (c & 1), v[1] + ((c >> 1) & 1), v[2] + ((c >> 2) & 1)])
             })
         })
         .collect();

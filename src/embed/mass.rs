@@ -89,16 +89,10 @@ fn split_one(
     ts.sort_unstable_by(f64::total_cmp);
     ts.dedup();
     let at = |t: f64| -> Vec3 { std::array::from_fn(|k| a[k] + t * (b[k] - a[k])) };
-    // A zero-length segment still gets one (empty) piece so it has a tet.
-    let spans: Vec<(f64, f64)> = if a == b {
-        vec![(0.0, 1.0)]
-    } else {
-        ts.windows(2)
-            .filter(|w| w[1] > w[0])
-            .map(|w| (w[0], w[1]))
-            .collect()
-    };
-    for (t0, t1) in spans {
+    // `ts` holds 0 and 1, so a zero-length segment still gets one (empty)
+    // piece, with a tet.
+    for w in ts.windows(2) {
+        let (t0, t1) = (w[0], w[1]);
         let mid = at(0.5 * (t0 + t1));
         let loc = locate_nearest(grid, mid).ok_or_else(|| {
             EmbedError::Internal(format!(
@@ -197,7 +191,16 @@ mod tests {
         let grid = grid_row(2);
         let mut ts = Vec::new();
         let mut out = Vec::new();
-        split_one(&grid, 0, [0.2, 0.7, 0.1], [1.8, 0.2, 0.9], 3.0, &mut ts, &mut out).unwrap();
+        split_one(
+            &grid,
+            0,
+            [0.2, 0.7, 0.1],
+            [1.8, 0.2, 0.9],
+            3.0,
+            &mut ts,
+            &mut out,
+        )
+        .unwrap();
         let (mesh, _) = super::super::tetrahedralize(&grid);
         let m = lump_masses(&mesh.tets, mesh.num_nodes(), &out, &[0.5]);
         let total: f64 = m.iter().sum();

@@ -147,7 +147,12 @@ pub fn embed(yarns: &Yarns, params: &EmbedParams) -> Result<Embedded, EmbedError
     let (segment_linear_density, linear_density) =
         linear_densities(yarns, params.material_density, &lengths);
     let split = mass::split_segments(&grid, &g, &segments, &lengths)?;
-    let node_mass = mass::lump_masses(&mesh.tets, mesh.num_nodes(), &split, &segment_linear_density);
+    let node_mass = mass::lump_masses(
+        &mesh.tets,
+        mesh.num_nodes(),
+        &split,
+        &segment_linear_density,
+    );
     let pieces: Vec<YarnPiece> = split.into_iter().map(|p| p.piece).collect();
     let total_yarn_mass = lengths
         .iter()

@@ -40,7 +40,10 @@ pub(crate) struct Chosen {
 /// `n` is within 2 % of `N*` or 6 evaluations are done; the evaluated `h`
 /// closest to the target (in `|log(n / N*)|`, first on ties) wins. Sizes whose
 /// voxel bound exceeds `max_voxels` count as "too many nodes". Deterministic.
-pub fn default_voxel_size(yarns: &Yarns, params: &EmbedParams) -> Result<(f64, String), EmbedError> {
+pub fn default_voxel_size(
+    yarns: &Yarns,
+    params: &EmbedParams,
+) -> Result<(f64, String), EmbedError> {
     choose(yarns, params).map(|c| (c.h, c.rule))
 }
 
@@ -74,7 +77,11 @@ pub(crate) fn choose(yarns: &Yarns, params: &EmbedParams) -> Result<Chosen, Embe
             limit: params.max_voxels,
         });
     };
-    let mut next = if (first.nodes as f64) < target { first.h / 1.5 } else { first.h * 1.5 };
+    let mut next = if (first.nodes as f64) < target {
+        first.h / 1.5
+    } else {
+        first.h * 1.5
+    };
     while trials.len() < MAX_EVALS {
         let Some(t) = evaluate(yarns, next, params.max_voxels)? else {
             break; // finer than max_voxels allows: keep what we have
@@ -96,7 +103,13 @@ pub(crate) fn choose(yarns: &Yarns, params: &EmbedParams) -> Result<Chosen, Embe
     let evals = trials.len();
     let best = trials
         .into_iter()
-        .reduce(|b, t| if miss(t.nodes, target) < miss(b.nodes, target) { t } else { b })
+        .reduce(|b, t| {
+            if miss(t.nodes, target) < miss(b.nodes, target) {
+                t
+            } else {
+                b
+            }
+        })
         .expect("at least one trial");
     let rule = format!(
         "default: about {ratio} x {} yarn vertices = {target:.0} nodes (VH §4: n_V ~ n_Y/2); \
@@ -122,9 +135,9 @@ fn miss(nodes: usize, target: f64) -> f64 {
 /// 2 x the mean segment length, or 4 x the largest radius when all segments
 /// have zero length.
 fn start_size(yarns: &Yarns) -> f64 {
-    let (sum, n) = yarns
-        .segments()
-        .fold((0.0, 0usize), |(s, n), [a, b]| (s + dist(yarns.points[a], yarns.points[b]), n + 1));
+    let (sum, n) = yarns.segments().fold((0.0, 0usize), |(s, n), [a, b]| {
+        (s + dist(yarns.points[a], yarns.points[b]), n + 1)
+    });
     let mean = if n > 0 { sum / n as f64 } else { 0.0 };
     if mean > 0.0 && mean.is_finite() {
         2.0 * mean
@@ -158,7 +171,10 @@ fn evaluate(yarns: &Yarns, h: f64, max_voxels: u64) -> Result<Option<Trial>, Emb
     Ok(Some(Trial {
         h,
         nodes,
-        grid: VoxelGrid { voxels, ..prep.grid },
+        grid: VoxelGrid {
+            voxels,
+            ..prep.grid
+        },
         extra,
     }))
 }

@@ -116,7 +116,9 @@ fn voxel_corner_nodes(keys: &[u128], v: [i32; 3]) -> [u32; 8] {
 /// barycentric weights in stored node order.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Location {
+    /// Tet index (`6 * voxel index + q`, `q` into [`PERMS`]).
     pub tet: u32,
+    /// Barycentric weights in the tet's stored node order (sum to 1).
     pub weights: [f64; 4],
 }
 

@@ -207,13 +207,21 @@ impl Walk {
             // Every crossing at exactly this t is one crossing point (an edge
             // or corner when there are several).
             let mut p: Vec3 = std::array::from_fn(|k| a[k] + t * d[k]);
+            let group = i;
             while i < self.crossings.len() && self.crossings[i].0 == t {
                 let (_, k, n) = self.crossings[i];
                 p[k] = n;
                 cur[k] += step[k];
                 i += 1;
             }
-            self.contact_box(p);
+            // A plain face crossing (one plane, the other coordinates off
+            // the grid planes) touches only the voxels before and after it,
+            // which the walk lists; only edge and corner points add voxels.
+            let k = self.crossings[group].1;
+            let plain = i == group + 1 && (0..3).all(|j| j == k || p[j].floor() != p[j]);
+            if !plain {
+                self.contact_box(p);
+            }
             prev_t = t;
         }
         if prev_t < 1.0 {
