@@ -8,7 +8,7 @@ use clap::Args;
 use super::{ExitCode, ReadArgs};
 use crate::embed::EmbedParams;
 use crate::fit::ShapeFitParams;
-use crate::geom::{FrameSpec, UpAxis, Units};
+use crate::geom::{FrameSpec, Units, UpAxis};
 use crate::io::{self, vtkhdf, Format, WriteOptions};
 use crate::pipeline::asset as stages;
 
@@ -90,7 +90,13 @@ pub struct ExportArgs {
 }
 
 fn check_asset_ext(path: &Path) -> anyhow::Result<()> {
-    if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("vtkhdf") {
+    if path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+        != Some("vtkhdf")
+    {
         return Err(anyhow::Error::new(io::IoError::Unsupported {
             path: path.to_path_buf(),
             message: "an asset file must have the .vtkhdf extension".into(),
@@ -100,7 +106,12 @@ fn check_asset_ext(path: &Path) -> anyhow::Result<()> {
 }
 
 /// Resolves a spec against `n` available frames: 0-based indices, all in range.
-fn select(spec: &Option<FrameSpec>, n: usize, what: &str, path: &Path) -> anyhow::Result<Vec<usize>> {
+fn select(
+    spec: &Option<FrameSpec>,
+    n: usize,
+    what: &str,
+    path: &Path,
+) -> anyhow::Result<Vec<usize>> {
     let frames = spec.clone().unwrap_or_else(|| FrameSpec::all(n)).frames();
     frames
         .into_iter()
@@ -108,7 +119,10 @@ fn select(spec: &Option<FrameSpec>, n: usize, what: &str, path: &Path) -> anyhow
             usize::try_from(f).ok().filter(|&i| i < n).ok_or_else(|| {
                 anyhow::Error::new(io::IoError::Unsupported {
                     path: path.to_path_buf(),
-                    message: format!("{what} {f} does not exist: there are {n} (0..{})", n.saturating_sub(1)),
+                    message: format!(
+                        "{what} {f} does not exist: there are {n} (0..{})",
+                        n.saturating_sub(1)
+                    ),
                 })
             })
         })
@@ -123,10 +137,16 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         material_density: a.density,
         ..EmbedParams::default()
     };
-    let (asset, stats) = stages::build_asset(&a.yarns, &a.read.options(), &params, &command_line())?;
+    let (asset, stats) =
+        stages::build_asset(&a.yarns, &a.read.options(), &params, &command_line())?;
     vtkhdf::write_asset(&a.output, &asset)?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats })
+            )?
+        );
     } else {
         println!(
             "{}: {} yarn vertices -> {} voxels (h = {:.4e} m, {}), {} nodes, {} tets, n_V/n_Y = {:.3}, yarn mass {:.4e} kg",
@@ -151,14 +171,26 @@ pub fn shapefit(a: &ShapefitArgs) -> anyhow::Result<ExitCode> {
     let Some(frames) = data.frames else {
         return Err(anyhow::Error::new(io::IoError::Unsupported {
             path: a.frames.clone(),
-            message: "holds no frames: give a knitvox HDF5 file with /frames or a name.####.ext sequence".into(),
+            message:
+                "holds no frames: give a knitvox HDF5 file with /frames or a name.####.ext sequence"
+                    .into(),
         }));
     };
     let selection = select(&a.frames_spec, frames.num_frames(), "frame", &a.frames)?;
-    let report = stages::shapefit(&mut asset, &a.asset, &frames, &selection, &ShapeFitParams { alpha: a.alpha })?;
+    let report = stages::shapefit(
+        &mut asset,
+        &a.asset,
+        &frames,
+        &selection,
+        &ShapeFitParams { alpha: a.alpha },
+    )?;
     asset.provenance.inputs.push(crate::geom::InputFile {
         path: a.frames.display().to_string(),
-        sha256: if a.frames.is_file() { stages::sha256_file(&a.frames)? } else { String::new() },
+        sha256: if a.frames.is_file() {
+            stages::sha256_file(&a.frames)?
+        } else {
+            String::new()
+        },
     });
     asset.provenance.command = format!("{} && {}", asset.provenance.command, command_line());
     let out = a.output.clone().unwrap_or_else(|| a.asset.clone());
@@ -183,14 +215,29 @@ pub fn export(a: &ExportArgs) -> anyhow::Result<ExitCode> {
     let asset = vtkhdf::read_asset(&a.asset)?;
     let steps = select(&a.frames_spec, asset.steps.num_steps(), "step", &a.asset)?;
     let format = Format::from_path(Path::new(&format!("x.{}", a.format))).unwrap_or(Format::Ply);
-    let name = a.name.clone().unwrap_or_else(|| a.asset.file_stem().map_or("asset".into(), |s| s.to_string_lossy().into_owned()));
-    let opts = WriteOptions { units: a.out_units, up_axis: a.out_up_axis, first_frame: 0 };
+    let name = a.name.clone().unwrap_or_else(|| {
+        a.asset
+            .file_stem()
+            .map_or("asset".into(), |s| s.to_string_lossy().into_owned())
+    });
+    let opts = WriteOptions {
+        units: a.out_units,
+        up_axis: a.out_up_axis,
+        first_frame: 0,
+    };
     let written = stages::export(&asset, &steps, format, &a.output, &name, &opts)?;
     if a.json {
         let files: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
-        println!("{}", serde_json::json!({ "steps": steps.len(), "written": files }));
+        println!(
+            "{}",
+            serde_json::json!({ "steps": steps.len(), "written": files })
+        );
     } else {
-        eprintln!("exported {} step(s) into {} file(s)", steps.len(), written.len());
+        eprintln!(
+            "exported {} step(s) into {} file(s)",
+            steps.len(),
+            written.len()
+        );
         for p in &written {
             println!("{}", p.display());
         }

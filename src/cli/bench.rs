@@ -155,10 +155,19 @@ pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
     use crate::embed::{embed as run_embed, EmbedParams};
     use crate::fit::{ShapeFitParams, ShapeFitter};
     let (yarns, input) = match &a.input {
-        Some(p) => (io::read_path(p, &a.read.options())?.yarns, p.display().to_string()),
-        None => (knit_swatch_with_points(a.points), format!("built-in analytic swatch ({} points)", a.points)),
+        Some(p) => (
+            io::read_path(p, &a.read.options())?.yarns,
+            p.display().to_string(),
+        ),
+        None => (
+            knit_swatch_with_points(a.points),
+            format!("built-in analytic swatch ({} points)", a.points),
+        ),
     };
-    let params = EmbedParams { voxel_size: a.voxel_size, ..EmbedParams::default() };
+    let params = EmbedParams {
+        voxel_size: a.voxel_size,
+        ..EmbedParams::default()
+    };
     let e = run_embed(&yarns, &params)?;
     let embed_ms = time_ms(a.runs, || Ok(run_embed(&yarns, &params)?))?;
     let t = Instant::now();

@@ -11,6 +11,44 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
     let mut code = ExitCode::Success;
     let mut json = Vec::new();
     for path in &a.files {
+        if is_asset(path) {
+            match io::vtkhdf::summary(path) {
+                Ok(sum) => {
+                    let mut v = serde_json::to_value(&sum)?;
+                    if let Some(obj) = v.as_object_mut() {
+                        obj.insert("path".into(), path.display().to_string().into());
+                        obj.insert("format".into(), "vtkhdf".into());
+                    }
+                    if a.json {
+                        json.push(v);
+                    } else {
+                        println!(
+                            "{}\n  format        vtkhdf (knitvox homogenized asset)",
+                            path.display()
+                        );
+                        if let Some(obj) = v.as_object() {
+                            for (k, val) in obj
+                                .iter()
+                                .filter(|(k, _)| !matches!(k.as_str(), "path" | "format"))
+                            {
+                                println!("  {k:<22}{val}");
+                            }
+                        }
+                    }
+                }
+                Err(e) => {
+                    let e = anyhow::Error::new(e);
+                    if code == ExitCode::Success {
+                        code = exit_code_for(&e);
+                    }
+                    eprintln!("error: {e:#}");
+                    if a.json {
+                        json.push(serde_json::json!({ "path": path.display().to_string(), "error": format!("{e:#}") }));
+                    }
+                }
+            }
+            continue;
+        }
         if let Some(datasets) = foreign_hdf5(path) {
             if a.json {
                 json.push(serde_json::json!({
@@ -66,6 +104,12 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(code)
+}
+
+fn is_asset(path: &std::path::Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("vtkhdf"))
 }
 
 /// The datasets of an HDF5 file that is not a knitvox yarns file (None otherwise,
@@ -124,7 +168,7 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    let r = demo::run(&a.out)?;
+    let r = demo::run(&a.out, &super::asset::command_line())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -138,6 +182,24 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             r.frames
         );
         for p in &r.outputs {
+            println!("  {}", p.display());
+        }
+        let e = &r.embed;
+        println!(
+            "embedded into {}: {} voxels (h = {:.3e} m), {} nodes, {} tets in {:.1} ms",
+            r.asset.display(),
+            e.voxels,
+            e.voxel_size,
+            e.nodes,
+            e.tets,
+            e.voxelize_ms + e.tetrahedralize_ms + e.mass_ms + e.embedding_ms
+        );
+        println!(
+            "shape-fitted {} frames into its time series: {:.2} ms per frame, worst RMS yarn error {:.3e} m",
+            r.shapefit.frames, r.shapefit.fit_ms_per_frame_median, r.shapefit.rms_error_max
+        );
+        println!("exported the fitted frames as yarn curves:");
+        for p in &r.exported {
             println!("  {}", p.display());
         }
     }

@@ -44,7 +44,9 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         if let Some(e) = cause.downcast_ref::<crate::pipeline::asset::StageError>() {
             return of_class(e.class());
         }
-        if cause.downcast_ref::<crate::embed::EmbedError>().is_some() || cause.downcast_ref::<crate::fit::FitError>().is_some() {
+        if cause.downcast_ref::<crate::embed::EmbedError>().is_some()
+            || cause.downcast_ref::<crate::fit::FitError>().is_some()
+        {
             return ExitCode::BadInput;
         }
         if cause.downcast_ref::<crate::geom::GeomError>().is_some() {

@@ -132,6 +132,32 @@ pub fn polar(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
     (r, s_mat)
 }
 
+/// Matrix logarithm of a rotation as an axis-angle vector (the vee of Ω in
+/// R = exp(Ω)). Robust near the identity, where acos((tr R - 1) / 2) is not.
+pub fn log_rotation(r: &Matrix3<f64>) -> Vector3<f64> {
+    let w = 0.5
+        * Vector3::new(
+            r[(2, 1)] - r[(1, 2)],
+            r[(0, 2)] - r[(2, 0)],
+            r[(1, 0)] - r[(0, 1)],
+        );
+    let s = w.norm();
+    let c = 0.5 * (r.trace() - 1.0);
+    let angle = s.atan2(c);
+    if s < 1e-12 {
+        if c > 0.0 {
+            return w; // first order: angle = s, axis = w / s
+        }
+        // Half turn: the axis is the column of R + I with the largest norm.
+        let m = r + Matrix3::identity();
+        let k = (0..3)
+            .max_by(|&i, &j| m.column(i).norm().total_cmp(&m.column(j).norm()))
+            .unwrap_or(0);
+        return m.column(k).normalize() * std::f64::consts::PI;
+    }
+    w * (angle / s)
+}
+
 /// Best rotation R with R (p̄_k - c̄) ≈ (p_k - c) (Kabsch); None when the
 /// points do not determine a rotation (fewer than 2 independent directions).
 fn kabsch(rest: &[Vector3<f64>], cur: &[Vector3<f64>]) -> Option<Matrix3<f64>> {
@@ -170,7 +196,9 @@ fn minimal_rotation(a: &Vector3<f64>, b: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 fn perpendicular(t: &Vector3<f64>) -> Vector3<f64> {
-    let k = (0..3).min_by(|&i, &j| t[i].abs().total_cmp(&t[j].abs())).unwrap_or(0);
+    let k = (0..3)
+        .min_by(|&i, &j| t[i].abs().total_cmp(&t[j].abs()))
+        .unwrap_or(0);
     let mut e = Vector3::zeros();
     e[k] = 1.0;
     t.cross(&e).normalize()
@@ -194,7 +222,10 @@ impl ShapeFitter {
         let t_start = Instant::now();
         let nv = mesh.num_nodes();
         let nt = mesh.num_tets();
-        if embedding.num_vertices() != yarns.num_points() || tet_voxel.len() != nt || linear_density.len() != yarns.num_curves() {
+        if embedding.num_vertices() != yarns.num_points()
+            || tet_voxel.len() != nt
+            || linear_density.len() != yarns.num_curves()
+        {
             return Err(FitError::Inconsistent(format!(
                 "{} embedded vertices for {} yarn points, {} tet voxels for {} tets, {} densities for {} curves",
                 embedding.num_vertices(),
@@ -209,7 +240,9 @@ impl ShapeFitter {
         let mut tet_pieces = vec![Vec::new(); nt];
         for p in pieces {
             if p.tet as usize >= nt || p.segment as usize >= segments.len() {
-                return Err(FitError::Inconsistent(format!("piece {p:?} refers past the mesh or the segments")));
+                return Err(FitError::Inconsistent(format!(
+                    "piece {p:?} refers past the mesh or the segments"
+                )));
             }
             tet_pieces[p.tet as usize].push((p.segment, p.length));
         }
@@ -243,19 +276,28 @@ impl ShapeFitter {
         let total_mass: f64 = vertex_mass.iter().sum();
         let total_volume: f64 = volumes.iter().sum();
         let h2 = (6.0 * total_volume / nt.max(1) as f64).powf(2.0 / 3.0);
-        let scale = if total_mass > 0.0 { params.alpha * total_volume / (h2 * total_mass) } else { 0.0 };
+        let scale = if total_mass > 0.0 {
+            params.alpha * total_volume / (h2 * total_mass)
+        } else {
+            0.0
+        };
         let weights: Vec<f64> = vertex_mass.iter().map(|m| m * scale).collect();
 
         // Assemble K + N^T W N (lower triangle is enough for the Cholesky, but faer wants the full matrix
         // on the side it reads; we give the lower side).
-        let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nt * 10 + embedding.num_vertices() * 10);
+        let mut trip: Vec<Triplet<usize, usize, f64>> =
+            Vec::with_capacity(nt * 10 + embedding.num_vertices() * 10);
         for t in 0..nt {
             let ids = mesh.tets[t];
             for a in 0..4 {
                 for b in 0..4 {
                     let (i, j) = (ids[a] as usize, ids[b] as usize);
                     if i >= j {
-                        trip.push(Triplet::new(i, j, volumes[t] * grads[t][a].dot(&grads[t][b])));
+                        trip.push(Triplet::new(
+                            i,
+                            j,
+                            volumes[t] * grads[t][a].dot(&grads[t][b]),
+                        ));
                     }
                 }
             }
@@ -275,12 +317,17 @@ impl ShapeFitter {
             .map_err(|e| FitError::Inconsistent(format!("assembling the matrix: {e:?}")))?;
         let assemble_ms = t_start.elapsed().as_secs_f64() * 1e3;
         let t_sym = Instant::now();
-        let symbolic = faer::sparse::linalg::solvers::SymbolicLlt::try_new(a.symbolic(), faer::Side::Lower)
-            .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
+        let symbolic =
+            faer::sparse::linalg::solvers::SymbolicLlt::try_new(a.symbolic(), faer::Side::Lower)
+                .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
         let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
         let t_num = Instant::now();
-        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(symbolic, a.as_ref(), faer::Side::Lower)
-            .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
+        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(
+            symbolic,
+            a.as_ref(),
+            faer::Side::Lower,
+        )
+        .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
         let numeric_ms = t_num.elapsed().as_secs_f64() * 1e3;
         Ok(ShapeFitter {
             mesh: mesh.clone(),
@@ -293,7 +340,12 @@ impl ShapeFitter {
             volumes,
             weights,
             llt,
-            prepare: PrepareStats { assemble_ms, symbolic_ms, numeric_ms, nonzeros: a.compute_nnz() },
+            prepare: PrepareStats {
+                assemble_ms,
+                symbolic_ms,
+                numeric_ms,
+                nonzeros: a.compute_nnz(),
+            },
         })
     }
 
@@ -313,7 +365,7 @@ impl ShapeFitter {
                 });
                 let f = Matrix3::from_columns(&[e, r * s.n1, r * s.n2]) * s.rest_inv;
                 let (rot, stretch) = polar(&f);
-                let omega = Rotation3::from_matrix_unchecked(rot).scaled_axis();
+                let omega = log_rotation(&rot);
                 (omega, stretch)
             })
             .collect()
@@ -334,7 +386,9 @@ impl ShapeFitter {
             .map(|t| {
                 let (mut om, mut st, mut w) = average(&mut self.tet_pieces[t].iter().copied());
                 if w <= 0.0 {
-                    let mut it = self.tet_fallback[t].iter().flat_map(|&u| self.tet_pieces[u as usize].iter().copied());
+                    let mut it = self.tet_fallback[t]
+                        .iter()
+                        .flat_map(|&u| self.tet_pieces[u as usize].iter().copied());
                     (om, st, w) = average(&mut it);
                 }
                 if w <= 0.0 {
@@ -355,8 +409,13 @@ impl ShapeFitter {
                 self.embedding.num_vertices()
             )));
         }
-        if let Some(v) = yarn_points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-            return Err(FitError::Inconsistent(format!("yarn vertex {v} is not finite")));
+        if let Some(v) = yarn_points
+            .iter()
+            .position(|p| !p.iter().all(|x| x.is_finite()))
+        {
+            return Err(FitError::Inconsistent(format!(
+                "yarn vertex {v} is not finite"
+            )));
         }
         let seg = self.segment_gradients(yarn_points);
         let targets = self.targets(&seg);
@@ -371,7 +430,13 @@ impl ShapeFitter {
                 }
             }
         }
-        for (v, (&t, w)) in self.embedding.tet.iter().zip(&self.embedding.weights).enumerate() {
+        for (v, (&t, w)) in self
+            .embedding
+            .tet
+            .iter()
+            .zip(&self.embedding.weights)
+            .enumerate()
+        {
             let ids = self.mesh.tets[t as usize];
             for a in 0..4 {
                 for c in 0..3 {
@@ -380,9 +445,13 @@ impl ShapeFitter {
             }
         }
         let sol = self.llt.solve(&rhs);
-        let nodes: Vec<Vec3> = (0..nv).map(|i| [sol[(i, 0)], sol[(i, 1)], sol[(i, 2)]]).collect();
+        let nodes: Vec<Vec3> = (0..nv)
+            .map(|i| [sol[(i, 0)], sol[(i, 1)], sol[(i, 2)]])
+            .collect();
         if let Some(i) = nodes.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-            return Err(FitError::NotPositiveDefinite(format!("node {i} came out non-finite")));
+            return Err(FitError::NotPositiveDefinite(format!(
+                "node {i} came out non-finite"
+            )));
         }
         let back = self.embedding.v2y(&self.mesh, &nodes);
         let (mut sum2, mut max) = (0.0, 0.0f64);
@@ -392,7 +461,14 @@ impl ShapeFitter {
             max = max.max(d);
         }
         let rms = (sum2 / back.len().max(1) as f64).sqrt();
-        Ok((nodes, FitStats { rms_error: rms, max_error: max, ms: start.elapsed().as_secs_f64() * 1e3 }))
+        Ok((
+            nodes,
+            FitStats {
+                rms_error: rms,
+                max_error: max,
+                ms: start.elapsed().as_secs_f64() * 1e3,
+            },
+        ))
     }
 
     /// Y2V of every frame, frames in parallel (results in frame order).
@@ -400,8 +476,10 @@ impl ShapeFitter {
         (0..frames.num_frames())
             .into_par_iter()
             .map(|f| {
-                self.fit(frames.frame(f))
-                    .map_err(|e| FitError::Frame { frame: f, message: e.to_string() })
+                self.fit(frames.frame(f)).map_err(|e| FitError::Frame {
+                    frame: f,
+                    message: e.to_string(),
+                })
             })
             .collect()
     }
@@ -425,7 +503,11 @@ fn rest_segments(yarns: &Yarns) -> Vec<RestSegment> {
         for (k, &[a, b]) in segs.iter().enumerate() {
             let e = v3(yarns.points[b]) - v3(yarns.points[a]);
             let len = e.norm();
-            let t = if len > 0.0 { e / len } else { prev_t.unwrap_or_else(Vector3::x) };
+            let t = if len > 0.0 {
+                e / len
+            } else {
+                prev_t.unwrap_or_else(Vector3::x)
+            };
             let n1 = match (normal, prev_t) {
                 (Some(nprev), Some(tp)) => {
                     let m = minimal_rotation(&tp, &t) * nprev;
@@ -456,7 +538,14 @@ fn rest_segments(yarns: &Yarns) -> Vec<RestSegment> {
             window.dedup();
             let rest = Matrix3::from_columns(&[e, n1, n2]);
             let rest_inv = rest.try_inverse().unwrap_or_else(Matrix3::identity);
-            out.push(RestSegment { a, b, window, rest_inv, n1, n2 });
+            out.push(RestSegment {
+                a,
+                b,
+                window,
+                rest_inv,
+                n1,
+                n2,
+            });
         }
     }
     out
@@ -473,12 +562,31 @@ fn fallbacks(grid: &VoxelGrid, tet_voxel: &[u32], tet_pieces: &[Vec<(u32, f64)>]
             list.push(t as u32);
         }
     }
-    let has_yarn = |v: usize| voxel_tets[v].iter().any(|&t| !tet_pieces[t as usize].is_empty());
+    let has_yarn = |v: usize| {
+        voxel_tets[v]
+            .iter()
+            .any(|&t| !tet_pieces[t as usize].is_empty())
+    };
     // Voxel-level source lists, grown from yarn voxels into empty ones.
     let mut source: Vec<Option<Vec<u32>>> = (0..nvox)
-        .map(|v| has_yarn(v).then(|| voxel_tets[v].iter().copied().filter(|&t| !tet_pieces[t as usize].is_empty()).collect()))
+        .map(|v| {
+            has_yarn(v).then(|| {
+                voxel_tets[v]
+                    .iter()
+                    .copied()
+                    .filter(|&t| !tet_pieces[t as usize].is_empty())
+                    .collect()
+            })
+        })
         .collect();
-    const FACES: [[i32; 3]; 6] = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
+    const FACES: [[i32; 3]; 6] = [
+        [1, 0, 0],
+        [-1, 0, 0],
+        [0, 1, 0],
+        [0, -1, 0],
+        [0, 0, 1],
+        [0, 0, -1],
+    ];
     for _ in 0..64 {
         let missing: Vec<usize> = (0..nvox).filter(|&v| source[v].is_none()).collect();
         if missing.is_empty() {
@@ -515,7 +623,11 @@ fn fallbacks(grid: &VoxelGrid, tet_voxel: &[u32], tet_pieces: &[Vec<(u32, f64)>]
             if !tet_pieces[t].is_empty() {
                 Vec::new()
             } else {
-                source.get(v as usize).cloned().flatten().unwrap_or_default()
+                source
+                    .get(v as usize)
+                    .cloned()
+                    .flatten()
+                    .unwrap_or_default()
             }
         })
         .collect()
@@ -541,10 +653,37 @@ mod tests {
     }
 
     #[test]
+    fn log_rotation_inverts_exp() {
+        for v in [
+            Vector3::new(0.3, -0.5, 0.8),
+            Vector3::new(1e-9, 0.0, 0.0),
+            Vector3::zeros(),
+            Vector3::new(0.0, 3.0, 0.0),
+        ] {
+            let r = Rotation3::new(v).into_inner();
+            assert!((log_rotation(&r) - v).norm() < 1e-9, "{v:?}");
+        }
+        // Slightly non-orthogonal identity (polar output) must not give NaN.
+        let mut r = Matrix3::identity();
+        r[(0, 0)] = 1.0 + 1e-15;
+        assert!(log_rotation(&r).iter().all(|x| x.is_finite()));
+        let half = Rotation3::new(Vector3::new(0.0, 0.0, std::f64::consts::PI)).into_inner();
+        assert!((log_rotation(&half).norm() - std::f64::consts::PI).abs() < 1e-9);
+    }
+
+    #[test]
     fn kabsch_recovers_rotation() {
         let rot = Rotation3::new(Vector3::new(0.3, -0.5, 0.8)).into_inner();
-        let pts = [Vector3::new(0.0, 0.0, 0.0), Vector3::new(1.0, 0.1, 0.0), Vector3::new(2.0, -0.3, 0.4), Vector3::new(2.5, 0.5, 1.0)];
-        let moved: Vec<_> = pts.iter().map(|p| rot * p + Vector3::new(3.0, 2.0, 1.0)).collect();
+        let pts = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.1, 0.0),
+            Vector3::new(2.0, -0.3, 0.4),
+            Vector3::new(2.5, 0.5, 1.0),
+        ];
+        let moved: Vec<_> = pts
+            .iter()
+            .map(|p| rot * p + Vector3::new(3.0, 2.0, 1.0))
+            .collect();
         let r = kabsch(&pts, &moved).unwrap();
         assert!((r - rot).norm() < 1e-12);
         let line = [Vector3::zeros(), Vector3::x(), Vector3::x() * 2.0];

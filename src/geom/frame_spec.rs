@@ -33,9 +33,15 @@ impl FrameSpec {
     /// A spec selecting every frame in `0..n`.
     pub fn all(n: usize) -> FrameSpec {
         if n == 0 {
-            return FrameSpec { items: Vec::new(), text: String::new() };
+            return FrameSpec {
+                items: Vec::new(),
+                text: String::new(),
+            };
         }
-        FrameSpec { items: vec![(0, n as i64 - 1, 1)], text: format!("0-{}", n - 1) }
+        FrameSpec {
+            items: vec![(0, n as i64 - 1, 1)],
+            text: format!("0-{}", n - 1),
+        }
     }
 }
 
@@ -56,30 +62,50 @@ impl FromStr for FrameSpec {
                 return Err(format!("frame spec '{s}': empty item"));
             }
             let (range, step) = match item.split_once(['x', 'X', ':']) {
-                Some((r, st)) => (r, st.trim().parse::<i64>().map_err(|_| format!("frame spec '{s}': bad step in '{item}'"))?),
+                Some((r, st)) => (
+                    r,
+                    st.trim()
+                        .parse::<i64>()
+                        .map_err(|_| format!("frame spec '{s}': bad step in '{item}'"))?,
+                ),
                 None => (item, 1),
             };
             if step < 1 {
-                return Err(format!("frame spec '{s}': step must be at least 1 in '{item}'"));
+                return Err(format!(
+                    "frame spec '{s}': step must be at least 1 in '{item}'"
+                ));
             }
             // A leading '-' is a negative frame number, not a range separator.
-            let split_at = range.char_indices().skip(1).find(|&(_, c)| c == '-').map(|(i, _)| i);
+            let split_at = range
+                .char_indices()
+                .skip(1)
+                .find(|&(_, c)| c == '-')
+                .map(|(i, _)| i);
             let (a, b) = match split_at {
                 Some(i) => (&range[..i], &range[i + 1..]),
                 None => (range, range),
             };
-            let parse = |t: &str| t.trim().parse::<i64>().map_err(|_| format!("frame spec '{s}': '{t}' is not a frame number"));
+            let parse = |t: &str| {
+                t.trim()
+                    .parse::<i64>()
+                    .map_err(|_| format!("frame spec '{s}': '{t}' is not a frame number"))
+            };
             let (a, b) = (parse(a)?, parse(b)?);
             if b < a {
                 return Err(format!("frame spec '{s}': range '{item}' runs backwards"));
             }
             total = total.saturating_add(((b - a) / step + 1) as u64);
             if total > MAX_SPEC_FRAMES {
-                return Err(format!("frame spec '{s}' selects more than {MAX_SPEC_FRAMES} frames"));
+                return Err(format!(
+                    "frame spec '{s}' selects more than {MAX_SPEC_FRAMES} frames"
+                ));
             }
             items.push((a, b, step));
         }
-        Ok(FrameSpec { items, text: s.trim().to_string() })
+        Ok(FrameSpec {
+            items,
+            text: s.trim().to_string(),
+        })
     }
 }
 

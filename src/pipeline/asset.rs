@@ -8,7 +8,9 @@ use sha2::{Digest, Sha256};
 
 use crate::embed::{self, EmbedError, EmbedParams, EmbedStats, Embedded};
 use crate::fit::{FitError, FitStats, ShapeFitParams, ShapeFitter};
-use crate::geom::{Asset, InputFile, NodeSteps, Provenance, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+use crate::geom::{
+    Asset, InputFile, NodeSteps, Provenance, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V,
+};
 use crate::io::{self, IoError, ReadOptions, WriteOptions};
 
 /// Errors of the asset stages.
@@ -44,13 +46,26 @@ impl StageError {
 
 /// SHA-256 of a file, hex.
 pub fn sha256_file(path: &Path) -> Result<String, IoError> {
-    let bytes = std::fs::read(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
-    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+    let bytes = std::fs::read(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }
 
 fn input_record(path: &Path) -> Result<InputFile, IoError> {
-    let sha256 = if path.is_file() { sha256_file(path)? } else { String::new() };
-    Ok(InputFile { path: path.display().to_string(), sha256 })
+    let sha256 = if path.is_file() {
+        sha256_file(path)?
+    } else {
+        String::new()
+    };
+    Ok(InputFile {
+        path: path.display().to_string(),
+        sha256,
+    })
 }
 
 /// Reads yarns and embeds them into a new asset (default materials, domain 0).
@@ -61,10 +76,16 @@ pub fn build_asset(
     command: &str,
 ) -> Result<(Asset, EmbedStats), StageError> {
     let data = io::read_path(input, read)?;
-    let e = embed::embed(&data.yarns, params).map_err(|source| StageError::Embed { path: input.to_path_buf(), source })?;
+    let e = embed::embed(&data.yarns, params).map_err(|source| StageError::Embed {
+        path: input.to_path_buf(),
+        source,
+    })?;
     let mut rest_yarns = data.yarns.clone();
     rest_yarns.linear_density = Some(e.linear_density.clone());
-    let used = EmbedParams { voxel_size: Some(e.stats.voxel_size), ..params.clone() };
+    let used = EmbedParams {
+        voxel_size: Some(e.stats.voxel_size),
+        ..params.clone()
+    };
     let parameters = serde_json::json!({
         "embed": used,
         "embed_requested": params,
@@ -104,8 +125,15 @@ pub fn build_asset(
 /// Rebuilds the embedding (pieces, densities) of an asset from its rest yarns
 /// and voxel size, and checks it reproduces the stored mesh.
 pub fn re_embed(asset: &Asset, path: &Path) -> Result<Embedded, StageError> {
-    let params = EmbedParams { voxel_size: Some(asset.grid.h), max_voxels: u64::MAX, ..EmbedParams::default() };
-    let e = embed::embed(&asset.rest_yarns, &params).map_err(|source| StageError::Embed { path: path.to_path_buf(), source })?;
+    let params = EmbedParams {
+        voxel_size: Some(asset.grid.h),
+        max_voxels: u64::MAX,
+        ..EmbedParams::default()
+    };
+    let e = embed::embed(&asset.rest_yarns, &params).map_err(|source| StageError::Embed {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if e.mesh != asset.mesh || e.embedding != asset.embedding {
         return Err(StageError::Invalid {
             path: path.to_path_buf(),
@@ -156,17 +184,27 @@ pub fn shapefit(
         &e.linear_density,
         params,
     )
-    .map_err(|source| StageError::Fit { path: asset_path.to_path_buf(), source })?;
+    .map_err(|source| StageError::Fit {
+        path: asset_path.to_path_buf(),
+        source,
+    })?;
     let prepare_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut chosen = YarnFrames::new(frames.num_vertices);
     for &f in selection {
-        chosen.push_frame(frames.times[f], frames.frame(f)).map_err(|e| StageError::Invalid {
-            path: asset_path.to_path_buf(),
-            message: e.to_string(),
-        })?;
+        chosen
+            .push_frame(frames.times[f], frames.frame(f))
+            .map_err(|e| StageError::Invalid {
+                path: asset_path.to_path_buf(),
+                message: e.to_string(),
+            })?;
     }
     let t_fit = Instant::now();
-    let results = fitter.fit_frames(&chosen).map_err(|source| StageError::Fit { path: asset_path.to_path_buf(), source })?;
+    let results = fitter
+        .fit_frames(&chosen)
+        .map_err(|source| StageError::Fit {
+            path: asset_path.to_path_buf(),
+            source,
+        })?;
     let fit_ms_total = t_fit.elapsed().as_secs_f64() * 1e3;
     let mut steps = NodeSteps::default();
     let mut per_frame = Vec::with_capacity(results.len());
@@ -195,7 +233,9 @@ pub fn v2y_steps(asset: &Asset, steps: &[usize]) -> YarnFrames {
     let mut frames = YarnFrames::new(asset.rest_yarns.num_points());
     for &s in steps {
         let pts: Vec<Vec3> = asset.embedding.v2y(&asset.mesh, asset.steps.step(s, n));
-        frames.push_frame(asset.steps.times[s], &pts).expect("V2Y keeps the vertex count");
+        frames
+            .push_frame(asset.steps.times[s], &pts)
+            .expect("V2Y keeps the vertex count");
     }
     frames
 }
@@ -211,19 +251,30 @@ pub fn export(
     name: &str,
     opts: &WriteOptions,
 ) -> Result<Vec<PathBuf>, StageError> {
-    std::fs::create_dir_all(out_dir).map_err(|source| IoError::Write { path: out_dir.to_path_buf(), source })?;
+    std::fs::create_dir_all(out_dir).map_err(|source| IoError::Write {
+        path: out_dir.to_path_buf(),
+        source,
+    })?;
     let frames = v2y_steps(asset, steps);
     let ext = format.extensions()[0];
     if format.holds_frames() {
         let path = out_dir.join(format!("{name}.{ext}"));
-        return Ok(io::write_path(&path, &asset.rest_yarns, Some(&frames), opts)?);
+        return Ok(io::write_path(
+            &path,
+            &asset.rest_yarns,
+            Some(&frames),
+            opts,
+        )?);
     }
     let mut written = Vec::with_capacity(steps.len());
     for (i, &s) in steps.iter().enumerate() {
         let y = asset
             .rest_yarns
             .with_points(frames.frame(i))
-            .map_err(|e| StageError::Invalid { path: out_dir.to_path_buf(), message: e.to_string() })?;
+            .map_err(|e| StageError::Invalid {
+                path: out_dir.to_path_buf(),
+                message: e.to_string(),
+            })?;
         let path = out_dir.join(format!("{name}.{s:04}.{ext}"));
         written.extend(io::write_path(&path, &y, None, opts)?);
     }

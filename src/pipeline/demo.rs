@@ -17,6 +17,12 @@ pub struct DemoReport {
     pub input_report: YarnReport,
     pub outputs: Vec<PathBuf>,
     pub frames: usize,
+    /// The homogenized asset built from the swatch, with the fitted frames as its time series.
+    pub asset: PathBuf,
+    pub embed: crate::embed::EmbedStats,
+    pub shapefit: super::asset::ShapefitReport,
+    /// Fitted frames exported back to yarn curves (V2Y).
+    pub exported: Vec<PathBuf>,
 }
 
 /// A short analytic animation: the swatch stretched along x by up to 30%
@@ -43,8 +49,48 @@ pub fn demo_frames(rest: &Yarns, count: usize) -> YarnFrames {
     frames
 }
 
-/// Runs the demo into `out_dir` (created if missing).
-pub fn run(out_dir: &Path) -> Result<DemoReport, IoError> {
+/// Runs the demo into `out_dir` (created if missing): the yarn-format part,
+/// then embed -> shape-fit the frames -> export the fitted frames.
+pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, super::asset::StageError> {
+    let (input, input_report, outputs, frames) = formats(out_dir)?;
+    let asset_path = out_dir.join("swatch.vtkhdf");
+    let read = ReadOptions {
+        radius: input_report.radius_m.min,
+        ..ReadOptions::default()
+    };
+    let (mut asset, embed) =
+        super::asset::build_asset(&input, &read, &Default::default(), command)?;
+    let selection: Vec<usize> = (0..frames.num_frames()).collect();
+    let shapefit = super::asset::shapefit(
+        &mut asset,
+        &asset_path,
+        &frames,
+        &selection,
+        &Default::default(),
+    )?;
+    io::vtkhdf::write_asset(&asset_path, &asset)?;
+    let exported = super::asset::export(
+        &asset,
+        &selection,
+        Format::Ply,
+        &out_dir.join("fitted"),
+        "swatch",
+        &WriteOptions::default(),
+    )?;
+    Ok(DemoReport {
+        input,
+        input_report,
+        outputs,
+        frames: frames.num_frames(),
+        asset: asset_path,
+        embed,
+        shapefit,
+        exported,
+    })
+}
+
+/// The yarn-format part of the demo: example input, inspection, every output format.
+fn formats(out_dir: &Path) -> Result<(PathBuf, YarnReport, Vec<PathBuf>, YarnFrames), IoError> {
     std::fs::create_dir_all(out_dir).map_err(|source| IoError::Write {
         path: out_dir.to_path_buf(),
         source,
@@ -84,10 +130,5 @@ pub fn run(out_dir: &Path) -> Result<DemoReport, IoError> {
             &WriteOptions::default(),
         )?);
     }
-    Ok(DemoReport {
-        input,
-        input_report,
-        outputs,
-        frames: frames.num_frames(),
-    })
+    Ok((input, input_report, outputs, frames))
 }
