@@ -25,9 +25,10 @@
 
 use std::time::Instant;
 
-use faer::linalg::solvers::Solve;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::Mat;
+use faer::{Mat, Par};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
@@ -82,8 +83,9 @@ pub struct PrepareStats {
 struct RestSegment {
     a: usize,
     b: usize,
-    /// Neighbourhood vertex indices used for the rotation fit.
-    window: Vec<usize>,
+    /// Neighbourhood vertex indices used for the rotation fit (first `window_len` valid).
+    window: [usize; 4],
+    window_len: usize,
     /// Inverse of [x̄1 - x̄0, n̄1, n̄2].
     rest_inv: Matrix3<f64>,
     n1: Vector3<f64>,
@@ -106,7 +108,9 @@ pub struct ShapeFitter {
     volumes: Vec<f64>,
     /// Position-term weight of each yarn vertex (alpha w_i).
     weights: Vec<f64>,
-    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
+    /// Cholesky factor of the Eq. 6 matrix: symbolic structure and numeric values.
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
     pub prepare: PrepareStats,
 }
 
@@ -317,17 +321,30 @@ impl ShapeFitter {
             .map_err(|e| FitError::Inconsistent(format!("assembling the matrix: {e:?}")))?;
         let assemble_ms = t_start.elapsed().as_secs_f64() * 1e3;
         let t_sym = Instant::now();
-        let symbolic =
-            faer::sparse::linalg::solvers::SymbolicLlt::try_new(a.symbolic(), faer::Side::Lower)
-                .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
-        let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
-        let t_num = Instant::now();
-        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(
-            symbolic,
-            a.as_ref(),
+        let symbolic = factorize_symbolic_cholesky(
+            a.symbolic(),
             faer::Side::Lower,
+            Default::default(),
+            Default::default(),
         )
         .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
+        let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
+        let t_num = Instant::now();
+        let par = faer::get_global_parallelism();
+        let mut l_values = vec![0.0; symbolic.len_val()];
+        symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut l_values,
+                a.as_ref(),
+                faer::Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut MemBuffer::new(
+                    symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+                )),
+                Default::default(),
+            )
+            .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
         let numeric_ms = t_num.elapsed().as_secs_f64() * 1e3;
         Ok(ShapeFitter {
             mesh: mesh.clone(),
@@ -339,7 +356,8 @@ impl ShapeFitter {
             grads,
             volumes,
             weights,
-            llt,
+            symbolic,
+            l_values,
             prepare: PrepareStats {
                 assemble_ms,
                 symbolic_ms,
@@ -353,12 +371,15 @@ impl ShapeFitter {
     fn segment_gradients(&self, x: &[Vec3]) -> Vec<(Vector3<f64>, Matrix3<f64>)> {
         let rest = &self.rest;
         self.segments
-            .iter()
+            .par_iter()
             .map(|s| {
                 let e = v3(x[s.b]) - v3(x[s.a]);
-                let rest_pts: Vec<Vector3<f64>> = s.window.iter().map(|&i| v3(rest[i])).collect();
-                let cur_pts: Vec<Vector3<f64>> = s.window.iter().map(|&i| v3(x[i])).collect();
-                let r = kabsch(&rest_pts, &cur_pts).unwrap_or_else(|| {
+                let w = &s.window[..s.window_len];
+                let rest_pts: [Vector3<f64>; 4] =
+                    std::array::from_fn(|k| v3(rest[w[k.min(w.len() - 1)]]));
+                let cur_pts: [Vector3<f64>; 4] =
+                    std::array::from_fn(|k| v3(x[w[k.min(w.len() - 1)]]));
+                let r = kabsch(&rest_pts[..w.len()], &cur_pts[..w.len()]).unwrap_or_else(|| {
                     let e0 = (v3(rest[s.b]) - v3(rest[s.a])).normalize();
                     let e1 = if e.norm() > 0.0 { e.normalize() } else { e0 };
                     minimal_rotation(&e0, &e1)
@@ -383,6 +404,7 @@ impl ShapeFitter {
             (om, st, wsum)
         };
         (0..self.mesh.num_tets())
+            .into_par_iter()
             .map(|t| {
                 let (mut om, mut st, mut w) = average(&mut self.tet_pieces[t].iter().copied());
                 if w <= 0.0 {
@@ -444,7 +466,17 @@ impl ShapeFitter {
                 }
             }
         }
-        let sol = self.llt.solve(&rhs);
+        // Sequential triangular solves: frames already run in parallel, and faer's
+        // parallel sparse solve is several times slower at these sizes (measured).
+        let mut sol = rhs;
+        LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
+            faer::Conj::No,
+            sol.as_mut(),
+            Par::Seq,
+            MemStack::new(&mut MemBuffer::new(
+                self.symbolic.solve_in_place_scratch::<f64>(3, Par::Seq),
+            )),
+        );
         let nodes: Vec<Vec3> = (0..nv)
             .map(|i| [sol[(i, 0)], sol[(i, 1)], sol[(i, 2)]])
             .collect();
@@ -534,14 +566,22 @@ fn rest_segments(yarns: &Yarns) -> Vec<RestSegment> {
                     None
                 }
             };
-            let mut window: Vec<usize> = (-1..=2).filter_map(|d| local(k as isize + d)).collect();
-            window.dedup();
+            let mut window = [0usize; 4];
+            let mut window_len = 0;
+            for v in (-1..=2).filter_map(|d| local(k as isize + d)) {
+                // Short closed curves wrap onto themselves: keep each vertex once.
+                if !window[..window_len].contains(&v) {
+                    window[window_len] = v;
+                    window_len += 1;
+                }
+            }
             let rest = Matrix3::from_columns(&[e, n1, n2]);
             let rest_inv = rest.try_inverse().unwrap_or_else(Matrix3::identity);
             out.push(RestSegment {
                 a,
                 b,
                 window,
+                window_len,
                 rest_inv,
                 n1,
                 n2,
