@@ -1313,3 +1313,23 @@ fn big_garment_writes_and_reads_quickly() {
         [y.points[5][0], y.points[5][1] + 2e-3, y.points[5][2]]
     );
 }
+
+/// A child process spawned while knitvox writes an HDF5 file inherits
+/// libhdf5's descriptor (no O_CLOEXEC). With a lock on that descriptor the
+/// finished file would read as busy for the child's whole life; knitvox's
+/// writes take no lock, so the file reads at once.
+#[test]
+fn child_spawned_during_a_write_does_not_lock_the_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("spawned.h5");
+    let y = sample_yarns();
+    let mut w = FrameWriter::create(&path, &y).unwrap();
+    w.push(0.0, &y.points).unwrap();
+    let mut child = Command::new("sleep").arg("5").spawn().expect("spawn sleep");
+    w.finish().unwrap();
+    let read = io::read_path(&path, &ReadOptions::default());
+    let _ = child.kill();
+    let _ = child.wait();
+    let d = read.unwrap_or_else(|e| panic!("finished file unreadable while the child lives: {e}"));
+    assert_eq!(d.frames.unwrap().num_frames(), 1);
+}

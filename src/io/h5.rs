@@ -1012,8 +1012,16 @@ pub(crate) fn write_1d<T: hdf5::H5Type>(
 /// libhdf5 1.10 even when knitvox links a newer library.
 pub(crate) fn create_h5(path: &Path) -> hdf5::Result<hdf5::File> {
     use hdf5::file::LibraryVersion;
+    // No file lock on our own temporary file: nobody else opens it (it gets a
+    // unique dot-name and is renamed into place when complete), and a child
+    // process spawned meanwhile would inherit libhdf5's descriptor (opened
+    // without O_CLOEXEC) and with it an exclusive lock that outlives the
+    // rename, making every reader of the finished file report it busy.
     hdf5::File::with_options()
-        .with_fapl(|p| p.libver_bounds(LibraryVersion::V110, LibraryVersion::V110))
+        .with_fapl(|p| {
+            p.libver_bounds(LibraryVersion::V110, LibraryVersion::V110)
+                .file_locking(false)
+        })
         .create(path)
 }
 
