@@ -21,17 +21,7 @@ fn swatch() -> Yarns {
 
 fn fitter_for(y: &Yarns) -> (knitvox::embed::Embedded, ShapeFitter) {
     let e = embed(y, &EmbedParams::default()).unwrap();
-    let f = ShapeFitter::new(
-        y,
-        &e.mesh,
-        &e.grid,
-        &e.tet_voxel,
-        &e.embedding,
-        &e.pieces,
-        &e.linear_density,
-        &ShapeFitParams::default(),
-    )
-    .unwrap();
+    let f = ShapeFitter::from_embedded(y, &e, &ShapeFitParams::default()).unwrap();
     (e, f)
 }
 

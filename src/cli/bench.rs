@@ -171,16 +171,7 @@ pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
     let e = run_embed(&yarns, &params)?;
     let embed_ms = time_ms(a.runs, || Ok(run_embed(&yarns, &params)?))?;
     let t = Instant::now();
-    let fitter = ShapeFitter::new(
-        &yarns,
-        &e.mesh,
-        &e.grid,
-        &e.tet_voxel,
-        &e.embedding,
-        &e.pieces,
-        &e.linear_density,
-        &ShapeFitParams::default(),
-    )?;
+    let fitter = ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default())?;
     let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
     let frames = crate::pipeline::demo::demo_frames(&yarns, a.frames.max(1));
     let mut per_frame = Vec::new();

@@ -11,81 +11,12 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
     let mut code = ExitCode::Success;
     let mut json = Vec::new();
     for path in &a.files {
-        if is_asset(path) {
-            match io::vtkhdf::summary(path) {
-                Ok(sum) => {
-                    let mut v = serde_json::to_value(&sum)?;
-                    if let Some(obj) = v.as_object_mut() {
-                        obj.insert("path".into(), path.display().to_string().into());
-                        obj.insert("format".into(), "vtkhdf".into());
-                    }
-                    if a.json {
-                        json.push(v);
-                    } else {
-                        println!(
-                            "{}\n  format        vtkhdf (knitvox homogenized asset)",
-                            path.display()
-                        );
-                        if let Some(obj) = v.as_object() {
-                            for (k, val) in obj
-                                .iter()
-                                .filter(|(k, _)| !matches!(k.as_str(), "path" | "format"))
-                            {
-                                println!("  {k:<22}{val}");
-                            }
-                        }
-                    }
-                }
-                Err(e) => {
-                    let e = anyhow::Error::new(e);
-                    if code == ExitCode::Success {
-                        code = exit_code_for(&e);
-                    }
-                    eprintln!("error: {e:#}");
-                    if a.json {
-                        json.push(serde_json::json!({ "path": path.display().to_string(), "error": format!("{e:#}") }));
-                    }
-                }
-            }
-            continue;
-        }
-        if let Some(datasets) = foreign_hdf5(path) {
-            if a.json {
-                json.push(serde_json::json!({
-                    "path": path.display().to_string(),
-                    "format": "hdf5",
-                    "knitvox_yarns": false,
-                    "datasets": datasets,
-                }));
-            } else {
-                println!(
-                    "{}\n  format        hdf5 (not a knitvox yarns file: no /yarns/points)",
-                    path.display()
-                );
-                for d in &datasets {
-                    let chunks = d
-                        .chunks
-                        .as_ref()
-                        .map_or(String::new(), |c| format!(" chunks {c:?}"));
-                    println!(
-                        "  dataset       {} {} {:?}{} {}",
-                        d.path,
-                        d.dtype,
-                        d.shape,
-                        chunks,
-                        d.filters.join(",")
-                    );
-                }
-            }
-            continue;
-        }
-        match io::read_path(path, &opts) {
-            Ok(d) => {
-                let r = summarize(&path.display().to_string(), &d);
+        match inspect_one(path, &opts) {
+            Ok((value, text)) => {
                 if a.json {
-                    json.push(serde_json::to_value(&r)?);
+                    json.push(value);
                 } else {
-                    print!("{}", r.to_text());
+                    print!("{text}");
                 }
             }
             Err(e) => {
@@ -104,6 +35,62 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(code)
+}
+
+/// The JSON and text report of one file: an asset, a foreign HDF5 file, or yarns.
+fn inspect_one(
+    path: &std::path::Path,
+    opts: &io::ReadOptions,
+) -> Result<(serde_json::Value, String), io::IoError> {
+    use std::fmt::Write;
+    let mut text = String::new();
+    if is_asset(path) {
+        let mut v = serde_json::to_value(io::vtkhdf::summary(path)?).unwrap_or_default();
+        if let Some(obj) = v.as_object_mut() {
+            let _ = writeln!(
+                text,
+                "{}\n  format                vtkhdf (knitvox homogenized asset)",
+                path.display()
+            );
+            for (k, val) in obj.iter() {
+                let _ = writeln!(text, "  {k:<22}{val}");
+            }
+            obj.insert("path".into(), path.display().to_string().into());
+            obj.insert("format".into(), "vtkhdf".into());
+        }
+        return Ok((v, text));
+    }
+    if let Some(datasets) = foreign_hdf5(path) {
+        let _ = writeln!(
+            text,
+            "{}\n  format        hdf5 (not a knitvox yarns file: no /yarns/points)",
+            path.display()
+        );
+        for d in &datasets {
+            let chunks = d
+                .chunks
+                .as_ref()
+                .map_or(String::new(), |c| format!(" chunks {c:?}"));
+            let _ = writeln!(
+                text,
+                "  dataset       {} {} {:?}{} {}",
+                d.path,
+                d.dtype,
+                d.shape,
+                chunks,
+                d.filters.join(",")
+            );
+        }
+        let v = serde_json::json!({
+            "path": path.display().to_string(),
+            "format": "hdf5",
+            "knitvox_yarns": false,
+            "datasets": datasets,
+        });
+        return Ok((v, text));
+    }
+    let r = summarize(&path.display().to_string(), &io::read_path(path, opts)?);
+    Ok((serde_json::to_value(&r).unwrap_or_default(), r.to_text()))
 }
 
 fn is_asset(path: &std::path::Path) -> bool {

@@ -421,6 +421,24 @@ impl ShapeFitter {
             .collect()
     }
 
+    /// Prepares Y2V for the output of the embedding stage.
+    pub fn from_embedded(
+        yarns: &Yarns,
+        e: &crate::embed::Embedded,
+        params: &ShapeFitParams,
+    ) -> Result<ShapeFitter, FitError> {
+        ShapeFitter::new(
+            yarns,
+            &e.mesh,
+            &e.grid,
+            &e.tet_voxel,
+            &e.embedding,
+            &e.pieces,
+            &e.linear_density,
+            params,
+        )
+    }
+
     /// Y2V of one yarn pose (m): the fitted node positions and the fit error.
     pub fn fit(&self, yarn_points: &[Vec3]) -> Result<(Vec<Vec3>, FitStats), FitError> {
         let start = Instant::now();

@@ -174,19 +174,12 @@ pub fn shapefit(
     }
     let start = Instant::now();
     let e = re_embed(asset, asset_path)?;
-    let fitter = ShapeFitter::new(
-        &asset.rest_yarns,
-        &asset.mesh,
-        &asset.grid,
-        &asset.tet_voxel,
-        &asset.embedding,
-        &e.pieces,
-        &e.linear_density,
-        params,
-    )
-    .map_err(|source| StageError::Fit {
-        path: asset_path.to_path_buf(),
-        source,
+    // re_embed checked that e.mesh and e.embedding equal the asset's.
+    let fitter = ShapeFitter::from_embedded(&asset.rest_yarns, &e, params).map_err(|source| {
+        StageError::Fit {
+            path: asset_path.to_path_buf(),
+            source,
+        }
     })?;
     let prepare_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut chosen = YarnFrames::new(frames.num_vertices);
