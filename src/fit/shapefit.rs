@@ -330,7 +330,8 @@ impl ShapeFitter {
         .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
         let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
         let t_num = Instant::now();
-        let par = faer::get_global_parallelism();
+        // Sequential: the same inputs give bit-identical factors on any machine.
+        let par = Par::Seq;
         let mut l_values = vec![0.0; symbolic.len_val()];
         symbolic
             .factorize_numeric_llt::<f64>(
