@@ -206,3 +206,26 @@ fn embed_bad_input_exit_codes() {
         assert!(!asset.exists(), "{what}: wrote an asset");
     }
 }
+
+#[test]
+fn y2v_is_identical_for_any_thread_count() {
+    let y = swatch();
+    let moved = apply(
+        &Matrix3::new(1.1, 0.2, 0.0, -0.1, 0.95, 0.15, 0.05, 0.0, 1.05),
+        Vector3::zeros(),
+        &y.points,
+    );
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let (_, f) = fitter_for(&y);
+                f.fit(&moved).unwrap().0
+            })
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    assert_eq!(one, run(3));
+}
