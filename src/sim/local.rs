@@ -140,6 +140,16 @@ fn clamp_floor(x: f64) -> f64 {
 /// `max(s, 0.01)` (singular values of any order and sign; dimensionless).
 pub fn project_diag_sl3(s: [f64; 3]) -> DiagProjection {
     let sc = s.map(clamp_floor);
+    // Already on SL(3) (to rounding): F itself is the projection, exactly.
+    if sc == s && (sc[0] * sc[1] * sc[2] - 1.0).abs() <= 4.0 * f64::EPSILON {
+        let d = sc;
+        return DiagProjection {
+            d,
+            lambda: 0.0,
+            iterations: 0,
+            clamped: false,
+        };
+    }
     let mut order = [0usize, 1, 2];
     order.sort_by(|&a, &b| sc[b].total_cmp(&sc[a]));
     let sorted = order.map(|o| sc[o]);
@@ -422,4 +432,131 @@ pub fn local_step(
         })
         .collect();
     Ok((targets, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// splitmix64: a tiny deterministic generator for tests.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn log_uniform(&mut self, lo: f64, hi: f64) -> f64 {
+            (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
+        }
+    }
+
+    fn cost(d: [f64; 3], s: [f64; 3]) -> f64 {
+        let s = s.map(clamp_floor);
+        (0..3).map(|i| (d[i] - s[i]).powi(2)).sum()
+    }
+
+    /// Smallest cost over a dense grid of the feasible set
+    /// `{d1 d2 d3 = 1, d >= 0.01}` (an upper bound on the true minimum).
+    fn brute_force(s: [f64; 3]) -> f64 {
+        let (lo, hi) = (SINGULAR_VALUE_FLOOR.ln(), 1e4f64.ln());
+        let n = 500;
+        let mut best = f64::INFINITY;
+        for i in 0..=n {
+            let d1 = (lo + (hi - lo) * i as f64 / n as f64).exp();
+            for j in 0..=n {
+                let d2 = (lo + (hi - lo) * j as f64 / n as f64).exp();
+                let d3 = 1.0 / (d1 * d2);
+                if d3 >= SINGULAR_VALUE_FLOOR {
+                    best = best.min(cost([d1, d2, d3], s));
+                }
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn diag_solve_is_the_global_minimum() {
+        let mut rng = Rng(7);
+        let mut max_it = 0;
+        for case in 0..300 {
+            let s = match case % 3 {
+                0 => [(); 3].map(|_| rng.log_uniform(0.01, 100.0)),
+                1 => [(); 3].map(|_| rng.log_uniform(0.3, 3.0)),
+                // Two nearly equal large values: the strong-compression branch.
+                _ => {
+                    let a = rng.log_uniform(1.0, 50.0);
+                    [a, a * (1.0 + 0.01 * rng.next()), rng.log_uniform(0.01, 5.0)]
+                }
+            };
+            let p = project_diag_sl3(s);
+            max_it = max_it.max(p.iterations);
+            let c = cost(p.d, s);
+            let b = brute_force(s);
+            assert!(
+                c <= b * (1.0 + 1e-9) + 1e-12,
+                "s {s:?}: solver {c} ({:?}) > grid {b}",
+                p.d
+            );
+            assert!(
+                ((p.d[0] * p.d[1] * p.d[2]) - 1.0).abs() < 1e-13,
+                "{s:?} {p:?}"
+            );
+            assert!(p
+                .d
+                .iter()
+                .all(|&x| x >= SINGULAR_VALUE_FLOOR * (1.0 - 1e-12)));
+        }
+        assert!(max_it <= 200, "{max_it} iterations");
+    }
+
+    #[test]
+    fn kkt_residual_is_tiny_and_iterations_bounded() {
+        let mut rng = Rng(11);
+        let mut max_it = 0;
+        let mut max_res: f64 = 0.0;
+        for _ in 0..20_000 {
+            let s = [(); 3].map(|_| rng.log_uniform(0.02, 20.0));
+            let p = project_diag_sl3(s);
+            let scale = 1.0 + s.iter().fold(0.0f64, |m, &x| m.max(x));
+            let res = p.kkt_residual(s) / scale;
+            max_res = max_res.max(res);
+            max_it = max_it.max(p.iterations);
+            assert!(res < 1e-12, "s {s:?}: residual {res} ({p:?})");
+        }
+        // Every root is found in a handful of safeguarded Newton steps; the
+        // bound covers up to three roots tried (two branches and the floor).
+        assert!(max_it <= 60, "max iterations {max_it}");
+    }
+
+    #[test]
+    fn identity_and_det_one_are_fixed_points() {
+        let p = project_diag_sl3([1.0, 1.0, 1.0]);
+        assert_eq!(p.d, [1.0, 1.0, 1.0]);
+        for s in [[2.0, 0.5, 1.0], [4.0, 0.5, 0.5], [0.1, 10.0, 1.0]] {
+            let p = project_diag_sl3(s);
+            for i in 0..3 {
+                assert!((p.d[i] - s[i]).abs() < 1e-13, "{s:?} -> {:?}", p.d);
+            }
+        }
+    }
+
+    #[test]
+    fn signed_svd_reconstructs_and_carries_reflection() {
+        let f = Matrix3::new(1.2, 0.3, -0.1, 0.05, -0.9, 0.2, -0.3, 0.1, 1.1);
+        let svd = signed_svd(&f).unwrap();
+        assert!(f.determinant() < 0.0 && svd.s[2] < 0.0);
+        assert!((svd.u.determinant() - 1.0).abs() < 1e-12);
+        assert!((svd.v.determinant() - 1.0).abs() < 1e-12);
+        let back = svd.u * Matrix3::from_diagonal(&svd.s) * svd.v.transpose();
+        assert!((back - f).norm() < 1e-12);
+        assert!(svd.s[0] >= svd.s[1] && svd.s[1] >= svd.s[2].abs());
+        assert!(signed_svd(&Matrix3::from_element(f64::NAN)).is_none());
+        assert_eq!(
+            project_rotation(&Matrix3::from_element(f64::INFINITY)),
+            Matrix3::identity()
+        );
+    }
 }
