@@ -356,7 +356,7 @@ fn projections_are_exact_and_finite() {
         }
     }
     eprintln!("max Newton/bisection iterations of the Eq. 26 solve: {max_it}");
-    assert!(max_it <= 60, "{max_it}");
+    assert!(max_it <= 40, "{max_it}");
 }
 
 #[test]
@@ -472,7 +472,7 @@ fn local_step_is_thread_count_independent() {
         assert!((t.volume.determinant() - 1.0).abs() < 1e-10);
     }
     eprintln!("local step: {stats:?}");
-    assert!(stats.max_iterations <= 60);
+    assert!(stats.max_iterations <= 40);
 }
 
 #[test]

@@ -257,6 +257,11 @@ fn refine(chain: &Chain, mut a: f64, mut b: f64, iterations: &mut u32) -> f64 {
         if f == 0.0 {
             return t;
         }
+        // Converged: the Newton update is below rounding. (Checked before the
+        // bracket test: at the root the step can land exactly on an end.)
+        if df.is_finite() && (f / df).abs() <= 2.0 * f64::EPSILON * t {
+            return t;
+        }
         if (f < 0.0) == neg_at_a {
             a = t;
         } else {
@@ -271,11 +276,6 @@ fn refine(chain: &Chain, mut a: f64, mut b: f64, iterations: &mut u32) -> f64 {
         } else {
             (a * b).sqrt()
         };
-        // Converged: the Newton update is below rounding (one more step would
-        // not change t), the residual is at machine precision.
-        if (next - t).abs() <= 2.0 * f64::EPSILON * t {
-            return next;
-        }
         t = next;
     }
     t
@@ -518,7 +518,7 @@ mod tests {
         let mut max_it = 0;
         let mut max_res: f64 = 0.0;
         for _ in 0..20_000 {
-            let s = [(); 3].map(|_| rng.log_uniform(0.02, 20.0));
+            let s = [(); 3].map(|_| rng.log_uniform(0.005, 60.0));
             let p = project_diag_sl3(s);
             let scale = 1.0 + s.iter().fold(0.0f64, |m, &x| m.max(x));
             let res = p.kkt_residual(s) / scale;
@@ -528,7 +528,8 @@ mod tests {
         }
         // Every root is found in a handful of safeguarded Newton steps; the
         // bound covers up to three roots tried (two branches and the floor).
-        assert!(max_it <= 60, "max iterations {max_it}");
+        eprintln!("max iterations over 20000 random solves: {max_it}");
+        assert!(max_it <= 40, "max iterations {max_it}");
     }
 
     #[test]
