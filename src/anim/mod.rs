@@ -601,6 +601,13 @@ fn normalize_quat(q: &mut [f64]) {
 
 /// Spherical linear interpolation along the shorter arc (spec Appendix C).
 fn slerp(a: &[f64], b: &[f64], s: f64, out: &mut [f64]) {
+    // Writers round their quaternions (0.707, 0.707); interpolate the unit ones.
+    let (mut a4, mut b4) = ([0.0; 4], [0.0; 4]);
+    a4.copy_from_slice(&a[..4]);
+    b4.copy_from_slice(&b[..4]);
+    normalize_quat(&mut a4);
+    normalize_quat(&mut b4);
+    let (a, b) = (&a4, &b4);
     let mut dot: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
     let sign = if dot < 0.0 { -1.0 } else { 1.0 };
     dot *= sign;
