@@ -550,3 +550,64 @@ fn read_animation(
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::NoResources;
+    use base64::Engine;
+    use serde_json::json;
+
+    #[test]
+    fn normalized_components() {
+        assert_eq!(component_value(255, ComponentType::U8), 1.0);
+        assert_eq!(component_value(65535, ComponentType::U16), 1.0);
+        assert_eq!(component_value(0x80, ComponentType::I8), -1.0);
+        assert_eq!(component_value(0x7FFF, ComponentType::I16), 1.0);
+        assert_eq!(component_value(1.5f32.to_bits(), ComponentType::F32), 1.5);
+    }
+
+    /// One unindexed triangle skinned to one joint with u8 weights `w`.
+    fn tri(w: [u8; 4], normalized: bool) -> Vec<u8> {
+        let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        bin.extend([0u8; 12]); // JOINTS_0, u8 VEC4
+        for _ in 0..3 {
+            bin.extend(w);
+        }
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin)
+        );
+        serde_json::to_vec(&json!({
+            "asset": { "version": "2.0" },
+            "nodes": [ { "mesh": 0, "skin": 0 }, { "translation": [0.0, 0.0, 2.0] } ],
+            "skins": [ { "joints": [1] } ],
+            "meshes": [ { "primitives": [ { "attributes": { "POSITION": 0, "JOINTS_0": 1, "WEIGHTS_0": 2 } } ] } ],
+            "buffers": [ { "byteLength": bin.len(), "uri": uri } ],
+            "bufferViews": [ { "buffer": 0, "byteLength": bin.len() } ],
+            "accessors": [
+                { "bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3" },
+                { "bufferView": 0, "byteOffset": 36, "componentType": 5121, "count": 3, "type": "VEC4" },
+                { "bufferView": 0, "byteOffset": 48, "componentType": 5121, "normalized": normalized, "count": 3, "type": "VEC4" },
+            ],
+        }))
+        .unwrap()
+    }
+
+    #[test]
+    fn normalized_u8_weights_and_identity_bind() {
+        // No inverseBindMatrices: identity, so the joint's translation moves the triangle.
+        let c = decode_character(&tri([200, 0, 0, 0], true), &NoResources).unwrap();
+        assert_eq!(c.meshes[0].triangles, vec![[0, 1, 2]]);
+        assert_eq!(c.meshes[0].weights[..4], [1.0, 0.0, 0.0, 0.0]);
+        assert!(c.notes.iter().any(|n| n.contains("renormalised")));
+        assert_eq!(c.skinned_positions(None, 0.0)[1], [1.0, 0.0, 2.0]);
+        let e = decode_character(&tri([255, 0, 0, 0], false), &NoResources).unwrap_err();
+        assert!(e.message.contains("normalized"), "{e}");
+        let e = decode_character(&tri([0; 4], true), &NoResources).unwrap_err();
+        assert!(e.message.contains("all skin weights are 0"), "{e}");
+    }
+}
