@@ -115,31 +115,18 @@ pub fn decode(
     };
     let root = parse_json(json_bytes, json_offset)?;
     check_root(&root)?;
-    let reader = Reader {
-        root: &root,
-        bin,
-        res,
-        opts,
-        buffers: vec![None; root.buffers.len()],
-        float_cache: HashMap::new(),
-        prim_cache: HashMap::new(),
-        total_points: 0,
-        notes: Vec::new(),
-        skipped: Vec::new(),
-        modes_read: [0; 3],
-    };
-    reader.read_scenes()
+    Reader::new(&root, bin, res, opts).read_scenes()
 }
 
 /// The parts of a GLB container.
-struct Glb<'a> {
-    json: &'a [u8],
-    json_offset: u64,
-    bin: Option<&'a [u8]>,
+pub(crate) struct Glb<'a> {
+    pub(crate) json: &'a [u8],
+    pub(crate) json_offset: u64,
+    pub(crate) bin: Option<&'a [u8]>,
 }
 
 /// Splits a GLB file into its JSON and BIN chunks, checking the framing.
-fn parse_glb(data: &[u8]) -> Result<Glb<'_>, FormatError> {
+pub(crate) fn parse_glb(data: &[u8]) -> Result<Glb<'_>, FormatError> {
     let mut r = ByteReader::new(data);
     r.take(4, "GLB magic")?;
     let version = r.u32_le("GLB version")?;
@@ -200,7 +187,10 @@ fn read_chunk<'a>(r: &mut ByteReader<'a>, what: &str) -> Result<(u64, u32, &'a [
 }
 
 /// Parses the glTF JSON (the whole `.gltf` file, or the GLB JSON chunk at `glb_offset`).
-fn parse_json(bytes: &[u8], glb_offset: Option<u64>) -> Result<gltf::json::Root, FormatError> {
+pub(crate) fn parse_json(
+    bytes: &[u8],
+    glb_offset: Option<u64>,
+) -> Result<gltf::json::Root, FormatError> {
     let text = match std::str::from_utf8(bytes) {
         Ok(t) => t,
         Err(e) => {
@@ -254,7 +244,7 @@ fn parse_json(bytes: &[u8], glb_offset: Option<u64>) -> Result<gltf::json::Root,
 }
 
 /// Checks what the whole asset declares before any geometry is read.
-fn check_root(root: &gltf::json::Root) -> Result<(), FormatError> {
+pub(crate) fn check_root(root: &gltf::json::Root) -> Result<(), FormatError> {
     let version = root.asset.version.as_str();
     if !version.starts_with("2.") {
         return Err(at(
@@ -386,7 +376,7 @@ fn node_matrix(node: &gltf::json::Node, path: &str) -> Result<Mat4, FormatError>
 }
 
 /// Decoding state: the parsed JSON, loaded buffers and decoded accessors.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     root: &'a gltf::json::Root,
     bin: Option<&'a [u8]>,
     res: &'a dyn Resources,
@@ -417,6 +407,28 @@ struct Out {
 }
 
 impl<'a> Reader<'a> {
+    /// A reader over a parsed document (used by `gltf_skin` too).
+    pub(crate) fn new(
+        root: &'a gltf::json::Root,
+        bin: Option<&'a [u8]>,
+        res: &'a dyn Resources,
+        opts: &'a ReadOptions,
+    ) -> Reader<'a> {
+        Reader {
+            root,
+            bin,
+            res,
+            opts,
+            buffers: vec![None; root.buffers.len()],
+            float_cache: HashMap::new(),
+            prim_cache: HashMap::new(),
+            total_points: 0,
+            notes: Vec::new(),
+            skipped: Vec::new(),
+            modes_read: [0; 3],
+        }
+    }
+
     fn read_scenes(mut self) -> Result<Decoded, FormatError> {
         let root = self.root;
         let mut out = Out {
@@ -1000,7 +1012,7 @@ impl<'a> Reader<'a> {
     }
 
     /// Decodes a float accessor (positions, radii) into a flat array, checking everything.
-    fn read_floats(
+    pub(crate) fn read_floats(
         &mut self,
         a: usize,
         want: Type,
@@ -1017,7 +1029,7 @@ impl<'a> Reader<'a> {
                 return Ok(v.clone());
             }
         }
-        let vals = self.read_accessor(a, want, &[ComponentType::F32], referrer)?;
+        let vals = self.read_accessor(a, want, &[ComponentType::F32], false, referrer)?;
         let out: Vec<f32> = vals.into_iter().map(f32::from_bits).collect();
         if let Some(k) = out.iter().position(|x| !x.is_finite()) {
             let ncomp = want.multiplicity();
@@ -1036,22 +1048,29 @@ impl<'a> Reader<'a> {
         Ok(out)
     }
 
-    fn read_indices(&mut self, a: usize, referrer: &str) -> Result<Vec<u32>, FormatError> {
+    pub(crate) fn read_indices(
+        &mut self,
+        a: usize,
+        referrer: &str,
+    ) -> Result<Vec<u32>, FormatError> {
         self.read_accessor(
             a,
             Type::Scalar,
             &[ComponentType::U8, ComponentType::U16, ComponentType::U32],
+            false,
             referrer,
         )
     }
 
     /// Reads accessor `a` as raw little-endian components widened to u32 (float bits for
     /// F32), applying sparse substitution. All sizes are checked before anything is allocated.
-    fn read_accessor(
+    /// `normalized_ok`: whether a normalized integer accessor is acceptable (skin weights).
+    pub(crate) fn read_accessor(
         &mut self,
         a: usize,
         want: Type,
         comps: &[ComponentType],
+        normalized_ok: bool,
         referrer: &str,
     ) -> Result<Vec<u32>, FormatError> {
         let root = self.root;
@@ -1091,7 +1110,7 @@ impl<'a> Reader<'a> {
                 ),
             ));
         }
-        if acc.normalized {
+        if acc.normalized && !normalized_ok {
             return Err(at(
                 format!("{path}/normalized"),
                 format!("{use_} must not be a normalized accessor"),

@@ -10,6 +10,7 @@ pub mod bcc;
 pub mod bytes;
 mod error;
 pub mod gltf;
+pub mod gltf_skin;
 pub mod h5;
 pub mod obj;
 pub mod ply;
