@@ -4,11 +4,14 @@
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
 //! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
 //!   closest volume-preserving matrix per tet.
+//! * [`pd`]: the direct global step (VH Eq. 27-28) and the implicit-Euler
+//!   time loop (VH Eq. 25).
 //!
 //! Pure: no files, no printing, no environment.
 
 pub mod energy;
 pub mod local;
+pub mod pd;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};
 pub use local::{
@@ -23,4 +26,13 @@ pub enum SimError {
     /// volumes, negative or non-finite stiffnesses).
     #[error("inconsistent inputs: {0}")]
     Inconsistent(String),
+    /// The simulation diverged at time step `step` (1-based count of steps
+    /// taken by the solver): non-finite positions, a speed above the guard or
+    /// an energy blow-up; `node` is the worst node.
+    #[error("simulation diverged at step {step}, node {node}: {reason}")]
+    Diverged {
+        step: u64,
+        node: usize,
+        reason: String,
+    },
 }
