@@ -45,6 +45,9 @@
 //! exactly, so `Φ` cannot increase between iterations (up to rounding). The
 //! per-iteration values are kept in [`StepStats::objectives`].
 
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use std::time::Instant;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
@@ -139,7 +142,8 @@ pub struct StepStats {
     pub step: u64,
     /// Global solves done.
     pub iterations: u32,
-    /// `Φ` (J) at the initial guess (the inertia target with pins applied).
+    /// `Φ` (J) at the initial guess (`x* + Δt v* / (1 + c Δt)` with the pins
+    /// applied).
     pub objective_initial: f64,
     /// `Φ` (J) at the returned positions.
     pub objective_final: f64,
@@ -532,7 +536,17 @@ impl PdSolver {
                 s[i][k] = x[i][k] + (dt * v[i][k] + dt * dt * p.gravity[k]) / damp;
             }
         }
-        let mut xk = s.clone();
+        // Warm start at the inertial prediction without external force
+        // (x* + Δt v* / (1 + c Δt)): at rest this is the previous pose, so a
+        // resting state is a fixed point of the time loop even when a step
+        // stops before its PD iterations converge (starting at `s` instead
+        // would re-add the gravity drop every step and leave an offset that
+        // depends on the iteration count).
+        let mut xk: Vec<Vec3> = x
+            .iter()
+            .zip(v.iter())
+            .map(|(p, u)| std::array::from_fn(|k| p[k] + dt * u[k] / damp))
+            .collect();
         for (&i, q) in self.pinned.iter().zip(pinned_positions) {
             xk[i] = *q;
         }
@@ -575,10 +589,10 @@ impl PdSolver {
                     * r.volume
                     * (self.model.gamma_s()[e] * t.rotation + self.model.gamma_v()[e] * t.volume);
                 let ng = node_gradients(&target, &r.dm_inv);
-                for a in 0..4 {
-                    if let Some(fi) = self.free_index[r.nodes[a]] {
+                for (&node, g) in r.nodes.iter().zip(&ng) {
+                    if let Some(fi) = self.free_index[node] {
                         for k in 0..3 {
-                            rhs[(fi, k)] += ng[a][k];
+                            rhs[(fi, k)] += g[k];
                         }
                     }
                 }
