@@ -25,14 +25,13 @@
 
 use std::time::Instant;
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{Mat, Par};
+use faer::Mat;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
 use crate::geom::{Embedding, TetMesh, Vec3, VoxelGrid, YarnFrames, YarnPiece, Yarns};
+use crate::sim::cholesky::SparseCholesky;
 
 /// Errors of shape fitting.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -108,9 +107,8 @@ pub struct ShapeFitter {
     volumes: Vec<f64>,
     /// Position-term weight of each yarn vertex (alpha w_i).
     weights: Vec<f64>,
-    /// Cholesky factor of the Eq. 6 matrix: symbolic structure and numeric values.
-    symbolic: SymbolicCholesky<usize>,
-    l_values: Vec<f64>,
+    /// Cholesky factor of the Eq. 6 matrix.
+    factor: SparseCholesky,
     pub prepare: PrepareStats,
 }
 
@@ -321,31 +319,12 @@ impl ShapeFitter {
             .map_err(|e| FitError::Inconsistent(format!("assembling the matrix: {e:?}")))?;
         let assemble_ms = t_start.elapsed().as_secs_f64() * 1e3;
         let t_sym = Instant::now();
-        let symbolic = factorize_symbolic_cholesky(
-            a.symbolic(),
-            faer::Side::Lower,
-            Default::default(),
-            Default::default(),
-        )
-        .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
+        let symbolic =
+            SparseCholesky::symbolic(a.as_ref()).map_err(FitError::NotPositiveDefinite)?;
         let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
         let t_num = Instant::now();
-        // Sequential: the same inputs give bit-identical factors on any machine.
-        let par = Par::Seq;
-        let mut l_values = vec![0.0; symbolic.len_val()];
-        symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut l_values,
-                a.as_ref(),
-                faer::Side::Lower,
-                Default::default(),
-                par,
-                MemStack::new(&mut MemBuffer::new(
-                    symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-                )),
-                Default::default(),
-            )
-            .map_err(|e| FitError::NotPositiveDefinite(format!("{e:?}")))?;
+        let factor =
+            SparseCholesky::numeric(symbolic, a.as_ref()).map_err(FitError::NotPositiveDefinite)?;
         let numeric_ms = t_num.elapsed().as_secs_f64() * 1e3;
         Ok(ShapeFitter {
             mesh: mesh.clone(),
@@ -357,8 +336,7 @@ impl ShapeFitter {
             grads,
             volumes,
             weights,
-            symbolic,
-            l_values,
+            factor,
             prepare: PrepareStats {
                 assemble_ms,
                 symbolic_ms,
@@ -485,17 +463,10 @@ impl ShapeFitter {
                 }
             }
         }
-        // Sequential triangular solves: frames already run in parallel, and faer's
-        // parallel sparse solve is several times slower at these sizes (measured).
+        // Sequential triangular solves (frames already run in parallel; faer's
+        // parallel sparse solve was several times slower at these sizes).
         let mut sol = rhs;
-        LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
-            faer::Conj::No,
-            sol.as_mut(),
-            Par::Seq,
-            MemStack::new(&mut MemBuffer::new(
-                self.symbolic.solve_in_place_scratch::<f64>(3, Par::Seq),
-            )),
-        );
+        self.factor.solve_in_place(sol.as_mut());
         let nodes: Vec<Vec3> = (0..nv)
             .map(|i| [sol[(i, 0)], sol[(i, 1)], sol[(i, 2)]])
             .collect();

@@ -9,6 +9,7 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod cholesky;
 pub mod energy;
 pub mod local;
 pub mod pd;

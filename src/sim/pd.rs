@@ -50,12 +50,11 @@
 
 use std::time::Instant;
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{Mat, Par};
+use faer::Mat;
 use nalgebra::Vector3;
 
+use super::cholesky::SparseCholesky;
 use super::energy::{node_gradients, ElasticModel};
 use super::local::{local_step, TetTargets};
 use super::SimError;
@@ -175,7 +174,7 @@ pub struct PdSolver {
     /// Node of every free index.
     free_nodes: Vec<usize>,
     /// Cholesky factor of the free block of `K` (`None` when nothing is free).
-    factor: Option<(SymbolicCholesky<usize>, Vec<f64>)>,
+    factor: Option<SparseCholesky>,
     /// The pinned columns of `K`: (free row, index into `pinned`, value).
     k_fp: Vec<(usize, usize, f64)>,
     /// `½ M_total max_speed²` (J): floor of the energy guard.
@@ -248,32 +247,6 @@ fn assemble(
 
 fn llt_error(e: impl std::fmt::Debug) -> SimError {
     SimError::Inconsistent(format!("the PD matrix K is not positive definite: {e:?}"))
-}
-
-/// Numeric Cholesky factor of the free block (sequential: the same inputs
-/// give bit-identical factors on any machine).
-fn factor_numeric(
-    symbolic: &SymbolicCholesky<usize>,
-    lower: &[Triplet<usize, usize, f64>],
-    n: usize,
-) -> Result<Vec<f64>, SimError> {
-    let a = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, lower).map_err(llt_error)?;
-    let par = Par::Seq;
-    let mut l_values = vec![0.0; symbolic.len_val()];
-    symbolic
-        .factorize_numeric_llt::<f64>(
-            &mut l_values,
-            a.as_ref(),
-            faer::Side::Lower,
-            Default::default(),
-            par,
-            MemStack::new(&mut MemBuffer::new(
-                symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-            )),
-            Default::default(),
-        )
-        .map_err(llt_error)?;
-    Ok(l_values)
 }
 
 fn norm(p: Vec3) -> f64 {
@@ -382,22 +355,13 @@ impl PdSolver {
             self.factor = None;
             return Ok(());
         }
+        let a = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &asm.lower)
+            .map_err(llt_error)?;
         let sym = match self.factor.take() {
-            Some((s, _)) if !symbolic => s,
-            _ => {
-                let a = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &asm.lower)
-                    .map_err(llt_error)?;
-                factorize_symbolic_cholesky(
-                    a.symbolic(),
-                    faer::Side::Lower,
-                    Default::default(),
-                    Default::default(),
-                )
-                .map_err(llt_error)?
-            }
+            Some(f) if !symbolic => f.into_symbolic(),
+            _ => SparseCholesky::symbolic(a.as_ref()).map_err(llt_error)?,
         };
-        let l = factor_numeric(&sym, &asm.lower, nf)?;
-        self.factor = Some((sym, l));
+        self.factor = Some(SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?);
         Ok(())
     }
 
@@ -597,15 +561,8 @@ impl PdSolver {
                     }
                 }
             }
-            if let Some((sym, l)) = &self.factor {
-                LltRef::new(sym, l).solve_in_place_with_conj(
-                    faer::Conj::No,
-                    rhs.as_mut(),
-                    Par::Seq,
-                    MemStack::new(&mut MemBuffer::new(
-                        sym.solve_in_place_scratch::<f64>(3, Par::Seq),
-                    )),
-                );
+            if let Some(f) = &self.factor {
+                f.solve_in_place(rhs.as_mut());
             }
             for (fi, &i) in self.free_nodes.iter().enumerate() {
                 xk[i] = [rhs[(fi, 0)], rhs[(fi, 1)], rhs[(fi, 2)]];
