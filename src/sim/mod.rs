@@ -4,12 +4,18 @@
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
 //! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
 //!   closest volume-preserving matrix per tet.
+//! * [`contact`]: the collider interface of the time loop (projection
+//!   constraints).
+//! * [`csr`]: CSR matrices for the iterative global-step parts.
 //! * [`pd`]: the direct global step (VH Eq. 27-28) and the implicit-Euler
 //!   time loop (VH Eq. 25).
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod backend;
 pub mod cholesky;
+pub mod contact;
+pub mod csr;
 pub mod energy;
 pub mod local;
 pub mod pd;

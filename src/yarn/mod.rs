@@ -1,4 +1,7 @@
-//! Yarn-level curves: the reference yarn-level simulator and the stitch-pattern
-//! generator arrive with later issues; for now, analytic example swatches.
+//! Yarn-level curves: analytic example swatches and the periodic tile shared
+//! by the stitch-pattern generator and the yarn-level simulator.
 
 pub mod analytic;
+pub mod tile;
+
+pub use tile::PeriodicTile;

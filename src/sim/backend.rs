@@ -1,0 +1,62 @@
+//! The two parallel kernels of a PD iteration behind traits, so the time
+//! loop (`sim::pd`) runs the same algorithm on the CPU (f64, reference) and
+//! on the GPU (`sim::gpu`, f32, wgpu).
+//!
+//! Layout of node arrays: `n x 3` row-major `f64` (`a[3 * i + k]`), the same
+//! as `&[Vec3]` flattened.
+
+use super::SimError;
+use crate::geom::Vec3;
+
+/// What [`ElasticRhs::evaluate`] found at the positions it was given.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LocalEval {
+    /// `Σ_e V_e (γs |F_e - R_e|² + γv |F_e - V_e|²)` (J) with the targets
+    /// `R_e`, `V_e` projected from these positions (VH Eq. 7-8).
+    pub elastic_energy: f64,
+    /// Tets whose volume projection clamped a singular value (VH Eq. 26).
+    pub clamped_tets: usize,
+}
+
+/// The PD local step fused with the elastic part of the global right-hand
+/// side (VH Eq. 26 and the sums of Eq. 28): for positions `x` of all nodes,
+/// projects every tet's targets and writes, for every node `a`,
+/// `out[a] = Σ_e 2 V_e (γs R_e + γv V_e) ∇N_a^e` (N: the factor 2 is the one
+/// `sim::pd` documents).
+pub trait ElasticRhs {
+    /// Evaluates at `x` (m, one per mesh node); `out` has one entry per node.
+    fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError>;
+    /// A short name for statistics ("cpu", "gpu").
+    fn name(&self) -> &'static str;
+}
+
+/// Statistics of an iterative linear solve.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct IterStats {
+    /// Iterations run.
+    pub iterations: u32,
+    /// Final relative residual `|b - A x| / |b|` (Frobenius over the three
+    /// columns; 0 when `b = 0`).
+    pub relative_residual: f64,
+}
+
+/// Chebyshev-accelerated Jacobi iterations (Wang 2015, "A Chebyshev
+/// semi-iterative approach for accelerating projective and position-based
+/// dynamics") on a fixed sparse SPD matrix `A` (the free block of the PD
+/// matrix `K`), optionally with a per-row extra diagonal `D` (contact
+/// weights): solves `(A + D) x = b` for three right-hand sides at once.
+pub trait JacobiSolve {
+    /// Improves `x` (n x 3, in: initial guess, out: result) until the
+    /// relative residual is at most `tolerance` or `max_iterations` ran.
+    /// `extra_diag` has `n` entries (>= 0) or is `None`.
+    fn solve(
+        &mut self,
+        b: &[f64],
+        extra_diag: Option<&[f64]>,
+        x: &mut [f64],
+        tolerance: f64,
+        max_iterations: u32,
+    ) -> Result<IterStats, SimError>;
+    /// A short name for statistics ("cpu", "gpu").
+    fn name(&self) -> &'static str;
+}
