@@ -1,0 +1,610 @@
+//! Scripted boundary motions of a flat swatch: the deformations of the
+//! yarn-level scenes (uniaxial, biaxial, shear) and the training poses of
+//! VH §8.6 Fig. 19 (following the HYLC data protocol): bending about the
+//! central axis and about the diagonal, a fan-like expansion, a twist into a
+//! helix and a multi-folded bend, each with its mirrored counterpart.
+//!
+//! A pose clamps bands of vertices near the swatch's edges (or along lines
+//! across it) and moves them along a prescribed map of the rest position and
+//! the progress `s ∈ [0, 1]`; the interior is left to the simulator. The
+//! progress ramps from 0 to 1 over the ramp time with a smoothstep, so the
+//! handles start and stop without a velocity jump.
+//!
+//! Fabric frame: the swatch lies in the XZ plane with its normal along +Y
+//! (the convention of knitvox's pattern generator and of the `.pyp` reader):
+//! courses run along +X, wales along +Z. Extents come from the rest
+//! bounding box.
+//!
+//! Pure: no files, no printing.
+
+use crate::geom::Vec3;
+
+/// The kind of scripted deformation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseKind {
+    /// Uniaxial stretch along the courses (X): the left band is held, the
+    /// right band moves by `amount · Lx` along +X (mirrored: the left band
+    /// moves by `-amount · Lx`, the right one is held).
+    StretchCourses,
+    /// Uniaxial stretch along the wales (Z), as [`PoseKind::StretchCourses`].
+    StretchWales,
+    /// Biaxial stretch: all four edge bands scale by `1 + amount` in the
+    /// fabric plane about the centre.
+    Biaxial,
+    /// Shear: the band at -Z is held, the band at +Z moves by
+    /// `amount · Lz` along +X (mirrored: along -X).
+    Shear,
+    /// Bending about the central axis (parallel to Z) by a total angle
+    /// `amount` (rad): the left and right bands follow the arc of radius
+    /// `Lx / amount` curving toward +Y (mirrored: toward -Y).
+    BendCentral,
+    /// Bending about the diagonal axis: as [`PoseKind::BendCentral`] with
+    /// the arc along the other diagonal; the two corner bands across it are
+    /// clamped.
+    BendDiagonal,
+    /// Fan-like expansion: the band at -Z is held, the band at +Z spreads
+    /// along X by `1 + amount` about the centre (mirrored: the +Z band is
+    /// held and the -Z band spreads).
+    Fan,
+    /// Twist into a helix: the left band is held, the right band turns by
+    /// `amount` (rad) about the X axis through the centre (mirrored: by
+    /// `-amount`).
+    Twist,
+    /// Multi-folded bend: `folds + 1` bands across X at equal spacing move
+    /// to a zigzag of alternating heights `±amount · Lx / folds`, pulled
+    /// together so each fold keeps its rest length (mirrored: heights
+    /// negated).
+    MultiFold,
+    /// Hanging: the two corner bands at +Z are held in place; gravity does
+    /// the rest.
+    Hang,
+    /// No scripted motion (drape over a collider, or a collider-driven
+    /// scene): nothing is clamped.
+    Free,
+}
+
+impl PoseKind {
+    /// Every kind, in documentation order.
+    pub const ALL: [PoseKind; 11] = [
+        PoseKind::StretchCourses,
+        PoseKind::StretchWales,
+        PoseKind::Biaxial,
+        PoseKind::Shear,
+        PoseKind::BendCentral,
+        PoseKind::BendDiagonal,
+        PoseKind::Fan,
+        PoseKind::Twist,
+        PoseKind::MultiFold,
+        PoseKind::Hang,
+        PoseKind::Free,
+    ];
+}
+
+/// Parameters of a pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseParams {
+    /// Which deformation.
+    pub kind: PoseKind,
+    /// Its magnitude: strain (dimensionless) for stretches, shear and fan,
+    /// angle (rad) for bends and twist, fold height over fold length for the
+    /// multi-fold (< 0.5). Unused by `Hang` and `Free`.
+    pub amount: f64,
+    /// Number of folds of `MultiFold` (>= 1). Default 3.
+    pub folds: u32,
+    /// The mirrored counterpart (VH Fig. 19 uses both). Default false.
+    pub mirror: bool,
+    /// Width of a clamped band as a fraction of the swatch extent across it
+    /// (dimensionless, (0, 0.5)). Default 0.06: about one stitch row on a
+    /// 16-course swatch, enough to grip whole loops.
+    pub band: f64,
+    /// Time (s) over which the progress ramps from 0 to 1. Default 1.
+    pub ramp: f64,
+}
+
+impl PoseParams {
+    /// A pose of `kind` with `amount` and the other fields at their defaults.
+    pub fn new(kind: PoseKind, amount: f64) -> PoseParams {
+        PoseParams {
+            kind,
+            amount,
+            folds: 3,
+            mirror: false,
+            band: 0.06,
+            ramp: 1.0,
+        }
+    }
+}
+
+/// Errors of pose construction.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PoseError {
+    #[error("pose parameter {0}")]
+    Parameter(String),
+    #[error("the rest state is degenerate: {0}")]
+    Degenerate(String),
+}
+
+/// The swatch's frame: centre and extents along X (courses) and Z (wales).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FabricBox {
+    min: Vec3,
+    max: Vec3,
+}
+
+impl FabricBox {
+    fn center(&self) -> Vec3 {
+        std::array::from_fn(|k| 0.5 * (self.min[k] + self.max[k]))
+    }
+    fn len(&self, k: usize) -> f64 {
+        self.max[k] - self.min[k]
+    }
+}
+
+/// One group of clamped vertices moving under one map.
+#[derive(Debug, Clone, PartialEq)]
+struct Group {
+    /// Index into [`PoseDriver::pinned`] of the group's first vertex.
+    start: usize,
+    /// Number of vertices.
+    count: usize,
+    /// The map's parameter (e.g. which edge, which fold line).
+    role: Role,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Role {
+    Hold,
+    /// Translate by `s · offset`.
+    Translate(Vec3),
+    /// Scale the in-plane (X, Z) offset from the centre by `1 + s · (f - 1)`
+    /// along the listed axes.
+    Scale {
+        fx: f64,
+        fz: f64,
+    },
+    /// Follow the bend arc; `sign` = ±1 (up/down); `diag`: along the
+    /// diagonal.
+    Bend {
+        sign: f64,
+        diag: bool,
+    },
+    /// Turn about the X axis through the centre by `s · angle`.
+    Turn(f64),
+    /// Fold line `j` of `folds`, `sign` of the zigzag.
+    Fold {
+        j: u32,
+        sign: f64,
+    },
+}
+
+/// The scripted motion of the clamped vertices of one swatch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseDriver {
+    params: PoseParams,
+    fabric: FabricBox,
+    /// Clamped vertices, grouped, each once.
+    pinned: Vec<usize>,
+    /// Their rest positions (m).
+    rest: Vec<Vec3>,
+    groups: Vec<Group>,
+}
+
+/// `3s² - 2s³` of `t / ramp` clamped to [0, 1].
+pub fn smooth_progress(t: f64, ramp: f64) -> f64 {
+    let s = if ramp > 0.0 {
+        (t / ramp).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    s * s * (3.0 - 2.0 * s)
+}
+
+impl PoseDriver {
+    /// Selects the clamped bands of `rest` (all yarn vertices, m) for
+    /// `params`. Errors for out-of-range parameters and flat or empty rest
+    /// states.
+    pub fn new(rest: &[Vec3], params: PoseParams) -> Result<PoseDriver, PoseError> {
+        let p = params;
+        let bad = |what: String| Err(PoseError::Parameter(what));
+        if !p.amount.is_finite() {
+            return bad(format!("amount is {}", p.amount));
+        }
+        if !(p.band > 0.0 && p.band < 0.5) {
+            return bad(format!("band is {} (must be in (0, 0.5))", p.band));
+        }
+        if !(p.ramp.is_finite() && p.ramp >= 0.0) {
+            return bad(format!("ramp is {} s (must be >= 0)", p.ramp));
+        }
+        match p.kind {
+            PoseKind::MultiFold => {
+                if p.folds == 0 {
+                    return bad("folds is 0 (must be >= 1)".into());
+                }
+                if !(p.amount.abs() < 0.5) {
+                    return bad(format!(
+                        "amount is {} for multi_fold (fold height / fold length, must be < 0.5)",
+                        p.amount
+                    ));
+                }
+            }
+            PoseKind::StretchCourses
+            | PoseKind::StretchWales
+            | PoseKind::Biaxial
+            | PoseKind::Fan
+                if p.amount <= -1.0 =>
+            {
+                return bad(format!("amount is {} (a strain must be > -1)", p.amount));
+            }
+            _ => {}
+        }
+        let Some(first) = rest.first() else {
+            return Err(PoseError::Degenerate("no vertices".into()));
+        };
+        let mut fabric = FabricBox {
+            min: *first,
+            max: *first,
+        };
+        for q in rest {
+            if !q.iter().all(|c| c.is_finite()) {
+                return Err(PoseError::Degenerate("a vertex is not finite".into()));
+            }
+            for k in 0..3 {
+                fabric.min[k] = fabric.min[k].min(q[k]);
+                fabric.max[k] = fabric.max[k].max(q[k]);
+            }
+        }
+        let (lx, lz) = (fabric.len(0), fabric.len(2));
+        if !(lx > 0.0 && lz > 0.0) {
+            return Err(PoseError::Degenerate(format!(
+                "the swatch spans {lx} m along X and {lz} m along Z; poses need both"
+            )));
+        }
+        let c = fabric.center();
+        let sign = if p.mirror { -1.0 } else { 1.0 };
+        let (bx, bz) = (p.band * lx, p.band * lz);
+        let left = |q: &Vec3| q[0] <= fabric.min[0] + bx;
+        let right = |q: &Vec3| q[0] >= fabric.max[0] - bx;
+        let back = |q: &Vec3| q[2] <= fabric.min[2] + bz;
+        let front = |q: &Vec3| q[2] >= fabric.max[2] - bz;
+
+        // Selection rules: (predicate, role), first match wins per vertex.
+        type Pred<'a> = Box<dyn Fn(&Vec3) -> bool + 'a>;
+        let mut rules: Vec<(Pred, Role)> = Vec::new();
+        match p.kind {
+            PoseKind::StretchCourses => {
+                let d = [p.amount * lx, 0.0, 0.0];
+                if p.mirror {
+                    rules.push((Box::new(left), Role::Translate(d.map(|v| -v))));
+                    rules.push((Box::new(right), Role::Hold));
+                } else {
+                    rules.push((Box::new(left), Role::Hold));
+                    rules.push((Box::new(right), Role::Translate(d)));
+                }
+            }
+            PoseKind::StretchWales => {
+                let d = [0.0, 0.0, p.amount * lz];
+                if p.mirror {
+                    rules.push((Box::new(back), Role::Translate(d.map(|v| -v))));
+                    rules.push((Box::new(front), Role::Hold));
+                } else {
+                    rules.push((Box::new(back), Role::Hold));
+                    rules.push((Box::new(front), Role::Translate(d)));
+                }
+            }
+            PoseKind::Biaxial => {
+                let f = 1.0 + p.amount;
+                let any = move |q: &Vec3| left(q) || right(q) || back(q) || front(q);
+                rules.push((Box::new(any), Role::Scale { fx: f, fz: f }));
+            }
+            PoseKind::Shear => {
+                rules.push((Box::new(back), Role::Hold));
+                rules.push((
+                    Box::new(front),
+                    Role::Translate([sign * p.amount * lz, 0.0, 0.0]),
+                ));
+            }
+            PoseKind::BendCentral => {
+                let role = Role::Bend { sign, diag: false };
+                rules.push((Box::new(move |q: &Vec3| left(q) || right(q)), role));
+            }
+            PoseKind::BendDiagonal => {
+                // Arc coordinate along the diagonal d2 = (X - Z)/√2 through
+                // the centre; the corner bands at both ends of d2 are held
+                // on the arc.
+                let half = 0.5 * (lx + lz) / std::f64::consts::SQRT_2;
+                let band = p.band * 2.0 * half;
+                let role = Role::Bend { sign, diag: true };
+                rules.push((
+                    Box::new(move |q: &Vec3| {
+                        let d2 = ((q[0] - c[0]) - (q[2] - c[2])) / std::f64::consts::SQRT_2;
+                        d2.abs() >= half - band
+                    }),
+                    role,
+                ));
+            }
+            PoseKind::Fan => {
+                let f = Role::Scale {
+                    fx: 1.0 + p.amount,
+                    fz: 1.0,
+                };
+                if p.mirror {
+                    rules.push((Box::new(front), Role::Hold));
+                    rules.push((Box::new(back), f));
+                } else {
+                    rules.push((Box::new(back), Role::Hold));
+                    rules.push((Box::new(front), f));
+                }
+            }
+            PoseKind::Twist => {
+                rules.push((Box::new(left), Role::Hold));
+                rules.push((Box::new(right), Role::Turn(sign * p.amount)));
+            }
+            PoseKind::MultiFold => {
+                let k = p.folds;
+                let spacing = lx / k as f64;
+                for j in 0..=k {
+                    let x = fabric.min[0] + j as f64 * spacing;
+                    let half_band = 0.5 * bx;
+                    rules.push((
+                        Box::new(move |q: &Vec3| (q[0] - x).abs() <= half_band.max(0.0)),
+                        Role::Fold { j, sign },
+                    ));
+                }
+            }
+            PoseKind::Hang => {
+                rules.push((
+                    Box::new(move |q: &Vec3| front(q) && (left(q) || right(q))),
+                    Role::Hold,
+                ));
+            }
+            PoseKind::Free => {}
+        }
+
+        let mut pinned = Vec::new();
+        let mut rest_pinned = Vec::new();
+        let mut groups = Vec::new();
+        let mut taken = vec![false; rest.len()];
+        for (pred, role) in &rules {
+            let start = pinned.len();
+            for (i, q) in rest.iter().enumerate() {
+                if !taken[i] && pred(q) {
+                    taken[i] = true;
+                    pinned.push(i);
+                    rest_pinned.push(*q);
+                }
+            }
+            let count = pinned.len() - start;
+            if count > 0 {
+                groups.push(Group {
+                    start,
+                    count,
+                    role: *role,
+                });
+            }
+        }
+        if p.kind != PoseKind::Free && pinned.is_empty() {
+            return Err(PoseError::Degenerate(format!(
+                "no vertex lies in the clamped bands of {:?} (band {})",
+                p.kind, p.band
+            )));
+        }
+        Ok(PoseDriver {
+            params,
+            fabric,
+            pinned,
+            rest: rest_pinned,
+            groups,
+        })
+    }
+
+    /// The clamped vertices (indices into the rest state), in the order of
+    /// [`Self::targets`].
+    pub fn pinned(&self) -> &[usize] {
+        &self.pinned
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &PoseParams {
+        &self.params
+    }
+
+    /// Target positions (m) of the clamped vertices at time `t` (s).
+    pub fn targets(&self, t: f64) -> Vec<Vec3> {
+        let s = smooth_progress(t, self.params.ramp);
+        let mut out = self.rest.clone();
+        for g in &self.groups {
+            for q in &mut out[g.start..g.start + g.count] {
+                *q = self.map(g.role, *q, s);
+            }
+        }
+        out
+    }
+
+    fn map(&self, role: Role, q: Vec3, s: f64) -> Vec3 {
+        let c = self.fabric.center();
+        match role {
+            Role::Hold => q,
+            Role::Translate(d) => std::array::from_fn(|k| q[k] + s * d[k]),
+            Role::Scale { fx, fz } => [
+                c[0] + (1.0 + s * (fx - 1.0)) * (q[0] - c[0]),
+                q[1],
+                c[2] + (1.0 + s * (fz - 1.0)) * (q[2] - c[2]),
+            ],
+            Role::Bend { sign, diag } => {
+                // In-plane unit direction of the arc coordinate.
+                let (ex, ez) = if diag {
+                    let h = std::f64::consts::FRAC_1_SQRT_2;
+                    (h, -h)
+                } else {
+                    (1.0, 0.0)
+                };
+                let length = if diag {
+                    (self.fabric.len(0) + self.fabric.len(2)) * std::f64::consts::FRAC_1_SQRT_2
+                } else {
+                    self.fabric.len(0)
+                };
+                let theta = s * self.params.amount;
+                let u = (q[0] - c[0]) * ex + (q[2] - c[2]) * ez;
+                let h = q[1] - c[1];
+                // Arc of radius R = L/θ tangent to the fabric at the centre:
+                // arc length u -> angle φ = u/R; normal offsets h rotate too.
+                let (du, dy) = if theta.abs() < 1e-12 {
+                    (0.0, 0.0)
+                } else {
+                    let r = length / theta;
+                    let phi = u / r;
+                    // Mirrored, the arc curves toward -Y while the normal
+                    // offset `h` keeps its side of the fabric.
+                    let along = r * phi.sin() - sign * h * phi.sin();
+                    let up = sign * r * (1.0 - phi.cos()) + h * phi.cos();
+                    (along - u, up - h)
+                };
+                [q[0] + du * ex, q[1] + dy, q[2] + du * ez]
+            }
+            Role::Turn(angle) => {
+                let a = s * angle;
+                let (y, z) = (q[1] - c[1], q[2] - c[2]);
+                [
+                    q[0],
+                    c[1] + a.cos() * y - a.sin() * z,
+                    c[2] + a.sin() * y + a.cos() * z,
+                ]
+            }
+            Role::Fold { j, sign } => {
+                let k = self.params.folds as f64;
+                let fold_len = self.fabric.len(0) / k;
+                let rise = s * self.params.amount * fold_len;
+                let run = (fold_len * fold_len - rise * rise).max(0.0).sqrt();
+                // Line j moves to x_j = min + j run (the zigzag keeps each
+                // fold's length), centred on the rest centre, height ±rise/2.
+                let jf = j as f64;
+                let x_rest = self.fabric.min[0] + jf * fold_len;
+                let total = k * run;
+                let x_new = c[0] - 0.5 * total + jf * run;
+                let height = if j % 2 == 0 { 0.5 } else { -0.5 } * sign * rise;
+                [q[0] - x_rest + x_new, q[1] + height, q[2]]
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flat grid of points in the XZ plane, 1 m x 0.5 m.
+    fn grid() -> Vec<Vec3> {
+        let mut v = Vec::new();
+        for i in 0..=20 {
+            for j in 0..=10 {
+                v.push([i as f64 * 0.05, 0.0, j as f64 * 0.05]);
+            }
+        }
+        v
+    }
+
+    fn dist(a: Vec3, b: Vec3) -> f64 {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    }
+
+    #[test]
+    fn start_at_rest_for_every_kind() {
+        let rest = grid();
+        for kind in PoseKind::ALL {
+            let mut p = PoseParams::new(kind, 0.3);
+            p.folds = 2;
+            let d = PoseDriver::new(&rest, p).unwrap();
+            for (i, q) in d.pinned().iter().zip(d.targets(0.0)) {
+                assert!(dist(rest[*i], q) < 1e-15, "{kind:?}");
+            }
+            if kind == PoseKind::Free {
+                assert!(d.pinned().is_empty());
+            } else {
+                assert!(!d.pinned().is_empty(), "{kind:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn stretch_moves_right_band_by_strain() {
+        let rest = grid();
+        let d = PoseDriver::new(&rest, PoseParams::new(PoseKind::StretchCourses, 0.3)).unwrap();
+        let t = d.targets(5.0);
+        for (i, q) in d.pinned().iter().zip(&t) {
+            let r = rest[*i];
+            let want = if r[0] > 0.5 { r[0] + 0.3 } else { r[0] };
+            assert!((q[0] - want).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn bend_keeps_arc_length_and_mirror_flips() {
+        let rest = grid();
+        let angle = 1.2;
+        let up = PoseDriver::new(&rest, PoseParams::new(PoseKind::BendCentral, angle)).unwrap();
+        let mut mp = PoseParams::new(PoseKind::BendCentral, angle);
+        mp.mirror = true;
+        let down = PoseDriver::new(&rest, mp).unwrap();
+        let (tu, td) = (up.targets(1.0), down.targets(1.0));
+        // The outermost band vertices lie on the arc of radius L/θ around
+        // the centre of curvature at height R above the centre.
+        let r = 1.0 / angle;
+        for (k, &i) in up.pinned().iter().enumerate() {
+            let q = tu[k];
+            let centre = [0.5, r, rest[i][2]];
+            assert!((dist(q, centre) - r).abs() < 1e-12);
+            assert!((td[k][1] + q[1]).abs() < 1e-12, "mirror negates height");
+            // The end point turned by θ/2 relative to the centre tangent.
+            if rest[i][0] == 1.0 {
+                assert!((q[1] - r * (1.0 - (0.5 * angle).cos())).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn twist_preserves_distance_to_axis() {
+        let rest = grid();
+        let d = PoseDriver::new(&rest, PoseParams::new(PoseKind::Twist, 2.0)).unwrap();
+        for (i, q) in d.pinned().iter().zip(d.targets(1.0)) {
+            let r = rest[*i];
+            let before = (r[1].powi(2) + (r[2] - 0.25).powi(2)).sqrt();
+            let after = (q[1].powi(2) + (q[2] - 0.25).powi(2)).sqrt();
+            assert!((before - after).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn multifold_keeps_fold_lengths() {
+        let rest = grid();
+        let mut p = PoseParams::new(PoseKind::MultiFold, 0.3);
+        p.folds = 4;
+        let d = PoseDriver::new(&rest, p).unwrap();
+        let t = d.targets(1.0);
+        // Consecutive fold lines at the same z stay one fold length apart.
+        let line = |x: f64| {
+            d.pinned()
+                .iter()
+                .position(|&i| (rest[i][0] - x).abs() < 1e-9 && rest[i][2] == 0.0)
+                .map(|k| t[k])
+                .unwrap()
+        };
+        for j in 0..4 {
+            let (a, b) = (line(j as f64 * 0.25), line((j + 1) as f64 * 0.25));
+            assert!((dist(a, b) - 0.25).abs() < 1e-12, "fold {j}");
+        }
+    }
+
+    #[test]
+    fn bad_parameters_are_errors() {
+        let rest = grid();
+        assert!(PoseDriver::new(&rest, PoseParams::new(PoseKind::Fan, f64::NAN)).is_err());
+        assert!(PoseDriver::new(&rest, PoseParams::new(PoseKind::MultiFold, 0.6)).is_err());
+        assert!(PoseDriver::new(&[], PoseParams::new(PoseKind::Shear, 0.1)).is_err());
+        let flat: Vec<Vec3> = (0..10).map(|i| [i as f64, 0.0, 0.0]).collect();
+        assert!(PoseDriver::new(&flat, PoseParams::new(PoseKind::Shear, 0.1)).is_err());
+        let mut p = PoseParams::new(PoseKind::Shear, 0.1);
+        p.band = 0.7;
+        assert!(PoseDriver::new(&rest, p).is_err());
+    }
+}
