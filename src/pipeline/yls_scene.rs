@@ -340,4 +340,19 @@ scale = 0.01
             assert!(msg.contains(key), "{key} not in {msg}");
         }
     }
+
+    #[test]
+    fn example_scenes_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
+        let mut kinds = std::collections::BTreeSet::new();
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let s = YlsScene::read(&path).unwrap_or_else(|e| panic!("{e}"));
+                kinds.insert(format!("{:?}", s.pose.kind));
+            }
+        }
+        // Every pose kind has an example.
+        assert_eq!(kinds.len(), PoseKind::ALL.len(), "{kinds:?}");
+    }
 }
