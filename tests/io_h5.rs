@@ -1333,3 +1333,35 @@ fn child_spawned_during_a_write_does_not_lock_the_output() {
     let d = read.unwrap_or_else(|e| panic!("finished file unreadable while the child lives: {e}"));
     assert_eq!(d.frames.unwrap().num_frames(), 1);
 }
+
+#[test]
+fn frame_writer_stores_metadata_text() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("meta.h5");
+    let mut y = knitvox::geom::Yarns::new();
+    y.push_curve(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], false, 0.01);
+    let mut w = knitvox::io::h5::FrameWriter::create(&path, &y).unwrap();
+    let scene = "name = \"stretch\" # 30 % — UTF-8\n";
+    w.add_text("scene_toml", scene).unwrap();
+    w.add_text("empty", "").unwrap();
+    assert!(w.add_text("scene_toml", "again").is_err(), "duplicate name");
+    assert!(w.add_text("../x", "bad").is_err(), "not an identifier");
+    w.push(0.0, &y.points).unwrap();
+    w.finish().unwrap();
+    assert_eq!(
+        knitvox::io::h5::read_text(&path, "scene_toml")
+            .unwrap()
+            .as_deref(),
+        Some(scene)
+    );
+    assert_eq!(
+        knitvox::io::h5::read_text(&path, "empty")
+            .unwrap()
+            .as_deref(),
+        Some("")
+    );
+    assert_eq!(knitvox::io::h5::read_text(&path, "missing").unwrap(), None);
+    // The yarn reader ignores the extra group.
+    let back = knitvox::io::read_path(&path, &Default::default()).unwrap();
+    assert_eq!(back.yarns.num_points(), 2);
+}

@@ -1145,6 +1145,22 @@ fn check_frame(n: usize, frame: usize, time: f64, points: &[Vec3]) -> Result<(),
     Ok(())
 }
 
+/// The text stored by [`FrameWriter::add_text`] under `name`, or `None`
+/// when the file has none.
+pub fn read_text(path: &Path, name: &str) -> Result<Option<String>, IoError> {
+    let file = open_path(path)?;
+    let Ok(ds) = file.dataset(&format!("metadata/{name}")) else {
+        return Ok(None);
+    };
+    let at = format!("/metadata/{name}");
+    let bytes: Vec<u8> = ds
+        .read_raw()
+        .map_err(|e| format_err(path, FormatError::at_path(&at, format!("unreadable: {e}"))))?;
+    String::from_utf8(bytes)
+        .map(Some)
+        .map_err(|e| format_err(path, FormatError::at_path(&at, format!("not UTF-8: {e}"))))
+}
+
 /// Writes yarns (metres, +Y up) and optionally their frames to `path`
 /// atomically: libhdf5 writes a dot-prefixed temporary file in the same
 /// directory, which is fsynced and renamed onto `path`.
@@ -1243,6 +1259,36 @@ impl FrameWriter {
             .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
         check_frame(out.n, out.count, time, points).map_err(|e| write_err(&path, e))?;
         out.push(time, points).map_err(|e| write_err(&path, e))
+    }
+
+    /// Stores `text` (UTF-8: a scene file, a JSON parameter record) as the
+    /// byte dataset `/metadata/<name>` (uint8 `[len]`, attribute
+    /// `encoding = "utf-8"`), so a frame file carries what produced it.
+    /// Names are plain identifiers; a name used twice is an error.
+    pub fn add_text(&mut self, name: &str, text: &str) -> Result<(), IoError> {
+        let path = self.path.clone();
+        if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+            return Err(write_err(
+                &path,
+                invalid_input(format!("metadata name {name:?} is not an identifier")),
+            ));
+        }
+        let file = self
+            .file
+            .as_ref()
+            .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
+        let write = || -> hdf5::Result<()> {
+            let g = match file.group("metadata") {
+                Ok(g) => g,
+                Err(_) => file.create_group("metadata")?,
+            };
+            let ds = g.new_dataset::<u8>().shape([text.len()]).create(name)?;
+            if !text.is_empty() {
+                ds.write_raw(text.as_bytes())?;
+            }
+            write_str_attr(&ds, "encoding", "utf-8")
+        };
+        write().map_err(|e| write_err(&path, e))
     }
 
     /// Frames written so far.
