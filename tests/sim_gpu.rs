@@ -414,3 +414,66 @@ fn gpu_chebyshev_jacobi_converges_to_the_cholesky_solution() {
     // A rho of 1 or more is refused.
     assert!(GpuJacobi::new(&ctx, &a, GpuJacobiParams { rho: Some(1.0), check_every: 4 }).is_err());
 }
+
+/// Timing at the size of a garment patch (~79K tets, ~15K nodes): one
+/// elastic-rhs call and 100 Chebyshev-Jacobi iterations. A benchmark, not a
+/// test: `cargo test --release --test sim_gpu -- --ignored --nocapture`.
+#[test]
+#[ignore = "benchmark; run in release with --ignored"]
+fn bench_gpu_kernels_79k_tets() {
+    use std::time::Instant;
+    let Some(ctx) = gpu() else { return };
+    let mesh = block([24, 24, 23]);
+    let mut rng = Rng(77);
+    let m = model(&mesh, &mut rng);
+    let n = mesh.num_nodes();
+    eprintln!("mesh: {} tets, {n} nodes; adapter {}", mesh.num_tets(), ctx.adapter_name());
+    let x: Vec<Vec3> = mesh
+        .nodes
+        .iter()
+        .map(|p| [p[0] + 0.2 * H * rng.sym(), p[1] + 0.2 * H * rng.sym(), p[2] + 0.2 * H * rng.sym()])
+        .collect();
+    let t = Instant::now();
+    let mut rhs = GpuElasticRhs::new(&ctx, &m).unwrap();
+    eprintln!("GpuElasticRhs::new: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    let mut out = vec![[0.0; 3]; n];
+    rhs.evaluate(&x, &mut out).unwrap();
+    let reps = 10;
+    let t = Instant::now();
+    for _ in 0..reps {
+        rhs.evaluate(&x, &mut out).unwrap();
+    }
+    let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+    let t = Instant::now();
+    let (cpu_out, _, _) = cpu_rhs(&m, &x);
+    let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+    eprintln!(
+        "elastic rhs: gpu {gpu_ms:.1} ms/call, cpu reference (local_step + energy + gather, f64) {cpu_ms:.1} ms; rel diff {:.1e}",
+        rel_diff(&out, &cpu_out)
+    );
+
+    let a = pd_matrix(&mesh, &m);
+    let t = Instant::now();
+    let rho = knitvox::sim::gpu::estimate_jacobi_radius(&a).unwrap();
+    eprintln!("rho estimate {rho:.5} ({} rows): {:.1} ms", a.n, t.elapsed().as_secs_f64() * 1e3);
+    let b: Vec<f64> = (0..3 * a.n).map(|_| rng.sym()).collect();
+    for check_every in [16, 100] {
+        let mut solver = GpuJacobi::new(&ctx, &a, GpuJacobiParams { rho: Some(rho), check_every }).unwrap();
+        let mut xs = vec![0.0; 3 * a.n];
+        solver.solve(&b, None, &mut xs, 0.0, 100).unwrap();
+        let t = Instant::now();
+        let mut stats = Default::default();
+        for _ in 0..3 {
+            xs.fill(0.0);
+            stats = solver.solve(&b, None, &mut xs, 0.0, 100).unwrap();
+        }
+        eprintln!(
+            "100 Chebyshev-Jacobi iterations (readback every {check_every}): {:.1} ms, residual {:.2e}",
+            t.elapsed().as_secs_f64() * 1e3 / 3.0,
+            stats.relative_residual
+        );
+    }
+    let t = Instant::now();
+    let _ = cpu_chebyshev(&a, None, &b, &vec![0.0; 3 * a.n], rho, 100);
+    eprintln!("cpu reference 100 iterations (sequential f64): {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+}
