@@ -30,7 +30,11 @@ const H: f64 = 0.01;
 fn gpu() -> Option<GpuContext> {
     match GpuContext::new() {
         Ok(ctx) => {
-            eprintln!("GPU adapter: {} ({:?})", ctx.adapter_name(), ctx.adapter_info().device_type);
+            eprintln!(
+                "GPU adapter: {} ({:?})",
+                ctx.adapter_name(),
+                ctx.adapter_info().device_type
+            );
             Some(ctx)
         }
         Err(GpuError::Unavailable(reason)) => {
@@ -135,19 +139,34 @@ fn gpu_elastic_rhs_matches_cpu_reference() {
             "mild noise",
             mesh.nodes
                 .iter()
-                .map(|p| rot([p[0] + 0.2 * H * rng.sym(), p[1] + 0.2 * H * rng.sym(), p[2] + 0.2 * H * rng.sym()]))
+                .map(|p| {
+                    rot([
+                        p[0] + 0.2 * H * rng.sym(),
+                        p[1] + 0.2 * H * rng.sym(),
+                        p[2] + 0.2 * H * rng.sym(),
+                    ])
+                })
                 .collect(),
         ),
         (
             "strong noise (inverted tets)",
             mesh.nodes
                 .iter()
-                .map(|p| [p[0] + 0.9 * H * rng.sym(), p[1] + 0.9 * H * rng.sym(), p[2] + 0.9 * H * rng.sym()])
+                .map(|p| {
+                    [
+                        p[0] + 0.9 * H * rng.sym(),
+                        p[1] + 0.9 * H * rng.sym(),
+                        p[2] + 0.9 * H * rng.sym(),
+                    ]
+                })
                 .collect(),
         ),
         (
             "mirrored (every tet inverted)",
-            mesh.nodes.iter().map(|p| rot([-1.1 * p[0], p[1], 0.9 * p[2]])).collect(),
+            mesh.nodes
+                .iter()
+                .map(|p| rot([-1.1 * p[0], p[1], 0.9 * p[2]]))
+                .collect(),
         ),
         (
             "flattened (degenerate tets)",
@@ -158,7 +177,10 @@ fn gpu_elastic_rhs_matches_cpu_reference() {
         ),
         (
             "crushed below the 0.01 floor and stretched",
-            mesh.nodes.iter().map(|p| rot([2.5 * p[0], 0.004 * p[1], 0.7 * p[2]])).collect(),
+            mesh.nodes
+                .iter()
+                .map(|p| rot([2.5 * p[0], 0.004 * p[1], 0.7 * p[2]]))
+                .collect(),
         ),
     ];
     for (name, x) in &poses {
@@ -174,7 +196,11 @@ fn gpu_elastic_rhs_matches_cpu_reference() {
             ev.clamped_tets
         );
         assert!(err <= 1e-4, "{name}: rhs relative error {err}");
-        assert!(e_err <= 1e-4, "{name}: energy {} vs {cpu_e}", ev.elastic_energy);
+        assert!(
+            e_err <= 1e-4,
+            "{name}: energy {} vs {cpu_e}",
+            ev.elastic_energy
+        );
         assert_eq!(ev.clamped_tets, cpu_clamped, "{name}: clamped tets");
     }
     // The poses exercise what they claim.
@@ -185,7 +211,11 @@ fn gpu_elastic_rhs_matches_cpu_reference() {
     let mut out = vec![[0.0; 3]; n];
     let ev = gpu_rhs.evaluate(&mesh.nodes, &mut out).unwrap();
     let (cpu_out, _, _) = cpu_rhs(&m, &mesh.nodes);
-    assert!(ev.elastic_energy.abs() < 1e-9, "rest energy {}", ev.elastic_energy);
+    assert!(
+        ev.elastic_energy.abs() < 1e-9,
+        "rest energy {}",
+        ev.elastic_energy
+    );
     assert!(rel_diff(&out, &cpu_out) < 1e-5);
 }
 
@@ -201,14 +231,22 @@ fn gpu_elastic_rhs_is_finite_on_collapsed_tets_and_checks_inputs() {
     // Everything at one point (F = 0) and everything on a line (rank 1):
     // the projections are not unique there, but must be finite.
     let point = vec![[0.3, -0.2, 0.1]; n];
-    let line: Vec<Vec3> = mesh.nodes.iter().map(|p| [p[0] + p[1] + p[2], 0.0, 0.0]).collect();
+    let line: Vec<Vec3> = mesh
+        .nodes
+        .iter()
+        .map(|p| [p[0] + p[1] + p[2], 0.0, 0.0])
+        .collect();
     for x in [&point, &line] {
         let ev = gpu_rhs.evaluate(x, &mut out).unwrap();
         assert!(ev.elastic_energy.is_finite() && ev.elastic_energy > 0.0);
         assert_eq!(ev.clamped_tets, mesh.num_tets());
         assert!(out.iter().flatten().all(|v| v.is_finite()));
         let (_, cpu_e, _) = cpu_rhs(&m, x);
-        assert!((ev.elastic_energy - cpu_e).abs() <= 1e-4 * cpu_e, "{} vs {cpu_e}", ev.elastic_energy);
+        assert!(
+            (ev.elastic_energy - cpu_e).abs() <= 1e-4 * cpu_e,
+            "{} vs {cpu_e}",
+            ev.elastic_energy
+        );
     }
     // Bad inputs are errors, not panics.
     let mut bad = mesh.nodes.clone();
@@ -219,7 +257,11 @@ fn gpu_elastic_rhs_is_finite_on_collapsed_tets_and_checks_inputs() {
     }
     assert!(gpu_rhs.evaluate(&mesh.nodes[1..], &mut out).is_err());
     // Deterministic: the same input gives bit-identical results.
-    let x: Vec<Vec3> = mesh.nodes.iter().map(|p| [p[0] + 0.3 * H * rng.sym(), p[1], p[2]]).collect();
+    let x: Vec<Vec3> = mesh
+        .nodes
+        .iter()
+        .map(|p| [p[0] + 0.3 * H * rng.sym(), p[1], p[2]])
+        .collect();
     let mut a = vec![[0.0; 3]; n];
     let mut b = vec![[0.0; 3]; n];
     let ea = gpu_rhs.evaluate(&x, &mut a).unwrap();
@@ -249,7 +291,11 @@ fn pd_matrix(mesh: &TetMesh, m: &ElasticModel) -> CsrMatrix {
         let g1 = [d[(0, 0)], d[(0, 1)], d[(0, 2)]];
         let g2 = [d[(1, 0)], d[(1, 1)], d[(1, 2)]];
         let g3 = [d[(2, 0)], d[(2, 1)], d[(2, 2)]];
-        let g0 = [-(g1[0] + g2[0] + g3[0]), -(g1[1] + g2[1] + g3[1]), -(g1[2] + g2[2] + g3[2])];
+        let g0 = [
+            -(g1[0] + g2[0] + g3[0]),
+            -(g1[1] + g2[1] + g3[1]),
+            -(g1[2] + g2[2] + g3[2]),
+        ];
         let g = [g0, g1, g2, g3];
         for a in 0..4 {
             let fa = free_index[r.nodes[a]];
@@ -286,7 +332,14 @@ fn apply(a: &CsrMatrix, extra: Option<&[f64]>, x: &[f64]) -> Vec<f64> {
 
 /// CPU f64 copy of the GPU iteration (Wang 2015): Jacobi step, then
 /// `x_{k+1} = ω_{k+1} (y - x_{k-1}) + x_{k-1}`, for exactly `iterations`.
-fn cpu_chebyshev(a: &CsrMatrix, extra: Option<&[f64]>, b: &[f64], x0: &[f64], rho: f64, iterations: usize) -> Vec<f64> {
+fn cpu_chebyshev(
+    a: &CsrMatrix,
+    extra: Option<&[f64]>,
+    b: &[f64],
+    x0: &[f64],
+    rho: f64,
+    iterations: usize,
+) -> Vec<f64> {
     let diag = a.diagonal();
     let omegas = chebyshev_omegas(rho, iterations);
     let mut prev = x0.to_vec();
@@ -314,7 +367,11 @@ fn cholesky_solve(a: &CsrMatrix, extra: Option<&[f64]>, b: &[f64]) -> Vec<f64> {
         for e in a.row_ptr[r]..a.row_ptr[r + 1] {
             let c = a.col[e];
             if r >= c {
-                let add = if r == c { extra.map_or(0.0, |d| d[r]) } else { 0.0 };
+                let add = if r == c {
+                    extra.map_or(0.0, |d| d[r])
+                } else {
+                    0.0
+                };
                 lower.push(Triplet::new(r, c, a.val[e] + add));
             }
         }
@@ -341,7 +398,13 @@ fn jacobi_problem(rng: &mut Rng) -> (CsrMatrix, Vec<f64>, Vec<f64>) {
     let a = pd_matrix(&mesh, &m);
     let b: Vec<f64> = (0..3 * a.n).map(|_| rng.sym()).collect();
     let extra: Vec<f64> = (0..a.n)
-        .map(|r| if r % 5 == 0 { 1e3 * (1.0 + rng.next()) } else { 0.0 })
+        .map(|r| {
+            if r % 5 == 0 {
+                1e3 * (1.0 + rng.next())
+            } else {
+                0.0
+            }
+        })
         .collect();
     (a, b, extra)
 }
@@ -356,7 +419,15 @@ fn gpu_chebyshev_jacobi_matches_cpu_iteration() {
     assert!(rho > 0.5 && rho < 1.0, "rho {rho}");
     // check_every 7 does not divide 40: the chunking must not change the
     // iteration.
-    let mut solver = GpuJacobi::new(&ctx, &a, GpuJacobiParams { rho: Some(rho), check_every: 7 }).unwrap();
+    let mut solver = GpuJacobi::new(
+        &ctx,
+        &a,
+        GpuJacobiParams {
+            rho: Some(rho),
+            check_every: 7,
+        },
+    )
+    .unwrap();
     assert_eq!(solver.name(), "gpu");
     for extra in [None, Some(&extra[..])] {
         let mut x = x0.clone();
@@ -373,7 +444,11 @@ fn gpu_chebyshev_jacobi_matches_cpu_iteration() {
             stats.relative_residual
         );
         assert!(err <= 1e-4, "GPU vs CPU Chebyshev: {err}");
-        assert!((stats.relative_residual - res).abs() <= 1e-3 * res.max(1e-3), "{} vs {res}", stats.relative_residual);
+        assert!(
+            (stats.relative_residual - res).abs() <= 1e-3 * res.max(1e-3),
+            "{} vs {res}",
+            stats.relative_residual
+        );
     }
 }
 
@@ -395,7 +470,10 @@ fn gpu_chebyshev_jacobi_converges_to_the_cholesky_solution() {
             stats.relative_residual
         );
         assert!(stats.relative_residual <= 1e-5, "{stats:?}");
-        assert!(stats.iterations < 5000 && stats.iterations % 16 == 0, "{stats:?}");
+        assert!(
+            stats.iterations < 5000 && stats.iterations % 16 == 0,
+            "{stats:?}"
+        );
         assert!(err <= 1e-3, "error vs Cholesky {err}");
         // Warm start at the solution: no iterations.
         let mut again = x.clone();
@@ -405,14 +483,24 @@ fn gpu_chebyshev_jacobi_converges_to_the_cholesky_solution() {
     }
     // b = 0 gives x = 0; bad lengths and extra diagonals are errors.
     let mut x = vec![1.0; 3 * a.n];
-    let s = solver.solve(&vec![0.0; 3 * a.n], None, &mut x, 1e-6, 10).unwrap();
+    let s = solver
+        .solve(&vec![0.0; 3 * a.n], None, &mut x, 1e-6, 10)
+        .unwrap();
     assert_eq!((s.iterations, s.relative_residual), (0, 0.0));
     assert!(x.iter().all(|&v| v == 0.0));
     assert!(solver.solve(&b[1..], None, &mut x, 1e-6, 10).is_err());
     let neg = vec![-1.0; a.n];
     assert!(solver.solve(&b, Some(&neg), &mut x, 1e-6, 10).is_err());
     // A rho of 1 or more is refused.
-    assert!(GpuJacobi::new(&ctx, &a, GpuJacobiParams { rho: Some(1.0), check_every: 4 }).is_err());
+    assert!(GpuJacobi::new(
+        &ctx,
+        &a,
+        GpuJacobiParams {
+            rho: Some(1.0),
+            check_every: 4
+        }
+    )
+    .is_err());
 }
 
 /// Timing at the size of a garment patch (~79K tets, ~15K nodes): one
@@ -427,15 +515,28 @@ fn bench_gpu_kernels_79k_tets() {
     let mut rng = Rng(77);
     let m = model(&mesh, &mut rng);
     let n = mesh.num_nodes();
-    eprintln!("mesh: {} tets, {n} nodes; adapter {}", mesh.num_tets(), ctx.adapter_name());
+    eprintln!(
+        "mesh: {} tets, {n} nodes; adapter {}",
+        mesh.num_tets(),
+        ctx.adapter_name()
+    );
     let x: Vec<Vec3> = mesh
         .nodes
         .iter()
-        .map(|p| [p[0] + 0.2 * H * rng.sym(), p[1] + 0.2 * H * rng.sym(), p[2] + 0.2 * H * rng.sym()])
+        .map(|p| {
+            [
+                p[0] + 0.2 * H * rng.sym(),
+                p[1] + 0.2 * H * rng.sym(),
+                p[2] + 0.2 * H * rng.sym(),
+            ]
+        })
         .collect();
     let t = Instant::now();
     let mut rhs = GpuElasticRhs::new(&ctx, &m).unwrap();
-    eprintln!("GpuElasticRhs::new: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    eprintln!(
+        "GpuElasticRhs::new: {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
     let mut out = vec![[0.0; 3]; n];
     rhs.evaluate(&x, &mut out).unwrap();
     let reps = 10;
@@ -455,10 +556,22 @@ fn bench_gpu_kernels_79k_tets() {
     let a = pd_matrix(&mesh, &m);
     let t = Instant::now();
     let rho = knitvox::sim::gpu::estimate_jacobi_radius(&a).unwrap();
-    eprintln!("rho estimate {rho:.5} ({} rows): {:.1} ms", a.n, t.elapsed().as_secs_f64() * 1e3);
+    eprintln!(
+        "rho estimate {rho:.5} ({} rows): {:.1} ms",
+        a.n,
+        t.elapsed().as_secs_f64() * 1e3
+    );
     let b: Vec<f64> = (0..3 * a.n).map(|_| rng.sym()).collect();
     for check_every in [16, 100] {
-        let mut solver = GpuJacobi::new(&ctx, &a, GpuJacobiParams { rho: Some(rho), check_every }).unwrap();
+        let mut solver = GpuJacobi::new(
+            &ctx,
+            &a,
+            GpuJacobiParams {
+                rho: Some(rho),
+                check_every,
+            },
+        )
+        .unwrap();
         let mut xs = vec![0.0; 3 * a.n];
         solver.solve(&b, None, &mut xs, 0.0, 100).unwrap();
         let t = Instant::now();
@@ -475,5 +588,76 @@ fn bench_gpu_kernels_79k_tets() {
     }
     let t = Instant::now();
     let _ = cpu_chebyshev(&a, None, &b, &vec![0.0; 3 * a.n], rho, 100);
-    eprintln!("cpu reference 100 iterations (sequential f64): {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    eprintln!(
+        "cpu reference 100 iterations (sequential f64): {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
+}
+
+#[test]
+fn gpu_node_projection_matches_cpu_loop() {
+    use knitvox::sim::contact::NodeProjector;
+    use knitvox::sim::gpu::{project_point, Collider, Colliders, GpuNodeProjector};
+    let Some(ctx) = gpu() else { return };
+    let mut rng = Rng(41);
+    let n = 2000;
+    let x: Vec<Vec3> = (0..n)
+        .map(|_| [0.2 * rng.sym(), 0.2 * rng.sym(), 0.2 * rng.sym()])
+        .collect();
+    let colliders = vec![
+        Collider::Plane {
+            point: [0.0, -0.05, 0.0],
+            normal: [0.1, 2.0, 0.0],
+            thickness: 0.002,
+        },
+        Collider::Sphere {
+            center: [0.05, 0.0, -0.02],
+            radius: 0.08,
+            thickness: 0.001,
+        },
+        Collider::Sphere {
+            center: [-0.1, 0.1, 0.1],
+            radius: 0.05,
+            thickness: 0.0,
+        },
+    ];
+    let mut proj = GpuNodeProjector::new(&ctx, n).unwrap();
+    let mut out = vec![None; n];
+    let count = proj.project_nodes(&x, &colliders, &mut out).unwrap();
+    let cpu = Colliders(colliders.clone());
+    let mut cpu_count = 0;
+    let mut max_err: f64 = 0.0;
+    for i in 0..n {
+        let c = cpu.project(i, x[i]);
+        cpu_count += c.is_some() as usize;
+        match (c, out[i]) {
+            (Some(a), Some(b)) => {
+                for k in 0..3 {
+                    max_err = max_err.max((a[k] - b[k]).abs());
+                }
+            }
+            (None, None) => {}
+            (a, b) => panic!("node {i} at {:?}: cpu {a:?} gpu {b:?}", x[i]),
+        }
+    }
+    eprintln!("{count} of {n} nodes projected, max position difference {max_err:.1e} m");
+    assert_eq!(count, cpu_count);
+    assert!(
+        count > n / 5 && count < n,
+        "{count} projected: the test must exercise both cases"
+    );
+    assert!(max_err < 1e-6, "{max_err}");
+    // A projected node is admissible: projecting again does not move it (up
+    // to f64 rounding of the plane offset).
+    let p = project_point(&colliders, [0.0, -0.1, 0.15]).unwrap();
+    assert!(
+        project_point(&colliders, p).is_none_or(|q| (0..3).all(|k| (q[k] - p[k]).abs() < 1e-12))
+    );
+    // Invalid colliders are refused.
+    let bad = [Collider::Plane {
+        point: [0.0; 3],
+        normal: [0.0; 3],
+        thickness: 0.0,
+    }];
+    assert!(proj.project_nodes(&x, &bad, &mut out).is_err());
 }

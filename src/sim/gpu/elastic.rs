@@ -130,7 +130,11 @@ impl GpuElasticRhs {
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let x_buf = ctx.buffer("x", 12 * nn as u64, storage);
         let corners_buf = ctx.buffer("corners", 64 * nt as u64, storage);
-        let out_buf = ctx.buffer("rhs", 12 * nn as u64, storage | wgpu::BufferUsages::COPY_SRC);
+        let out_buf = ctx.buffer(
+            "rhs",
+            12 * nn as u64,
+            storage | wgpu::BufferUsages::COPY_SRC,
+        );
         let partials_buf = ctx.buffer(
             "energy partials",
             8 * n_partials as u64,
@@ -270,7 +274,9 @@ impl GpuElasticRhs {
         }
         let out_bytes = 12 * nn as u64;
         let n_partials = grid_groups(self.reduce_grid);
-        encoder.copy_buffer_to_buffer(&self.out_buf, 0, &self.staging, 0, out_bytes);
+        if out_bytes > 0 {
+            encoder.copy_buffer_to_buffer(&self.out_buf, 0, &self.staging, 0, out_bytes);
+        }
         encoder.copy_buffer_to_buffer(
             &self.partials_buf,
             0,

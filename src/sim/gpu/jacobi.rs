@@ -116,6 +116,20 @@ pub fn estimate_jacobi_radius(a: &CsrMatrix) -> Result<f64, GpuError> {
     Ok(estimate + 0.1 * (1.0 - estimate))
 }
 
+/// Most iteration slots of the parameter buffer (one uniform slot each).
+const MAX_OMEGA_SLOTS: usize = 4096;
+
+/// Number of distinct `ω_k` to store: until they settle to their limit
+/// `2 / (1 + sqrt(1 - ρ²))` within 1e-9 (far below `f32` resolution), at
+/// least 2, at most [`MAX_OMEGA_SLOTS`].
+fn omega_slots(rho: f64) -> usize {
+    let w = chebyshev_omegas(rho, MAX_OMEGA_SLOTS);
+    let limit = 2.0 / (1.0 + (1.0 - rho * rho).max(0.0).sqrt());
+    w.iter()
+        .position(|x| (x - limit).abs() <= 1e-9)
+        .map_or(MAX_OMEGA_SLOTS, |k| (k + 1).max(2))
+}
+
 /// The Chebyshev weight `ω_k` (1-based `k`) for spectral radius `rho`.
 pub fn chebyshev_omegas(rho: f64, count: usize) -> Vec<f64> {
     let r2 = rho * rho;
@@ -221,14 +235,15 @@ pub struct GpuJacobi {
     n: usize,
     rho: f64,
     check_every: u32,
-    layout: wgpu::BindGroupLayout,
     cheb_pipeline: wgpu::ComputePipeline,
     residual_pipeline: wgpu::ComputePipeline,
     bufs: Buffers,
     staging: wgpu::Buffer,
     /// One `Params` slot per dispatch kind: slot 0 and 1 the residual into
-    /// partials `[0, G)` and `[G, 2G)`, slot `1 + k` iteration `k`.
-    params_buf: wgpu::Buffer,
+    /// partials `[0, G)` and `[G, 2G)`, slot `1 + k` iteration `k` (the last
+    /// slot serves all later iterations).
+    /// Owned beside the bind groups that bind it (never read directly).
+    _params_buf: wgpu::Buffer,
     param_stride: u64,
     param_slots: usize,
     /// Bind groups (x_cur = xa, x_out = xb) and (x_cur = xb, x_out = xa).
@@ -269,7 +284,11 @@ impl GpuJacobi {
     /// Uploads `a` (square, both triangles, positive diagonal; rounded to
     /// `f32`) and builds the kernels. `params.rho = None` estimates `ρ`
     /// ([`estimate_jacobi_radius`]).
-    pub fn new(ctx: &GpuContext, a: &CsrMatrix, params: GpuJacobiParams) -> Result<GpuJacobi, GpuError> {
+    pub fn new(
+        ctx: &GpuContext,
+        a: &CsrMatrix,
+        params: GpuJacobiParams,
+    ) -> Result<GpuJacobi, GpuError> {
         let n = a.n;
         let nnz = a.col.len();
         if a.row_ptr.len() != n + 1
@@ -382,20 +401,19 @@ impl GpuJacobi {
             partials: partials_buf,
         };
         let groups32 = to_u32(groups, "workgroups")?;
-        let slots = 2 + 64;
+        let slots = 2 + omega_slots(rho);
         let (params_buf, bind_groups) =
             bind(ctx, &layout, &bufs, rho, n, groups32, param_stride, slots);
-        let mut solver = GpuJacobi {
+        let solver = GpuJacobi {
             ctx: ctx.clone(),
             n,
             rho,
             check_every: params.check_every,
-            layout,
             cheb_pipeline,
             residual_pipeline,
             bufs,
             staging,
-            params_buf,
+            _params_buf: params_buf,
             param_stride,
             param_slots: slots,
             bind_groups,
@@ -403,7 +421,6 @@ impl GpuJacobi {
             res_grid,
             scratch: Vec::new(),
         };
-        solver.ensure_slots(2 + 64)?;
         ctx.check("creating the Jacobi kernels")?;
         Ok(solver)
     }
@@ -418,32 +435,10 @@ impl GpuJacobi {
         &self.ctx
     }
 
-    /// Makes room for `slots` parameter slots (2 residual slots plus one per
-    /// iteration) and rebuilds the bind groups on the new uniform buffer.
-    fn ensure_slots(&mut self, slots: usize) -> Result<(), GpuError> {
-        if slots <= self.param_slots {
-            return Ok(());
-        }
-        let slots = slots.next_power_of_two();
-        let groups = to_u32(grid_groups(self.res_grid), "workgroups")?;
-        let (params_buf, bind_groups) = bind(
-            &self.ctx,
-            &self.layout,
-            &self.bufs,
-            self.rho,
-            self.n,
-            groups,
-            self.param_stride,
-            slots,
-        );
-        self.params_buf = params_buf;
-        self.bind_groups = bind_groups;
-        self.param_slots = slots;
-        Ok(())
-    }
-
+    /// Dynamic offset of the parameter slot `slot`; iterations past the last
+    /// slot reuse it (`ω_k` has converged to `f32` precision there).
     fn offset(&self, slot: usize) -> u32 {
-        (slot as u64 * self.param_stride) as u32
+        (slot.min(self.param_slots - 1) as u64 * self.param_stride) as u32
     }
 
     /// Reads back `n x 3` values of `buf`.
@@ -500,7 +495,9 @@ impl GpuJacobi {
         }
         let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         if !b_norm.is_finite() {
-            return Err(SimError::Inconsistent("Jacobi right-hand side is not finite".into()));
+            return Err(SimError::Inconsistent(
+                "Jacobi right-hand side is not finite".into(),
+            ));
         }
         if b_norm == 0.0 {
             // (A + D) is SPD: the solution is 0 and the relative residual 0 by
@@ -511,13 +508,17 @@ impl GpuJacobi {
                 relative_residual: 0.0,
             });
         }
-        self.ensure_slots(2 + max_iterations as usize)?;
         let ctx = self.ctx.clone();
-        ctx.queue
-            .write_buffer(&self.bufs.rhs, 0, bytemuck::cast_slice(&to_f32_vec(b, "rhs")?));
+        ctx.queue.write_buffer(
+            &self.bufs.rhs,
+            0,
+            bytemuck::cast_slice(&to_f32_vec(b, "rhs")?),
+        );
         let x32 = to_f32_vec(x, "initial guess")?;
-        ctx.queue.write_buffer(&self.bufs.xa, 0, bytemuck::cast_slice(&x32));
-        ctx.queue.write_buffer(&self.bufs.xb, 0, bytemuck::cast_slice(&x32));
+        ctx.queue
+            .write_buffer(&self.bufs.xa, 0, bytemuck::cast_slice(&x32));
+        ctx.queue
+            .write_buffer(&self.bufs.xb, 0, bytemuck::cast_slice(&x32));
         self.scratch.clear();
         match extra_diag {
             Some(d) => self.scratch.extend(d.iter().map(|&v| v as f32)),
@@ -566,9 +567,11 @@ impl GpuJacobi {
                 0,
                 8 * groups as u64,
             );
-            let bytes = ctx.submit_and_read(encoder, &self.staging, 8 * groups as u64, "Jacobi residual")?;
+            let bytes =
+                ctx.submit_and_read(encoder, &self.staging, 8 * groups as u64, "Jacobi residual")?;
             let parts: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes);
-            let norm = |p: &[f32]| p.iter().map(|&v| v as f64).sum::<f64>().max(0.0).sqrt() / b_norm;
+            let norm =
+                |p: &[f32]| p.iter().map(|&v| v as f64).sum::<f64>().max(0.0).sqrt() / b_norm;
             if first {
                 let r0 = norm(&parts[..groups]);
                 if r0 <= tolerance {
@@ -583,7 +586,11 @@ impl GpuJacobi {
             iterations += chunk;
             let r = norm(&parts[groups..2 * groups]);
             if !(r <= DIVERGED_RESIDUAL) {
-                let xs = self.read_x(if cur == 0 { &self.bufs.xa } else { &self.bufs.xb })?;
+                let xs = self.read_x(if cur == 0 {
+                    &self.bufs.xa
+                } else {
+                    &self.bufs.xb
+                })?;
                 let node = worst_node(&xs);
                 return Err(SimError::Diverged {
                     // The solver does not know the time step; the time loop
@@ -601,7 +608,11 @@ impl GpuJacobi {
                 break r;
             }
         };
-        let xs = self.read_x(if cur == 0 { &self.bufs.xa } else { &self.bufs.xb })?;
+        let xs = self.read_x(if cur == 0 {
+            &self.bufs.xa
+        } else {
+            &self.bufs.xb
+        })?;
         for (o, v) in x.iter_mut().zip(&xs) {
             *o = *v as f64;
         }
@@ -616,7 +627,13 @@ impl GpuJacobi {
 fn worst_node(x: &[f32]) -> usize {
     let mut worst = (0usize, -1.0f32);
     for (i, p) in x.chunks_exact(3).enumerate() {
-        let m = p.iter().fold(0.0f32, |m, v| if v.is_finite() { m.max(v.abs()) } else { f32::INFINITY });
+        let m = p.iter().fold(0.0f32, |m, v| {
+            if v.is_finite() {
+                m.max(v.abs())
+            } else {
+                f32::INFINITY
+            }
+        });
         if m > worst.1 {
             worst = (i, m);
             if m == f32::INFINITY {
@@ -660,6 +677,16 @@ mod tests {
     }
 
     #[test]
+    fn omega_slots_stop_when_the_weights_settle() {
+        assert_eq!(omega_slots(0.0), 2);
+        let k = omega_slots(0.99);
+        assert!(k > 10 && k < MAX_OMEGA_SLOTS, "{k}");
+        let w = chebyshev_omegas(0.99, MAX_OMEGA_SLOTS);
+        assert!((w[k - 1] - w[MAX_OMEGA_SLOTS - 1]).abs() < 1e-8);
+        assert!(omega_slots(0.999_999) <= MAX_OMEGA_SLOTS);
+    }
+
+    #[test]
     fn radius_estimate_of_a_1d_laplacian() {
         // tridiag(-1, 2 + m, -1): Jacobi radius 2 cos(pi / (n + 1)) / (2 + m).
         let n = 50;
@@ -679,7 +706,17 @@ mod tests {
         // A matrix on which Jacobi diverges is refused.
         let bad = CsrMatrix::from_triplets(
             3,
-            &[(0, 0, 1.0), (1, 1, 1.0), (2, 2, 1.0), (0, 1, 0.9), (1, 0, 0.9), (0, 2, 0.9), (2, 0, 0.9), (1, 2, 0.9), (2, 1, 0.9)],
+            &[
+                (0, 0, 1.0),
+                (1, 1, 1.0),
+                (2, 2, 1.0),
+                (0, 1, 0.9),
+                (1, 0, 0.9),
+                (0, 2, 0.9),
+                (2, 0, 0.9),
+                (1, 2, 0.9),
+                (2, 1, 0.9),
+            ],
         )
         .unwrap();
         assert!(estimate_jacobi_radius(&bad).is_err());
