@@ -278,9 +278,9 @@ fn pd_matrix(mesh: &TetMesh, m: &ElasticModel) -> CsrMatrix {
     let n = mesh.num_nodes();
     let mut free_index = vec![usize::MAX; n];
     let mut nf = 0;
-    for i in 0..n {
-        if mesh.nodes[i][1] > 1e-9 {
-            free_index[i] = nf;
+    for (fi, p) in free_index.iter_mut().zip(&mesh.nodes) {
+        if p[1] > 1e-9 {
+            *fi = nf;
             nf += 1;
         }
     }

@@ -108,6 +108,8 @@ impl GpuElasticRhs {
             }
         }
 
+        ctx.fits("the per-tet corner vectors", 64 * nt as u64)?;
+        ctx.fits("the node incidence", 4 * incidence.len() as u64)?;
         let tet_grid = grid(nt, WG)?;
         let node_grid = grid(nn, WG)?;
         let reduce_grid = grid(nt, WG_REDUCE)?;

@@ -19,6 +19,9 @@
 //! is evaluated in `f32` (relative residuals below about 1e-6 are not
 //! resolved: such tolerances run to `max_iterations`).
 
+// `!(a > b)` is deliberate: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::{grid, grid_groups, layout_entry, to_u32, GpuContext, GpuError};
 use crate::sim::backend::{IterStats, JacobiSolve};
 use crate::sim::csr::CsrMatrix;
@@ -334,6 +337,8 @@ impl GpuJacobi {
         let val = to_f32_vec(&a.val, "matrix")?;
         let diag32 = to_f32_vec(&diag, "diagonal")?;
 
+        ctx.fits("the CSR indices", 4 * idx.len() as u64)?;
+        ctx.fits("the solution", 12 * n as u64)?;
         let row_grid = grid(n, WG)?;
         let res_grid = grid(n, WG_REDUCE)?;
         let groups = grid_groups(res_grid);

@@ -147,6 +147,7 @@ impl GpuNodeProjector {
     /// Buffers for `num_nodes` nodes.
     pub fn new(ctx: &GpuContext, num_nodes: usize) -> Result<GpuNodeProjector, GpuError> {
         to_u32(3 * num_nodes, "3 x node count")?;
+        ctx.fits("the projected nodes", 16 * num_nodes as u64)?;
         let node_grid = grid(num_nodes, WG)?;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let params_buf = ctx.buffer(
