@@ -661,3 +661,36 @@ fn gpu_node_projection_matches_cpu_loop() {
     }];
     assert!(proj.project_nodes(&x, &bad, &mut out).is_err());
 }
+
+#[test]
+fn gpu_chebyshev_jacobi_reports_divergence() {
+    let Some(ctx) = gpu() else { return };
+    // SPD, but the Jacobi iteration matrix has the eigenvalue -1.8: the
+    // iteration diverges, which must end in an error naming a node rather
+    // than in NaN positions.
+    let mut t = Vec::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            t.push((i, j, if i == j { 1.0 } else { 0.9 }));
+        }
+    }
+    let a = CsrMatrix::from_triplets(3, &t).unwrap();
+    assert!(knitvox::sim::gpu::estimate_jacobi_radius(&a).is_err());
+    let mut solver = GpuJacobi::new(
+        &ctx,
+        &a,
+        GpuJacobiParams {
+            rho: Some(0.5),
+            check_every: 8,
+        },
+    )
+    .unwrap();
+    let b = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let mut x = [0.0; 9];
+    match solver.solve(&b, None, &mut x, 1e-6, 500) {
+        Err(SimError::Diverged { node, reason, .. }) => {
+            assert!(node < 3 && reason.contains("diverged"), "{node} {reason}");
+        }
+        other => panic!("expected divergence, got {other:?}"),
+    }
+}
