@@ -207,6 +207,31 @@ fn gpu_elastic_rhs_matches_cpu_reference() {
     assert!(mesh.tets.iter().any(|t| det_sign(&poses[1].1, t) < 0.0));
     assert!(poses[4].1.len() == n);
 
+    // The factor-2 convention of sim::pd: the energy gradient of
+    // sim::energy is `Σ_e 2 V_e (γs + γv) F_e ∇N_a - out[a]`.
+    let x = &poses[0].1;
+    let mut out = vec![[0.0; 3]; n];
+    gpu_rhs.evaluate(x, &mut out).unwrap();
+    let grad = m.gradient(x).unwrap();
+    let fs = m.deformation_gradients(x).unwrap();
+    let mut from_rhs = vec![[0.0; 3]; n];
+    for (e, r) in m.rest().iter().enumerate() {
+        let p = 2.0 * r.volume * (m.gamma_s()[e] + m.gamma_v()[e]) * fs[e];
+        for (a, g) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
+            for k in 0..3 {
+                from_rhs[r.nodes[a]][k] += g[k];
+            }
+        }
+    }
+    for (f, o) in from_rhs.iter_mut().zip(&out) {
+        for k in 0..3 {
+            f[k] -= o[k];
+        }
+    }
+    let g_err = rel_diff(&from_rhs, &grad);
+    eprintln!("gradient from the GPU rhs vs sim::energy: rel err {g_err:.2e}");
+    assert!(g_err <= 1e-4, "gradient relation: {g_err}");
+
     // At rest: zero energy and the rhs equals the elastic force-free one.
     let mut out = vec![[0.0; 3]; n];
     let ev = gpu_rhs.evaluate(&mesh.nodes, &mut out).unwrap();

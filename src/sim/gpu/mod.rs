@@ -344,6 +344,16 @@ mod tests {
     }
 
     #[test]
+    fn kernels_can_move_between_threads() {
+        // The time loop may own its backends from a worker thread.
+        fn send_sync<T: Send + Sync>() {}
+        send_sync::<GpuContext>();
+        send_sync::<GpuElasticRhs>();
+        send_sync::<GpuJacobi>();
+        send_sync::<GpuNodeProjector>();
+    }
+
+    #[test]
     fn gpu_error_maps_to_sim_error() {
         let e: SimError = GpuError::Device("lost".into()).into();
         assert!(e.to_string().contains("GPU backend") && e.to_string().contains("lost"));
