@@ -17,6 +17,7 @@ pub mod cholesky;
 pub mod contact;
 pub mod csr;
 pub mod energy;
+pub mod gpu;
 pub mod local;
 pub mod pd;
 
