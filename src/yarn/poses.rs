@@ -421,6 +421,48 @@ impl PoseDriver {
         out
     }
 
+    /// Number of clamped groups (vertices sharing one map).
+    pub fn num_groups(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// The vertices of group `g` (indices into the rest state).
+    pub fn group_vertices(&self, g: usize) -> &[usize] {
+        let gr = &self.groups[g];
+        &self.pinned[gr.start..gr.start + gr.count]
+    }
+
+    /// Position (m) at time `t` (s) of a vertex of group `g` whose rest
+    /// position is `anchor` (m).
+    pub fn group_target(&self, g: usize, anchor: Vec3, t: f64) -> Vec3 {
+        let s = smooth_progress(t, self.params.ramp);
+        self.map(self.groups[g].role, anchor, s)
+    }
+
+    /// An upper bound (m/s) of the speed of any clamped vertex: the largest
+    /// displacement between fine samples of the ramp over their spacing,
+    /// with a 25% margin (the maps are smooth in the progress; the
+    /// smoothstep's speed peaks at 1.5 / ramp).
+    pub fn max_speed(&self) -> f64 {
+        if self.params.ramp <= 0.0 {
+            return f64::INFINITY;
+        }
+        const SAMPLES: usize = 256;
+        let h = self.params.ramp / SAMPLES as f64;
+        let mut prev = self.targets(0.0);
+        let mut best: f64 = 0.0;
+        for k in 1..=SAMPLES {
+            let cur = self.targets(k as f64 * h);
+            for (a, b) in prev.iter().zip(&cur) {
+                let d =
+                    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                best = best.max(d / h);
+            }
+            prev = cur;
+        }
+        1.25 * best
+    }
+
     fn map(&self, role: Role, q: Vec3, s: f64) -> Vec3 {
         let c = self.fabric.center();
         match role {
@@ -606,5 +648,30 @@ mod tests {
         let mut p = PoseParams::new(PoseKind::Shear, 0.1);
         p.band = 0.7;
         assert!(PoseDriver::new(&rest, p).is_err());
+    }
+
+    #[test]
+    fn groups_cover_pinned_and_speed_bounds_motion() {
+        let rest = grid();
+        let mut p = PoseParams::new(PoseKind::Twist, 2.0);
+        p.ramp = 0.5;
+        let d = PoseDriver::new(&rest, p).unwrap();
+        let total: usize = (0..d.num_groups()).map(|g| d.group_vertices(g).len()).sum();
+        assert_eq!(total, d.pinned().len());
+        let vmax = d.max_speed();
+        assert!(vmax.is_finite() && vmax > 0.0);
+        // Finite differences of every group target stay under the bound.
+        for g in 0..d.num_groups() {
+            for &v in d.group_vertices(g) {
+                for k in 0..50 {
+                    let (t0, t1) = (k as f64 * 0.01, k as f64 * 0.01 + 1e-4);
+                    let (a, b) = (
+                        d.group_target(g, rest[v], t0),
+                        d.group_target(g, rest[v], t1),
+                    );
+                    assert!(dist(a, b) / 1e-4 <= vmax);
+                }
+            }
+        }
     }
 }
