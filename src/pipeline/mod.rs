@@ -4,3 +4,4 @@
 pub mod asset;
 pub mod demo;
 pub mod inspect;
+pub mod pattern;
