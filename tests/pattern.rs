@@ -360,6 +360,33 @@ fn cli_errors_have_clear_messages_and_codes() {
         out,
     ]);
     assert_eq!(o.status.code(), Some(66));
+    // Out-of-range sizes are usage errors naming the flag.
+    let o = knitvox(&[
+        "pattern",
+        "seed",
+        "--courses",
+        "0",
+        "--wales",
+        "2",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("courses"));
+    let o = knitvox(&[
+        "pattern",
+        "rib2x2",
+        "--courses",
+        "2",
+        "--wales",
+        "6",
+        "--tube-radius",
+        "0.05",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("multiple of 4"));
     // Neither a name nor a grid.
     let o = knitvox(&["pattern", "--courses", "2", "--wales", "2", "-o", out]);
     assert_eq!(o.status.code(), Some(2));

@@ -7,7 +7,7 @@ use clap::Args;
 use super::{exit_code_for, ExitCode};
 use crate::io::{self, WriteOptions};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
-use crate::yarn::pattern::{Layout, PatternParams, BUILTIN_NAMES};
+use crate::yarn::pattern::{Layout, PatternError, PatternParams, BUILTIN_NAMES};
 
 #[derive(Debug, Args)]
 pub struct PatternArgs {
@@ -61,7 +61,10 @@ fn stage_exit_code(e: &PatternStageError) -> ExitCode {
             std::io::ErrorKind::InvalidData => ExitCode::BadInput,
             _ => ExitCode::MissingInput,
         },
-        PatternStageError::Grid { .. } | PatternStageError::Pattern(_) => ExitCode::BadInput,
+        PatternStageError::Grid { .. } => ExitCode::BadInput,
+        // Sizes and shape parameters come from the flags.
+        PatternStageError::Pattern(PatternError::BadParameter { .. }) => ExitCode::Usage,
+        PatternStageError::Pattern(_) => ExitCode::Internal,
     }
 }
 

@@ -168,7 +168,7 @@ fn sign(st: super::Stitch) -> f64 {
 
 /// The points of course `j` (row `j mod rows`) over `wales` wales starting at
 /// wale 0, the end point (next wale's sinker) excluded. Returns the points
-/// and the number of points per wale.
+/// and the number of points per wale (nothing for an empty or ragged grid).
 pub fn course_points(
     grid: &KnitGrid,
     shape: &LoopShape,
@@ -177,7 +177,10 @@ pub fn course_points(
     spacing: f64,
 ) -> (Vec<Vec3>, Vec<usize>) {
     let rows = grid.rows.len();
-    let cols = grid.rows[0].len();
+    let cols = grid.rows.first().map_or(0, Vec::len);
+    if cols == 0 || grid.rows.iter().any(|r| r.len() != cols) {
+        return (Vec::new(), Vec::new());
+    }
     let code = |jj: usize, i: usize| sign(grid.rows[jj % rows][i % cols]);
     let y0 = j as f64 * shape.h;
     let mut pts = Vec::new();

@@ -287,6 +287,10 @@ pub struct Layout {
 /// Largest swatch side accepted (courses and wales), against runaway memory.
 pub const MAX_STITCHES: usize = 100_000;
 
+/// Most stitches (courses x wales) in one swatch: about 32 million vertices,
+/// some 800 MB of points.
+pub const MAX_TOTAL_STITCHES: usize = 1_000_000;
+
 /// Lays out `tile` as a swatch.
 ///
 /// Flat: the tile is repeated and cut to `wales * pitch[0]` by `courses *
@@ -313,6 +317,14 @@ pub fn lay_out(tile: &PatternTile, layout: &Layout) -> Result<Yarns, PatternErro
                 message: format!("must be between 1 and {MAX_STITCHES}"),
             });
         }
+    }
+    let total = layout.courses.saturating_mul(layout.wales);
+    if total > MAX_TOTAL_STITCHES {
+        return Err(PatternError::BadParameter {
+            name: "courses x wales",
+            value: total as f64,
+            message: format!("at most {MAX_TOTAL_STITCHES} stitches per swatch"),
+        });
     }
     if let Some(r) = layout.tube_radius {
         if layout.wales % tile.repeat[0] != 0 {
