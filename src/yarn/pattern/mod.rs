@@ -643,6 +643,38 @@ mod tests {
     }
 
     #[test]
+    fn tiling_follows_continuations_and_closes_loops() {
+        // Curve 0 continues into curve 1 in the same copy, curve 1 into curve 0
+        // one copy to the right; curve 2 into itself in the same copy (a loop).
+        let mut y = Yarns::new();
+        y.push_curve(&[[0.0, 0.0, 0.0], [0.25, 0.0, 0.0]], false, 0.01);
+        y.push_curve(&[[0.5, 0.0, 0.0], [0.75, 0.0, 0.0]], false, 0.01);
+        y.push_curve(
+            &[[0.5, 0.5, 0.0], [0.6, 0.6, 0.0], [0.4, 0.6, 0.0]],
+            false,
+            0.01,
+        );
+        let t = PeriodicTile {
+            yarns: y,
+            lattice: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            next: vec![(1, [0, 0]), (0, [1, 0]), (2, [0, 0])],
+        };
+        let tiled = tile_periodic(&t, [3, 2]).unwrap();
+        // Per row: one open yarn through 3 copies, and 3 closed loops.
+        assert_eq!(tiled.num_curves(), 2 * (1 + 3));
+        assert_eq!(tiled.num_closed(), 6);
+        let open: Vec<usize> = (0..tiled.num_curves())
+            .filter(|&c| !tiled.closed[c])
+            .collect();
+        assert_eq!(open.len(), 2);
+        let row0 = tiled.curve(open[0]);
+        assert_eq!(row0.len(), 12);
+        for w in row0.windows(2) {
+            assert!((crate::geom::dist(w[0], w[1]) - 0.25).abs() < 1e-12);
+        }
+    }
+
+    #[test]
     fn bad_parameters_are_rejected() {
         let p = PatternParams {
             yarn_radius: -1.0,
