@@ -5,6 +5,7 @@ mod asset;
 mod bench;
 mod commands;
 pub mod exit;
+mod pattern;
 
 use std::path::PathBuf;
 
@@ -37,6 +38,8 @@ pub enum Command {
     Export(asset::ExportArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
+    /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
+    Pattern(pattern::PatternArgs),
     /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.
     Demo(DemoArgs),
     /// Print a shell completion script.
@@ -227,6 +230,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),
         },
+        Command::Pattern(a) => pattern::pattern(&a),
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {
             use clap::CommandFactory;

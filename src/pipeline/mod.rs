@@ -4,4 +4,5 @@
 pub mod asset;
 pub mod demo;
 pub mod inspect;
+pub mod pattern;
 pub mod yls_scene;

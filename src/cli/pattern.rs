@@ -1,0 +1,152 @@
+//! `knitvox pattern`: generate a stitch pattern as yarn curves.
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::{exit_code_for, ExitCode};
+use crate::io::{self, WriteOptions};
+use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
+use crate::yarn::pattern::{Layout, PatternError, PatternParams, BUILTIN_NAMES};
+
+#[derive(Debug, Args)]
+pub struct PatternArgs {
+    /// Built-in pattern: stockinette, garter, rib1x1, rib2x2, seed, basketweave
+    /// (knits); plain, twill, satin, basket (wovens).
+    #[arg(
+        value_name = "NAME",
+        required_unless_present = "grid",
+        conflicts_with = "grid"
+    )]
+    pub name: Option<String>,
+    /// A stitch grid file instead of a name (K/P or 0/1 text; schemas/pattern-grid.md).
+    #[arg(long, value_name = "FILE")]
+    pub grid: Option<PathBuf>,
+    /// Courses (knit) or wefts (woven) along +Y.
+    #[arg(long, value_name = "N")]
+    pub courses: usize,
+    /// Wales (knit) or warps (woven) along +X (around a tube).
+    #[arg(long, value_name = "M")]
+    pub wales: usize,
+    /// Knit in the round: a tube of this mid-surface radius (m) around +Y
+    /// (--wales a multiple of the repeat); each course closes into a ring.
+    #[arg(long, value_name = "METRES")]
+    pub tube_radius: Option<f64>,
+    /// With --tube-radius: join the courses into one helix (one yarn, as
+    /// knitting in the round makes it) instead of rings.
+    #[arg(long, requires = "tube_radius")]
+    pub helix: bool,
+    /// Yarn radius r (m); stitch sizes scale with it [default: 0.001, HYLC's r].
+    #[arg(long, value_name = "METRES")]
+    pub yarn_radius: Option<f64>,
+    /// Vertex spacing along the yarn, in yarn radii.
+    #[arg(long, value_name = "R", default_value_t = 1.25)]
+    pub spacing: f64,
+    /// Skip the yarn-level relaxation (it is not wired in yet: the curves are
+    /// always the unrelaxed, interpenetration-free starting state).
+    #[arg(long)]
+    pub no_relax: bool,
+    /// Output yarn file (bcc, obj, ply, gltf, glb, h5).
+    #[arg(long, short, value_name = "FILE")]
+    pub output: PathBuf,
+    /// Print a JSON summary (curves, vertices, size, min distance ratio).
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn stage_exit_code(e: &PatternStageError) -> ExitCode {
+    match e {
+        PatternStageError::UnknownPattern(_) => ExitCode::Usage,
+        PatternStageError::Read { source, .. } => match source.kind() {
+            std::io::ErrorKind::InvalidData => ExitCode::BadInput,
+            _ => ExitCode::MissingInput,
+        },
+        PatternStageError::Grid { .. } => ExitCode::BadInput,
+        // Sizes and shape parameters come from the flags.
+        PatternStageError::Pattern(PatternError::BadParameter { .. }) => ExitCode::Usage,
+        PatternStageError::Pattern(_) => ExitCode::Internal,
+    }
+}
+
+pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
+    let source = match (&a.name, &a.grid) {
+        (_, Some(g)) => PatternSource::GridFile(g.clone()),
+        (Some(n), None) => PatternSource::Builtin(n.clone()),
+        (None, None) => {
+            eprintln!(
+                "error: give a pattern name ({}) or --grid FILE",
+                BUILTIN_NAMES.join(", ")
+            );
+            return Ok(ExitCode::Usage);
+        }
+    };
+    let mut params = PatternParams {
+        spacing: a.spacing,
+        ..PatternParams::default()
+    };
+    if let Some(r) = a.yarn_radius {
+        params.yarn_radius = r;
+    }
+    let job = PatternJob {
+        source,
+        layout: Layout {
+            courses: a.courses,
+            wales: a.wales,
+            tube_radius: a.tube_radius,
+            helix: a.helix,
+        },
+        params,
+        relax: !a.no_relax,
+    };
+    // Library errors are reported here: their exit codes depend on the kind
+    // (an unknown name is a usage error, a bad grid bad input).
+    let (yarns, mut report) = match generate(&job) {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Ok(stage_exit_code(&e));
+        }
+    };
+    let written = match io::write_path(&a.output, &yarns, None, &WriteOptions::default()) {
+        Ok(w) => w,
+        Err(e) => {
+            let e = anyhow::Error::new(e);
+            eprintln!("error: {e:#}");
+            return Ok(exit_code_for(&e));
+        }
+    };
+    report.written = written;
+    if report.min_distance_ratio < 0.95 {
+        eprintln!(
+            "warning: yarns come as close as {:.3} x 2r (shape parameters or tube radius too tight)",
+            report.min_distance_ratio
+        );
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} ({}, repeat {}x{}): {} courses x {} wales{} -> {} curves, {} vertices ({:.1} per stitch), \
+             size {:.4} x {:.4} x {:.4} m, min distance {:.3} x 2r, {}",
+            report.pattern,
+            report.kind,
+            report.repeat[0],
+            report.repeat[1],
+            report.courses,
+            report.wales,
+            report.tube_radius.map_or(String::new(), |r| format!(", tube R = {r} m")),
+            report.curves,
+            report.vertices,
+            report.vertices_per_stitch,
+            report.size[0],
+            report.size[1],
+            report.size[2],
+            report.min_distance_ratio,
+            if report.relaxed { "relaxed" } else { "not relaxed" },
+        );
+        for p in &report.written {
+            println!("{}", p.display());
+        }
+    }
+    Ok(ExitCode::Success)
+}

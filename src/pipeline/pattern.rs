@@ -1,0 +1,237 @@
+//! The `knitvox pattern` stage: a named or grid pattern -> periodic tile ->
+//! (relaxation) -> flat swatch or tube -> clearance check and report.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::geom::Yarns;
+use crate::yarn::pattern::{
+    self, build_tile, lay_out, min_segment_distance, Layout, Pattern, PatternError, PatternParams,
+    PatternTile,
+};
+
+/// Where the pattern comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PatternSource {
+    /// A built-in name (`yarn::pattern::BUILTIN_NAMES`).
+    Builtin(String),
+    /// A grid text file (`schemas/pattern-grid.md`).
+    GridFile(PathBuf),
+}
+
+/// Everything `knitvox pattern` needs.
+#[derive(Debug, Clone)]
+pub struct PatternJob {
+    pub source: PatternSource,
+    pub layout: Layout,
+    pub params: PatternParams,
+    /// Run the yarn-level relaxation (currently a no-op, see `relax_stage`).
+    pub relax: bool,
+}
+
+/// Why the stage failed. The CLI maps `UnknownPattern` to a usage error,
+/// `Grid`/`Pattern` to bad input and `Read` to a missing input.
+#[derive(Debug, thiserror::Error)]
+pub enum PatternStageError {
+    #[error("{path}: cannot read: {source}", path = path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A grid file is malformed: `path:line:column: message`.
+    #[error("{path}:{line}:{column}: {message}", path = path.display())]
+    Grid {
+        path: PathBuf,
+        line: usize,
+        column: usize,
+        message: String,
+    },
+    #[error("{0}")]
+    UnknownPattern(PatternError),
+    #[error("{0}")]
+    Pattern(PatternError),
+}
+
+/// What was generated (lengths in metres).
+#[derive(Debug, Clone, Serialize)]
+pub struct PatternReport {
+    /// Built-in name or grid file path.
+    pub pattern: String,
+    /// "knit" or "woven".
+    pub kind: &'static str,
+    /// One repeat: [columns, rows] (wales x courses; warps x wefts).
+    pub repeat: [usize; 2],
+    pub courses: usize,
+    pub wales: usize,
+    /// Tube radius (m), null for a flat swatch.
+    pub tube_radius: Option<f64>,
+    /// Tubes: courses joined into one helix (else closed rings).
+    pub helix: bool,
+    /// 2 pi R / (wales * wale width) for tubes, 1 for flat swatches.
+    pub circumferential_stretch: f64,
+    pub yarn_radius: f64,
+    /// Pitch (m): [wale width, course height] (knit) or [spacing, spacing] (woven).
+    pub pitch: [f64; 2],
+    pub curves: usize,
+    pub vertices: usize,
+    pub segments: usize,
+    /// Vertices per stitch (knit) or per crossing (woven) of the tile.
+    pub vertices_per_stitch: f64,
+    pub total_length: f64,
+    /// Bounding-box size (m).
+    pub size: [f64; 3],
+    /// Smallest distance between non-adjacent segments / 2r (>= 1: no
+    /// interpenetration), searched up to 4r; see `yarn::pattern::distance`.
+    pub min_distance_ratio: f64,
+    pub min_distance: f64,
+    /// Whether the yarn-level relaxation ran (false until `yarn::sim` lands).
+    pub relaxed: bool,
+    /// Periodic tile figures.
+    pub tile_curves: usize,
+    pub tile_vertices: usize,
+    pub lattice: [[f64; 3]; 2],
+    /// Files written (filled in by the caller).
+    pub written: Vec<PathBuf>,
+}
+
+/// Resolves the pattern of a job (reads the grid file if any).
+pub fn load_pattern(source: &PatternSource) -> Result<Pattern, PatternStageError> {
+    match source {
+        PatternSource::Builtin(name) => {
+            pattern::builtin(name).map_err(PatternStageError::UnknownPattern)
+        }
+        PatternSource::GridFile(path) => {
+            let text = std::fs::read_to_string(path).map_err(|source| PatternStageError::Read {
+                path: path.clone(),
+                source,
+            })?;
+            pattern::parse_grid(&text).map_err(|e| grid_error(path, e))
+        }
+    }
+}
+
+fn grid_error(path: &Path, e: PatternError) -> PatternStageError {
+    match e {
+        PatternError::Grid {
+            line,
+            column,
+            message,
+        } => PatternStageError::Grid {
+            path: path.to_path_buf(),
+            line,
+            column,
+            message,
+        },
+        other => PatternStageError::Pattern(other),
+    }
+}
+
+/// Runs the stage: pattern -> tile -> relaxation -> layout -> report.
+pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStageError> {
+    let pat = load_pattern(&job.source)?;
+    let tile = build_tile(&pat, &job.params).map_err(PatternStageError::Pattern)?;
+    let (yarns, relaxed) = relax_stage(&tile, &job.layout, job.relax)?;
+    let r = job.params.yarn_radius;
+    let md = min_segment_distance(&yarns, std::f64::consts::PI * r, 4.0 * r);
+    let stitches = (tile.repeat[0] * tile.repeat[1]).max(1) as f64;
+    // Woven: a crossing holds one weft and one warp interval.
+    let per_stitch = tile.tile.yarns.num_points() as f64 / stitches;
+    let report = PatternReport {
+        pattern: match &job.source {
+            PatternSource::Builtin(n) => n.clone(),
+            PatternSource::GridFile(p) => p.display().to_string(),
+        },
+        kind: pat.kind(),
+        repeat: tile.repeat,
+        courses: job.layout.courses,
+        wales: job.layout.wales,
+        tube_radius: job.layout.tube_radius,
+        helix: job.layout.helix,
+        circumferential_stretch: job.layout.circumferential_stretch(&tile),
+        yarn_radius: r,
+        pitch: tile.pitch,
+        curves: yarns.num_curves(),
+        vertices: yarns.num_points(),
+        segments: yarns.num_segments(),
+        vertices_per_stitch: per_stitch,
+        total_length: yarns.total_length(),
+        size: yarns.bounds().map_or([0.0; 3], |b| b.size()),
+        min_distance_ratio: md.ratio,
+        min_distance: md.distance,
+        relaxed,
+        tile_curves: tile.tile.yarns.num_curves(),
+        tile_vertices: tile.tile.yarns.num_points(),
+        lattice: tile.tile.lattice,
+        written: Vec::new(),
+    };
+    Ok((yarns, report))
+}
+
+/// The relaxation stage (issue 3: periodic relaxation of one tile, then
+/// tiling, then a short non-periodic relaxation of the swatch). Returns the
+/// laid-out yarns and whether a relaxation ran.
+///
+/// TODO(merge): `yarn::sim` is being written beside this module. When it
+/// lands, replace the body with:
+///
+/// ```text
+/// if relax {
+///     let (relaxed, _) = yarn::sim::relax_periodic(&tile.tile, &sim_params, &periodic_opts)?;
+///     let tile = PatternTile { tile: relaxed, ..tile.clone() };
+///     let swatch = lay_out(&tile, layout)?;
+///     let (swatch, _) = yarn::sim::relax(&swatch, &sim_params, &short_opts)?;
+///     return Ok((swatch, true));
+/// }
+/// ```
+///
+/// (with `sim_params` from the pattern's yarn radius, and the stats added to
+/// the report). Until then it lays out the unrelaxed tile, whatever `relax` says.
+fn relax_stage(
+    tile: &PatternTile,
+    layout: &Layout,
+    relax: bool,
+) -> Result<(Yarns, bool), PatternStageError> {
+    let _ = relax; // TODO(merge): see above.
+    let yarns = lay_out(tile, layout).map_err(PatternStageError::Pattern)?;
+    Ok((yarns, false))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generate_reports_counts() {
+        let job = PatternJob {
+            source: PatternSource::Builtin("garter".into()),
+            layout: Layout {
+                courses: 4,
+                wales: 5,
+                tube_radius: None,
+                helix: false,
+            },
+            params: PatternParams::default(),
+            relax: true,
+        };
+        let (y, r) = generate(&job).unwrap();
+        assert_eq!(r.curves, 4);
+        assert_eq!(r.vertices, y.num_points());
+        assert!(!r.relaxed);
+        assert!(r.min_distance_ratio >= 0.95, "{}", r.min_distance_ratio);
+        assert_eq!(r.repeat, [1, 2]);
+    }
+
+    #[test]
+    fn grid_errors_carry_the_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("g.grid");
+        std::fs::write(&p, "K\nZ\n").unwrap();
+        let e = load_pattern(&PatternSource::GridFile(p.clone())).unwrap_err();
+        assert_eq!(
+            e.to_string().split(": ").next().unwrap(),
+            format!("{}:2:1", p.display())
+        );
+    }
+}

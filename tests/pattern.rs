@@ -1,0 +1,395 @@
+//! Stitch-pattern generator (`yarn::pattern`) and `knitvox pattern`.
+
+mod common;
+
+use std::f64::consts::PI;
+use std::process::Command;
+
+use knitvox::geom::{dist, Yarns};
+use knitvox::io::{self, ReadOptions};
+use knitvox::yarn::pattern::{
+    build_tile, builtin, lay_out, min_segment_distance, parse_grid, tile_periodic, Layout, Pattern,
+    PatternError, PatternParams, BUILTIN_NAMES,
+};
+
+/// The clearance bound every built-in meets before relaxation (issue 3).
+const BOUND: f64 = 0.95;
+
+fn clearance(y: &Yarns, r: f64) -> f64 {
+    min_segment_distance(y, PI * r, 4.0 * r).ratio
+}
+
+fn swatch(name: &str, courses: usize, wales: usize, tube: Option<f64>) -> Yarns {
+    let p = PatternParams::default();
+    let t = build_tile(&builtin(name).unwrap(), &p).unwrap();
+    lay_out(
+        &t,
+        &Layout {
+            courses,
+            wales,
+            tube_radius: tube,
+            helix: false,
+        },
+    )
+    .unwrap()
+}
+
+#[test]
+fn every_builtin_builds_valid_tiles_and_swatches() {
+    let p = PatternParams::default();
+    for name in BUILTIN_NAMES {
+        let pat = builtin(name).unwrap();
+        let t = build_tile(&pat, &p).unwrap();
+        t.tile.validate().unwrap();
+        t.tile.yarns.validate().unwrap();
+        let [cols, rows] = pat.repeat();
+        // Lattice vectors are the tile size.
+        assert!(
+            (t.tile.lattice[0][0] - cols as f64 * t.pitch[0]).abs() < 1e-12,
+            "{name}"
+        );
+        assert!(
+            (t.tile.lattice[1][1] - rows as f64 * t.pitch[1]).abs() < 1e-12,
+            "{name}"
+        );
+        let (n, m) = (5, 3);
+        let y = lay_out(
+            &t,
+            &Layout {
+                courses: n,
+                wales: m,
+                tube_radius: None,
+                helix: false,
+            },
+        )
+        .unwrap();
+        y.validate().unwrap();
+        let expect = match pat {
+            Pattern::Knit(_) => n,
+            Pattern::Woven(_) => n + m,
+        };
+        assert_eq!(y.num_curves(), expect, "{name}");
+        assert_eq!(y.num_closed(), 0);
+        // The swatch spans M pitches along x and N along y (to the loop sizes).
+        let b = y.bounds().unwrap();
+        assert!(
+            (b.max[0] - b.min[0] - m as f64 * t.pitch[0]).abs() < 0.5 * t.pitch[0] + 1e-9,
+            "{name} {b:?}"
+        );
+        // Segments never exceed about the documented spacing.
+        assert!(
+            y.max_segment_length() < 1.6 * p.spacing * p.yarn_radius,
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn tiles_tiled_3x3_give_continuous_yarns() {
+    let p = PatternParams::default();
+    let h = p.spacing * p.yarn_radius;
+    for name in BUILTIN_NAMES {
+        let t = build_tile(&builtin(name).unwrap(), &p).unwrap();
+        let y = tile_periodic(&t.tile, [3, 3]).unwrap();
+        y.validate().unwrap();
+        // Every chain is continuous: consecutive points (including across tile
+        // boundaries) are at the sampling distance, never a jump.
+        for c in 0..y.num_curves() {
+            for w in y.curve(c).windows(2) {
+                let d = dist(w[0], w[1]);
+                assert!(d > 0.2 * h && d < 1.6 * h, "{name}: curve {c} step {d}");
+            }
+        }
+        // Knits: one yarn per course (3 tiles wide); wovens: wefts and warps.
+        let [cols, rows] = t.repeat;
+        let expect = match builtin(name).unwrap() {
+            Pattern::Knit(_) => 3 * rows,
+            Pattern::Woven(_) => 3 * rows + 3 * cols,
+        };
+        assert_eq!(y.num_curves(), expect, "{name}");
+        let want = 3 * t.tile.yarns.num_points() * 3;
+        assert_eq!(y.num_points(), want, "{name}");
+    }
+}
+
+#[test]
+fn every_builtin_keeps_clear_of_itself_before_relaxation() {
+    let p = PatternParams::default();
+    let r = p.yarn_radius;
+    let mut report = Vec::new();
+    for name in BUILTIN_NAMES {
+        let t = build_tile(&builtin(name).unwrap(), &p).unwrap();
+        // The periodic tile with all its neighbours.
+        let tiled = tile_periodic(&t.tile, [3, 3]).unwrap();
+        let tile_ratio = clearance(&tiled, r);
+        // A small flat swatch that is not a multiple of the repeat.
+        let flat = swatch(name, 7, 9, None);
+        let flat_ratio = clearance(&flat, r);
+        report.push(format!(
+            "{name}: tile 3x3 {tile_ratio:.3}, swatch 7x9 {flat_ratio:.3}"
+        ));
+        assert!(tile_ratio >= BOUND, "{name}: tile clearance {tile_ratio}");
+        assert!(flat_ratio >= BOUND, "{name}: swatch clearance {flat_ratio}");
+    }
+    eprintln!("{}", report.join("\n"));
+}
+
+#[test]
+fn tubes_close_courses_into_rings_with_clearance() {
+    let p = PatternParams::default();
+    let r = p.yarn_radius;
+    for name in ["stockinette", "rib1x1", "garter", "seed", "plain", "satin"] {
+        let t = build_tile(&builtin(name).unwrap(), &p).unwrap();
+        let wales = 20;
+        let radius = wales as f64 * t.pitch[0] / (2.0 * PI);
+        let layout = Layout {
+            courses: 4,
+            wales,
+            tube_radius: Some(radius),
+            helix: false,
+        };
+        assert!((layout.circumferential_stretch(&t) - 1.0).abs() < 1e-12);
+        let y = lay_out(&t, &layout).unwrap();
+        let woven = matches!(name, "plain" | "satin");
+        assert_eq!(y.num_curves(), if woven { 4 + wales } else { 4 }, "{name}");
+        assert_eq!(y.num_closed(), 4, "{name}");
+        for c in 0..4 {
+            let ring = y.curve(c);
+            // Closed and continuous, including the closing segment.
+            for k in 0..ring.len() {
+                let d = dist(ring[k], ring[(k + 1) % ring.len()]);
+                assert!(d < 1.6 * p.spacing * r, "{name}: ring {c} step {k}: {d}");
+            }
+            for q in ring {
+                let rho = (q[0] * q[0] + q[2] * q[2]).sqrt();
+                assert!((rho - radius).abs() < 2.0 * r, "{name}: rho {rho}");
+            }
+        }
+        let ratio = clearance(&y, r);
+        eprintln!("{name}: tube R = {radius:.4} m ({wales} wales) clearance {ratio:.3}");
+        assert!(ratio >= BOUND, "{name}: tube clearance {ratio}");
+    }
+    // A tube needs whole repeats around.
+    let t = build_tile(&builtin("rib2x2").unwrap(), &p).unwrap();
+    let e = lay_out(
+        &t,
+        &Layout {
+            courses: 2,
+            wales: 6,
+            tube_radius: Some(0.05),
+            helix: false,
+        },
+    );
+    assert!(matches!(
+        e,
+        Err(PatternError::BadParameter { name: "wales", .. })
+    ));
+}
+
+#[test]
+fn helix_tubes_are_one_rising_yarn() {
+    let p = PatternParams::default();
+    let r = p.yarn_radius;
+    for name in ["stockinette", "rib1x1", "seed", "plain"] {
+        let t = build_tile(&builtin(name).unwrap(), &p).unwrap();
+        let wales = 20;
+        let radius = wales as f64 * t.pitch[0] / (2.0 * PI);
+        let layout = Layout {
+            courses: 4,
+            wales,
+            tube_radius: Some(radius),
+            helix: true,
+        };
+        let y = lay_out(&t, &layout).unwrap();
+        let woven = name == "plain";
+        assert_eq!(y.num_curves(), if woven { 1 + wales } else { 1 }, "{name}");
+        let helix = y.curve(0);
+        for w in helix.windows(2) {
+            let d = dist(w[0], w[1]);
+            assert!(d < 1.6 * p.spacing * r, "{name}: helix step {d}");
+        }
+        // It rises about one course per turn.
+        let rise = helix.last().unwrap()[1] - helix[0][1];
+        assert!(
+            (rise - 4.0 * t.pitch[1]).abs() < 0.5 * t.pitch[1],
+            "{name}: rise {rise}"
+        );
+        let ratio = clearance(&y, r);
+        eprintln!("{name}: helix tube clearance {ratio:.3}");
+        assert!(ratio >= BOUND, "{name}: helix clearance {ratio}");
+    }
+}
+
+#[test]
+fn generation_is_deterministic() {
+    let a = swatch("seed", 4, 6, None);
+    let b = swatch("seed", 4, 6, None);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn grid_parse_errors_name_line_and_column() {
+    match parse_grid("# rib\nKP\nKQ\n") {
+        Err(PatternError::Grid { line, column, .. }) => assert_eq!((line, column), (3, 2)),
+        other => panic!("{other:?}"),
+    }
+    match parse_grid("KPK\nKP\n") {
+        Err(PatternError::Grid { line, column, .. }) => assert_eq!((line, column), (2, 3)),
+        other => panic!("{other:?}"),
+    }
+    // A grid file and the matching built-in give the same curves.
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/seed.grid"))
+        .unwrap();
+    assert_eq!(parse_grid(&text).unwrap(), builtin("seed").unwrap());
+}
+
+fn knitvox(args: &[&str]) -> std::process::Output {
+    Command::new(common::knitvox_bin())
+        .args(args)
+        .output()
+        .expect("run knitvox")
+}
+
+#[test]
+fn cli_round_trip_h5_and_ply() {
+    let dir = tempfile::tempdir().unwrap();
+    for ext in ["h5", "ply"] {
+        let out = dir.path().join(format!("rib.{ext}"));
+        let o = knitvox(&[
+            "pattern",
+            "rib1x1",
+            "--courses",
+            "4",
+            "--wales",
+            "6",
+            "--json",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let d = io::read_path(&out, &ReadOptions::default()).unwrap();
+        assert_eq!(d.yarns.num_curves() as u64, v["curves"].as_u64().unwrap());
+        assert_eq!(d.yarns.num_points() as u64, v["vertices"].as_u64().unwrap());
+        assert_eq!(d.yarns.num_curves(), 4);
+        assert!(v["min_distance_ratio"].as_f64().unwrap() >= BOUND);
+        assert_eq!(v["relaxed"], false);
+    }
+}
+
+#[test]
+fn cli_grid_file_tube_and_radius() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tube.ply");
+    let grid = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rib2x2.grid");
+    let o = knitvox(&[
+        "pattern",
+        "--grid",
+        grid,
+        "--courses",
+        "3",
+        "--wales",
+        "16",
+        "--tube-radius",
+        "0.02",
+        "--yarn-radius",
+        "0.0005",
+        "--no-relax",
+        "--json",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["curves"], 3);
+    assert_eq!(v["yarn_radius"], 0.0005);
+    let d = io::read_path(&out, &ReadOptions::default()).unwrap();
+    assert_eq!(d.yarns.num_curves(), 3);
+    assert!((d.yarns.radius[0] - 0.0005).abs() < 1e-9);
+}
+
+#[test]
+fn cli_errors_have_clear_messages_and_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.ply");
+    let out = out.to_str().unwrap();
+    // Unknown name: a usage error that lists the known patterns.
+    let o = knitvox(&[
+        "pattern",
+        "cable",
+        "--courses",
+        "2",
+        "--wales",
+        "2",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("cable") && err.contains("rib2x2") && err.contains("twill"),
+        "{err}"
+    );
+    // Bad grid: bad input naming file:line:column.
+    let bad = dir.path().join("bad.grid");
+    std::fs::write(&bad, "KP\nK?\n").unwrap();
+    let o = knitvox(&[
+        "pattern",
+        "--grid",
+        bad.to_str().unwrap(),
+        "--courses",
+        "2",
+        "--wales",
+        "2",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(65));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(&format!("{}:2:2", bad.display())), "{err}");
+    // Missing grid file.
+    let o = knitvox(&[
+        "pattern",
+        "--grid",
+        "/nonexistent/x.grid",
+        "--courses",
+        "2",
+        "--wales",
+        "2",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(66));
+    // Out-of-range sizes are usage errors naming the flag.
+    let o = knitvox(&[
+        "pattern",
+        "seed",
+        "--courses",
+        "0",
+        "--wales",
+        "2",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("courses"));
+    let o = knitvox(&[
+        "pattern",
+        "rib2x2",
+        "--courses",
+        "2",
+        "--wales",
+        "6",
+        "--tube-radius",
+        "0.05",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("multiple of 4"));
+    // Neither a name nor a grid.
+    let o = knitvox(&["pattern", "--courses", "2", "--wales", "2", "-o", out]);
+    assert_eq!(o.status.code(), Some(2));
+    // Nothing was written by the failures.
+    assert!(!std::path::Path::new(out).exists());
+}
