@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, LocalEval};
 use super::energy::{node_gradients, ElasticModel};
-use super::local::{project_rotation, project_volume_detailed};
+use super::local::{project_diag_sl3, project_volume_detailed, signed_svd};
 use super::SimError;
 use crate::geom::Vec3;
 
@@ -83,6 +83,26 @@ fn v3(p: Vec3) -> Vector3<f64> {
     Vector3::new(p[0], p[1], p[2])
 }
 
+/// `R(F)` and `V(F)` of [`super::local`] from one signed SVD (the two
+/// public projections compute it twice): bitwise the same results as
+/// `project_rotation` and `project_volume_detailed`, which both start from
+/// `signed_svd(f)` and fall back to the identity when it fails.
+fn project_both(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>, bool) {
+    match signed_svd(f) {
+        Some(svd) => {
+            let rot = svd.u * svd.v.transpose();
+            let p = project_diag_sl3([svd.s[0], svd.s[1], svd.s[2]]);
+            let d = Vector3::new(p.d[0], p.d[1], p.d[2]);
+            let vol = svd.u * Matrix3::from_diagonal(&d) * svd.v.transpose();
+            (rot, vol, p.clamped)
+        }
+        None => {
+            let (vol, p) = project_volume_detailed(f);
+            (Matrix3::identity(), vol, p.clamped)
+        }
+    }
+}
+
 impl ElasticRhs for CpuElasticRhs {
     fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError> {
         let n = self.model.num_nodes();
@@ -116,12 +136,11 @@ impl ElasticRhs for CpuElasticRhs {
                         v3(x[r.nodes[3]]) - x0,
                     ]);
                     let f = ds * r.dm_inv;
-                    let rot = project_rotation(&f);
-                    let (vol, p) = project_volume_detailed(&f);
+                    let (rot, vol, clamped) = project_both(&f);
                     *en = (
                         r.volume
                             * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared()),
-                        p.clamped,
+                        clamped,
                     );
                     let target = 2.0 * r.volume * (gs[e] * rot + gv[e] * vol);
                     *g = node_gradients(&target, &r.dm_inv);
@@ -214,5 +233,26 @@ mod tests {
             }
         }
         assert!(rhs.evaluate(&x[..4], &mut out).is_err());
+    }
+
+    #[test]
+    fn fused_projection_is_bitwise_the_public_one() {
+        use crate::sim::local::project_rotation;
+        for (i, f) in [
+            Matrix3::new(1.1, 0.2, -0.1, 0.0, 0.8, 0.3, 0.1, 0.0, 1.3),
+            Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+            Matrix3::identity(),
+            Matrix3::zeros(),
+            Matrix3::new(f64::NAN, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let (r, v, c) = project_both(f);
+            let (v2, p) = project_volume_detailed(f);
+            assert_eq!(r, project_rotation(f), "case {i}");
+            assert_eq!(v, v2, "case {i}");
+            assert_eq!(c, p.clamped, "case {i}");
+        }
     }
 }
