@@ -148,16 +148,19 @@ impl ElasticRhs for CpuElasticRhs {
             });
         let per_tet = &self.per_tet;
         let (ptr, inc) = (&self.node_ptr, &self.incidence);
-        out.par_iter_mut().enumerate().for_each(|(a, o)| {
-            let mut s = [0.0; 3];
-            for &code in &inc[ptr[a]..ptr[a + 1]] {
-                let g = &per_tet[(code >> 2) as usize][(code & 3) as usize];
-                for k in 0..3 {
-                    s[k] += g[k];
+        out.par_iter_mut()
+            .enumerate()
+            .with_min_len(1024)
+            .for_each(|(a, o)| {
+                let mut s = [0.0; 3];
+                for &code in &inc[ptr[a]..ptr[a + 1]] {
+                    let g = &per_tet[(code >> 2) as usize][(code & 3) as usize];
+                    for k in 0..3 {
+                        s[k] += g[k];
+                    }
                 }
-            }
-            *o = s;
-        });
+                *o = s;
+            });
         let mut eval = LocalEval::default();
         for &(en, clamped) in &self.per_tet_energy {
             eval.elastic_energy += en;
@@ -218,9 +221,8 @@ mod tests {
         let (targets, _) = local_step(&model, &x).unwrap();
         let mut expect = vec![[0.0; 3]; 5];
         for (e, (r, t)) in model.rest().iter().zip(&targets).enumerate() {
-            let target = 2.0
-                * r.volume
-                * (model.gamma_s()[e] * t.rotation + model.gamma_v()[e] * t.volume);
+            let target =
+                2.0 * r.volume * (model.gamma_s()[e] * t.rotation + model.gamma_v()[e] * t.volume);
             for (&a, g) in r.nodes.iter().zip(&node_gradients(&target, &r.dm_inv)) {
                 for k in 0..3 {
                     expect[a][k] += g[k];

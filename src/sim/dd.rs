@@ -248,9 +248,7 @@ impl DdSolver {
         let m_wanted = params.modes;
         let built: Vec<Result<(Domain, Vec<Triplet<usize, usize, f64>>), SimError>> = interiors
             .into_par_iter()
-            .map(|interior| {
-                build_domain(k, interior, &row_domain, &local, m_wanted)
-            })
+            .map(|interior| build_domain(k, interior, &row_domain, &local, m_wanted))
             .collect();
         let mut domains = Vec::with_capacity(nd);
         let nb = boundary.len();
@@ -634,7 +632,11 @@ mod tests {
         let r: f64 = {
             let mut a2 = vec![0.0; 3 * n];
             k.mul_rows(&x2, 3, &mut a2);
-            a2.iter().zip(&b).map(|(p, q)| (p - q).powi(2)).sum::<f64>().sqrt()
+            a2.iter()
+                .zip(&b)
+                .map(|(p, q)| (p - q).powi(2))
+                .sum::<f64>()
+                .sqrt()
         };
         let bn: f64 = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         assert!(r < bn && r > 1e-6 * bn, "{r} {bn}");
@@ -662,7 +664,10 @@ mod tests {
         let (modes, lambda) = lowest_modes(&a, &f, 5);
         for (j, l) in lambda.iter().enumerate() {
             let exact = 2.0 - 2.0 * ((j + 1) as f64 * std::f64::consts::PI / (n + 1) as f64).cos();
-            assert!((l - exact).abs() < 1e-6 * exact.max(1e-3), "{j}: {l} vs {exact}");
+            assert!(
+                (l - exact).abs() < 1e-6 * exact.max(1e-3),
+                "{j}: {l} vs {exact}"
+            );
         }
         let norm: f64 = modes[..n].iter().map(|v| v * v).sum();
         assert!((norm - 1.0).abs() < 1e-9);

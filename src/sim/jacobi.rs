@@ -54,6 +54,10 @@ pub const LANCZOS_STEPS: usize = 60;
 /// Rows per chunk of the deterministic norm reductions.
 const ROW_CHUNK: usize = 1024;
 
+/// Fewest rows per rayon task of a sweep: below this, waking threads costs
+/// more than the rows (small systems then run on one thread).
+pub(crate) const MIN_ROWS_PER_TASK: usize = 512;
+
 /// Parameters of [`CpuJacobi`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JacobiParams {
@@ -113,21 +117,24 @@ fn sum_sq(v: &[f64]) -> f64 {
 
 /// `r = b - (A + W) x` (n x 3), returning `|r|²`.
 fn residual(a: &CsrMatrix, w: Option<&[f64]>, b: &[f64], x: &[f64], r: &mut [f64]) -> f64 {
-    r.par_chunks_mut(3).enumerate().for_each(|(i, ri)| {
-        let mut s = [b[3 * i], b[3 * i + 1], b[3 * i + 2]];
-        for e in a.row_ptr[i]..a.row_ptr[i + 1] {
-            let (c, v) = (a.col[e], a.val[e]);
-            for k in 0..3 {
-                s[k] -= v * x[3 * c + k];
+    r.par_chunks_mut(3)
+        .enumerate()
+        .with_min_len(MIN_ROWS_PER_TASK)
+        .for_each(|(i, ri)| {
+            let mut s = [b[3 * i], b[3 * i + 1], b[3 * i + 2]];
+            for e in a.row_ptr[i]..a.row_ptr[i + 1] {
+                let (c, v) = (a.col[e], a.val[e]);
+                for k in 0..3 {
+                    s[k] -= v * x[3 * c + k];
+                }
             }
-        }
-        if let Some(w) = w {
-            for k in 0..3 {
-                s[k] -= w[i] * x[3 * i + k];
+            if let Some(w) = w {
+                for k in 0..3 {
+                    s[k] -= w[i] * x[3 * i + k];
+                }
             }
-        }
-        ri.copy_from_slice(&s);
-    });
+            ri.copy_from_slice(&s);
+        });
     sum_sq(r)
 }
 
@@ -155,9 +162,7 @@ impl CpuJacobi {
             || !(params.lambda_max_margin >= 1.0 && params.lambda_max_margin.is_finite())
             || params.check_every == 0
             || !(params.divergence_factor > 1.0)
-            || params
-                .relaxation
-                .is_some_and(|g| !(g > 0.0 && g <= 1.0))
+            || params.relaxation.is_some_and(|g| !(g > 0.0 && g <= 1.0))
         {
             return Err(SimError::Inconsistent(format!(
                 "bad Jacobi parameters {params:?}"
@@ -285,7 +290,8 @@ impl JacobiSolve for CpuJacobi {
                 extra_diag.map_or(0, |w| w.len())
             )));
         }
-        if let Some(i) = extra_diag.and_then(|w| w.iter().position(|v| !(*v >= 0.0 && v.is_finite())))
+        if let Some(i) =
+            extra_diag.and_then(|w| w.iter().position(|v| !(*v >= 0.0 && v.is_finite())))
         {
             return Err(SimError::Inconsistent(format!(
                 "extra diagonal entry {i} must be finite and >= 0"
@@ -328,6 +334,7 @@ impl JacobiSolve for CpuJacobi {
             self.next
                 .par_chunks_mut(3)
                 .enumerate()
+                .with_min_len(MIN_ROWS_PER_TASK)
                 .for_each(|(i, out)| {
                     let mut s = [b[3 * i], b[3 * i + 1], b[3 * i + 2]];
                     for e in a.row_ptr[i]..a.row_ptr[i + 1] {
@@ -434,13 +441,20 @@ mod tests {
         assert!(st.relative_residual <= 1e-10, "{st:?}");
         let mut ax = vec![0.0; 3 * n];
         a.mul_rows(&x, 3, &mut ax);
-        let err: f64 = ax.iter().zip(&b).map(|(p, q)| (p - q).powi(2)).sum::<f64>().sqrt();
+        let err: f64 = ax
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (p - q).powi(2))
+            .sum::<f64>()
+            .sqrt();
         let bn: f64 = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         assert!(err / bn <= 1e-10 * 1.0001);
         // Chebyshev beats plain damped Jacobi by far: ~sqrt(κ) vs κ.
         assert!(st.iterations < 400, "{st:?}");
         // With an extra diagonal.
-        let w: Vec<f64> = (0..n).map(|i| if i % 5 == 0 { 100.0 } else { 0.0 }).collect();
+        let w: Vec<f64> = (0..n)
+            .map(|i| if i % 5 == 0 { 100.0 } else { 0.0 })
+            .collect();
         let mut x2 = vec![0.0; 3 * n];
         let st2 = j.solve(&b, Some(&w), &mut x2, 1e-10, 10_000).unwrap();
         assert!(st2.relative_residual <= 1e-10);

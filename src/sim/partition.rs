@@ -86,7 +86,11 @@ impl Partition {
     }
 
     fn finish(num_nodes: usize, tets: &[[usize; 4]], tet_domain: Vec<u32>) -> Partition {
-        let num_domains = tet_domain.iter().map(|&d| d as usize + 1).max().unwrap_or(0);
+        let num_domains = tet_domain
+            .iter()
+            .map(|&d| d as usize + 1)
+            .max()
+            .unwrap_or(0);
         // First domain seen per node; a second distinct one makes it boundary.
         let mut first = vec![u32::MAX; num_nodes];
         let mut boundary = vec![false; num_nodes];

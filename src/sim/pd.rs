@@ -166,8 +166,8 @@ pub struct PdParams {
     /// `K + W` stays well conditioned for the iterative solves.
     pub contact_stiffness: f64,
     /// Relative residual of the preconditioned CG solve of `(K + W) x = b +
-    /// W P` in the direct solver with active contacts (dimensionless).
-    /// Default 1e-8.
+    /// W P` in the direct solver with active contacts, measured against the
+    /// residual of its start `K⁻¹ (b + W P)` (dimensionless). Default 1e-6.
     pub contact_tolerance: f64,
     /// Most CG iterations of that solve. Default 100.
     pub contact_max_iterations: u32,
@@ -188,7 +188,7 @@ impl Default for PdParams {
             energy_blowup: 1e6,
             global: GlobalSolver::default(),
             contact_stiffness: 100.0,
-            contact_tolerance: 1e-8,
+            contact_tolerance: 1e-6,
             contact_max_iterations: 100,
             report_residual: true,
         }
@@ -279,7 +279,7 @@ pub struct StepStats {
     pub global_iterations: u32,
     /// Largest relative residual of the step's iterative global solves (0
     /// for plain direct solves; for "dd" relative to the residual of the
-    /// previous iterate).
+    /// previous iterate, for contact CG relative to that of `K⁻¹ (b + W P)`).
     pub global_residual: f64,
     /// Free nodes with an active contact constraint in the last PD iteration.
     pub contacts: usize,
@@ -415,21 +415,24 @@ fn full_csr(n: usize, lower: &[Triplet<usize, usize, f64>]) -> Result<CsrMatrix,
 
 /// `y = (A + W) x` for n x 3 row-major vectors, parallel over rows.
 fn mul_plus_diag(a: &CsrMatrix, w: Option<&[f64]>, x: &[f64], y: &mut [f64]) {
-    y.par_chunks_mut(3).enumerate().for_each(|(i, yi)| {
-        let mut s = [0.0; 3];
-        for e in a.row_ptr[i]..a.row_ptr[i + 1] {
-            let (c, v) = (a.col[e], a.val[e]);
-            for k in 0..3 {
-                s[k] += v * x[3 * c + k];
+    y.par_chunks_mut(3)
+        .enumerate()
+        .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
+        .for_each(|(i, yi)| {
+            let mut s = [0.0; 3];
+            for e in a.row_ptr[i]..a.row_ptr[i + 1] {
+                let (c, v) = (a.col[e], a.val[e]);
+                for k in 0..3 {
+                    s[k] += v * x[3 * c + k];
+                }
             }
-        }
-        if let Some(w) = w {
-            for k in 0..3 {
-                s[k] += w[i] * x[3 * i + k];
+            if let Some(w) = w {
+                for k in 0..3 {
+                    s[k] += w[i] * x[3 * i + k];
+                }
             }
-        }
-        yi.copy_from_slice(&s);
-    });
+            yi.copy_from_slice(&s);
+        });
 }
 
 /// Per-column dot products of two n x 3 row-major vectors.
@@ -654,9 +657,13 @@ impl PdSolver {
                 )));
             }
         }
-        self.tet_domains = ids.map(|i| i.to_vec());
+        let old = std::mem::replace(&mut self.tet_domains, ids.map(|i| i.to_vec()));
         if matches!(self.params.global, GlobalSolver::DomainDecomposed(_)) {
-            self.factorize(false)?;
+            if let Err(e) = self.factorize(false) {
+                self.tet_domains = old;
+                self.factorize(false)?;
+                return Err(e);
+            }
         }
         Ok(())
     }
@@ -790,7 +797,9 @@ impl PdSolver {
         let mut r = vec![0.0; 3 * nf];
         mul_plus_diag(&self.k_free, Some(w), x, &mut r);
         r.iter_mut().zip(&rhs).for_each(|(a, q)| *a = q - *a);
-        let bn = dot3(&rhs, &rhs).iter().sum::<f64>().sqrt();
+        // Relative to the residual of the unconstrained solution `K⁻¹ b`, so
+        // the tolerance does not depend on where the mesh is in space.
+        let bn = dot3(&r, &r).iter().sum::<f64>().sqrt();
         let mut z = vec![0.0; 3 * nf];
         solve(&r, &mut z);
         let mut p = z.clone();
@@ -871,9 +880,11 @@ impl PdSolver {
         let free_nodes = self.free_nodes.clone();
         self.step_inner(x, v, pinned_positions, contacts, &free_nodes, step, t0)
             .map_err(|e| match e {
-            SimError::Diverged { node, reason, .. } => SimError::Diverged { step, node, reason },
-            other => other,
-        })
+                SimError::Diverged { node, reason, .. } => {
+                    SimError::Diverged { step, node, reason }
+                }
+                other => other,
+            })
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -961,6 +972,7 @@ impl PdSolver {
             // Contact projections at the current iterate (local step).
             let proj: Vec<Option<Vec3>> = free_nodes
                 .par_iter()
+                .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
                 .map(|&i| contacts.project(i, xk[i]))
                 .collect();
             let active: Vec<bool> = proj.iter().map(|q| q.is_some()).collect();
