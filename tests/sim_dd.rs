@@ -388,7 +388,7 @@ fn block_dropped_on_a_plane_comes_to_rest_on_it() {
             last.solver, last.max_speed, last.contacts, last.projected, last.global_iterations
         );
         assert!(
-            lowest >= 0.0 && lowest < 1e-4,
+            (0.0..1e-4).contains(&lowest),
             "resting on the plane: {lowest}"
         );
         // The block keeps (nearly) its height: it rests, it does not sink.

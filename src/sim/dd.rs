@@ -124,6 +124,9 @@ pub struct DdStats {
     pub setup_ms: f64,
 }
 
+/// A built domain and its (negated) Schur-complement contribution.
+type BuiltDomain = (Domain, Vec<Triplet<usize, usize, f64>>);
+
 /// One domain's precomputed data.
 #[derive(Debug)]
 struct Domain {
@@ -246,7 +249,7 @@ impl DdSolver {
         }
 
         let m_wanted = params.modes;
-        let built: Vec<Result<(Domain, Vec<Triplet<usize, usize, f64>>), SimError>> = interiors
+        let built: Vec<Result<BuiltDomain, SimError>> = interiors
             .into_par_iter()
             .map(|interior| build_domain(k, interior, &row_domain, &local, m_wanted))
             .collect();
@@ -411,7 +414,7 @@ fn build_domain(
     row_domain: &[usize],
     local: &[usize],
     m_wanted: usize,
-) -> Result<(Domain, Vec<Triplet<usize, usize, f64>>), SimError> {
+) -> Result<BuiltDomain, SimError> {
     let ni = interior.len();
     let mut lower = Vec::new();
     let mut kii = Vec::new();
@@ -522,7 +525,7 @@ fn lowest_modes(a: &CsrMatrix, factor: &SparseCholesky, m: usize) -> (Vec<f64>, 
         return (modes, lambda);
     }
     let q = (m + EXTRA_VECTORS).min(n);
-    let mut y = Mat::<f64>::from_fn(n, q, |i, j| hash01(i, j));
+    let mut y = Mat::<f64>::from_fn(n, q, hash01);
     let mut evals = nalgebra::DVector::<f64>::zeros(0);
     for _ in 0..EIGEN_ITERATIONS {
         factor.solve_in_place(y.as_mut());

@@ -158,8 +158,11 @@ impl CpuJacobi {
                 diag[i]
             )));
         }
-        if !(params.lambda_min_margin > 0.0 && params.lambda_min_margin <= 1.0)
-            || !(params.lambda_max_margin >= 1.0 && params.lambda_max_margin.is_finite())
+        let margins_ok = params.lambda_min_margin > 0.0
+            && params.lambda_min_margin <= 1.0
+            && params.lambda_max_margin >= 1.0
+            && params.lambda_max_margin.is_finite();
+        if !margins_ok
             || params.check_every == 0
             || !(params.divergence_factor > 1.0)
             || params.relaxation.is_some_and(|g| !(g > 0.0 && g <= 1.0))

@@ -1,5 +1,6 @@
-//! The direct global step of projective dynamics (VH §7.1, Eq. 27-28) and
-//! the implicit-Euler time loop (VH Eq. 25).
+//! The global step of projective dynamics, direct (VH §7.1, Eq. 27-28) or
+//! domain-decomposed (VH §7.2, Eq. 29-34), contacts as projection
+//! constraints (VH §8.5), and the implicit-Euler time loop (VH Eq. 25).
 //!
 //! One time step minimizes the incremental potential (VH Eq. 12 with the
 //! `a` of Eq. 25)
@@ -1106,7 +1107,7 @@ impl PdSolver {
         v.copy_from_slice(&v_new);
         // The elastic energy of the returned positions is known exactly when
         // no projection moved them after the last evaluation.
-        self.last = fixes.is_empty().then(|| (xk, elastic_after));
+        self.last = fixes.is_empty().then_some((xk, elastic_after));
         Ok(StepStats {
             step,
             iterations,
