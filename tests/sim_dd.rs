@@ -467,3 +467,39 @@ fn reduced_start_saves_jacobi_iterations() {
     let scale = x0.iter().map(|a| a.abs()).fold(0.0, f64::max);
     assert!(diff < 1e-4 * scale, "{diff} vs {scale}");
 }
+
+#[test]
+fn dd_with_contacts_is_deterministic_across_thread_counts() {
+    // Large enough (748 nodes, 2880 tets) that the row sweeps and the local
+    // step really split across threads.
+    let params = PdParams {
+        global: dd(1e-5, 200),
+        max_iterations: 4,
+        ..Default::default()
+    };
+    let run_with = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let (mesh, mut s, pins) = cantilever([16, 3, 10], params);
+            let plane = Plane { height: 0.0 };
+            let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+            let mut last = StepStats::default();
+            for _ in 0..3 {
+                last = s.step_with_contacts(&mut x, &mut v, &pins, &plane).unwrap();
+            }
+            (x, last.global_iterations, last.contacts, last.objectives)
+        })
+    };
+    let one = run_with(1);
+    let two = run_with(2);
+    assert!(
+        one.1 > 0 && one.2 > 0,
+        "{} iterations, {} contacts",
+        one.1,
+        one.2
+    );
+    assert_eq!(one, two);
+}
