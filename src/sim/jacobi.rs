@@ -322,10 +322,16 @@ impl JacobiSolve for CpuJacobi {
                 relative_residual: r0,
             });
         }
-        self.prev.copy_from_slice(x);
+        // Three rotating buffers (x_{k-1}, x_k, scratch / x_{k+1}); `x` is
+        // written once at the end.
+        let mut cur = x.to_vec();
+        let mut prev = std::mem::take(&mut self.prev);
+        let mut next = std::mem::take(&mut self.next);
+        prev.copy_from_slice(x);
         let mut omega = 1.0;
         let mut rel = r0;
         let mut it = 0u32;
+        let mut failure = None;
         while it < max_iterations {
             it += 1;
             omega = match it {
@@ -333,9 +339,8 @@ impl JacobiSolve for CpuJacobi {
                 2 => 2.0 / (2.0 - rho * rho),
                 _ => 4.0 / (4.0 - rho * rho * omega),
             };
-            let (xk, prev) = (&*x, &self.prev);
-            self.next
-                .par_chunks_mut(3)
+            let (xk, xp) = (&cur, &prev);
+            next.par_chunks_mut(3)
                 .enumerate()
                 .with_min_len(MIN_ROWS_PER_TASK)
                 .for_each(|(i, out)| {
@@ -351,30 +356,32 @@ impl JacobiSolve for CpuJacobi {
                     for k in 0..3 {
                         let xi = xk[3 * i + k];
                         let y = xi + gamma * (s[k] - wi * xi) / d;
-                        out[k] = omega * (y - prev[3 * i + k]) + prev[3 * i + k];
+                        out[k] = omega * (y - xp[3 * i + k]) + xp[3 * i + k];
                     }
                 });
-            // Shift: prev <- x_k, x <- x_{k+1}; `next` is scratch again.
-            self.prev.copy_from_slice(x);
-            x.copy_from_slice(&self.next);
+            // Rotate: prev <- x_k, cur <- x_{k+1}, next <- scratch.
+            std::mem::swap(&mut prev, &mut cur);
+            std::mem::swap(&mut cur, &mut next);
             if it % self.params.check_every == 0 || it == max_iterations {
-                let mut r = std::mem::take(&mut self.next);
-                rel = residual(a, w, b, x, &mut r).sqrt() / bnorm;
-                self.next = r;
+                rel = residual(a, w, b, &cur, &mut next).sqrt() / bnorm;
                 if !rel.is_finite() {
-                    return Err(diverged(x, it, "residual not finite"));
+                    failure = Some("residual not finite".to_string());
+                    break;
                 }
                 if rel > self.params.divergence_factor * r0 {
-                    return Err(diverged(
-                        x,
-                        it,
-                        &format!("relative residual grew from {r0:.3e} to {rel:.3e}"),
-                    ));
+                    failure = Some(format!("relative residual grew from {r0:.3e} to {rel:.3e}"));
+                    break;
                 }
                 if rel <= tolerance {
                     break;
                 }
             }
+        }
+        x.copy_from_slice(&cur);
+        self.prev = prev;
+        self.next = next;
+        if let Some(why) = failure {
+            return Err(diverged(x, it, &why));
         }
         Ok(IterStats {
             iterations: it,
