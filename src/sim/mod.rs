@@ -7,18 +7,29 @@
 //! * [`contact`]: the collider interface of the time loop (projection
 //!   constraints).
 //! * [`csr`]: CSR matrices for the iterative global-step parts.
-//! * [`pd`]: the direct global step (VH Eq. 27-28) and the implicit-Euler
-//!   time loop (VH Eq. 25).
+//! * [`cpu`]: CPU implementations of the [`backend`] traits.
+//! * [`jacobi`]: Chebyshev-accelerated Jacobi (Wang 2015).
+//! * [`partition`]: domains and boundary nodes for the decomposition.
+//! * [`dd`]: the domain-decomposed (CMS) global solve (VH §7.2).
+//! * [`gpu`]: the wgpu backend (WGSL kernels of the local step, Chebyshev-
+//!   Jacobi and collider projection).
+//! * [`pd`]: the global step (direct or domain-decomposed, VH Eq. 27-34),
+//!   contacts as projection constraints, and the implicit-Euler time loop
+//!   (VH Eq. 25).
 //!
 //! Pure: no files, no printing, no environment.
 
 pub mod backend;
 pub mod cholesky;
 pub mod contact;
+pub mod cpu;
 pub mod csr;
+pub mod dd;
 pub mod energy;
 pub mod gpu;
+pub mod jacobi;
 pub mod local;
+pub mod partition;
 pub mod pd;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};

@@ -1,0 +1,260 @@
+//! CPU (f64) implementations of the PD backend traits of [`super::backend`]:
+//! the reference the GPU backend is checked against.
+//!
+//! * [`CpuElasticRhs`]: the local step of [`super::local`] fused with the
+//!   elastic right-hand side of the global step (VH Eq. 26, 28).
+//! * The Chebyshev-Jacobi solver lives in [`super::jacobi`] (`CpuJacobi`).
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use super::backend::{ElasticRhs, LocalEval};
+use super::energy::{node_gradients, ElasticModel};
+use super::local::{project_diag_sl3, project_volume_detailed, signed_svd};
+use super::SimError;
+use crate::geom::Vec3;
+
+/// Tets per rayon task in the per-tet pass (large enough that scheduling
+/// costs nothing next to two 3x3 projections per tet).
+const TET_CHUNK: usize = 512;
+
+/// The local step and elastic right-hand side on the CPU.
+///
+/// Per tet (in parallel): `F_e`, `R_e = R(F_e)`, `V_e = V(F_e)` (VH Eq. 26),
+/// the energy `V_e (γs |F - R|² + γv |F - V|²)` and the four node
+/// contributions of `2 V_e (γs R_e + γv V_e)` (module doc of `sim::pd`).
+/// Per node (in parallel) the contributions are summed over the node's tets
+/// in tet order, and the energies are summed in tet order, so the result does
+/// not depend on the thread count.
+#[derive(Debug, Clone)]
+pub struct CpuElasticRhs {
+    model: ElasticModel,
+    /// Node -> (tet, corner) incidences, CSR: `node_ptr[a]..node_ptr[a + 1]`
+    /// index `incidence`, in increasing tet order.
+    node_ptr: Vec<usize>,
+    incidence: Vec<u32>,
+    /// Per-tet scratch: four node contributions.
+    per_tet: Vec<[Vector3<f64>; 4]>,
+    /// Per-tet scratch: energy and clamped flag.
+    per_tet_energy: Vec<(f64, bool)>,
+}
+
+impl CpuElasticRhs {
+    /// Prepares the evaluation for `model` (keeps a copy: rebuild it when the
+    /// materials change).
+    pub fn new(model: &ElasticModel) -> CpuElasticRhs {
+        let n = model.num_nodes();
+        let rest = model.rest();
+        let mut count = vec![0usize; n + 1];
+        for r in rest {
+            for &a in &r.nodes {
+                count[a + 1] += 1;
+            }
+        }
+        for a in 0..n {
+            count[a + 1] += count[a];
+        }
+        let mut fill = count.clone();
+        let mut incidence = vec![0u32; count[n]];
+        for (e, r) in rest.iter().enumerate() {
+            for (c, &a) in r.nodes.iter().enumerate() {
+                // 4 corners: the incidence packs tet and corner in one u32
+                // as long as the mesh has fewer than 2^30 tets.
+                incidence[fill[a]] = ((e as u32) << 2) | c as u32;
+                fill[a] += 1;
+            }
+        }
+        CpuElasticRhs {
+            model: model.clone(),
+            node_ptr: count,
+            incidence,
+            per_tet: vec![[Vector3::zeros(); 4]; rest.len()],
+            per_tet_energy: vec![(0.0, false); rest.len()],
+        }
+    }
+
+    /// The model this evaluator uses.
+    pub fn model(&self) -> &ElasticModel {
+        &self.model
+    }
+}
+
+fn v3(p: Vec3) -> Vector3<f64> {
+    Vector3::new(p[0], p[1], p[2])
+}
+
+/// `R(F)` and `V(F)` of [`super::local`] from one signed SVD (the two
+/// public projections compute it twice): bitwise the same results as
+/// `project_rotation` and `project_volume_detailed`, which both start from
+/// `signed_svd(f)` and fall back to the identity when it fails.
+fn project_both(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>, bool) {
+    match signed_svd(f) {
+        Some(svd) => {
+            let rot = svd.u * svd.v.transpose();
+            let p = project_diag_sl3([svd.s[0], svd.s[1], svd.s[2]]);
+            let d = Vector3::new(p.d[0], p.d[1], p.d[2]);
+            let vol = svd.u * Matrix3::from_diagonal(&d) * svd.v.transpose();
+            (rot, vol, p.clamped)
+        }
+        None => {
+            let (vol, p) = project_volume_detailed(f);
+            (Matrix3::identity(), vol, p.clamped)
+        }
+    }
+}
+
+impl ElasticRhs for CpuElasticRhs {
+    fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError> {
+        let n = self.model.num_nodes();
+        if x.len() != n || out.len() != n {
+            return Err(SimError::Inconsistent(format!(
+                "elastic rhs got {} positions and {} outputs for {n} nodes",
+                x.len(),
+                out.len()
+            )));
+        }
+        if self.model.rest().len() >= (1usize << 30) {
+            return Err(SimError::Inconsistent(
+                "meshes of 2^30 tets or more are not supported".into(),
+            ));
+        }
+        let model = &self.model;
+        let rest = model.rest();
+        let (gs, gv) = (model.gamma_s(), model.gamma_v());
+        self.per_tet
+            .par_chunks_mut(TET_CHUNK)
+            .zip(self.per_tet_energy.par_chunks_mut(TET_CHUNK))
+            .enumerate()
+            .for_each(|(c, (g_chunk, e_chunk))| {
+                for (j, (g, en)) in g_chunk.iter_mut().zip(e_chunk.iter_mut()).enumerate() {
+                    let e = c * TET_CHUNK + j;
+                    let r = &rest[e];
+                    let x0 = v3(x[r.nodes[0]]);
+                    let ds = Matrix3::from_columns(&[
+                        v3(x[r.nodes[1]]) - x0,
+                        v3(x[r.nodes[2]]) - x0,
+                        v3(x[r.nodes[3]]) - x0,
+                    ]);
+                    let f = ds * r.dm_inv;
+                    let (rot, vol, clamped) = project_both(&f);
+                    *en = (
+                        r.volume
+                            * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared()),
+                        clamped,
+                    );
+                    let target = 2.0 * r.volume * (gs[e] * rot + gv[e] * vol);
+                    *g = node_gradients(&target, &r.dm_inv);
+                }
+            });
+        let per_tet = &self.per_tet;
+        let (ptr, inc) = (&self.node_ptr, &self.incidence);
+        out.par_iter_mut()
+            .enumerate()
+            .with_min_len(1024)
+            .for_each(|(a, o)| {
+                let mut s = [0.0; 3];
+                for &code in &inc[ptr[a]..ptr[a + 1]] {
+                    let g = &per_tet[(code >> 2) as usize][(code & 3) as usize];
+                    for k in 0..3 {
+                        s[k] += g[k];
+                    }
+                }
+                *o = s;
+            });
+        let mut eval = LocalEval::default();
+        for &(en, clamped) in &self.per_tet_energy {
+            eval.elastic_energy += en;
+            eval.clamped_tets += clamped as usize;
+        }
+        if !eval.elastic_energy.is_finite() {
+            let node = (0..n)
+                .find(|&a| !out[a].iter().all(|c| c.is_finite()))
+                .unwrap_or(0);
+            return Err(SimError::Diverged {
+                step: 0,
+                node,
+                reason: "elastic energy not finite in the local step".into(),
+            });
+        }
+        Ok(eval)
+    }
+
+    fn name(&self) -> &'static str {
+        "cpu"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::TetMesh;
+    use crate::sim::local::local_step;
+
+    #[test]
+    fn matches_local_step_and_energy() {
+        // Two tets sharing a face, deformed.
+        let mesh = TetMesh {
+            nodes: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [1.0, 1.0, 1.0],
+            ],
+            tets: vec![[0, 1, 2, 3], [1, 2, 3, 4]],
+        };
+        // Orientation: make both positive.
+        let mut mesh = mesh;
+        if mesh.volume(1) < 0.0 {
+            mesh.tets[1] = [2, 1, 3, 4];
+        }
+        let model = ElasticModel::new(&mesh, &[2.0, 3.0], &[5.0, 7.0]).unwrap();
+        let x: Vec<Vec3> = mesh
+            .nodes
+            .iter()
+            .map(|p| [1.2 * p[0] + 0.1 * p[1], 0.9 * p[1], p[2] + 0.3 * p[0]])
+            .collect();
+        let mut rhs = CpuElasticRhs::new(&model);
+        let mut out = vec![[0.0; 3]; 5];
+        let eval = rhs.evaluate(&x, &mut out).unwrap();
+        assert!((eval.elastic_energy - model.energy(&x).unwrap()).abs() < 1e-12);
+        let (targets, _) = local_step(&model, &x).unwrap();
+        let mut expect = vec![[0.0; 3]; 5];
+        for (e, (r, t)) in model.rest().iter().zip(&targets).enumerate() {
+            let target =
+                2.0 * r.volume * (model.gamma_s()[e] * t.rotation + model.gamma_v()[e] * t.volume);
+            for (&a, g) in r.nodes.iter().zip(&node_gradients(&target, &r.dm_inv)) {
+                for k in 0..3 {
+                    expect[a][k] += g[k];
+                }
+            }
+        }
+        for (o, e) in out.iter().zip(&expect) {
+            for k in 0..3 {
+                assert!((o[k] - e[k]).abs() < 1e-12, "{o:?} vs {e:?}");
+            }
+        }
+        assert!(rhs.evaluate(&x[..4], &mut out).is_err());
+    }
+
+    #[test]
+    fn fused_projection_is_bitwise_the_public_one() {
+        use crate::sim::local::project_rotation;
+        for (i, f) in [
+            Matrix3::new(1.1, 0.2, -0.1, 0.0, 0.8, 0.3, 0.1, 0.0, 1.3),
+            Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+            Matrix3::identity(),
+            Matrix3::zeros(),
+            Matrix3::new(f64::NAN, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let (r, v, c) = project_both(f);
+            let (v2, p) = project_volume_detailed(f);
+            assert_eq!(r, project_rotation(f), "case {i}");
+            assert_eq!(v, v2, "case {i}");
+            assert_eq!(c, p.clamped, "case {i}");
+        }
+    }
+}
