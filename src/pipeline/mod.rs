@@ -4,3 +4,5 @@
 pub mod asset;
 pub mod demo;
 pub mod inspect;
+pub mod sim_scene;
+pub mod simulate;
