@@ -182,6 +182,9 @@ pub struct GarmentSection {
     /// Rotation (degrees) about the x, then y, then z axis through the
     /// mesh's bounding-box centre. Default none.
     pub rotate_deg: Vec3,
+    /// Where the bounding-box centre goes (m), after the rotation [default:
+    /// where it is].
+    pub center: Option<Vec3>,
     /// Translation (m) after the rotation (and after `[character]`
     /// `fit_joint`, as an offset). Default none.
     pub translate: Vec3,
@@ -361,8 +364,11 @@ impl Scene {
         if s.max_iterations == 0 {
             return Err("simulation.max_iterations: must be >= 1".into());
         }
-        if !finite(&self.garment.rotate_deg) || !finite(&self.garment.translate) {
-            return Err("garment: rotate_deg and translate must be finite".into());
+        if !finite(&self.garment.rotate_deg)
+            || !finite(&self.garment.translate)
+            || self.garment.center.is_some_and(|c| !finite(&c))
+        {
+            return Err("garment: rotate_deg, center and translate must be finite".into());
         }
         for (i, p) in self.pin.iter().enumerate() {
             let key = format!("pin[{i}]");

@@ -380,13 +380,14 @@ pub fn simulate(
     let (lo, hi) = bbox(&asset.mesh.nodes);
     let centre: Vec3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
     let rot = euler_deg(scene.garment.rotate_deg);
+    let target = scene.garment.center.unwrap_or(centre);
     let mut x: Vec<Vec3> = asset
         .mesh
         .nodes
         .iter()
         .map(|p| {
             let d = rot * Vector3::new(p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]);
-            std::array::from_fn(|k| centre[k] + d[k])
+            std::array::from_fn(|k| target[k] + d[k])
         })
         .collect();
 

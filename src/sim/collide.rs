@@ -568,7 +568,10 @@ impl Collider {
         if d.signed >= self.thickness || !d.signed.is_finite() {
             return None;
         }
-        Some(add(p, scale(d.outward, self.thickness - d.signed)))
+        // Onto the surface first, then out by the thickness: exact for a
+        // plane through the origin (fewer roundings than one combined step).
+        let on = add(p, scale(d.outward, -d.signed));
+        Some(add(on, scale(d.outward, self.thickness)))
     }
 }
 
