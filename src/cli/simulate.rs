@@ -66,10 +66,10 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "NODE", requires = "character")]
     pub fit_joint: Option<String>,
     /// Rotate the garment about its centre (degrees about x, then y, then z).
-    #[arg(long, value_name = "RX,RY,RZ", value_parser = parse_vec3, conflicts_with = "scene")]
+    #[arg(long, value_name = "RX,RY,RZ", value_parser = parse_vec3, conflicts_with = "scene", allow_hyphen_values = true)]
     pub garment_rotate: Option<Vec3>,
     /// Move the garment (m), after --fit-joint.
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, conflicts_with = "scene")]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, conflicts_with = "scene", allow_hyphen_values = true)]
     pub garment_offset: Option<Vec3>,
     /// Frames to write: `1-24`, `1001-1100x5`, `1,5,7-20` (frame f is at (f - first)/fps s of shot time).
     #[arg(long = "frames", value_name = "SPEC")]

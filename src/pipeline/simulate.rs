@@ -353,6 +353,28 @@ fn bbox(x: &[Vec3]) -> (Vec3, Vec3) {
     (lo, hi)
 }
 
+/// Height (m) of the highest point of the mesh on the vertical line
+/// through `(x, z)`, if the line meets it.
+fn surface_height(topology: &MeshTopology, pos: &[Vec3], x: f64, z: f64) -> Option<f64> {
+    let mut best: Option<f64> = None;
+    for t in topology.triangles() {
+        let [a, b, c] = t.map(|i| pos[i as usize]);
+        // Barycentric coordinates of (x, z) in the triangle's x-z projection.
+        let det = (b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2]);
+        if !(det.abs() > 0.0) {
+            continue;
+        }
+        let u = ((x - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (z - a[2])) / det;
+        let v = ((b[0] - a[0]) * (z - a[2]) - (x - a[0]) * (b[2] - a[2])) / det;
+        if u < 0.0 || v < 0.0 || u + v > 1.0 {
+            continue;
+        }
+        let y = a[1] + u * (b[1] - a[1]) + v * (c[1] - a[1]);
+        best = Some(best.map_or(y, |m: f64| m.max(y)));
+    }
+    best
+}
+
 /// Simulates `asset` (read from `asset_path`) under `scene` and writes the
 /// outputs of `req`. `progress(done, total)` is called after every frame.
 pub fn simulate(
@@ -416,7 +438,7 @@ pub fn simulate(
         if rest.triangles.is_empty() {
             return Err(invalid(&path, "the character has no triangles"));
         }
-        let (topology, dropped) = MeshTopology::new(&rest.triangles, rest.positions.len());
+        let (topology, dropped) = MeshTopology::welded(&rest.triangles, &rest.positions);
         if dropped > 0 {
             notes.push(format!(
                 "character: {dropped} degenerate or out-of-range triangles ignored"
@@ -455,19 +477,23 @@ pub fn simulate(
             let w = b.character.node_world_matrices(None, 0.0)[j];
             let jp: Vec3 = std::array::from_fn(|k| w[(k, 3)] * b.scale + b.translate[k]);
             let (glo, ghi) = bbox(&x);
-            let half = [0.5 * (ghi[0] - glo[0]), 0.5 * (ghi[2] - glo[2])];
-            let top = b
-                .bind
+            // Centre over the joint, then lift so that the lowest clearance
+            // between a garment node and the body surface straight below it
+            // is `fit_gap`.
+            let dx = [jp[0] - 0.5 * (glo[0] + ghi[0]), jp[2] - 0.5 * (glo[2] + ghi[2])];
+            let lift = x
                 .iter()
-                .filter(|p| (p[0] - jp[0]).abs() <= half[0] && (p[2] - jp[2]).abs() <= half[1])
-                .map(|p| p[1])
+                .filter_map(|p| {
+                    surface_height(&b.topology, &b.bind, p[0] + dx[0], p[2] + dx[1]).map(|h| h - p[1])
+                })
                 .fold(f64::NEG_INFINITY, f64::max);
-            let top = if top.is_finite() { top } else { jp[1] };
-            let shift = [
-                jp[0] - 0.5 * (glo[0] + ghi[0]),
-                top + c.fit_gap - glo[1],
-                jp[2] - 0.5 * (glo[2] + ghi[2]),
-            ];
+            if !lift.is_finite() {
+                return Err(invalid(
+                    &path,
+                    format!("character.fit_joint: the body has no surface under the garment at joint '{joint}'"),
+                ));
+            }
+            let shift = [dx[0], lift + c.fit_gap, dx[1]];
             for p in &mut x {
                 for k in 0..3 {
                     p[k] += shift[k];

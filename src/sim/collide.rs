@@ -242,6 +242,33 @@ impl MeshTopology {
         )
     }
 
+    /// Like [`MeshTopology::new`], but vertices at bit-identical positions
+    /// (`positions`, e.g. the bind pose) are merged first: exporters split
+    /// vertices along UV and normal seams (Fox.glb has no shared vertex at
+    /// all), which would leave every edge a boundary and the pseudo-normal
+    /// signs open-mesh approximations. The triangles then use the first
+    /// vertex of every merged group, so posed positions stay indexed as before.
+    pub fn welded(triangles: &[[u32; 3]], positions: &[Vec3]) -> (MeshTopology, usize) {
+        let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+        let key = |i: u32| positions[i as usize].map(f64::to_bits);
+        order.sort_by_key(|&i| (key(i), i));
+        let mut canon: Vec<u32> = (0..positions.len() as u32).collect();
+        let mut i = 0;
+        while i < order.len() {
+            let mut j = i + 1;
+            while j < order.len() && key(order[j]) == key(order[i]) {
+                canon[order[j] as usize] = order[i];
+                j += 1;
+            }
+            i = j;
+        }
+        let remapped: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|v| canon.get(v as usize).copied().unwrap_or(v)))
+            .collect();
+        MeshTopology::new(&remapped, positions.len())
+    }
+
     /// The (valid) triangles.
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
