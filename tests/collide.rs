@@ -55,7 +55,11 @@ fn uv_sphere(r: f64, nu: usize, nv: usize) -> MeshCollider {
         let th = std::f64::consts::PI * i as f64 / nv as f64;
         for j in 0..nu {
             let ph = 2.0 * std::f64::consts::PI * j as f64 / nu as f64;
-            pos.push([r * th.sin() * ph.cos(), r * th.cos(), r * th.sin() * ph.sin()]);
+            pos.push([
+                r * th.sin() * ph.cos(),
+                r * th.cos(),
+                r * th.sin() * ph.sin(),
+            ]);
         }
     }
     let ring = |i: usize, j: usize| (2 + (i - 1) * nu + j % nu) as u32;
@@ -66,7 +70,12 @@ fn uv_sphere(r: f64, nu: usize, nv: usize) -> MeshCollider {
     }
     for i in 1..nv - 1 {
         for j in 0..nu {
-            let (a, b, c, d) = (ring(i, j), ring(i, j + 1), ring(i + 1, j), ring(i + 1, j + 1));
+            let (a, b, c, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j),
+                ring(i + 1, j + 1),
+            );
             tris.push([a, b, d]);
             tris.push([a, d, c]);
         }

@@ -46,7 +46,10 @@ fn small_asset(dir: &Path) -> PathBuf {
 
 fn fox() -> PathBuf {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
-    assert!(p.is_file(), "examples/Fox.glb is committed with its credits");
+    assert!(
+        p.is_file(),
+        "examples/Fox.glb is committed with its credits"
+    );
     p
 }
 
@@ -126,7 +129,10 @@ thickness = 0.001
     // It fell and touches the sphere (not a frozen swatch).
     let drop = first[0][1] - last[0][1];
     assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
-    assert!(worst < 3e-3, "the swatch never reached the sphere ({worst} m)");
+    assert!(
+        worst < 3e-3,
+        "the swatch never reached the sphere ({worst} m)"
+    );
     for f in 1..=4 {
         assert!(dir.path().join(format!("drape.{f:04}.ply")).is_file());
     }
@@ -221,7 +227,11 @@ fn malformed_scenes_exit_65_naming_file_and_key() {
     let dir = tempfile::tempdir().unwrap();
     let asset_path = small_asset(dir.path());
     let cases = [
-        ("unknown.toml", "[simulation]\ntime_step = 0.01\n", "time_step"),
+        (
+            "unknown.toml",
+            "[simulation]\ntime_step = 0.01\n",
+            "time_step",
+        ),
         (
             "radius.toml",
             "[[collider]]\ntype = \"sphere\"\ncenter = [0, 0, 0]\nradius = -1.0\n",
@@ -229,11 +239,7 @@ fn malformed_scenes_exit_65_naming_file_and_key() {
         ),
         ("dt.toml", "[simulation]\ndt = \"one/150\"\n", "dt"),
         ("syntax.toml", "[simulation\n", "simulation"),
-        (
-            "kind.toml",
-            "[[collider]]\ntype = \"cone\"\n",
-            "cone",
-        ),
+        ("kind.toml", "[[collider]]\ntype = \"cone\"\n", "cone"),
     ];
     for (name, text, key) in cases {
         let scene = dir.path().join(name);
@@ -249,8 +255,14 @@ fn malformed_scenes_exit_65_naming_file_and_key() {
             dir.path().join("o.vtkhdf").to_str().unwrap(),
         ]);
         assert_eq!(code, 65, "{name}: {err}");
-        assert!(err.contains(name), "{name}: the message names the file: {err}");
-        assert!(err.contains(key), "{name}: the message names the key {key}: {err}");
+        assert!(
+            err.contains(name),
+            "{name}: the message names the file: {err}"
+        );
+        assert!(
+            err.contains(key),
+            "{name}: the message names the key {key}: {err}"
+        );
     }
 }
 
@@ -266,36 +278,108 @@ fn cli_exit_codes() {
     // Usage: neither or both drivers, bad frame spec, bad backend.
     assert_eq!(run(&["simulate", a, "--frames", "1-2", "-o", o]).0, 2);
     assert_eq!(
-        run(&["simulate", a, "--scene", "x.toml", "--character", fox, "--frames", "1", "-o", o]).0,
+        run(&[
+            "simulate",
+            a,
+            "--scene",
+            "x.toml",
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
         2
     );
     assert_eq!(
-        run(&["simulate", a, "--character", fox, "--frames", "x-y", "-o", o]).0,
+        run(&[
+            "simulate",
+            a,
+            "--character",
+            fox,
+            "--frames",
+            "x-y",
+            "-o",
+            o
+        ])
+        .0,
         2
     );
     assert_eq!(
-        run(&["simulate", a, "--character", fox, "--frames", "1", "--backend", "tpu", "-o", o]).0,
+        run(&[
+            "simulate",
+            a,
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "--backend",
+            "tpu",
+            "-o",
+            o
+        ])
+        .0,
         2
     );
     // Missing asset / scene: 66.
     let missing = dir.path().join("missing.vtkhdf");
     assert_eq!(
-        run(&["simulate", missing.to_str().unwrap(), "--character", fox, "--frames", "1", "-o", o]).0,
+        run(&[
+            "simulate",
+            missing.to_str().unwrap(),
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
         66
     );
     assert_eq!(
-        run(&["simulate", a, "--scene", "/nonexistent/s.toml", "--frames", "1", "-o", o]).0,
+        run(&[
+            "simulate",
+            a,
+            "--scene",
+            "/nonexistent/s.toml",
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
         66
     );
     // GPU backend not in this build: a clear message, bad input.
     let (code, _, err) = run(&[
-        "simulate", a, "--character", fox, "--frames", "1", "--backend", "gpu", "-o", o,
+        "simulate",
+        a,
+        "--character",
+        fox,
+        "--frames",
+        "1",
+        "--backend",
+        "gpu",
+        "-o",
+        o,
     ]);
     assert_eq!(code, 65, "{err}");
     assert!(err.contains("not available"), "{err}");
     // Unknown animation: 65 naming it.
     let (code, _, err) = run(&[
-        "simulate", a, "--character", fox, "--animation", "Dance", "--frames", "1", "-o", o,
+        "simulate",
+        a,
+        "--character",
+        fox,
+        "--animation",
+        "Dance",
+        "--frames",
+        "1",
+        "-o",
+        o,
     ]);
     assert_eq!(code, 65, "{err}");
     assert!(err.contains("Dance") && err.contains("Walk"), "{err}");

@@ -83,7 +83,10 @@ impl BackendChoice {
 pub fn parse_seconds(s: &str) -> Result<f64, String> {
     let v = match s.split_once('/') {
         Some((a, b)) => {
-            let a: f64 = a.trim().parse().map_err(|_| format!("'{s}': bad numerator"))?;
+            let a: f64 = a
+                .trim()
+                .parse()
+                .map_err(|_| format!("'{s}': bad numerator"))?;
             let b: f64 = b
                 .trim()
                 .parse()
@@ -353,10 +356,16 @@ impl Scene {
             return Err("simulation.gravity: must be finite".into());
         }
         if !(s.damping.is_finite() && s.damping >= 0.0) {
-            return Err(format!("simulation.damping: must be >= 0 (got {})", s.damping));
+            return Err(format!(
+                "simulation.damping: must be >= 0 (got {})",
+                s.damping
+            ));
         }
         if !(s.tolerance.is_finite() && s.tolerance >= 0.0) {
-            return Err(format!("simulation.tolerance: must be >= 0 (got {})", s.tolerance));
+            return Err(format!(
+                "simulation.tolerance: must be >= 0 (got {})",
+                s.tolerance
+            ));
         }
         if let Some(p) = s.preroll.filter(|p| !(p.is_finite() && *p >= 0.0)) {
             return Err(format!("simulation.preroll: must be >= 0 (got {p})"));
@@ -384,7 +393,9 @@ impl Scene {
                 }
             }
             if !finite(&p.velocity) || !finite(&p.angular_velocity_deg) {
-                return Err(format!("{key}: velocity and angular_velocity_deg must be finite"));
+                return Err(format!(
+                    "{key}: velocity and angular_velocity_deg must be finite"
+                ));
             }
             if !p.start.is_finite() || p.end.is_some_and(|e| !(e >= p.start)) {
                 return Err(format!("{key}.end: must be >= start"));
@@ -433,10 +444,16 @@ impl Scene {
                 return Err("character.translate: must be finite".into());
             }
             if !(c.pin_distance.is_finite() && c.pin_distance >= 0.0) {
-                return Err(format!("character.pin_distance: must be >= 0 (got {})", c.pin_distance));
+                return Err(format!(
+                    "character.pin_distance: must be >= 0 (got {})",
+                    c.pin_distance
+                ));
             }
             if !(c.thickness.is_finite() && c.thickness >= 0.0) {
-                return Err(format!("character.thickness: must be >= 0 (got {})", c.thickness));
+                return Err(format!(
+                    "character.thickness: must be >= 0 (got {})",
+                    c.thickness
+                ));
             }
             if !c.time_offset.is_finite() || !c.fit_gap.is_finite() {
                 return Err("character.time_offset/fit_gap: must be finite".into());
@@ -501,7 +518,11 @@ scale = 0.0025
     fn errors_name_the_key() {
         let e = Scene::parse("[simulation]\ndamping_x = 1\n", Path::new("s.toml")).unwrap_err();
         assert!(e.message.contains("damping_x"), "{e}");
-        let e = Scene::parse("[[collider]]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = -1\n", Path::new("s.toml")).unwrap_err();
+        let e = Scene::parse(
+            "[[collider]]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = -1\n",
+            Path::new("s.toml"),
+        )
+        .unwrap_err();
         assert!(e.message.contains("collider[0].radius"), "{e}");
         let e = Scene::parse("[simulation]\ndt = \"1/0\"\n", Path::new("s.toml")).unwrap_err();
         assert!(e.message.contains("dt"), "{e}");

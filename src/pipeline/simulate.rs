@@ -115,23 +115,20 @@ pub fn resolve_backend(
     backend: BackendChoice,
     solver: SolverChoice,
 ) -> Result<(&'static str, &'static str), SimulateError> {
-    let b = match backend {
-        BackendChoice::Cpu | BackendChoice::Auto => "cpu",
-        BackendChoice::Gpu => {
-            return Err(SimulateError::Unavailable(
+    let b =
+        match backend {
+            BackendChoice::Cpu | BackendChoice::Auto => "cpu",
+            BackendChoice::Gpu => return Err(SimulateError::Unavailable(
                 "--backend gpu: the GPU backend is not available in this build (use cpu or auto)"
                     .into(),
-            ))
-        }
-    };
+            )),
+        };
     let s = match solver {
         SolverChoice::Direct => "direct",
-        SolverChoice::Dd => {
-            return Err(SimulateError::Unavailable(
-                "--solver dd: the domain-decomposed solver is not available in this build (use direct)"
-                    .into(),
-            ))
-        }
+        SolverChoice::Dd => return Err(SimulateError::Unavailable(
+            "--solver dd: the domain-decomposed solver is not available in this build (use direct)"
+                .into(),
+        )),
     };
     Ok((b, s))
 }
@@ -480,11 +477,15 @@ pub fn simulate(
             // Centre over the joint, then lift so that the lowest clearance
             // between a garment node and the body surface straight below it
             // is `fit_gap`.
-            let dx = [jp[0] - 0.5 * (glo[0] + ghi[0]), jp[2] - 0.5 * (glo[2] + ghi[2])];
+            let dx = [
+                jp[0] - 0.5 * (glo[0] + ghi[0]),
+                jp[2] - 0.5 * (glo[2] + ghi[2]),
+            ];
             let lift = x
                 .iter()
                 .filter_map(|p| {
-                    surface_height(&b.topology, &b.bind, p[0] + dx[0], p[2] + dx[1]).map(|h| h - p[1])
+                    surface_height(&b.topology, &b.bind, p[0] + dx[0], p[2] + dx[1])
+                        .map(|h| h - p[1])
                 })
                 .fold(f64::NEG_INFINITY, f64::max);
             if !lift.is_finite() {
@@ -533,9 +534,7 @@ pub fn simulate(
             nodes.push(nd);
         }
         if let (Some(a), Some(b)) = (ps.box_min, ps.box_max) {
-            nodes.extend(
-                (0..n).filter(|&j| (0..3).all(|k| x[j][k] >= a[k] && x[j][k] <= b[k])),
-            );
+            nodes.extend((0..n).filter(|&j| (0..3).all(|k| x[j][k] >= a[k] && x[j][k] <= b[k])));
         }
         nodes.sort_unstable();
         nodes.dedup();
@@ -546,7 +545,9 @@ pub fn simulate(
         }
         let rest: Vec<Vec3> = nodes.iter().map(|&j| x[j]).collect();
         let pivot = ps.pivot.unwrap_or_else(|| {
-            let s = rest.iter().fold([0.0; 3], |a, p| std::array::from_fn(|k| a[k] + p[k]));
+            let s = rest
+                .iter()
+                .fold([0.0; 3], |a, p| std::array::from_fn(|k| a[k] + p[k]));
             s.map(|c| c / rest.len() as f64)
         });
         handles.push(Handle {
@@ -658,28 +659,29 @@ pub fn simulate(
     let mut pin_pos = Vec::with_capacity(pinned.len());
 
     // Colliders (and the body alone) posed at shot time t.
-    let pose = |t: f64| -> Result<(ColliderSet, Option<Vec<Vec3>>, Option<ColliderSet>), SimulateError> {
-        let mut set = ColliderSet {
-            colliders: statics.clone(),
-        };
-        let mut body_set = None;
-        let mut verts = None;
-        if let Some(b) = &body {
-            let pts = b.positions(t);
-            if b.collide {
-                let m = MeshCollider::new(&b.topology, &pts)
-                    .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
-                let c = Collider {
-                    shape: Shape::Mesh(Box::new(m)),
-                    thickness: b.thickness,
-                };
-                set.colliders.push(c.clone());
-                body_set = Some(ColliderSet { colliders: vec![c] });
+    let pose =
+        |t: f64| -> Result<(ColliderSet, Option<Vec<Vec3>>, Option<ColliderSet>), SimulateError> {
+            let mut set = ColliderSet {
+                colliders: statics.clone(),
+            };
+            let mut body_set = None;
+            let mut verts = None;
+            if let Some(b) = &body {
+                let pts = b.positions(t);
+                if b.collide {
+                    let m = MeshCollider::new(&b.topology, &pts)
+                        .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
+                    let c = Collider {
+                        shape: Shape::Mesh(Box::new(m)),
+                        thickness: b.thickness,
+                    };
+                    set.colliders.push(c.clone());
+                    body_set = Some(ColliderSet { colliders: vec![c] });
+                }
+                verts = Some(pts);
             }
-            verts = Some(pts);
-        }
-        Ok((set, verts, body_set))
-    };
+            Ok((set, verts, body_set))
+        };
 
     let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
         for (i, p) in x.iter().enumerate() {
@@ -739,15 +741,17 @@ pub fn simulate(
                     .ok_or_else(|| invalid(asset_path, "body pin lost its triangle"))?,
             );
         }
-        let frame_of_step = first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
-        let st = pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set, &is_pinned).map_err(
-            |source| SimulateError::Diverged {
-                path: asset_path.to_path_buf(),
-                frame: frame_of_step,
-                time: t,
-                source,
-            },
-        )?;
+        let frame_of_step =
+            first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
+        let st =
+            pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set, &is_pinned).map_err(|source| {
+                SimulateError::Diverged {
+                    path: asset_path.to_path_buf(),
+                    frame: frame_of_step,
+                    time: t,
+                    source,
+                }
+            })?;
         step_ms.push(st.ms);
         iters_sum += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);
@@ -850,7 +854,12 @@ fn write_yarns(
                 .push_frame(fps_times[k], &pts)
                 .map_err(|e| invalid(path, e.to_string()))?;
         }
-        return Ok(io::write_path(path, &asset.rest_yarns, Some(&frames), opts)?);
+        return Ok(io::write_path(
+            path,
+            &asset.rest_yarns,
+            Some(&frames),
+            opts,
+        )?);
     }
     let mut written = Vec::with_capacity(recorded.len());
     for (k, (f, pos)) in recorded.iter().enumerate() {

@@ -715,7 +715,9 @@ mod tests {
         // Deterministic pseudo-random soup.
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let mut pos = Vec::new();
@@ -723,11 +725,7 @@ mod tests {
         for t in 0..300u32 {
             let c = [rnd(), rnd(), rnd()];
             for _ in 0..3 {
-                pos.push([
-                    c[0] + 0.1 * rnd(),
-                    c[1] + 0.1 * rnd(),
-                    c[2] + 0.1 * rnd(),
-                ]);
+                pos.push([c[0] + 0.1 * rnd(), c[1] + 0.1 * rnd(), c[2] + 0.1 * rnd()]);
             }
             tris.push([3 * t, 3 * t + 1, 3 * t + 2]);
         }

@@ -87,7 +87,14 @@ mod tests {
     fn triplets_sum_duplicates_and_multiply() {
         let a = CsrMatrix::from_triplets(
             3,
-            &[(0, 0, 2.0), (1, 1, 3.0), (0, 1, 1.0), (1, 0, 1.0), (0, 0, 1.0), (2, 2, 4.0)],
+            &[
+                (0, 0, 2.0),
+                (1, 1, 3.0),
+                (0, 1, 1.0),
+                (1, 0, 1.0),
+                (0, 0, 1.0),
+                (2, 2, 4.0),
+            ],
         )
         .unwrap();
         assert_eq!(a.row_ptr, vec![0, 2, 4, 5]);
