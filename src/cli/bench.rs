@@ -311,7 +311,10 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     }
     let r = SimBench {
         bench: "sim",
-        input: format!("built-in analytic knit swatch ({} points)", yarns.num_points()),
+        input: format!(
+            "built-in analytic knit swatch ({} points)",
+            yarns.num_points()
+        ),
         scene: "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity",
         yarn_points: yarns.num_points(),
         voxel_size: h,
