@@ -4,8 +4,8 @@
 mod asset;
 mod bench;
 mod commands;
-mod simulate;
 pub mod exit;
+mod simulate;
 
 use std::path::PathBuf;
 
