@@ -440,3 +440,69 @@ fn cli_character_shot_writes_every_frame() {
     let s = vtkhdf::read_asset(&o).unwrap();
     assert_eq!(s.steps.times, vec![10.0 / 24.0, 12.0 / 24.0]);
 }
+
+#[test]
+fn scripted_handles_follow_their_motion() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let n = asset.mesh.num_nodes();
+    // Left edge fixed, right edge pulled +x at 2 cm/s, no gravity.
+    let xs: Vec<f64> = asset.mesh.nodes.iter().map(|p| p[0]).collect();
+    let (lo, hi) = xs
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    let scene = Scene::parse(
+        &format!(
+            r#"
+[simulation]
+gravity = [0.0, 0.0, 0.0]
+[[pin]]
+name = "left"
+box_min = [-1.0, -1.0, -1.0]
+box_max = [{l}, 1.0, 1.0]
+[[pin]]
+name = "right"
+box_min = [{r}, -1.0, -1.0]
+box_max = [1.0, 1.0, 1.0]
+velocity = [0.02, 0.0, 0.0]
+"#,
+            l = lo + 1e-4,
+            r = hi - 1e-4
+        ),
+        Path::new("s.toml"),
+    )
+    .unwrap();
+    let r = simulate(
+        &asset,
+        &asset_path,
+        &scene,
+        &request(dir.path(), vec![1, 3], None),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(r.pinned_scripted > 0);
+    let out = vtkhdf::read_asset(&dir.path().join("out.vtkhdf")).unwrap();
+    let last = out.steps.step(1, n);
+    let t = 2.0 / 24.0;
+    for (i, p) in asset.mesh.nodes.iter().enumerate() {
+        if p[0] <= lo + 1e-4 {
+            assert!((last[i][0] - p[0]).abs() < 1e-12);
+        }
+        if p[0] >= hi - 1e-4 {
+            assert!(
+                (last[i][0] - (p[0] + 0.02 * t)).abs() < 1e-12,
+                "{} vs {}",
+                last[i][0],
+                p[0] + 0.02 * t
+            );
+        }
+    }
+    // The free middle stretched along: some node moved +x.
+    assert!(last
+        .iter()
+        .zip(&asset.mesh.nodes)
+        .any(|(a, b)| a[0] - b[0] > 1e-5));
+}

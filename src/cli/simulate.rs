@@ -232,6 +232,15 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
                 d
             );
         }
+        if let Some(p) = r.max_penetration_pinned_m {
+            println!("  pinned nodes: max penetration into the body {p:.3e} m");
+        }
+        if r.max_contact_correction_m > 0.0 {
+            println!(
+                "  largest contact correction of a step {:.3e} m",
+                r.max_contact_correction_m
+            );
+        }
         for n in &r.notes {
             println!("  note: {n}");
         }

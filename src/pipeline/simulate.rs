@@ -79,7 +79,9 @@ pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
 /// One PD time step with contacts: the solver's step, then every free node
 /// that is not admissible is projected onto the colliders and its velocity
 /// set to the projected displacement over the step (inelastic contact, no
-/// friction).
+/// friction). Returns the step's statistics and the largest contact
+/// correction (m): how far the unconstrained step moved a node into the
+/// thickness band or the collider.
 ///
 /// TODO(merge): replace the body by
 /// `solver.step_with_contacts(x, v, pinned_positions, contacts)` once
@@ -91,20 +93,24 @@ pub fn pd_step(
     pinned_positions: &[Vec3],
     contacts: &dyn NodeProjector,
     is_pinned: &[bool],
-) -> Result<StepStats, SimError> {
+) -> Result<(StepStats, f64), SimError> {
     let before = x.to_vec();
     let stats = solver.step(x, v, pinned_positions)?;
     let dt = solver.params().dt;
+    let mut correction = 0.0f64;
     for (i, p) in x.iter_mut().enumerate() {
         if is_pinned.get(i).copied().unwrap_or(false) {
             continue;
         }
         if let Some(q) = contacts.project(i, *p) {
+            correction = correction.max(
+                ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt(),
+            );
             *p = q;
             v[i] = std::array::from_fn(|k| (q[k] - before[i][k]) / dt);
         }
     }
-    Ok(stats)
+    Ok((stats, correction))
 }
 
 /// Resolves the backend and solver to what this build runs.
@@ -258,6 +264,14 @@ pub struct SimulateReport {
     /// Smallest signed distance (m) of a free node to a collider over the
     /// output frames (None without colliders).
     pub min_distance_m: Option<f64>,
+    /// Largest penetration depth (m) of a pinned node into the body over
+    /// the output frames (pins ride on the skin, so they can dip in where
+    /// the skin folds).
+    pub max_penetration_pinned_m: Option<f64>,
+    /// Largest contact correction of a step (m): how far the PD step (which
+    /// does not see the colliders yet) moved a free node into a collider's
+    /// thickness band, before the projection put it back.
+    pub max_contact_correction_m: f64,
     pub character: Option<CharacterReport>,
     pub notes: Vec<String>,
 }
@@ -655,6 +669,8 @@ pub fn simulate(
     let mut iters_sum = 0u64;
     let mut iters_max = 0u32;
     let mut residual_max = 0.0f64;
+    let mut correction_max = 0.0f64;
+    let mut pen_pinned: Option<f64> = None;
     let mut next_frame = 0usize;
     let mut pin_pos = Vec::with_capacity(pinned.len());
 
@@ -686,6 +702,10 @@ pub fn simulate(
     let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
         for (i, p) in x.iter().enumerate() {
             if is_pinned[i] {
+                if let Some(bs) = body_set {
+                    let pen = bs.penetration(*p);
+                    pen_pinned = Some(pen_pinned.map_or(pen, |m| m.max(pen)));
+                }
                 continue;
             }
             if let Some((_, d)) = set.min_signed_distance(*p) {
@@ -743,19 +763,18 @@ pub fn simulate(
         }
         let frame_of_step =
             first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
-        let st =
-            pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set, &is_pinned).map_err(|source| {
-                SimulateError::Diverged {
-                    path: asset_path.to_path_buf(),
-                    frame: frame_of_step,
-                    time: t,
-                    source,
-                }
+        let (st, correction) = pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set, &is_pinned)
+            .map_err(|source| SimulateError::Diverged {
+                path: asset_path.to_path_buf(),
+                frame: frame_of_step,
+                time: t,
+                source,
             })?;
         step_ms.push(st.ms);
         iters_sum += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);
         residual_max = residual_max.max(st.residual);
+        correction_max = correction_max.max(correction);
         if let Some(f) = record(s) {
             if frames.get(next_frame) == Some(&f) {
                 measure(&x, &set, &body_set);
@@ -803,6 +822,8 @@ pub fn simulate(
         max_penetration_m: max_pen.max(0.0),
         max_penetration_body_m: max_pen_body,
         min_distance_m: min_dist,
+        max_penetration_pinned_m: pen_pinned,
+        max_contact_correction_m: correction_max,
         character: char_report,
         notes,
     };
