@@ -150,6 +150,10 @@ pub struct SimulationSection {
     pub damping: f64,
     /// Most PD iterations per step. Default 20 (sim::pd).
     pub max_iterations: u32,
+    /// Fraction (0..1) of a contacting node's tangential velocity removed
+    /// at each contact (velocity-level friction against colliders). Default
+    /// 0.5: a swatch dropped on a sphere stays on it instead of sliding off.
+    pub friction: f64,
     /// Relative PD convergence tolerance (sim::pd). Default 1e-6.
     pub tolerance: f64,
     /// Shot time (s) simulated before the first frame while the character
@@ -170,6 +174,7 @@ impl Default for SimulationSection {
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
             max_iterations: 20,
+            friction: 0.5,
             tolerance: 1e-6,
             preroll: None,
             solver: SolverChoice::Direct,
@@ -369,6 +374,12 @@ impl Scene {
         }
         if let Some(p) = s.preroll.filter(|p| !(p.is_finite() && *p >= 0.0)) {
             return Err(format!("simulation.preroll: must be >= 0 (got {p})"));
+        }
+        if !(0.0..=1.0).contains(&s.friction) {
+            return Err(format!(
+                "simulation.friction: must be in 0..1 (got {})",
+                s.friction
+            ));
         }
         if s.max_iterations == 0 {
             return Err("simulation.max_iterations: must be >= 1".into());

@@ -78,14 +78,16 @@ pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
 
 /// One PD time step with contacts: the solver's step, then every free node
 /// that is not admissible is projected onto the colliders and its velocity
-/// set to the projected displacement over the step (inelastic contact, no
-/// friction). Returns the step's statistics and the largest contact
+/// set to the projected displacement over the step (inelastic contact),
+/// less `friction` (0..1) of its part tangential to the contact
+/// (velocity-level friction, relative to a resting collider). Returns the step's statistics and the largest contact
 /// correction (m): how far the unconstrained step moved a node into the
 /// thickness band or the collider.
 ///
 /// TODO(merge): replace the body by
 /// `solver.step_with_contacts(x, v, pinned_positions, contacts)` once
-/// `sim::pd` projects contacts inside its PD iterations (VH §8.5).
+/// `sim::pd` projects contacts inside its PD iterations (VH §8.5), keeping
+/// the friction pass on the nodes it reports in contact.
 pub fn pd_step(
     solver: &mut PdSolver,
     x: &mut [Vec3],
@@ -93,6 +95,7 @@ pub fn pd_step(
     pinned_positions: &[Vec3],
     contacts: &dyn NodeProjector,
     is_pinned: &[bool],
+    friction: f64,
 ) -> Result<(StepStats, f64), SimError> {
     let before = x.to_vec();
     let stats = solver.step(x, v, pinned_positions)?;
@@ -106,8 +109,21 @@ pub fn pd_step(
             correction = correction.max(
                 ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt(),
             );
+            let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+            let dn = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             *p = q;
-            v[i] = std::array::from_fn(|k| (q[k] - before[i][k]) / dt);
+            let mut u: Vec3 = std::array::from_fn(|k| (q[k] - before[i][k]) / dt);
+            if dn > 0.0 && friction > 0.0 {
+                // Remove `friction` of the velocity tangential to the
+                // contact (the projection direction is the normal).
+                let n = [d[0] / dn, d[1] / dn, d[2] / dn];
+                let un = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
+                for k in 0..3 {
+                    let t = u[k] - un * n[k];
+                    u[k] -= friction * t;
+                }
+            }
+            v[i] = u;
         }
     }
     Ok((stats, correction))
@@ -311,8 +327,9 @@ fn invalid(path: &Path, message: impl Into<String>) -> SimulateError {
     }
 }
 
-/// Checks an output can be written before the (long) simulation: its folder
-/// exists and, for yarns, the format is writable and holds frames.
+/// Checks an output can be written before the (long) simulation: the asset's
+/// folder exists; for yarns, the format is writable and holds frames (the
+/// folder is created).
 fn preflight(req: &ShotRequest) -> Result<(), SimulateError> {
     let folder_ok = |p: &Path| {
         let parent = p.parent().filter(|d| !d.as_os_str().is_empty());
@@ -339,7 +356,13 @@ fn preflight(req: &ShotRequest) -> Result<(), SimulateError> {
                 "--yarns-out needs a frame sequence name.####.ext or an .h5 file",
             ));
         }
-        folder_ok(y)?;
+        // The yarn frames usually get a folder of their own: make it.
+        if let Some(d) = y.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(d).map_err(|source| IoError::Write {
+                path: d.to_path_buf(),
+                source,
+            })?;
+        }
     }
     Ok(())
 }
@@ -763,13 +786,21 @@ pub fn simulate(
         }
         let frame_of_step =
             first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
-        let (st, correction) = pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set, &is_pinned)
-            .map_err(|source| SimulateError::Diverged {
-                path: asset_path.to_path_buf(),
-                frame: frame_of_step,
-                time: t,
-                source,
-            })?;
+        let (st, correction) = pd_step(
+            &mut solver,
+            &mut x,
+            &mut v,
+            &pin_pos,
+            &set,
+            &is_pinned,
+            sim.friction,
+        )
+        .map_err(|source| SimulateError::Diverged {
+            path: asset_path.to_path_buf(),
+            frame: frame_of_step,
+            time: t,
+            source,
+        })?;
         step_ms.push(st.ms);
         iters_sum += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);
