@@ -11,6 +11,9 @@
 //!
 //! Pure math: no files.
 
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::geom::Vec3;
 use crate::sim::collide::{MeshCollider, MeshTopology};
 

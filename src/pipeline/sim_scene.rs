@@ -6,6 +6,9 @@
 //! Parsing rejects unknown keys, and every error names the file and the key
 //! (`toml` reports the line, column and key path).
 
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};

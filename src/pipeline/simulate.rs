@@ -10,6 +10,11 @@
 //! first frame's pose (smoothstep), so the garment, placed against the bind
 //! pose, is carried into the shot instead of jumping.
 
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Small fixed-size loops over x, y, z read better indexed.
+#![allow(clippy::needless_range_loop)]
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -243,6 +248,10 @@ impl Body {
         )
     }
 }
+
+/// Colliders posed at one time, the body's vertices then, and the body
+/// alone as a collider.
+type Posed = (ColliderSet, Option<Vec<Vec3>>, Option<ColliderSet>);
 
 /// What a shot did.
 #[derive(Debug, Clone, Serialize)]
@@ -698,29 +707,28 @@ pub fn simulate(
     let mut pin_pos = Vec::with_capacity(pinned.len());
 
     // Colliders (and the body alone) posed at shot time t.
-    let pose =
-        |t: f64| -> Result<(ColliderSet, Option<Vec<Vec3>>, Option<ColliderSet>), SimulateError> {
-            let mut set = ColliderSet {
-                colliders: statics.clone(),
-            };
-            let mut body_set = None;
-            let mut verts = None;
-            if let Some(b) = &body {
-                let pts = b.positions(t);
-                if b.collide {
-                    let m = MeshCollider::new(&b.topology, &pts)
-                        .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
-                    let c = Collider {
-                        shape: Shape::Mesh(Box::new(m)),
-                        thickness: b.thickness,
-                    };
-                    set.colliders.push(c.clone());
-                    body_set = Some(ColliderSet { colliders: vec![c] });
-                }
-                verts = Some(pts);
-            }
-            Ok((set, verts, body_set))
+    let pose = |t: f64| -> Result<Posed, SimulateError> {
+        let mut set = ColliderSet {
+            colliders: statics.clone(),
         };
+        let mut body_set = None;
+        let mut verts = None;
+        if let Some(b) = &body {
+            let pts = b.positions(t);
+            if b.collide {
+                let m = MeshCollider::new(&b.topology, &pts)
+                    .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
+                let c = Collider {
+                    shape: Shape::Mesh(Box::new(m)),
+                    thickness: b.thickness,
+                };
+                set.colliders.push(c.clone());
+                body_set = Some(ColliderSet { colliders: vec![c] });
+            }
+            verts = Some(pts);
+        }
+        Ok((set, verts, body_set))
+    };
 
     let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
         for (i, p) in x.iter().enumerate() {

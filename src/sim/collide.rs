@@ -18,6 +18,11 @@
 //!
 //! Pure math: no files, no printing.
 
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Small fixed-size loops over x, y, z read better indexed.
+#![allow(clippy::needless_range_loop)]
+
 use super::contact::NodeProjector;
 use crate::geom::Vec3;
 
