@@ -21,6 +21,8 @@
 //! Morph target weights are not modelled (the reader skips `weights` channels
 //! with a note): knitvox only needs the body surface for collisions.
 
+pub mod pins;
+
 use std::fmt;
 
 use nalgebra::{Matrix4, Quaternion, UnitQuaternion, Vector3, Vector4};

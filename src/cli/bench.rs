@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{BenchEmbedArgs, BenchIoArgs, ExitCode};
+use super::{BenchEmbedArgs, BenchIoArgs, BenchSimArgs, ExitCode};
 use crate::io::{self, Format, ReadOptions, WriteOptions};
 use crate::yarn::analytic::knit_swatch_with_points;
 
@@ -207,6 +207,138 @@ pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
             "{}: {} yarn points -> {} nodes, {} tets (h = {:.3e} m); embed {:.1} ms; shape fit: prepare {:.1} ms, {:.2} ms per frame; peak RSS {:.0} MB",
             r.input, r.yarn_points, r.nodes, r.tets, r.voxel_size, r.embed_ms, r.shapefit_prepare_ms, r.shapefit_ms_per_frame,
             r.peak_rss_mb.unwrap_or(f64::NAN)
+        );
+    }
+    Ok(ExitCode::Success)
+}
+
+#[derive(Serialize)]
+struct SimBench {
+    bench: &'static str,
+    input: String,
+    scene: &'static str,
+    yarn_points: usize,
+    voxel_size: f64,
+    tets: usize,
+    nodes: usize,
+    pinned: usize,
+    steps: usize,
+    dt: f64,
+    threads: usize,
+    solver: &'static str,
+    backend: &'static str,
+    /// One-off assembly and factorization (ms).
+    prepare_ms: f64,
+    /// Median wall time of one time step (ms).
+    ms_per_step: f64,
+    /// Mean PD iterations (local + global) per step.
+    pd_iterations: f64,
+    pd_iterations_max: u32,
+    /// Largest implicit-Euler residual over the steps (N).
+    residual: f64,
+    peak_rss_mb: Option<f64>,
+}
+
+/// `bench sim`: an analytic knit swatch of about `--tets` tets, its two x
+/// edges pinned and pulled apart (20% over the run) under gravity.
+pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
+    use crate::embed::{embed as run_embed, EmbedParams};
+    use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+    use crate::pipeline::simulate::resolve_backend;
+    use crate::sim::pd::{PdParams, PdSolver};
+    let (backend, solver_name) = resolve_backend(a.backend, a.solver)?;
+    // About 1.7 tets per yarn point at the default voxel size (README
+    // embedding table); one correction from the first embedding's ratio.
+    let mut points = (a.tets as f64 / 1.7).max(800.0) as usize;
+    let mut yarns = knit_swatch_with_points(points);
+    let mut e = run_embed(&yarns, &EmbedParams::default())?;
+    let ratio = a.tets as f64 / e.mesh.num_tets().max(1) as f64;
+    if !(0.85..=1.15).contains(&ratio) {
+        points = ((points as f64) * ratio).max(800.0) as usize;
+        yarns = knit_swatch_with_points(points);
+        e = run_embed(&yarns, &EmbedParams::default())?;
+    }
+    let mesh = &e.mesh;
+    let nt = mesh.num_tets();
+    let h = e.stats.voxel_size;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for p in &mesh.nodes {
+        lo = lo.min(p[0]);
+        hi = hi.max(p[0]);
+    }
+    let left: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] <= lo + 0.5 * h)
+        .collect();
+    let right: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] >= hi - 0.5 * h)
+        .collect();
+    let pinned: Vec<usize> = left.iter().chain(&right).copied().collect();
+    let steps = a.steps.max(1);
+    let speed = 0.2 * (hi - lo) / (steps as f64 * a.dt);
+    let params = PdParams {
+        dt: a.dt,
+        mass_damping: 2.0,
+        ..PdParams::default()
+    };
+    let t = Instant::now();
+    let mut solver = PdSolver::new(
+        mesh,
+        &e.node_mass,
+        &vec![DEFAULT_GAMMA_S; nt],
+        &vec![DEFAULT_GAMMA_V; nt],
+        &pinned,
+        params,
+    )?;
+    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut x = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; x.len()];
+    let (mut ms, mut iters, mut iters_max, mut residual) = (Vec::new(), 0u64, 0u32, 0.0f64);
+    for s in 1..=steps {
+        let dx = speed * a.dt * s as f64;
+        let pins: Vec<[f64; 3]> = left
+            .iter()
+            .map(|&i| mesh.nodes[i])
+            .chain(right.iter().map(|&i| {
+                let p = mesh.nodes[i];
+                [p[0] + dx, p[1], p[2]]
+            }))
+            .collect();
+        let st = solver.step(&mut x, &mut v, &pins)?;
+        ms.push(st.ms);
+        iters += st.iterations as u64;
+        iters_max = iters_max.max(st.iterations);
+        residual = residual.max(st.residual);
+    }
+    let r = SimBench {
+        bench: "sim",
+        input: format!(
+            "built-in analytic knit swatch ({} points)",
+            yarns.num_points()
+        ),
+        scene: "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity",
+        yarn_points: yarns.num_points(),
+        voxel_size: h,
+        tets: nt,
+        nodes: mesh.num_nodes(),
+        pinned: pinned.len(),
+        steps,
+        dt: a.dt,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        solver: solver_name,
+        backend,
+        prepare_ms,
+        ms_per_step: median(ms),
+        pd_iterations: iters as f64 / steps as f64,
+        pd_iterations_max: iters_max,
+        residual,
+        peak_rss_mb: peak_rss_mb(),
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "{} tets, {} nodes ({} pinned): prepare {:.1} ms, {:.2} ms per step (median of {}), {:.1} PD iterations per step, residual <= {:.3e} N ({} / {})",
+            r.tets, r.nodes, r.pinned, r.prepare_ms, r.ms_per_step, r.steps, r.pd_iterations, r.residual, r.solver, r.backend
         );
     }
     Ok(ExitCode::Success)

@@ -155,7 +155,10 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    let r = demo::run(&a.out, &super::asset::command_line())?;
+    let r = demo::run(&a.out, &super::asset::command_line()).map_err(|e| match e {
+        demo::DemoError::Stage(s) => anyhow::Error::new(s),
+        demo::DemoError::Shot(s) => anyhow::Error::new(s),
+    })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -188,6 +191,20 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         println!("exported the fitted frames as yarn curves:");
         for p in &r.exported {
             println!("  {}", p.display());
+        }
+        for (what, sh) in [
+            ("dropped onto a sphere", &r.drape),
+            ("on the walking fox", &r.fox),
+        ] {
+            println!(
+                "simulated the swatch {what}: {} frames -> {} and {} yarn files; {} steps, {:.2} ms per step, max penetration {:.2e} m",
+                sh.frames,
+                sh.output.display(),
+                sh.yarn_files.len(),
+                sh.steps,
+                sh.ms_per_step_median,
+                sh.max_penetration_body_m.unwrap_or(sh.max_penetration_m)
+            );
         }
     }
     Ok(ExitCode::Success)

@@ -6,6 +6,7 @@ mod bench;
 mod commands;
 pub mod exit;
 mod pattern;
+mod simulate;
 
 use std::path::PathBuf;
 
@@ -36,6 +37,8 @@ pub enum Command {
     Shapefit(asset::ShapefitArgs),
     /// Export an asset's stored steps as per-frame yarn curves (V2Y).
     Export(asset::ExportArgs),
+    /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
+    Simulate(simulate::SimulateArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
@@ -164,6 +167,8 @@ pub enum BenchTarget {
     Io(BenchIoArgs),
     /// Embedding and Y2V shape-fit times, mesh size and peak memory.
     Embed(BenchEmbedArgs),
+    /// PD time-step cost of a stretched knit swatch of about --tets tets.
+    Sim(BenchSimArgs),
 }
 
 #[derive(Debug, Args)]
@@ -209,6 +214,28 @@ pub struct BenchEmbedArgs {
 }
 
 #[derive(Debug, Args)]
+pub struct BenchSimArgs {
+    /// Target tet count of the swatch (the analytic knit swatch embedded at the default voxel size).
+    #[arg(long, default_value_t = 20_000)]
+    pub tets: usize,
+    /// Timed time steps (the median is reported).
+    #[arg(long, default_value_t = 20)]
+    pub steps: usize,
+    /// Time step (s), a number or a fraction.
+    #[arg(long, default_value = "1/150", value_parser = crate::pipeline::sim_scene::parse_seconds)]
+    pub dt: f64,
+    /// Backend: cpu, gpu or auto.
+    #[arg(long, value_name = "cpu|gpu|auto", default_value = "auto")]
+    pub backend: crate::pipeline::sim_scene::BackendChoice,
+    /// Global solver: direct or dd.
+    #[arg(long, value_name = "direct|dd", default_value = "direct")]
+    pub solver: crate::pipeline::sim_scene::SolverChoice,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Output folder.
     #[arg(long, short, default_value = "demo-out")]
@@ -226,9 +253,11 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Embed(a) => asset::embed(&a),
         Command::Shapefit(a) => asset::shapefit(&a),
         Command::Export(a) => asset::export(&a),
+        Command::Simulate(a) => simulate::simulate(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),
+            BenchTarget::Sim(b) => bench::sim(&b),
         },
         Command::Pattern(a) => pattern::pattern(&a),
         Command::Demo(a) => commands::demo(&a),

@@ -1,11 +1,15 @@
 //! The built-in demo job: make a small example swatch, write it as the input
 //! file, read it back, and convert it into every output format (with a short
-//! animated frame sequence). Later issues grow this into the full pipeline.
+//! animated frame sequence); embed it into a homogenized asset, shape-fit and
+//! export frames; then simulate two shots of the asset — dropped onto a
+//! sphere, and laid on the back of the walking Fox.glb character — and write
+//! their caches (asset time series and per-frame yarn curves).
 
 use std::path::{Path, PathBuf};
 
 use crate::geom::{YarnFrames, Yarns};
 use crate::io::{self, Format, IoError, ReadOptions, WriteOptions};
+use crate::pipeline::simulate::{read_scene, simulate, ShotRequest, SimulateError, SimulateReport};
 use crate::yarn::analytic::{knit_swatch, SwatchParams};
 
 use super::inspect::{summarize, YarnReport};
@@ -23,7 +27,24 @@ pub struct DemoReport {
     pub shapefit: super::asset::ShapefitReport,
     /// Fitted frames exported back to yarn curves (V2Y).
     pub exported: Vec<PathBuf>,
+    /// The swatch dropped onto a sphere (examples/drape-sphere.toml).
+    pub drape: SimulateReport,
+    /// The swatch on the walking fox (examples/fox-walk.toml).
+    pub fox: SimulateReport,
 }
+
+/// The demo scenes and character, compiled in so the demo runs from any
+/// folder (they are written next to the demo's outputs).
+const DRAPE_SCENE: &str = include_str!("../../examples/drape-sphere.toml");
+const FOX_SCENE: &str = include_str!("../../examples/fox-walk.toml");
+const FOX_GLB: &[u8] = include_bytes!("../../examples/Fox.glb");
+const CREDITS: &str = include_str!("../../examples/CREDITS.md");
+
+/// Frames of the demo shots (24 fps): a third of a second each (the fox
+/// walks half its cycle after a 0.1 s pre-roll), so that the demo stays
+/// quick where the tests run it (debug build, 2 cores).
+const DRAPE_FRAMES: std::ops::RangeInclusive<i64> = 1..=8;
+const FOX_FRAMES: std::ops::RangeInclusive<i64> = 1..=8;
 
 /// A short analytic animation: the swatch stretched along x by up to 30%
 /// while it sags along -y (frames at 24 fps).
@@ -51,7 +72,7 @@ pub fn demo_frames(rest: &Yarns, count: usize) -> YarnFrames {
 
 /// Runs the demo into `out_dir` (created if missing): the yarn-format part,
 /// then embed -> shape-fit the frames -> export the fitted frames.
-pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, super::asset::StageError> {
+pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
     let (input, input_report, outputs, frames) = formats(out_dir)?;
     let asset_path = out_dir.join("swatch.vtkhdf");
     let read = ReadOptions {
@@ -77,7 +98,37 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, super::asset::St
         "swatch",
         &WriteOptions::default(),
     )?;
+    atomic_write(&out_dir.join("Fox.glb"), FOX_GLB)?;
+    atomic_write(&out_dir.join("CREDITS.md"), CREDITS.as_bytes())?;
+    // The two shots are independent: run them side by side.
+    let (drape, fox) = rayon::join(
+        || {
+            shot(
+                out_dir,
+                &asset,
+                &asset_path,
+                "drape",
+                DRAPE_SCENE,
+                DRAPE_FRAMES,
+                command,
+            )
+        },
+        || {
+            shot(
+                out_dir,
+                &asset,
+                &asset_path,
+                "fox-walk",
+                FOX_SCENE,
+                FOX_FRAMES,
+                command,
+            )
+        },
+    );
+    let (drape, fox) = (drape?, fox?);
     Ok(DemoReport {
+        drape,
+        fox,
         input,
         input_report,
         outputs,
@@ -87,6 +138,54 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, super::asset::St
         shapefit,
         exported,
     })
+}
+
+/// Errors of the demo: a stage's or a shot's.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error(transparent)]
+    Stage(#[from] super::asset::StageError),
+    #[error(transparent)]
+    Shot(#[from] SimulateError),
+}
+
+impl From<IoError> for DemoError {
+    fn from(e: IoError) -> Self {
+        DemoError::Stage(e.into())
+    }
+}
+
+fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    io::atomic::write_bytes(path, bytes)
+}
+
+/// One demo shot: writes `name.toml` into `out_dir`, simulates the asset
+/// under it into `name.vtkhdf` and `name/swatch.####.ply`.
+fn shot(
+    out_dir: &Path,
+    asset: &crate::geom::Asset,
+    asset_path: &Path,
+    name: &str,
+    scene_text: &str,
+    frames: std::ops::RangeInclusive<i64>,
+    command: &str,
+) -> Result<SimulateReport, DemoError> {
+    let scene_path = out_dir.join(format!("{name}.toml"));
+    atomic_write(&scene_path, scene_text.as_bytes())?;
+    let scene = read_scene(&scene_path)?;
+    let yarn_dir = out_dir.join(name);
+    std::fs::create_dir_all(&yarn_dir).map_err(|source| IoError::Write {
+        path: yarn_dir.clone(),
+        source,
+    })?;
+    let req = ShotRequest {
+        frames: frames.collect(),
+        output: out_dir.join(format!("{name}.vtkhdf")),
+        yarns_out: Some(yarn_dir.join("swatch.####.ply")),
+        write: WriteOptions::default(),
+        command: command.to_string(),
+    };
+    Ok(simulate(asset, asset_path, &scene, &req, &mut |_, _| {})?)
 }
 
 /// The yarn-format part of the demo: example input, inspection, every output format.

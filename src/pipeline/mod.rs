@@ -5,4 +5,6 @@ pub mod asset;
 pub mod demo;
 pub mod inspect;
 pub mod pattern;
+pub mod sim_scene;
+pub mod simulate;
 pub mod yls_scene;

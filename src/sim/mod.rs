@@ -4,6 +4,7 @@
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
 //! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
 //!   closest volume-preserving matrix per tet.
+//! * [`collide`]: planes, spheres and posed triangle meshes as colliders.
 //! * [`contact`]: the collider interface of the time loop (projection
 //!   constraints).
 //! * [`csr`]: CSR matrices for the iterative global-step parts.
@@ -21,6 +22,7 @@
 
 pub mod backend;
 pub mod cholesky;
+pub mod collide;
 pub mod contact;
 pub mod cpu;
 pub mod csr;

@@ -1,0 +1,553 @@
+//! Simulation scenes: the TOML file of `knitvox simulate --scene` (layout and
+//! every key in schemas/sim-scene.md): time stepping, garment placement,
+//! scripted pins, planes and spheres, and an animated character that the
+//! garment is pinned to and collides with.
+//!
+//! Parsing rejects unknown keys, and every error names the file and the key
+//! (`toml` reports the line, column and key path).
+
+// `!(a > b)` is deliberate throughout: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::anim::pins::DEFAULT_PIN_DISTANCE;
+use crate::geom::Vec3;
+
+/// Global solver of the PD step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SolverChoice {
+    /// Sparse Cholesky of the free block of K (VH Eq. 27-28).
+    #[default]
+    Direct,
+    /// Domain-decomposed CMS subspace + Chebyshev-Jacobi (VH §7.2).
+    Dd,
+}
+
+/// Where the PD iterations run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// CPU (f64 reference).
+    Cpu,
+    /// wgpu (f32).
+    Gpu,
+    /// The GPU when one is available, else the CPU.
+    #[default]
+    Auto,
+}
+
+impl std::str::FromStr for SolverChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "direct" => Ok(SolverChoice::Direct),
+            "dd" => Ok(SolverChoice::Dd),
+            _ => Err(format!("'{s}': expected direct or dd")),
+        }
+    }
+}
+
+impl std::str::FromStr for BackendChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(BackendChoice::Cpu),
+            "gpu" => Ok(BackendChoice::Gpu),
+            "auto" => Ok(BackendChoice::Auto),
+            _ => Err(format!("'{s}': expected cpu, gpu or auto")),
+        }
+    }
+}
+
+impl SolverChoice {
+    pub fn name(self) -> &'static str {
+        match self {
+            SolverChoice::Direct => "direct",
+            SolverChoice::Dd => "dd",
+        }
+    }
+}
+
+impl BackendChoice {
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendChoice::Cpu => "cpu",
+            BackendChoice::Gpu => "gpu",
+            BackendChoice::Auto => "auto",
+        }
+    }
+}
+
+/// Parses a time step: seconds as a number or a fraction `1/150`.
+pub fn parse_seconds(s: &str) -> Result<f64, String> {
+    let v = match s.split_once('/') {
+        Some((a, b)) => {
+            let a: f64 = a
+                .trim()
+                .parse()
+                .map_err(|_| format!("'{s}': bad numerator"))?;
+            let b: f64 = b
+                .trim()
+                .parse()
+                .map_err(|_| format!("'{s}': bad denominator"))?;
+            a / b
+        }
+        None => s
+            .trim()
+            .parse()
+            .map_err(|_| format!("'{s}': expected seconds, e.g. 0.0066 or 1/150"))?,
+    };
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("'{s}': must be a finite time > 0 s"))
+    }
+}
+
+/// A time step in a scene: a number of seconds or a string `"1/150"`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Seconds(pub f64);
+
+impl<'de> Deserialize<'de> for Seconds {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Num(f64),
+            Int(i64),
+            Text(String),
+        }
+        let v = match Raw::deserialize(d)? {
+            Raw::Num(x) => x,
+            Raw::Int(i) => i as f64,
+            Raw::Text(s) => parse_seconds(&s).map_err(serde::de::Error::custom)?,
+        };
+        if v.is_finite() && v > 0.0 {
+            Ok(Seconds(v))
+        } else {
+            Err(serde::de::Error::custom(format!(
+                "{v}: must be a finite time > 0 s"
+            )))
+        }
+    }
+}
+
+/// `[simulation]`: time stepping.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimulationSection {
+    /// Largest time step (s); each frame interval is split into
+    /// `ceil(frame interval / dt)` equal steps. Default 1/150 (VH Table 1).
+    pub dt: Seconds,
+    /// Frames per second of the frame numbers. Default 24.
+    pub fps: f64,
+    /// Gravity (m/s²). Default `[0, -9.81, 0]`.
+    pub gravity: Vec3,
+    /// Mass-proportional damping (1/s), implicit (sim::pd). Default 2:
+    /// settles a drape within a second of shot time without visibly slowing
+    /// the motion a character drives through the pins.
+    pub damping: f64,
+    /// Most PD iterations per step. Default 20 (sim::pd).
+    pub max_iterations: u32,
+    /// Fraction (0..1) of a contacting node's tangential velocity removed
+    /// at each contact (velocity-level friction against colliders). Default
+    /// 0.5: a swatch dropped on a sphere stays on it instead of sliding off.
+    pub friction: f64,
+    /// Relative PD convergence tolerance (sim::pd). Default 1e-6.
+    pub tolerance: f64,
+    /// Shot time (s) simulated before the first frame while the character
+    /// blends from its bind pose into the first frame's pose [default: 0.2
+    /// with a character (`DEFAULT_CHARACTER_PREROLL`), none without].
+    pub preroll: Option<f64>,
+    /// Global solver. Default direct.
+    pub solver: SolverChoice,
+    /// Backend. Default auto.
+    pub backend: BackendChoice,
+}
+
+impl Default for SimulationSection {
+    fn default() -> Self {
+        SimulationSection {
+            dt: Seconds(1.0 / 150.0),
+            fps: 24.0,
+            gravity: [0.0, -9.81, 0.0],
+            damping: 2.0,
+            max_iterations: 20,
+            friction: 0.5,
+            tolerance: 1e-6,
+            preroll: None,
+            solver: SolverChoice::Direct,
+            backend: BackendChoice::Auto,
+        }
+    }
+}
+
+/// `[garment]`: rigid placement of the asset's rest mesh in the scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct GarmentSection {
+    /// Rotation (degrees) about the x, then y, then z axis through the
+    /// mesh's bounding-box centre. Default none.
+    pub rotate_deg: Vec3,
+    /// Where the bounding-box centre goes (m), after the rotation [default:
+    /// where it is].
+    pub center: Option<Vec3>,
+    /// Translation (m) after the rotation (and after `[character]`
+    /// `fit_joint`, as an offset). Default none.
+    pub translate: Vec3,
+}
+
+/// A scripted pin group `[[pin]]`: nodes chosen by a box or by index,
+/// moved rigidly over time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct PinSection {
+    /// Name for reports.
+    pub name: String,
+    /// Box corner (m, scene coordinates after placement): nodes inside the
+    /// box `[box_min, box_max]` are pinned.
+    pub box_min: Option<Vec3>,
+    pub box_max: Option<Vec3>,
+    /// Node indices pinned (in addition to the box).
+    pub nodes: Vec<usize>,
+    /// Linear velocity (m/s) of the group while it moves. Default 0.
+    pub velocity: Vec3,
+    /// Angular velocity (degrees/s about x, y, z) about `pivot` while it
+    /// moves. Default 0.
+    pub angular_velocity_deg: Vec3,
+    /// Rotation centre (m) [default: the centre of the group's nodes].
+    pub pivot: Option<Vec3>,
+    /// Shot time (s, 0 = first frame) when the motion starts. Default 0.
+    pub start: f64,
+    /// Shot time (s) when it stops [default: never].
+    pub end: Option<f64>,
+}
+
+/// `[[collider]]`: a plane or a sphere.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, tag = "type", rename_all = "lowercase")]
+pub enum ColliderSection {
+    Plane {
+        /// A point on the plane (m).
+        point: Vec3,
+        /// Outward normal (need not be unit).
+        normal: Vec3,
+        /// Distance nodes keep (m). Default 1 mm.
+        #[serde(default = "default_thickness")]
+        thickness: f64,
+    },
+    Sphere {
+        /// Centre (m).
+        center: Vec3,
+        /// Radius (m).
+        radius: f64,
+        /// Distance nodes keep (m). Default 1 mm.
+        #[serde(default = "default_thickness")]
+        thickness: f64,
+    },
+}
+
+/// Default collider thickness (m): 1 mm, about one voxel of the default
+/// embedding, so the yarns inside the tet mesh stay off the surface.
+pub const DEFAULT_THICKNESS: f64 = 1e-3;
+
+fn default_thickness() -> f64 {
+    DEFAULT_THICKNESS
+}
+
+/// `[character]`: a skinned glTF character.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CharacterSection {
+    /// glTF / GLB file (relative paths: from the scene file's folder).
+    pub file: PathBuf,
+    /// Animation name [default: the first].
+    pub animation: Option<String>,
+    /// Metres per character unit. Default 1 (glTF is in metres); Fox.glb is
+    /// modelled in centimetre-like units 80 high: 0.01 makes it 0.8 m.
+    pub scale: f64,
+    /// Translation (m) of the character after scaling. Default none.
+    pub translate: Vec3,
+    /// Pin garment nodes within `pin_distance` of the bind-pose body. Default true.
+    pub pins: bool,
+    /// Pin distance (m). Default 5 mm.
+    pub pin_distance: f64,
+    /// Collide the free nodes with the body. Default true.
+    pub collide: bool,
+    /// Distance nodes keep from the body (m). Default 1 mm.
+    pub thickness: f64,
+    /// Loop the animation past its end (else hold the last pose). Default true.
+    pub r#loop: bool,
+    /// Animation time (s) at the first frame. Default 0.
+    pub time_offset: f64,
+    /// Lay the garment on the body over this joint (node name): after
+    /// `[garment]` rotation, its bounding-box centre goes over the joint's
+    /// bind-pose position (x, z) and its lowest node `fit_gap` above the
+    /// highest body vertex under its footprint. Default none.
+    pub fit_joint: Option<String>,
+    /// Gap (m) of `fit_joint`. Default 1 mm.
+    pub fit_gap: f64,
+}
+
+impl Default for CharacterSection {
+    fn default() -> Self {
+        CharacterSection {
+            file: PathBuf::new(),
+            animation: None,
+            scale: 1.0,
+            translate: [0.0; 3],
+            pins: true,
+            pin_distance: DEFAULT_PIN_DISTANCE,
+            collide: true,
+            thickness: DEFAULT_THICKNESS,
+            r#loop: true,
+            time_offset: 0.0,
+            fit_joint: None,
+            fit_gap: 1e-3,
+        }
+    }
+}
+
+/// A whole scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Scene {
+    pub simulation: SimulationSection,
+    pub garment: GarmentSection,
+    pub pin: Vec<PinSection>,
+    pub collider: Vec<ColliderSection>,
+    pub character: Option<CharacterSection>,
+    /// Folder relative paths are resolved against (the scene file's).
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+/// A scene file that cannot be used; the message names the key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{path}: {message}", path = path.display())]
+pub struct SceneError {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+fn finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+impl Scene {
+    /// Parses scene text; `path` names the file in errors and relative
+    /// paths are resolved against its folder.
+    pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
+        let mut scene: Scene = toml::from_str(text).map_err(|e| SceneError {
+            path: path.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        scene.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        scene.validate().map_err(|message| SceneError {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        Ok(scene)
+    }
+
+    /// Checks values serde cannot: ranges and finiteness. Messages start with the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let s = &self.simulation;
+        if !(s.fps.is_finite() && s.fps > 0.0) {
+            return Err(format!("simulation.fps: must be > 0 (got {})", s.fps));
+        }
+        if !finite(&s.gravity) {
+            return Err("simulation.gravity: must be finite".into());
+        }
+        if !(s.damping.is_finite() && s.damping >= 0.0) {
+            return Err(format!(
+                "simulation.damping: must be >= 0 (got {})",
+                s.damping
+            ));
+        }
+        if !(s.tolerance.is_finite() && s.tolerance >= 0.0) {
+            return Err(format!(
+                "simulation.tolerance: must be >= 0 (got {})",
+                s.tolerance
+            ));
+        }
+        if let Some(p) = s.preroll.filter(|p| !(p.is_finite() && *p >= 0.0)) {
+            return Err(format!("simulation.preroll: must be >= 0 (got {p})"));
+        }
+        if !(0.0..=1.0).contains(&s.friction) {
+            return Err(format!(
+                "simulation.friction: must be in 0..1 (got {})",
+                s.friction
+            ));
+        }
+        if s.max_iterations == 0 {
+            return Err("simulation.max_iterations: must be >= 1".into());
+        }
+        if !finite(&self.garment.rotate_deg)
+            || !finite(&self.garment.translate)
+            || self.garment.center.is_some_and(|c| !finite(&c))
+        {
+            return Err("garment: rotate_deg, center and translate must be finite".into());
+        }
+        for (i, p) in self.pin.iter().enumerate() {
+            let key = format!("pin[{i}]");
+            if p.box_min.is_some() != p.box_max.is_some() {
+                return Err(format!("{key}.box_min/box_max: give both or neither"));
+            }
+            if p.box_min.is_none() && p.nodes.is_empty() {
+                return Err(format!("{key}: give box_min/box_max or nodes"));
+            }
+            for v in [p.box_min, p.box_max, p.pivot].into_iter().flatten() {
+                if !finite(&v) {
+                    return Err(format!("{key}: box and pivot must be finite"));
+                }
+            }
+            if !finite(&p.velocity) || !finite(&p.angular_velocity_deg) {
+                return Err(format!(
+                    "{key}: velocity and angular_velocity_deg must be finite"
+                ));
+            }
+            if !p.start.is_finite() || p.end.is_some_and(|e| !(e >= p.start)) {
+                return Err(format!("{key}.end: must be >= start"));
+            }
+        }
+        for (i, c) in self.collider.iter().enumerate() {
+            let key = format!("collider[{i}]");
+            match c {
+                ColliderSection::Plane {
+                    point,
+                    normal,
+                    thickness,
+                } => {
+                    if !finite(point) || !finite(normal) || normal.iter().all(|x| *x == 0.0) {
+                        return Err(format!("{key}.normal: must be finite and non-zero"));
+                    }
+                    if !(thickness.is_finite() && *thickness >= 0.0) {
+                        return Err(format!("{key}.thickness: must be >= 0"));
+                    }
+                }
+                ColliderSection::Sphere {
+                    center,
+                    radius,
+                    thickness,
+                } => {
+                    if !finite(center) {
+                        return Err(format!("{key}.center: must be finite"));
+                    }
+                    if !(radius.is_finite() && *radius > 0.0) {
+                        return Err(format!("{key}.radius: must be > 0 (got {radius})"));
+                    }
+                    if !(thickness.is_finite() && *thickness >= 0.0) {
+                        return Err(format!("{key}.thickness: must be >= 0"));
+                    }
+                }
+            }
+        }
+        if let Some(c) = &self.character {
+            if c.file.as_os_str().is_empty() {
+                return Err("character.file: missing".into());
+            }
+            if !(c.scale.is_finite() && c.scale > 0.0) {
+                return Err(format!("character.scale: must be > 0 (got {})", c.scale));
+            }
+            if !finite(&c.translate) {
+                return Err("character.translate: must be finite".into());
+            }
+            if !(c.pin_distance.is_finite() && c.pin_distance >= 0.0) {
+                return Err(format!(
+                    "character.pin_distance: must be >= 0 (got {})",
+                    c.pin_distance
+                ));
+            }
+            if !(c.thickness.is_finite() && c.thickness >= 0.0) {
+                return Err(format!(
+                    "character.thickness: must be >= 0 (got {})",
+                    c.thickness
+                ));
+            }
+            if !c.time_offset.is_finite() || !c.fit_gap.is_finite() {
+                return Err("character.time_offset/fit_gap: must be finite".into());
+            }
+        }
+        Ok(())
+    }
+
+    /// The character file with relative paths resolved against the scene's folder.
+    pub fn character_path(&self) -> Option<PathBuf> {
+        self.character.as_ref().map(|c| {
+            if c.file.is_absolute() {
+                c.file.clone()
+            } else {
+                self.base_dir.join(&c.file)
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_a_full_scene() {
+        let text = r#"
+[simulation]
+dt = "1/150"
+fps = 24
+damping = 1.0
+[garment]
+rotate_deg = [-90, 0, 0]
+[[pin]]
+name = "left"
+box_min = [-1, -1, -1]
+box_max = [0, 1, 1]
+velocity = [0.01, 0, 0]
+[[collider]]
+type = "sphere"
+center = [0, 0, 0]
+radius = 0.01
+[[collider]]
+type = "plane"
+point = [0, -0.1, 0]
+normal = [0, 1, 0]
+thickness = 0.0
+[character]
+file = "Fox.glb"
+animation = "Walk"
+scale = 0.0025
+"#;
+        let s = Scene::parse(text, Path::new("dir/scene.toml")).unwrap();
+        assert!((s.simulation.dt.0 - 1.0 / 150.0).abs() < 1e-15);
+        assert_eq!(s.pin.len(), 1);
+        assert_eq!(s.collider.len(), 2);
+        assert_eq!(s.character_path().unwrap(), PathBuf::from("dir/Fox.glb"));
+        assert_eq!(s.character.unwrap().pin_distance, DEFAULT_PIN_DISTANCE);
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let e = Scene::parse("[simulation]\ndamping_x = 1\n", Path::new("s.toml")).unwrap_err();
+        assert!(e.message.contains("damping_x"), "{e}");
+        let e = Scene::parse(
+            "[[collider]]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = -1\n",
+            Path::new("s.toml"),
+        )
+        .unwrap_err();
+        assert!(e.message.contains("collider[0].radius"), "{e}");
+        let e = Scene::parse("[simulation]\ndt = \"1/0\"\n", Path::new("s.toml")).unwrap_err();
+        assert!(e.message.contains("dt"), "{e}");
+        assert!(e.to_string().starts_with("s.toml: "));
+    }
+
+    #[test]
+    fn seconds_parse() {
+        assert_eq!(parse_seconds("1/150").unwrap(), 1.0 / 150.0);
+        assert_eq!(parse_seconds("0.01").unwrap(), 0.01);
+        assert!(parse_seconds("-1").is_err());
+        assert!(parse_seconds("1/0").is_err());
+    }
+}

@@ -1,0 +1,508 @@
+//! `knitvox simulate` and the shot stage: scene errors, a drape over a
+//! sphere, a swatch pinned to Fox.glb walking, exit codes, divergence.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use knitvox::embed::EmbedParams;
+use knitvox::geom::Vec3;
+use knitvox::io::{self, vtkhdf, ReadOptions, WriteOptions};
+use knitvox::pipeline::asset::build_asset;
+use knitvox::pipeline::sim_scene::Scene;
+use knitvox::pipeline::simulate::{simulate, ShotRequest, SimulateError};
+use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+
+/// A small swatch asset (4 x 4 loops, no ring, 2.5 mm voxels) in `dir`.
+fn small_asset(dir: &Path) -> PathBuf {
+    let yarns = knit_swatch(&SwatchParams {
+        courses: 4,
+        wales: 4,
+        with_ring: false,
+        points_per_loop: 12,
+        ..SwatchParams::default()
+    });
+    let bcc = dir.join("swatch.bcc");
+    io::write_path(&bcc, &yarns, None, &WriteOptions::default()).unwrap();
+    let read = ReadOptions {
+        radius: yarns.radius[0],
+        ..ReadOptions::default()
+    };
+    let (asset, _) = build_asset(
+        &bcc,
+        &read,
+        &EmbedParams {
+            voxel_size: Some(2.5e-3),
+            ..EmbedParams::default()
+        },
+        "test",
+    )
+    .unwrap();
+    let path = dir.join("swatch.vtkhdf");
+    vtkhdf::write_asset(&path, &asset).unwrap();
+    path
+}
+
+fn fox() -> PathBuf {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
+    assert!(
+        p.is_file(),
+        "examples/Fox.glb is committed with its credits"
+    );
+    p
+}
+
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(common::knitvox_bin())
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn request(dir: &Path, frames: Vec<i64>, yarns: Option<&str>) -> ShotRequest {
+    ShotRequest {
+        frames,
+        output: dir.join("out.vtkhdf"),
+        yarns_out: yarns.map(|y| dir.join(y)),
+        write: WriteOptions::default(),
+        command: "test".into(),
+    }
+}
+
+fn sphere_dist(p: Vec3, c: Vec3, r: f64) -> f64 {
+    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt() - r
+}
+
+#[test]
+fn swatch_drapes_over_a_sphere_without_entering_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    // The swatch lies flat 2 mm above a 12 mm sphere and falls onto it.
+    let scene = Scene::parse(
+        r#"
+[simulation]
+dt = "1/150"
+fps = 24
+[garment]
+rotate_deg = [-90, 0, 0]
+center = [0.0, 0.016, 0.0]
+[[collider]]
+type = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 0.012
+thickness = 0.001
+"#,
+        Path::new("scene.toml"),
+    )
+    .unwrap();
+    let r = simulate(
+        &asset,
+        &asset_path,
+        &scene,
+        &request(dir.path(), (1..=4).collect(), Some("drape.####.ply")),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(r.frames, 4);
+    let out = vtkhdf::read_asset(&dir.path().join("out.vtkhdf")).unwrap();
+    assert_eq!(out.steps.num_steps(), 4);
+    let n = out.mesh.num_nodes();
+    let first = out.steps.step(0, n);
+    let last = out.steps.step(3, n);
+    let worst = last
+        .iter()
+        .map(|p| sphere_dist(*p, [0.0; 3], 0.012))
+        .fold(f64::INFINITY, f64::min);
+    eprintln!(
+        "drape: min distance to the sphere {worst:.3e} m, max penetration {:.3e} m",
+        r.max_penetration_m
+    );
+    assert!(worst >= -1e-3, "a node is {worst} m inside the sphere");
+    assert!(r.max_penetration_m <= 1e-3);
+    // It fell and touches the sphere (not a frozen swatch).
+    let drop = first[0][1] - last[0][1];
+    assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
+    assert!(
+        worst < 3e-3,
+        "the swatch never reached the sphere ({worst} m)"
+    );
+    for f in 1..=4 {
+        assert!(dir.path().join(format!("drape.{f:04}.ply")).is_file());
+    }
+}
+
+#[test]
+fn swatch_pinned_to_walking_fox_stays_outside_the_body() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let scene = Scene::parse(
+        &format!(
+            r#"
+[simulation]
+preroll = 0.04
+[garment]
+rotate_deg = [-90, 0, 0]
+[character]
+file = "{}"
+animation = "Walk"
+scale = 0.0025
+fit_joint = "b_Spine02_03"
+pin_distance = 0.003
+"#,
+            fox().display()
+        ),
+        Path::new("scene.toml"),
+    )
+    .unwrap();
+    let frames = vec![1, 2, 3];
+    let r = simulate(
+        &asset,
+        &asset_path,
+        &scene,
+        &request(dir.path(), frames.clone(), Some("fox.h5")),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let pen = r.max_penetration_body_m.unwrap();
+    eprintln!(
+        "fox: {} body pins, max penetration into the body {pen:.3e} m, min distance {:?}, {} steps",
+        r.pinned_body, r.min_distance_m, r.steps
+    );
+    assert!(r.pinned_body > 0);
+    assert!(pen <= 1e-3, "penetration {pen} m");
+    let out = vtkhdf::read_asset(&dir.path().join("out.vtkhdf")).unwrap();
+    assert_eq!(out.steps.num_steps(), frames.len());
+    let yarns = io::read_path(&dir.path().join("fox.h5"), &ReadOptions::default()).unwrap();
+    assert_eq!(yarns.frames.unwrap().num_frames(), frames.len());
+}
+
+#[test]
+fn divergence_names_the_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let scene = Scene::parse(
+        "[simulation]\ngravity = [0.0, -1.0e7, 0.0]\n",
+        Path::new("s.toml"),
+    )
+    .unwrap();
+    let e = simulate(
+        &asset,
+        &asset_path,
+        &scene,
+        &request(dir.path(), vec![1, 2], None),
+        &mut |_, _| {},
+    )
+    .unwrap_err();
+    assert!(matches!(e, SimulateError::Diverged { .. }), "{e}");
+    assert_eq!(e.diverged_step(), Some(1));
+    assert!(e.to_string().contains("step 1"), "{e}");
+    // The CLI maps it to bad input (65) with the step in the message.
+    let scene = dir.path().join("blowup.toml");
+    std::fs::write(&scene, "[simulation]\ngravity = [0.0, -1.0e7, 0.0]\n").unwrap();
+    let (code, _, err) = run(&[
+        "simulate",
+        asset_path.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--frames",
+        "1-2",
+        "-o",
+        dir.path().join("o.vtkhdf").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("step 1"), "{err}");
+}
+
+#[test]
+fn malformed_scenes_exit_65_naming_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let cases = [
+        (
+            "unknown.toml",
+            "[simulation]\ntime_step = 0.01\n",
+            "time_step",
+        ),
+        (
+            "radius.toml",
+            "[[collider]]\ntype = \"sphere\"\ncenter = [0, 0, 0]\nradius = -1.0\n",
+            "collider[0].radius",
+        ),
+        ("dt.toml", "[simulation]\ndt = \"one/150\"\n", "dt"),
+        ("syntax.toml", "[simulation\n", "simulation"),
+        ("kind.toml", "[[collider]]\ntype = \"cone\"\n", "cone"),
+    ];
+    for (name, text, key) in cases {
+        let scene = dir.path().join(name);
+        std::fs::write(&scene, text).unwrap();
+        let (code, _, err) = run(&[
+            "simulate",
+            asset_path.to_str().unwrap(),
+            "--scene",
+            scene.to_str().unwrap(),
+            "--frames",
+            "1-2",
+            "-o",
+            dir.path().join("o.vtkhdf").to_str().unwrap(),
+        ]);
+        assert_eq!(code, 65, "{name}: {err}");
+        assert!(
+            err.contains(name),
+            "{name}: the message names the file: {err}"
+        );
+        assert!(
+            err.contains(key),
+            "{name}: the message names the key {key}: {err}"
+        );
+    }
+}
+
+#[test]
+fn cli_exit_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let a = asset_path.to_str().unwrap();
+    let o = dir.path().join("o.vtkhdf");
+    let o = o.to_str().unwrap();
+    let fox = fox();
+    let fox = fox.to_str().unwrap();
+    // Usage: neither or both drivers, bad frame spec, bad backend.
+    assert_eq!(run(&["simulate", a, "--frames", "1-2", "-o", o]).0, 2);
+    assert_eq!(
+        run(&[
+            "simulate",
+            a,
+            "--scene",
+            "x.toml",
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
+        2
+    );
+    assert_eq!(
+        run(&[
+            "simulate",
+            a,
+            "--character",
+            fox,
+            "--frames",
+            "x-y",
+            "-o",
+            o
+        ])
+        .0,
+        2
+    );
+    assert_eq!(
+        run(&[
+            "simulate",
+            a,
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "--backend",
+            "tpu",
+            "-o",
+            o
+        ])
+        .0,
+        2
+    );
+    // Missing asset / scene: 66.
+    let missing = dir.path().join("missing.vtkhdf");
+    assert_eq!(
+        run(&[
+            "simulate",
+            missing.to_str().unwrap(),
+            "--character",
+            fox,
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
+        66
+    );
+    assert_eq!(
+        run(&[
+            "simulate",
+            a,
+            "--scene",
+            "/nonexistent/s.toml",
+            "--frames",
+            "1",
+            "-o",
+            o
+        ])
+        .0,
+        66
+    );
+    // GPU backend not in this build: a clear message, bad input.
+    let (code, _, err) = run(&[
+        "simulate",
+        a,
+        "--character",
+        fox,
+        "--frames",
+        "1",
+        "--backend",
+        "gpu",
+        "-o",
+        o,
+    ]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("not available"), "{err}");
+    // Unknown animation: 65 naming it.
+    let (code, _, err) = run(&[
+        "simulate",
+        a,
+        "--character",
+        fox,
+        "--animation",
+        "Dance",
+        "--frames",
+        "1",
+        "-o",
+        o,
+    ]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("Dance") && err.contains("Walk"), "{err}");
+    // Garment nowhere near the (unscaled, 80 m) fox: no pins, 65 with advice.
+    let (code, _, err) = run(&["simulate", a, "--character", fox, "--frames", "1", "-o", o]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("pin"), "{err}");
+    // Output folder missing: 74, before any simulation.
+    let (code, _, err) = run(&[
+        "simulate",
+        a,
+        "--character",
+        fox,
+        "--frames",
+        "1",
+        "-o",
+        "/nonexistent-dir/o.vtkhdf",
+    ]);
+    assert_eq!(code, 74, "{err}");
+}
+
+#[test]
+fn cli_character_shot_writes_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let o = dir.path().join("shot.vtkhdf");
+    let y = dir.path().join("yarns.####.bcc");
+    let (code, out, err) = run(&[
+        "simulate",
+        asset_path.to_str().unwrap(),
+        "--character",
+        fox().to_str().unwrap(),
+        "--animation",
+        "Walk",
+        "--character-scale",
+        "0.0025",
+        "--fit-joint",
+        "b_Spine02_03",
+        "--garment-rotate",
+        "-90,0,0",
+        "--preroll",
+        "0.02",
+        "--frames",
+        "10,12",
+        "-o",
+        o.to_str().unwrap(),
+        "--yarns-out",
+        y.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["frames"], 2);
+    assert!(v["max_penetration_body_m"].as_f64().unwrap() <= 1e-3);
+    assert!(dir.path().join("yarns.0010.bcc").is_file());
+    assert!(dir.path().join("yarns.0012.bcc").is_file());
+    assert!(!dir.path().join("yarns.0011.bcc").exists());
+    let s = vtkhdf::read_asset(&o).unwrap();
+    assert_eq!(s.steps.times, vec![10.0 / 24.0, 12.0 / 24.0]);
+}
+
+#[test]
+fn scripted_handles_follow_their_motion() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let n = asset.mesh.num_nodes();
+    // Left edge fixed, right edge pulled +x at 2 cm/s, no gravity.
+    let xs: Vec<f64> = asset.mesh.nodes.iter().map(|p| p[0]).collect();
+    let (lo, hi) = xs
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    let scene = Scene::parse(
+        &format!(
+            r#"
+[simulation]
+gravity = [0.0, 0.0, 0.0]
+[[pin]]
+name = "left"
+box_min = [-1.0, -1.0, -1.0]
+box_max = [{l}, 1.0, 1.0]
+[[pin]]
+name = "right"
+box_min = [{r}, -1.0, -1.0]
+box_max = [1.0, 1.0, 1.0]
+velocity = [0.02, 0.0, 0.0]
+"#,
+            l = lo + 1e-4,
+            r = hi - 1e-4
+        ),
+        Path::new("s.toml"),
+    )
+    .unwrap();
+    let r = simulate(
+        &asset,
+        &asset_path,
+        &scene,
+        &request(dir.path(), vec![1, 3], None),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(r.pinned_scripted > 0);
+    let out = vtkhdf::read_asset(&dir.path().join("out.vtkhdf")).unwrap();
+    let last = out.steps.step(1, n);
+    let t = 2.0 / 24.0;
+    for (i, p) in asset.mesh.nodes.iter().enumerate() {
+        if p[0] <= lo + 1e-4 {
+            assert!((last[i][0] - p[0]).abs() < 1e-12);
+        }
+        if p[0] >= hi - 1e-4 {
+            assert!(
+                (last[i][0] - (p[0] + 0.02 * t)).abs() < 1e-12,
+                "{} vs {}",
+                last[i][0],
+                p[0] + 0.02 * t
+            );
+        }
+    }
+    // The free middle stretched along: some node moved +x.
+    assert!(last
+        .iter()
+        .zip(&asset.mesh.nodes)
+        .any(|(a, b)| a[0] - b[0] > 1e-5));
+}
