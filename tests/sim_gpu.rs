@@ -722,3 +722,96 @@ fn gpu_chebyshev_jacobi_reports_divergence() {
         other => panic!("expected divergence, got {other:?}"),
     }
 }
+
+/// Runs `steps` steps of a stretch scene on a small Kuhn-tet box (the x = 0
+/// face held, the x = max face pulled 30% along +x over the run, gravity)
+/// with the given solver, on the CPU or with the GPU backend attached.
+fn stretch_run(
+    ctx: Option<&GpuContext>,
+    global: knitvox::sim::pd::GlobalSolver,
+    steps: usize,
+) -> Vec<Vec3> {
+    use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+    let (mesh, mass) = box_mesh([8, 3, 4], 0.01, 200.0);
+    let nt = mesh.num_tets();
+    let xmax = 0.08;
+    let left: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] <= 1e-9)
+        .collect();
+    let right: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] >= xmax - 1e-9)
+        .collect();
+    let pinned: Vec<usize> = left.iter().chain(&right).copied().collect();
+    let params = PdParams {
+        // A fixed iteration count: both runs do the same work per step.
+        max_iterations: 8,
+        tolerance: 0.0,
+        mass_damping: 2.0,
+        global,
+        ..PdParams::default()
+    };
+    let gamma_s: Vec<f64> = (0..nt)
+        .map(|e| 1e4 * (1.0 + 0.5 * (e % 3) as f64))
+        .collect();
+    let gamma_v = vec![5e4; nt];
+    let mut solver = PdSolver::new(&mesh, &mass, &gamma_s, &gamma_v, &pinned, params).unwrap();
+    if let Some(ctx) = ctx {
+        let elastic = GpuElasticRhs::new(ctx, solver.model()).unwrap();
+        let jacobi: Option<Box<dyn JacobiSolve>> = match params.global {
+            knitvox::sim::pd::GlobalSolver::Direct => None,
+            _ => Some(Box::new(
+                GpuJacobi::new(ctx, solver.free_matrix(), Default::default()).unwrap(),
+            )),
+        };
+        solver.set_backend(Box::new(elastic), jacobi);
+    }
+    let mut x = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; x.len()];
+    for s in 1..=steps {
+        let dx = 0.3 * xmax * s as f64 / steps as f64;
+        let pins: Vec<Vec3> = left
+            .iter()
+            .map(|&i| mesh.nodes[i])
+            .chain(right.iter().map(|&i| {
+                let p = mesh.nodes[i];
+                [p[0] + dx, p[1], p[2]]
+            }))
+            .collect();
+        let st = solver.step(&mut x, &mut v, &pins).unwrap();
+        assert_eq!(st.backend, if ctx.is_some() { "gpu" } else { "cpu" });
+    }
+    x
+}
+
+/// Largest node distance between two runs over the rest box diagonal.
+fn relative_gap(a: &[Vec3], b: &[Vec3]) -> f64 {
+    let diag = (0.08f64.powi(2) + 0.03f64.powi(2) + 0.04f64.powi(2)).sqrt();
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| {
+            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+        })
+        .fold(0.0, f64::max)
+        / diag
+}
+
+#[test]
+fn gpu_and_cpu_stretch_runs_agree_after_100_steps() {
+    let Some(ctx) = gpu() else { return };
+    for global in [
+        knitvox::sim::pd::GlobalSolver::Direct,
+        knitvox::sim::pd::GlobalSolver::DomainDecomposed(Default::default()),
+    ] {
+        let cpu = stretch_run(None, global, 100);
+        let gpu_run = stretch_run(Some(&ctx), global, 100);
+        let gap = relative_gap(&cpu, &gpu_run);
+        eprintln!(
+            "{}: GPU vs CPU after 100 steps: {gap:.3e} of the box diagonal",
+            global.name()
+        );
+        assert!(gap <= 1e-4, "{}: gap {gap:e}", global.name());
+        // The scene did deform: the runs are not trivially equal.
+        let rest = knitvox::sim::pd::box_mesh([8, 3, 4], 0.01, 200.0).0.nodes;
+        assert!(relative_gap(&cpu, &rest) > 0.05);
+    }
+}

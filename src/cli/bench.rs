@@ -244,9 +244,10 @@ struct SimBench {
 pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     use crate::embed::{embed as run_embed, EmbedParams};
     use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
-    use crate::pipeline::simulate::resolve_backend;
+    use crate::pipeline::simulate::{attach_backend, global_solver};
     use crate::sim::pd::{PdParams, PdSolver};
-    let (backend, solver_name) = resolve_backend(a.backend, a.solver)?;
+    let global = global_solver(a.solver);
+    let solver_name = global.name();
     // About 1.7 tets per yarn point at the default voxel size (README
     // embedding table); one correction from the first embedding's ratio.
     let mut points = (a.tets as f64 / 1.7).max(800.0) as usize;
@@ -278,6 +279,7 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     let params = PdParams {
         dt: a.dt,
         mass_damping: 2.0,
+        global,
         ..PdParams::default()
     };
     let t = Instant::now();
@@ -289,6 +291,7 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         &pinned,
         params,
     )?;
+    let backend = attach_backend(&mut solver, a.backend)?;
     let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut x = mesh.nodes.clone();
     let mut v = vec![[0.0; 3]; x.len()];

@@ -28,7 +28,8 @@ use crate::geom::{Asset, NodeSteps, Vec3, YarnFrames};
 use crate::io::{self, IoError, WriteOptions};
 use crate::sim::collide::{Collider, ColliderSet, MeshCollider, MeshTopology, Shape};
 use crate::sim::contact::NodeProjector;
-use crate::sim::pd::{PdParams, PdSolver, StepStats};
+use crate::sim::dd::DdParams;
+use crate::sim::pd::{GlobalSolver, PdParams, PdSolver, StepStats};
 use crate::sim::SimError;
 
 /// Errors of the shot stage.
@@ -89,10 +90,11 @@ pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
 /// correction (m): how far the unconstrained step moved a node into the
 /// thickness band or the collider.
 ///
-/// TODO(merge): replace the body by
-/// `solver.step_with_contacts(x, v, pinned_positions, contacts)` once
-/// `sim::pd` projects contacts inside its PD iterations (VH §8.5), keeping
-/// the friction pass on the nodes it reports in contact.
+/// Contacts are PD projection constraints inside the iterations
+/// ([`PdSolver::step_with_contacts`], VH §8.5), which also projects nodes
+/// still inside at the end of the step. A node this function still finds
+/// inside (none, normally) is projected here and loses `friction` of its
+/// tangential velocity; returns the largest such correction (m).
 pub fn pd_step(
     solver: &mut PdSolver,
     x: &mut [Vec3],
@@ -103,7 +105,7 @@ pub fn pd_step(
     friction: f64,
 ) -> Result<(StepStats, f64), SimError> {
     let before = x.to_vec();
-    let stats = solver.step(x, v, pinned_positions)?;
+    let stats = solver.step_with_contacts(x, v, pinned_positions, contacts)?;
     let dt = solver.params().dt;
     let mut correction = 0.0f64;
     for (i, p) in x.iter_mut().enumerate() {
@@ -134,30 +136,65 @@ pub fn pd_step(
     Ok((stats, correction))
 }
 
-/// Resolves the backend and solver to what this build runs.
-///
-/// TODO(merge): pass them into the PD parameters once `sim::pd` has the
-/// domain-decomposed solver and the GPU backend.
-pub fn resolve_backend(
+/// The global solver of a [`SolverChoice`] (its default parameters).
+pub fn global_solver(solver: SolverChoice) -> GlobalSolver {
+    match solver {
+        SolverChoice::Direct => GlobalSolver::Direct,
+        SolverChoice::Dd => GlobalSolver::DomainDecomposed(DdParams::default()),
+    }
+}
+
+/// Puts the solver on the chosen backend and returns its name ("cpu",
+/// "gpu"). `Auto` takes a hardware GPU when wgpu finds one and stays on
+/// the CPU otherwise (a software adapter such as lavapipe is slower than
+/// the f64 CPU path); `Gpu` takes any adapter, lavapipe included, and is an
+/// error without one. Call again after `refactor` / `set_time_step`, which
+/// return the solver to the CPU.
+pub fn attach_backend(
+    solver: &mut PdSolver,
     backend: BackendChoice,
+) -> Result<&'static str, SimulateError> {
+    use crate::sim::gpu::{GpuContext, GpuElasticRhs, GpuError, GpuJacobi, GpuJacobiParams};
+    if backend == BackendChoice::Cpu {
+        return Ok("cpu");
+    }
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(GpuError::Unavailable(why)) if backend == BackendChoice::Auto => {
+            let _ = why;
+            return Ok("cpu");
+        }
+        Err(e) => {
+            return Err(SimulateError::Unavailable(format!(
+                "--backend gpu: no usable GPU: {e}"
+            )))
+        }
+    };
+    if backend == BackendChoice::Auto && ctx.is_cpu_adapter() {
+        return Ok("cpu");
+    }
+    let gpu_err = |e: GpuError| SimulateError::Unavailable(format!("GPU backend: {e}"));
+    let elastic = GpuElasticRhs::new(&ctx, solver.model()).map_err(gpu_err)?;
+    // Only the domain-decomposed solver iterates in full space.
+    let jacobi: Option<Box<dyn crate::sim::backend::JacobiSolve>> = match solver.params().global {
+        GlobalSolver::DomainDecomposed(_) => Some(Box::new(
+            GpuJacobi::new(&ctx, solver.free_matrix(), GpuJacobiParams::default())
+                .map_err(gpu_err)?,
+        )),
+        GlobalSolver::Direct => None,
+    };
+    solver.set_backend(Box::new(elastic), jacobi);
+    Ok("gpu")
+}
+
+/// Checks that the backend and solver choices can run (without starting a
+/// GPU): kept for the preflight of a shot; the names come from
+/// [`attach_backend`] and [`GlobalSolver::name`].
+pub fn resolve_backend(
+    _backend: BackendChoice,
     solver: SolverChoice,
 ) -> Result<(&'static str, &'static str), SimulateError> {
-    let b =
-        match backend {
-            BackendChoice::Cpu | BackendChoice::Auto => "cpu",
-            BackendChoice::Gpu => return Err(SimulateError::Unavailable(
-                "--backend gpu: the GPU backend is not available in this build (use cpu or auto)"
-                    .into(),
-            )),
-        };
-    let s = match solver {
-        SolverChoice::Direct => "direct",
-        SolverChoice::Dd => return Err(SimulateError::Unavailable(
-            "--solver dd: the domain-decomposed solver is not available in this build (use direct)"
-                .into(),
-        )),
-    };
-    Ok((b, s))
+    Ok(("cpu", global_solver(solver).name()))
 }
 
 /// A scripted pin group resolved to nodes.
@@ -429,8 +466,7 @@ pub fn simulate(
 ) -> Result<SimulateReport, SimulateError> {
     let t_total = Instant::now();
     preflight(req)?;
-    let (backend, solver_name) =
-        resolve_backend(scene.simulation.backend, scene.simulation.solver)?;
+    let (_, solver_name) = resolve_backend(scene.simulation.backend, scene.simulation.solver)?;
     let mut frames = req.frames.clone();
     frames.sort_unstable();
     frames.dedup();
@@ -647,6 +683,7 @@ pub fn simulate(
         mass_damping: sim.damping,
         max_iterations: sim.max_iterations,
         tolerance: sim.tolerance,
+        global: global_solver(sim.solver),
         ..PdParams::default()
     };
     let mut solver = PdSolver::new(
@@ -658,6 +695,7 @@ pub fn simulate(
         params,
     )
     .map_err(|e| invalid(asset_path, e.to_string()))?;
+    let backend = attach_backend(&mut solver, sim.backend)?;
 
     // Static colliders.
     let mut statics = Vec::new();
