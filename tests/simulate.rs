@@ -127,7 +127,12 @@ thickness = 0.001
     assert!(worst >= -1e-3, "a node is {worst} m inside the sphere");
     assert!(r.max_penetration_m <= 1e-3);
     // It fell and touches the sphere (not a frozen swatch).
-    let drop = first[0][1] - last[0][1];
+    let drop = first
+        .iter()
+        .zip(last.iter())
+        .map(|(a, b)| a[1] - b[1])
+        .fold(f64::NEG_INFINITY, f64::max);
+    eprintln!("drape: largest drop {drop:.3e} m");
     assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
     assert!(
         worst < 3e-3,
@@ -353,7 +358,9 @@ fn cli_exit_codes() {
         .0,
         66
     );
-    // GPU backend not in this build: a clear message, bad input.
+    // GPU backend: runs where wgpu finds an adapter (lavapipe included),
+    // else a clear message and exit 65.
+    let have_gpu = knitvox::sim::gpu::GpuContext::new().is_ok();
     let (code, _, err) = run(&[
         "simulate",
         a,
@@ -366,8 +373,14 @@ fn cli_exit_codes() {
         "-o",
         o,
     ]);
-    assert_eq!(code, 65, "{err}");
-    assert!(err.contains("not available"), "{err}");
+    if have_gpu {
+        // The backend is accepted; this shot then fails for its placement
+        // (no node near the body without --fit-joint), not for the GPU.
+        assert!(!err.contains("GPU"), "{err}");
+    } else {
+        assert_eq!(code, 65, "{err}");
+        assert!(err.contains("no usable GPU"), "{err}");
+    }
     // Unknown animation: 65 naming it.
     let (code, _, err) = run(&[
         "simulate",
