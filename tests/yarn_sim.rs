@@ -14,7 +14,10 @@ const R: f64 = 4e-4;
 struct Lcg(u64);
 impl Lcg {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
     fn vec(&mut self, s: f64) -> Vec3 {
@@ -205,18 +208,36 @@ fn rigid_motions_give_zero_or_equivariant_internal_forces() {
     let rest = plain_weave(3, 4.0 * R, 1.15 * R, 6);
     let t = [0.01, -0.02, 0.03];
     // At rest (no contact in this state) the forces vanish, also after a rigid motion.
-    let mut sim = YarnSim::new(&rest, YarnSimParams { bend_scale: 1.0, ..Default::default() }).unwrap();
+    let mut sim = YarnSim::new(
+        &rest,
+        YarnSimParams {
+            bend_scale: 1.0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     assert!(sim.min_distance_ratio() > 1.0);
     let moved: Vec<Vec3> = rest.points.iter().map(|&p| rotate(p, t)).collect();
     sim.set_positions(&moved).unwrap();
     let f = sim.forces();
     // Scale: one segment at 1% strain.
     let scale = 5e5 * PI * R * R * 0.01;
-    assert!(max_norm(&f) < 1e-9 * scale, "rest forces after rigid motion: {:e}", max_norm(&f));
+    assert!(
+        max_norm(&f) < 1e-9 * scale,
+        "rest forces after rigid motion: {:e}",
+        max_norm(&f)
+    );
     // Deformed state with contact: F(Qx + t) = Q F(x).
     let rest = plain_weave(2, 4.0 * R, 0.8 * R, 6);
     let x = perturbed(&rest.points, 0.1 * R, 3);
-    let mut sim = YarnSim::new(&rest, YarnSimParams { bend_scale: 1.0, ..Default::default() }).unwrap();
+    let mut sim = YarnSim::new(
+        &rest,
+        YarnSimParams {
+            bend_scale: 1.0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     sim.set_positions(&x).unwrap();
     let f0 = sim.forces();
     let e0 = sim.energy();
@@ -224,7 +245,10 @@ fn rigid_motions_give_zero_or_equivariant_internal_forces() {
     sim.set_positions(&xm).unwrap();
     let f1 = sim.forces();
     let e1 = sim.energy();
-    assert!(((e1 - e0) / e0).abs() < 1e-9, "energy not invariant: {e0} vs {e1}");
+    assert!(
+        ((e1 - e0) / e0).abs() < 1e-9,
+        "energy not invariant: {e0} vs {e1}"
+    );
     let fmax = max_norm(&f0);
     for (a, b) in f0.iter().zip(&f1) {
         let ra = rotate(*a, [0.0; 3]);
@@ -242,7 +266,8 @@ fn linear_momentum_is_conserved_without_external_forces() {
         ..YarnSimParams::default()
     };
     let mut sim = YarnSim::new(&rest, params).unwrap();
-    sim.set_positions(&perturbed(&rest.points, 0.1 * R, 5)).unwrap();
+    sim.set_positions(&perturbed(&rest.points, 0.1 * R, 5))
+        .unwrap();
     let mut rng = Lcg(9);
     let v: Vec<Vec3> = (0..rest.num_points()).map(|_| rng.vec(0.05)).collect();
     sim.set_velocities(&v).unwrap();
@@ -255,7 +280,10 @@ fn linear_momentum_is_conserved_without_external_forces() {
             sum[c] += q[c];
         }
     }
-    assert!(max_norm(&[sum]) < 1e-10 * fmax, "net internal force {sum:?}");
+    assert!(
+        max_norm(&[sum]) < 1e-10 * fmax,
+        "net internal force {sum:?}"
+    );
     let momentum = |s: &YarnSim| {
         let mut p = [0.0; 3];
         for (m, v) in s.masses().iter().zip(s.velocities()) {
@@ -274,7 +302,10 @@ fn linear_momentum_is_conserved_without_external_forces() {
     assert!(st.steps > 10);
     let p1 = momentum(&sim);
     let d = max_norm(&[[p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]]]);
-    assert!(d < 1e-9 * pmax * rest.num_points() as f64, "momentum drift {d:e}");
+    assert!(
+        d < 1e-9 * pmax * rest.num_points() as f64,
+        "momentum drift {d:e}"
+    );
 }
 
 #[test]
@@ -314,7 +345,12 @@ fn periodic_forces_match_centre_of_3x3_tiling() {
     for v in 0..n {
         let g = fb[index[(3 + 1) * n + v]];
         let d = max_norm(&[[g[0] - fp[v][0], g[1] - fp[v][1], g[2] - fp[v][2]]]);
-        assert!(d <= 1e-8 * fmax, "vertex {v}: periodic {:?} vs tiled {:?}", fp[v], g);
+        assert!(
+            d <= 1e-8 * fmax,
+            "vertex {v}: periodic {:?} vs tiled {:?}",
+            fp[v],
+            g
+        );
     }
     // The periodic energy is one ninth of the centre's share: compare the
     // 3x3 energy with a 3x3 tiling of energies only loosely (boundary tiles
@@ -347,7 +383,11 @@ fn radius_similarity_preserves_energy_and_relaxed_state() {
         let xs: Vec<Vec3> = x.iter().map(|q| [g * q[0], g * q[1], g * q[2]]).collect();
         b.set_positions(&xs).unwrap();
         let (ea, eb) = (a.energy_terms(), b.energy_terms());
-        for (u, w) in [(ea.stretch, eb.stretch), (ea.bend, eb.bend), (ea.contact, eb.contact)] {
+        for (u, w) in [
+            (ea.stretch, eb.stretch),
+            (ea.bend, eb.bend),
+            (ea.contact, eb.contact),
+        ] {
             assert!(u > 0.0);
             assert!(((u - w) / u).abs() < 1e-10, "gamma {g}: {u} vs {w}");
         }
@@ -388,7 +428,11 @@ fn run_min_ratio(sim: &mut YarnSim, frames: usize, frame: f64) -> f64 {
     let mut m = sim.min_distance_ratio();
     for _ in 0..frames {
         let st = sim.advance(frame).unwrap();
-        assert!(st.max_displacement_ratio <= 0.1 + 1e-9, "step bound violated: {}", st.max_displacement_ratio);
+        assert!(
+            st.max_displacement_ratio <= 0.1 + 1e-9,
+            "step bound violated: {}",
+            st.max_displacement_ratio
+        );
         m = m.min(st.min_distance_ratio);
     }
     m
@@ -396,9 +440,20 @@ fn run_min_ratio(sim: &mut YarnSim, frames: usize, frame: f64) -> f64 {
 
 #[test]
 fn uniaxial_stretch_30_percent_without_pull_through() {
-    let rest = plain_weave(5, 4.0 * R, 1.05 * R, 6);
+    let rest = plain_weave(4, 4.0 * R, 1.05 * R, 6);
     let width = rest.bounds().unwrap().size()[0];
     let mut sim = stretch_scene(&rest, YarnSimParams::default(), 0.3, 0.02).unwrap();
+    // Also clamp the weft ends, so that the straightening warps must press
+    // through the wefts (crimp interchange) instead of pushing them aside.
+    let b = rest.bounds().unwrap();
+    let weft_ends: Vec<usize> = (0..rest.num_points())
+        .filter(|&v| {
+            let y = rest.points[v][1];
+            !sim.is_handled(v) && (y <= b.min[1] + 1e-9 || y >= b.max[1] - 1e-9)
+        })
+        .collect();
+    assert_eq!(weft_ends.len(), 8);
+    sim.pin(&weft_ends).unwrap();
     let m = run_min_ratio(&mut sim, 10, 0.002);
     // The clamps really moved 30% apart and the weave is in contact.
     let right: Vec<usize> = (0..rest.num_points())
@@ -453,7 +508,8 @@ fn divergence_reports_step_and_vertex() {
         ..YarnSimParams::default()
     };
     let mut sim = YarnSim::new(&rest, params).unwrap();
-    sim.set_positions(&perturbed(&rest.points, 0.2 * R, 1)).unwrap();
+    sim.set_positions(&perturbed(&rest.points, 0.2 * R, 1))
+        .unwrap();
     let err = sim.advance(0.01).unwrap_err();
     match &err {
         YarnSimError::Diverged { step, vertex, .. } => {
@@ -465,7 +521,8 @@ fn divergence_reports_step_and_vertex() {
     assert!(msg.contains("step") && msg.contains("vertex"), "{msg}");
     // The same run with the defaults is stable.
     let mut sim = YarnSim::new(&rest, YarnSimParams::default()).unwrap();
-    sim.set_positions(&perturbed(&rest.points, 0.2 * R, 1)).unwrap();
+    sim.set_positions(&perturbed(&rest.points, 0.2 * R, 1))
+        .unwrap();
     sim.advance(0.001).unwrap();
 }
 
@@ -476,14 +533,23 @@ fn bad_inputs_are_errors() {
         density: -1.0,
         ..YarnSimParams::default()
     };
-    assert!(matches!(YarnSim::new(&rest, bad), Err(YarnSimError::Param { name: "density", .. })));
+    assert!(matches!(
+        YarnSim::new(&rest, bad),
+        Err(YarnSimError::Param {
+            name: "density",
+            ..
+        })
+    ));
     let mut sim = YarnSim::new(&rest, YarnSimParams::default()).unwrap();
     assert!(sim.pin(&[10_000]).is_err());
     assert!(sim.advance(-1.0).is_err());
     assert!(sim.set_positions(&[[0.0; 3]]).is_err());
     let mut tile = weave_tile(4.0 * R, R, 6);
     tile.next.pop();
-    assert!(matches!(YarnSim::new_periodic(&tile, YarnSimParams::default(), None), Err(YarnSimError::Tile(_))));
+    assert!(matches!(
+        YarnSim::new_periodic(&tile, YarnSimParams::default(), None),
+        Err(YarnSimError::Tile(_))
+    ));
 }
 
 #[test]
@@ -492,7 +558,9 @@ fn relax_free_yarns_reduces_force_and_keeps_contact_bound() {
     // Shorten the warp rest lengths by 5% (Leaf §6.1): the weave tightens.
     let nseg = rest.num_segments();
     let per_yarn = nseg / 6;
-    let scale: Vec<f64> = (0..nseg).map(|s| if s < 3 * per_yarn { 0.95 } else { 1.0 }).collect();
+    let scale: Vec<f64> = (0..nseg)
+        .map(|s| if s < 3 * per_yarn { 0.95 } else { 1.0 })
+        .collect();
     let (out, st) = relax(
         &rest,
         &YarnSimParams::default(),
@@ -509,4 +577,30 @@ fn relax_free_yarns_reduces_force_and_keeps_contact_bound() {
     assert!(out.same_topology(&rest));
     // Warps got shorter.
     assert!(out.curve_length(0) < rest.curve_length(0));
+}
+
+/// Release benchmark (not part of the suite):
+/// `YLS_BENCH=5000,22000 cargo test --release --test yarn_sim bench_report -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn bench_report() {
+    let sizes: Vec<usize> = std::env::var("YLS_BENCH")
+        .unwrap_or_else(|_| "22000".into())
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect();
+    let geometry = if std::env::var("YLS_BENCH_KNIT").is_ok() {
+        BenchGeometry::KnitSwatch
+    } else {
+        BenchGeometry::PlainWeave
+    };
+    for n in sizes {
+        let r = bench(&BenchOptions {
+            vertices: n,
+            geometry,
+            ..BenchOptions::default()
+        })
+        .unwrap();
+        println!("{}", serde_json::to_string(&r).unwrap());
+    }
 }

@@ -34,7 +34,9 @@ impl PointCollider for PlaneCollider {
         let n = self.normal;
         let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-300);
         let n = [n[0] / l, n[1] / l, n[2] / l];
-        let d = (p[0] - self.point[0]) * n[0] + (p[1] - self.point[1]) * n[1] + (p[2] - self.point[2]) * n[2];
+        let d = (p[0] - self.point[0]) * n[0]
+            + (p[1] - self.point[1]) * n[1]
+            + (p[2] - self.point[2]) * n[2];
         (d, n)
     }
     fn friction(&self) -> f64 {

@@ -28,10 +28,10 @@ pub(crate) struct Pair {
 pub(crate) struct PairOut {
     pub f: [Vec3; 4],
     pub energy: f64,
-    /// Gershgorin stiffness bound added to each of the 4 vertices (N/m).
-    pub stiff: f64,
-    /// Damping coefficient bound added to each vertex (kg/s).
-    pub damp: f64,
+    /// Gershgorin row sums of the contact stiffness for the 4 vertices (N/m).
+    pub stiff: [f64; 4],
+    /// Row sums of the contact damping matrix for the 4 vertices (kg/s).
+    pub damp: [f64; 4],
     /// Closest distance / (rA + rB).
     pub ratio: f64,
 }
@@ -176,33 +176,33 @@ impl ContactSet {
                 let mut out = Vec::new();
                 for dx in -1..=1 {
                     for dy in -1..=1 {
-                        for dz in -1..=1 {
-                            let k = cell_key([c[0] + dx, c[1] + dy, c[2] + dz]);
-                            let start = keys.partition_point(|e| e.0 < k);
-                            for &(kk, j) in &keys[start..] {
-                                if kk != k {
-                                    break;
-                                }
-                                let cj = &cs[j as usize];
-                                if cj.real && j as usize <= i {
-                                    continue;
-                                }
-                                if model.excluded(ci, cj) {
-                                    continue;
-                                }
-                                let d = segment_distance(
-                                    x[ci.v[0] as usize],
-                                    x[ci.v[1] as usize],
-                                    x[cj.v[0] as usize],
-                                    x[cj.v[1] as usize],
-                                );
-                                if d < ci.radius + cj.radius + 2.0 * skin {
-                                    out.push(Pair {
-                                        a: i as u32,
-                                        b: j,
-                                        w: if cj.real { 1.0 } else { 0.5 },
-                                    });
-                                }
+                        // The three z-neighbours are contiguous in key order.
+                        let k0 = cell_key([c[0] + dx, c[1] + dy, c[2] - 1]);
+                        let k1 = cell_key([c[0] + dx, c[1] + dy, c[2] + 1]);
+                        let start = keys.partition_point(|e| e.0 < k0);
+                        for &(kk, j) in &keys[start..] {
+                            if kk > k1 {
+                                break;
+                            }
+                            let cj = &cs[j as usize];
+                            if cj.real && j as usize <= i {
+                                continue;
+                            }
+                            if model.excluded(ci, cj) {
+                                continue;
+                            }
+                            let d = segment_distance(
+                                x[ci.v[0] as usize],
+                                x[ci.v[1] as usize],
+                                x[cj.v[0] as usize],
+                                x[cj.v[1] as usize],
+                            );
+                            if d < ci.radius + cj.radius + 2.0 * skin {
+                                out.push(Pair {
+                                    a: i as u32,
+                                    b: j,
+                                    w: if cj.real { 1.0 } else { 0.5 },
+                                });
                             }
                         }
                     }
@@ -293,8 +293,8 @@ fn pair_eval(
     let db = sub(b1, b0);
     let inv_r = 1.0 / rsum;
     let mut e = 0.0;
-    let mut stiff = 0.0;
-    let mut damp = 0.0;
+    let mut stiff = [0.0; 4];
+    let mut damp = [0.0; 4];
     let (mut fa0, mut fa1, mut fb0, mut fb1) = ([0.0; 3], [0.0; 3], [0.0; 3], [0.0; 3]);
     let vel = v.map(|v| {
         (
@@ -328,7 +328,13 @@ fn pair_eval(
             let fmag = -kc * ww * fp * inv_r;
             // Force on A sample along +nhat (pushes A away from B).
             let mut fs = scale(nhat, fmag);
-            stiff += kc * ww * (6.0 * inv_d2 * inv_d2 + 2.0) * inv_r * inv_r;
+            // Hessian norm of f(|pa - pb| / R) is at most f''/R^2 (f'' >= |f'|/d);
+            // the sample pair couples 4 vertices with weights summing to 2.
+            let ks = 2.0 * kc * ww * (6.0 * inv_d2 * inv_d2 + 2.0) * inv_r * inv_r;
+            let shares = [1.0 - sk, sk, 1.0 - tm, tm];
+            for q in 0..4 {
+                stiff[q] += shares[q] * ks;
+            }
             if let Some((va0, va1, vb0, vb1)) = vel {
                 // Leaf Eq. 12: F_A = 2 ww (k_dt dv - (k_dt - k_dn) n (n . dv)), dv = vB - vA.
                 let mut dv = [0.0; 3];
@@ -341,7 +347,10 @@ fn pair_eval(
                 fs[0] += fd[0];
                 fs[1] += fd[1];
                 fs[2] += fd[2];
-                damp += 2.0 * ww * k_dn.max(k_dt);
+                let cd = 2.0 * 2.0 * ww * k_dn.max(k_dt);
+                for q in 0..4 {
+                    damp[q] += shares[q] * cd;
+                }
             }
             axpy(&mut fa0, 1.0 - sk, fs);
             axpy(&mut fa1, sk, fs);
@@ -351,8 +360,66 @@ fn pair_eval(
     }
     o.energy = kc * e;
     o.f = [fa0, fa1, fb0, fb1];
-    // Each sample pair couples two points spread over 4 vertices: row sums <= 2x.
-    o.stiff = 2.0 * stiff;
-    o.damp = 2.0 * damp;
+    o.stiff = stiff;
+    o.damp = damp;
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn segment_distance_matches_sampling() {
+        let mut seed = 12345u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for _ in 0..200 {
+            let p: Vec<Vec3> = (0..4).map(|_| [rnd(), rnd(), rnd()]).collect();
+            let d = segment_distance(p[0], p[1], p[2], p[3]);
+            let mut best = f64::INFINITY;
+            let n = 200;
+            for i in 0..=n {
+                let s = i as f64 / n as f64;
+                let a = [
+                    p[0][0] + s * (p[1][0] - p[0][0]),
+                    p[0][1] + s * (p[1][1] - p[0][1]),
+                    p[0][2] + s * (p[1][2] - p[0][2]),
+                ];
+                for j in 0..=n {
+                    let t = j as f64 / n as f64;
+                    let b = [
+                        p[2][0] + t * (p[3][0] - p[2][0]),
+                        p[2][1] + t * (p[3][1] - p[2][1]),
+                        p[2][2] + t * (p[3][2] - p[2][2]),
+                    ];
+                    best = best.min(norm(sub(a, b)));
+                }
+            }
+            assert!(d <= best + 1e-12, "{d} > sampled {best}");
+            assert!(best - d < 1e-2, "{d} vs sampled {best}");
+        }
+        // Parallel segments.
+        let d = segment_distance([0.0; 3], [1.0, 0.0, 0.0], [0.5, 1.0, 0.0], [2.0, 1.0, 0.0]);
+        assert!((d - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn simpson_weights_integrate_cubics() {
+        for n in [3, 5, 9] {
+            let w = simpson(n);
+            let s: f64 = w.iter().sum();
+            assert!((s - 1.0).abs() < 1e-14);
+            let c: f64 = w
+                .iter()
+                .enumerate()
+                .map(|(k, w)| w * (k as f64 / (n - 1) as f64).powi(3))
+                .sum();
+            assert!((c - 0.25).abs() < 1e-14);
+        }
+    }
 }

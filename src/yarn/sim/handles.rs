@@ -11,7 +11,10 @@ pub enum HandleMotion {
     /// Held in place (pins).
     Fixed,
     /// Constant velocity (m/s), for `duration` seconds (then held; `None`: forever).
-    Translate { velocity: Vec3, duration: Option<f64> },
+    Translate {
+        velocity: Vec3,
+        duration: Option<f64>,
+    },
     /// Rotation about the axis through `center` along `axis` at
     /// `angular_velocity` (rad/s, right-handed), for `duration` seconds.
     Rotate {
@@ -83,7 +86,9 @@ impl Handle {
             } => {
                 let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
                 if !fin(center) || !(n > 0.0 && n.is_finite()) || !angular_velocity.is_finite() {
-                    return Err("rotate: center, axis (nonzero) and angular velocity must be finite".into());
+                    return Err(
+                        "rotate: center, axis (nonzero) and angular velocity must be finite".into(),
+                    );
                 }
                 if duration.is_some_and(|d| !(d >= 0.0)) {
                     return Err("rotate: duration must be >= 0".into());
@@ -132,7 +137,11 @@ impl Handle {
                 let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
                 let k = [axis[0] / n, axis[1] / n, axis[2] / n];
                 let th = angular_velocity * s;
-                let p = [anchor[0] - center[0], anchor[1] - center[1], anchor[2] - center[2]];
+                let p = [
+                    anchor[0] - center[0],
+                    anchor[1] - center[1],
+                    anchor[2] - center[2],
+                ];
                 // Rodrigues' rotation formula.
                 let (c, sn) = (th.cos(), th.sin());
                 let kxp = [

@@ -132,7 +132,8 @@ pub(crate) fn evaluate(
 ) -> EvalSummary {
     let n = model.n_real;
     ws.seg_out.resize(model.segs.len(), (0.0, [[0.0; 3]; 2]));
-    ws.hinge_out.resize(model.hinges.len(), (0.0, [[0.0; 3]; 3]));
+    ws.hinge_out
+        .resize(model.hinges.len(), (0.0, [[0.0; 3]; 3]));
     ws.seg_out
         .par_iter_mut()
         .zip(model.segs.par_iter())
@@ -156,8 +157,7 @@ pub(crate) fn evaluate(
     ws.damp.resize(n, 0.0);
     let (seg_out, hinge_out, pout) = (&ws.seg_out, &ws.hinge_out, &contacts.out);
     let cinc = &contacts.inc;
-    ws.f
-        .par_iter_mut()
+    ws.f.par_iter_mut()
         .zip(ws.stiff.par_iter_mut())
         .zip(ws.damp.par_iter_mut())
         .enumerate()
@@ -183,8 +183,8 @@ pub(crate) fn evaluate(
                 acc[0] += g[0];
                 acc[1] += g[1];
                 acc[2] += g[2];
-                ks += o.stiff;
-                cs += o.damp;
+                ks += o.stiff[s as usize % 4];
+                cs += o.damp[s as usize % 4];
             }
             *f = acc;
             *k = ks;
@@ -737,4 +737,51 @@ fn worst_force(f: &[Vec3], m: &[f64]) -> usize {
         }
     }
     w
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn step_respects_displacement_and_stability_bounds() {
+        let y = crate::yarn::sim::plain_weave_swatch(4, 1.6e-3, 0.39e-3, 5, 4e-4);
+        let mut sim = YarnSim::new(&y, YarnSimParams::default()).unwrap();
+        // Contact is active at the start: it raises the stiffness bound.
+        sim.step(1.0).unwrap();
+        assert!((0..sim.model.n_real).any(|i| sim.ws.stiff[i] > sim.model.rod_stiffness[i]));
+        let mut dt_prev = 0.0;
+        for _ in 0..50 {
+            let info = sim.step(1.0).unwrap();
+            assert!(info.max_disp_ratio <= sim.params.max_step_displacement * (1.0 + 1e-12));
+            assert!(info.dt > 0.0 && info.dt <= sim.params.max_dt);
+            dt_prev = info.dt;
+        }
+        // The bound in force: below the rod-only explicit limit.
+        let mut rod_limit = f64::INFINITY;
+        for i in 0..sim.model.n_real {
+            let m = sim.model.mass[i];
+            rod_limit =
+                rod_limit.min(sim.params.cfl * 2.0 / (sim.model.rod_stiffness[i] / m).sqrt());
+        }
+        assert!(
+            dt_prev <= rod_limit * (1.0 + 1e-12),
+            "{dt_prev} > {rod_limit}"
+        );
+    }
+
+    #[test]
+    fn handles_follow_their_motion_exactly() {
+        let y = crate::yarn::sim::plain_weave_swatch(2, 1.6e-3, 0.5e-3, 5, 4e-4);
+        let mut sim = YarnSim::new(&y, YarnSimParams::default()).unwrap();
+        let p0 = y.points[0];
+        sim.add_handle(Handle::translate(vec![0], [0.1, 0.0, 0.0]))
+            .unwrap();
+        sim.pin(&[3]).unwrap();
+        sim.advance(1e-4).unwrap();
+        let p = sim.positions()[0];
+        assert!((p[0] - (p0[0] + 1e-5)).abs() < 1e-12);
+        assert_eq!(sim.positions()[3], y.points[3]);
+        assert!(sim.is_handled(0) && !sim.is_handled(1));
+    }
 }

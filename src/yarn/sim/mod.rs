@@ -46,7 +46,9 @@ pub enum YarnSimError {
     Handle(String),
     /// The simulation diverged at time step `step` (1-based, counted over the
     /// simulator's life) at simulated time `time`; `vertex` is the worst vertex.
-    #[error("yarn simulation diverged at step {step} (t = {time} s), worst vertex {vertex}: {reason}")]
+    #[error(
+        "yarn simulation diverged at step {step} (t = {time} s), worst vertex {vertex}: {reason}"
+    )]
     Diverged {
         step: u64,
         time: f64,
@@ -77,6 +79,10 @@ pub struct BenchReport {
     pub min_distance_ratio: f64,
     /// Contact list rebuilds during the timed steps.
     pub rebuilds: u64,
+    /// Median force evaluation (rods + contact + gather) per vertex (us).
+    pub forces_us_per_vertex_step: f64,
+    /// Mean time of one contact-pair rebuild (ms).
+    pub rebuild_ms: f64,
     /// Rayon threads.
     pub threads: usize,
 }
@@ -84,26 +90,128 @@ pub struct BenchReport {
 /// Frame length of the benchmark and the VH comparison (s).
 pub const BENCH_FRAME: f64 = 1.0 / 150.0;
 
-/// Uniaxial stretch scene on the analytic knit swatch (about `vertices`
-/// vertices; `yarn::analytic::knit_swatch_with_points`): the first and last
-/// few vertices of every course are handles, the right ones move apart along
-/// the courses at 30% of the width per second. Times `steps` steps after
-/// `warmup` untimed ones.
-pub fn bench(vertices: usize, steps: usize, warmup: usize) -> Result<BenchReport, YarnSimError> {
-    let yarns = crate::yarn::analytic::knit_swatch_with_points(vertices.max(800));
+/// Which analytic swatch [`bench`] runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum BenchGeometry {
+    /// `yarn::analytic::knit_swatch_with_points`: unrelaxed stand-in knit
+    /// whose courses start interpenetrating (contact pushes them apart and
+    /// they end up out of contact), so it times a mostly contact-free run.
+    KnitSwatch,
+    /// [`plain_weave_swatch`] with both yarn families clamped at their ends:
+    /// every crossing is in contact and pressed during the stretch (the
+    /// contact-active case the VH / Leaf figures refer to).
+    PlainWeave,
+}
+
+/// Options of [`bench`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BenchOptions {
+    /// Target vertex count. Default 22_000 (VH Table 1 rib, 66K DOFs).
+    pub vertices: usize,
+    /// Timed steps. Default 200.
+    pub steps: usize,
+    /// Untimed steps before timing. Default 20.
+    pub warmup: usize,
+    /// Default [`BenchGeometry::PlainWeave`].
+    pub geometry: BenchGeometry,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        BenchOptions {
+            vertices: 22_000,
+            steps: 200,
+            warmup: 20,
+            geometry: BenchGeometry::PlainWeave,
+        }
+    }
+}
+
+/// An analytic plain weave: `n` warps along x and `n` wefts along y,
+/// `spacing` apart, crimp amplitude `amp` (crossings `2 amp` apart),
+/// `per` points per spacing, yarn radius `radius` (all m). Unrelaxed stand-in
+/// for benchmarks and tests until `yarn::pattern` exists.
+pub fn plain_weave_swatch(
+    n: usize,
+    spacing: f64,
+    amp: f64,
+    per: usize,
+    radius: f64,
+) -> crate::geom::Yarns {
+    let pi = std::f64::consts::PI;
+    let z = |x: f64, j: usize| amp * (pi * (x / spacing - 0.5) + pi * j as f64).cos();
+    let mut y = crate::geom::Yarns::new();
+    let m = n * per + 1;
+    for j in 0..n {
+        let pts: Vec<crate::geom::Vec3> = (0..m)
+            .map(|k| {
+                let x = k as f64 * spacing / per as f64;
+                [x, (j as f64 + 0.5) * spacing, z(x, j)]
+            })
+            .collect();
+        y.push_curve(&pts, false, radius);
+    }
+    for i in 0..n {
+        let pts: Vec<crate::geom::Vec3> = (0..m)
+            .map(|k| {
+                let yy = k as f64 * spacing / per as f64;
+                [(i as f64 + 0.5) * spacing, yy, -z(yy, i)]
+            })
+            .collect();
+        y.push_curve(&pts, false, radius);
+    }
+    y
+}
+
+/// Uniaxial 30% stretch scene (over 1 s) with the default parameters, timed
+/// per step: the first and last 3% (in x) of the swatch are clamped and the
+/// right clamp moves (see [`stretch_scene`]); on the weave the weft ends are
+/// pinned too.
+pub fn bench(opts: &BenchOptions) -> Result<BenchReport, YarnSimError> {
+    let r = 4e-4;
+    let yarns = match opts.geometry {
+        BenchGeometry::KnitSwatch => {
+            crate::yarn::analytic::knit_swatch_with_points(opts.vertices.max(800))
+        }
+        BenchGeometry::PlainWeave => {
+            // Crossings start 3% inside contact distance, so contact is active
+            // from the first step and stays pressed by the clamps.
+            let per = 5;
+            let n = ((opts.vertices as f64 / (2.0 * per as f64)).sqrt().round() as usize).max(2);
+            plain_weave_swatch(n, 4.0 * r, 0.97 * r, per, r)
+        }
+    };
     let mut sim = stretch_scene(&yarns, YarnSimParams::default(), 0.3, 1.0)?;
-    for _ in 0..warmup {
+    if opts.geometry == BenchGeometry::PlainWeave {
+        let b = yarns.bounds().ok_or(YarnSimError::Param {
+            name: "yarns",
+            message: "no points".into(),
+        })?;
+        let ends: Vec<usize> = (0..yarns.num_points())
+            .filter(|&v| {
+                let y = yarns.points[v][1];
+                !sim.is_handled(v) && (y <= b.min[1] + 1e-12 || y >= b.max[1] - 1e-12)
+            })
+            .collect();
+        sim.pin(&ends)?;
+    }
+    for _ in 0..opts.warmup {
         sim.step(f64::INFINITY)?;
     }
+    let steps = opts.steps.max(1);
     let builds0 = sim.contacts.builds;
     let mut times = Vec::with_capacity(steps);
     let mut dts = Vec::with_capacity(steps);
     let mut min_ratio = f64::INFINITY;
     let mut active = 0;
-    for _ in 0..steps.max(1) {
+    let mut force_times = Vec::with_capacity(steps);
+    let mut build_time = 0.0;
+    for _ in 0..steps {
         let t = std::time::Instant::now();
         let info = sim.step(f64::INFINITY)?;
         times.push(t.elapsed().as_secs_f64());
+        force_times.push(info.t_force);
+        build_time += info.t_build;
         dts.push(info.dt);
         min_ratio = min_ratio.min(info.min_ratio);
         active = info.active_pairs;
@@ -114,11 +222,13 @@ pub fn bench(vertices: usize, steps: usize, warmup: usize) -> Result<BenchReport
     };
     let t_med = median(&mut times);
     let dt_med = median(&mut dts);
+    let f_med = median(&mut force_times);
     let n = sim.num_vertices();
+    let rebuilds = sim.contacts.builds - builds0;
     let spf = (BENCH_FRAME / dt_med).ceil();
     Ok(BenchReport {
         vertices: n,
-        steps: times.len(),
+        steps,
         us_per_vertex_step: t_med * 1e6 / n as f64,
         ms_per_frame: t_med * spf * 1e3,
         steps_per_frame: spf,
@@ -126,7 +236,13 @@ pub fn bench(vertices: usize, steps: usize, warmup: usize) -> Result<BenchReport
         contact_pairs: active,
         candidate_pairs: sim.contacts.pairs.len(),
         min_distance_ratio: min_ratio,
-        rebuilds: sim.contacts.builds - builds0,
+        rebuilds,
+        forces_us_per_vertex_step: f_med * 1e6 / n as f64,
+        rebuild_ms: if rebuilds > 0 {
+            build_time * 1e3 / rebuilds as f64
+        } else {
+            0.0
+        },
         threads: rayon::current_num_threads(),
     })
 }

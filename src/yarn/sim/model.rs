@@ -56,9 +56,9 @@ pub(crate) struct Csr {
 }
 
 impl Csr {
-    /// Builds rows from (row, value) entries; values keep their order within a row.
-    pub fn build(rows: usize, mut entries: Vec<(u32, u32)>) -> Csr {
-        entries.sort_by_key(|e| e.0);
+    /// Builds rows from (row, value) entries by a counting sort; values keep
+    /// their input order within a row.
+    pub fn build(rows: usize, entries: Vec<(u32, u32)>) -> Csr {
         let mut start = vec![0u32; rows + 1];
         for &(r, _) in &entries {
             start[r as usize + 1] += 1;
@@ -66,10 +66,13 @@ impl Csr {
         for i in 0..rows {
             start[i + 1] += start[i];
         }
-        Csr {
-            start,
-            idx: entries.into_iter().map(|e| e.1).collect(),
+        let mut fill = start.clone();
+        let mut idx = vec![0u32; entries.len()];
+        for (r, v) in entries {
+            idx[fill[r as usize] as usize] = v;
+            fill[r as usize] += 1;
         }
+        Csr { start, idx }
     }
     #[inline]
     pub fn row(&self, i: usize) -> &[u32] {
@@ -160,8 +163,7 @@ impl Model {
             let first = t.base.len() as u32;
             for k in 0..nseg {
                 let s = first + k;
-                t.base
-                    .push([(o + k, [0, 0]), (o + (k + 1) % m, [0, 0])]);
+                t.base.push([(o + k, [0, 0]), (o + (k + 1) % m, [0, 0])]);
                 t.succ.push(if k + 1 < nseg {
                     Some((s + 1, [0, 0]))
                 } else if closed {
@@ -254,7 +256,10 @@ impl Model {
                 t.pred.push(if k > 0 {
                     Some((s - 1, [0, 0]))
                 } else {
-                    Some((first_seg[pv] + y.curve_range(pv).len() as u32 - 1, [-ps[0], -ps[1]]))
+                    Some((
+                        first_seg[pv] + y.curve_range(pv).len() as u32 - 1,
+                        [-ps[0], -ps[1]],
+                    ))
                 });
                 let before = if k > 0 {
                     (o + k - 1, [0, 0])
@@ -329,7 +334,11 @@ fn finish(
                 message: format!("{} values for {} segments", s.len(), t.base.len()),
             });
         }
-        if let Some((i, v)) = s.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v > 0.0)) {
+        if let Some((i, v)) = s
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !(v.is_finite() && **v > 0.0))
+        {
             return Err(YarnSimError::Param {
                 name: "rest_length_scale",
                 message: format!("segment {i}: {v} is not a positive finite number"),

@@ -36,12 +36,14 @@ pub struct YarnSimParams {
     pub global_damping: f64,
     /// Normal contact damping k_dn (kg/(m^2 s)) of Leaf Eq. 12 (force
     /// `-dD/dv` of the dissipation D as printed), applied to sample pairs in
-    /// contact. Default 5e3: about a fifth of critical damping for a yarn
-    /// crossing at r = 0.4-1 mm with the default stiffness (our estimate;
-    /// Leaf cites Kaldor 2008 Table 1, which the papers do not reproduce).
+    /// contact. Default 2e3: a fraction of critical damping for a yarn
+    /// crossing at r = 0.4-1 mm with the default stiffness, and small enough
+    /// that its explicit limit `2 m / c` stays above the stiffness limit
+    /// (our choice; Leaf cites Kaldor 2008 Table 1, which the papers do not
+    /// reproduce).
     pub contact_damping_normal: f64,
     /// Tangential contact damping k_dt (kg/(m^2 s)) of Leaf Eq. 12; acts as a
-    /// viscous stand-in for friction. Default 5e2 (a tenth of k_dn; chosen).
+    /// viscous stand-in for friction. Default 2e2 (a tenth of k_dn; chosen).
     pub contact_damping_tangent: f64,
     /// Gravity (m/s^2), +Y up. Default [0, -9.81, 0].
     pub gravity: Vec3,
@@ -57,7 +59,10 @@ pub struct YarnSimParams {
     pub min_dt: f64,
     /// Courant factor applied to the explicit stability limit `2 / omega_max`
     /// of symplectic Euler (omega_max from a Gershgorin bound of the stiffness,
-    /// recomputed every step including the contacts). Default 0.5.
+    /// recomputed every step including the contacts). The Gershgorin bound
+    /// is an upper bound of omega_max^2, so any value below 1 is stable for
+    /// the linearized system; default 0.7 leaves room for the contact
+    /// stiffness changing within a step.
     pub cfl: f64,
     /// Contact skin as a fraction of the yarn radius: candidate pairs are
     /// found within `r_a + r_b + 2 skin` and reused until the accumulated
@@ -90,13 +95,13 @@ impl Default for YarnSimParams {
             contact_stiffness: 60.0,
             density: 120.0,
             global_damping: 2.0,
-            contact_damping_normal: 5e3,
-            contact_damping_tangent: 5e2,
+            contact_damping_normal: 2e3,
+            contact_damping_tangent: 2e2,
             gravity: [0.0, -9.81, 0.0],
             max_step_displacement: 0.1,
             max_dt: 4e-4,
             min_dt: 1e-10,
-            cfl: 0.5,
+            cfl: 0.7,
             contact_skin: 0.5,
             contact_exclusion: 2.0,
             contact_sample_spacing: 1.0,
