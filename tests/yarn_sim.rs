@@ -2,6 +2,8 @@
 //! gradients, invariances, periodicity, radius similarity, no pull-through,
 //! divergence reporting.
 
+mod common;
+
 use std::f64::consts::PI;
 
 use knitvox::geom::{Vec3, Yarns};
@@ -581,6 +583,9 @@ fn relax_free_yarns_reduces_force_and_keeps_contact_bound() {
 
 /// Release benchmark (not part of the suite):
 /// `YLS_BENCH=5000,22000 cargo test --release --test yarn_sim bench_report -- --ignored --nocapture`
+/// (`YLS_BENCH_KNIT=1`: analytic knit swatch; `YLS_BENCH_RIB=8x8`: the
+/// external cartridge-belt rib tile tiled 8 x 8; `YLS_BENCH_FRAMES=n`: also
+/// run n whole 1/150 s frames).
 #[test]
 #[ignore]
 fn bench_report() {
@@ -589,6 +594,26 @@ fn bench_report() {
         .split(',')
         .filter_map(|s| s.trim().parse().ok())
         .collect();
+    let frames = std::env::var("YLS_BENCH_FRAMES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
+    if let Ok(t) = std::env::var("YLS_BENCH_RIB") {
+        let (n, m) = t.split_once('x').unwrap();
+        let y = external_knit(
+            "madypg_cartridge_belt_rib.pyp",
+            n.parse().unwrap(),
+            m.parse().unwrap(),
+        )
+        .expect("external data");
+        let opts = BenchOptions {
+            frames,
+            ..BenchOptions::default()
+        };
+        let r = bench_yarns(&y, false, &opts).unwrap();
+        println!("rib {t}: {}", serde_json::to_string(&r).unwrap());
+        return;
+    }
     let geometry = if std::env::var("YLS_BENCH_KNIT").is_ok() {
         BenchGeometry::KnitSwatch
     } else {
@@ -598,9 +623,51 @@ fn bench_report() {
         let r = bench(&BenchOptions {
             vertices: n,
             geometry,
+            frames,
             ..BenchOptions::default()
         })
         .unwrap();
         println!("{}", serde_json::to_string(&r).unwrap());
     }
+}
+
+/// A HYLC / MADYPG knit tile from the external data, tiled `n x m` (flat in
+/// the x-z plane, courses along x, radius 1 mm).
+fn external_knit(name: &str, n: usize, m: usize) -> Option<Yarns> {
+    let dir = common::external_data("yarns")?;
+    let opts = knitvox::io::ReadOptions {
+        tile: [n, m],
+        ..Default::default()
+    };
+    Some(
+        knitvox::io::read_single(&dir.join(name), &opts)
+            .unwrap()
+            .yarns,
+    )
+}
+
+fn knit_stretch(name: &str, n: usize, m: usize) {
+    let Some(y) = external_knit(name, n, m) else {
+        return;
+    };
+    let mut sim = stretch_scene(&y, YarnSimParams::default(), 0.3, 0.02).unwrap();
+    let m0 = sim.min_distance_ratio();
+    let m = run_min_ratio(&mut sim, 10, 0.002);
+    let e = sim.energy_terms();
+    eprintln!(
+        "{name}: {} vertices, initial ratio {m0:.4}, min ratio over the stretch {m:.4}, {e:?}",
+        y.num_points()
+    );
+    assert!(e.contact > 0.0, "contact must stay active: {e:?}");
+    assert!(m >= 0.75, "{name}: min distance ratio {m} < 0.75");
+}
+
+#[test]
+fn knit_stockinette_stretch_30_percent_without_pull_through() {
+    knit_stretch("madypg_stockinette.pyp", 3, 3);
+}
+
+#[test]
+fn knit_rib_stretch_30_percent_without_pull_through() {
+    knit_stretch("madypg_cartridge_belt_rib.pyp", 2, 2);
 }

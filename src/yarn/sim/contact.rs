@@ -10,7 +10,7 @@
 
 use rayon::prelude::*;
 
-use super::model::{CSeg, Csr, Model};
+use super::model::{CSeg, Model};
 use super::rod::{axpy, dot, norm, scale, sub};
 use crate::geom::Vec3;
 
@@ -23,9 +23,11 @@ pub(crate) struct Pair {
     pub w: f64,
 }
 
-/// Per-pair results of one evaluation.
+/// Per-pair results of one evaluation (kept only for pairs in contact).
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct PairOut {
+    /// Index of the pair in `ContactSet::pairs`.
+    pub pair: u32,
     pub f: [Vec3; 4],
     pub energy: f64,
     /// Gershgorin row sums of the contact stiffness for the 4 vertices (N/m).
@@ -40,9 +42,11 @@ pub(crate) struct PairOut {
 #[derive(Debug, Clone, Default)]
 pub(crate) struct ContactSet {
     pub pairs: Vec<Pair>,
-    pub out: Vec<PairOut>,
-    /// Real vertex -> slots `4 * pair + k`.
-    pub inc: Csr,
+    /// Results of the pairs in contact at the last evaluation, in pair order.
+    pub active: Vec<PairOut>,
+    /// Minimum closest distance / (rA + rB) over all candidate pairs at the
+    /// last evaluation (a lower bound where above 1).
+    pub min_ratio: f64,
     /// Accumulated maximum vertex motion since the last build (m).
     pub acc_motion: f64,
     /// Skin (m): pairs are found within `rA + rB + 2 skin`.
@@ -188,6 +192,14 @@ impl ContactSet {
                             if cj.real && j as usize <= i {
                                 continue;
                             }
+                            // Midpoints farther than the reach plus the half
+                            // lengths: the segments are farther than the reach.
+                            let (mi, mj) = (&mids[i], &mids[j as usize]);
+                            let lim = ci.radius + cj.radius + 2.0 * skin + 0.5 * (mi.1 + mj.1);
+                            let dm = sub(mi.0, mj.0);
+                            if dot(dm, dm) >= lim * lim {
+                                continue;
+                            }
                             if model.excluded(ci, cj) {
                                 continue;
                             }
@@ -213,16 +225,6 @@ impl ContactSet {
             })
             .collect();
         self.pairs = lists.concat();
-        let mut entries = Vec::with_capacity(4 * self.pairs.len());
-        for (p, pr) in self.pairs.iter().enumerate() {
-            let (a, b) = (&cs[pr.a as usize], &cs[pr.b as usize]);
-            for (k, e) in [a.v[0], a.v[1], b.v[0], b.v[1]].into_iter().enumerate() {
-                entries.push((model.real_of(e) as u32, 4 * p as u32 + k as u32));
-            }
-        }
-        self.inc = Csr::build(model.n_real, entries);
-        self.out.clear();
-        self.out.resize(self.pairs.len(), PairOut::default());
         self.acc_motion = 0.0;
         self.builds += 1;
         self.valid = true;
@@ -242,24 +244,45 @@ impl ContactSet {
         let ns = model.n_samples;
         let w = simpson(ns);
         let s: Vec<f64> = (0..ns).map(|k| k as f64 / (ns - 1) as f64).collect();
-        self.out
-            .par_iter_mut()
-            .zip(self.pairs.par_iter())
+        // Only pairs in contact carry forces: keep those (in pair order, so
+        // the result does not depend on how rayon splits the work).
+        let (active, min_ratio) = self
+            .pairs
+            .par_iter()
+            .enumerate()
             .with_min_len(256)
-            .for_each(|(o, p)| {
-                *o = pair_eval(
-                    &cs[p.a as usize],
-                    &cs[p.b as usize],
-                    p.w,
-                    x,
-                    v,
-                    &w,
-                    &s,
-                    k_contact,
-                    k_dn,
-                    k_dt,
-                );
-            });
+            .fold(
+                || (Vec::new(), f64::INFINITY),
+                |(mut acc, m), (i, p)| {
+                    let mut o = pair_eval(
+                        &cs[p.a as usize],
+                        &cs[p.b as usize],
+                        p.w,
+                        x,
+                        v,
+                        &w,
+                        &s,
+                        k_contact,
+                        k_dn,
+                        k_dt,
+                    );
+                    let m = m.min(o.ratio);
+                    if o.ratio < 1.0 {
+                        o.pair = i as u32;
+                        acc.push(o);
+                    }
+                    (acc, m)
+                },
+            )
+            .reduce(
+                || (Vec::new(), f64::INFINITY),
+                |(mut a, ma), (mut b, mb)| {
+                    a.append(&mut b);
+                    (a, ma.min(mb))
+                },
+            );
+        self.active = active;
+        self.min_ratio = min_ratio;
     }
 }
 
@@ -280,6 +303,24 @@ fn pair_eval(
     let (a0, a1) = (x[a.v[0] as usize], x[a.v[1] as usize]);
     let (b0, b1) = (x[b.v[0] as usize], x[b.v[1] as usize]);
     let rsum = a.radius + b.radius;
+    // Cheap rejection: midpoint distance minus half lengths bounds the
+    // segment distance from below.
+    let da = sub(a1, a0);
+    let db = sub(b1, b0);
+    let mid = [
+        0.5 * (a0[0] + a1[0] - b0[0] - b1[0]),
+        0.5 * (a0[1] + a1[1] - b0[1] - b1[1]),
+        0.5 * (a0[2] + a1[2] - b0[2] - b1[2]),
+    ];
+    let reach = rsum + 0.5 * (norm(da) + norm(db));
+    let m2 = dot(mid, mid);
+    if m2 >= reach * reach {
+        let lower = m2.sqrt() - 0.5 * (norm(da) + norm(db));
+        return PairOut {
+            ratio: lower / rsum,
+            ..PairOut::default()
+        };
+    }
     let dist = segment_distance(a0, a1, b0, b1);
     let mut o = PairOut {
         ratio: dist / rsum,
@@ -289,8 +330,6 @@ fn pair_eval(
         return o;
     }
     let ns = s.len();
-    let da = sub(a1, a0);
-    let db = sub(b1, b0);
     let inv_r = 1.0 / rsum;
     let mut e = 0.0;
     let mut stiff = [0.0; 4];

@@ -155,14 +155,12 @@ pub(crate) fn evaluate(
     ws.f.resize(n, [0.0; 3]);
     ws.stiff.resize(n, 0.0);
     ws.damp.resize(n, 0.0);
-    let (seg_out, hinge_out, pout) = (&ws.seg_out, &ws.hinge_out, &contacts.out);
-    let cinc = &contacts.inc;
+    let (seg_out, hinge_out) = (&ws.seg_out, &ws.hinge_out);
     ws.f.par_iter_mut()
         .zip(ws.stiff.par_iter_mut())
-        .zip(ws.damp.par_iter_mut())
         .enumerate()
         .with_min_len(1024)
-        .for_each(|(i, ((f, k), c))| {
+        .for_each(|(i, (f, k))| {
             let mut acc = [0.0; 3];
             for &s in model.seg_inc.row(i) {
                 let g = seg_out[s as usize / 2].1[s as usize % 2];
@@ -176,34 +174,35 @@ pub(crate) fn evaluate(
                 acc[1] += g[1];
                 acc[2] += g[2];
             }
-            let (mut ks, mut cs) = (model.rod_stiffness[i], 0.0);
-            for &s in cinc.row(i) {
-                let o = &pout[s as usize / 4];
-                let g = o.f[s as usize % 4];
-                acc[0] += g[0];
-                acc[1] += g[1];
-                acc[2] += g[2];
-                ks += o.stiff[s as usize % 4];
-                cs += o.damp[s as usize % 4];
-            }
             *f = acc;
-            *k = ks;
-            *c = cs;
+            *k = model.rod_stiffness[i];
         });
+    ws.damp.iter_mut().for_each(|c| *c = 0.0);
+    // Contact: scatter the pairs in contact (few, in pair order: deterministic).
     let mut energy = EnergyTerms::default();
+    for o in &contacts.active {
+        let p = &contacts.pairs[o.pair as usize];
+        let (a, b) = (&model.csegs[p.a as usize], &model.csegs[p.b as usize]);
+        for (k, e) in [a.v[0], a.v[1], b.v[0], b.v[1]].into_iter().enumerate() {
+            let r = model.real_of(e);
+            let g = o.f[k];
+            let f = &mut ws.f[r];
+            f[0] += g[0];
+            f[1] += g[1];
+            f[2] += g[2];
+            ws.stiff[r] += o.stiff[k];
+            ws.damp[r] += o.damp[k];
+        }
+        energy.contact += o.energy;
+    }
     for o in seg_out {
         energy.stretch += o.0;
     }
     for o in hinge_out {
         energy.bend += o.0;
     }
-    let mut min_ratio = f64::INFINITY;
-    let mut active = 0;
-    for o in pout {
-        energy.contact += o.energy;
-        min_ratio = min_ratio.min(o.ratio);
-        active += (o.ratio < 1.0) as usize;
-    }
+    let min_ratio = contacts.min_ratio;
+    let active = contacts.active.len();
     EvalSummary {
         energy,
         min_ratio,

@@ -83,6 +83,10 @@ pub struct BenchReport {
     pub forces_us_per_vertex_step: f64,
     /// Mean time of one contact-pair rebuild (ms).
     pub rebuild_ms: f64,
+    /// Mean wall time of the whole frames run (ms), when any were run.
+    pub ms_per_frame_measured: Option<f64>,
+    /// Minimum distance ratio over those frames.
+    pub frames_min_distance_ratio: Option<f64>,
     /// Rayon threads.
     pub threads: usize,
 }
@@ -114,6 +118,9 @@ pub struct BenchOptions {
     pub warmup: usize,
     /// Default [`BenchGeometry::PlainWeave`].
     pub geometry: BenchGeometry,
+    /// Whole 1/150 s frames to run (and time) after the timed steps.
+    /// Default 0.
+    pub frames: usize,
 }
 
 impl Default for BenchOptions {
@@ -123,6 +130,7 @@ impl Default for BenchOptions {
             steps: 200,
             warmup: 20,
             geometry: BenchGeometry::PlainWeave,
+            frames: 0,
         }
     }
 }
@@ -181,8 +189,19 @@ pub fn bench(opts: &BenchOptions) -> Result<BenchReport, YarnSimError> {
             plain_weave_swatch(n, 4.0 * r, 0.97 * r, per, r)
         }
     };
-    let mut sim = stretch_scene(&yarns, YarnSimParams::default(), 0.3, 1.0)?;
-    if opts.geometry == BenchGeometry::PlainWeave {
+    bench_yarns(&yarns, opts.geometry == BenchGeometry::PlainWeave, opts)
+}
+
+/// [`bench`] on given yarns (e.g. a knit tile read by `io` and tiled): the
+/// 30% stretch scene of [`stretch_scene`] over 1 s; with `pin_y_ends` the
+/// vertices at the smallest and largest y are pinned too.
+pub fn bench_yarns(
+    yarns: &crate::geom::Yarns,
+    pin_y_ends: bool,
+    opts: &BenchOptions,
+) -> Result<BenchReport, YarnSimError> {
+    let mut sim = stretch_scene(yarns, YarnSimParams::default(), 0.3, 1.0)?;
+    if pin_y_ends {
         let b = yarns.bounds().ok_or(YarnSimError::Param {
             name: "yarns",
             message: "no points".into(),
@@ -225,6 +244,16 @@ pub fn bench(opts: &BenchOptions) -> Result<BenchReport, YarnSimError> {
     let f_med = median(&mut force_times);
     let n = sim.num_vertices();
     let rebuilds = sim.contacts.builds - builds0;
+    let (mut measured, mut frames_ratio) = (None, None);
+    if opts.frames > 0 {
+        let t = std::time::Instant::now();
+        let mut m = f64::INFINITY;
+        for _ in 0..opts.frames {
+            m = m.min(sim.advance(BENCH_FRAME)?.min_distance_ratio);
+        }
+        measured = Some(t.elapsed().as_secs_f64() * 1e3 / opts.frames as f64);
+        frames_ratio = Some(m);
+    }
     let spf = (BENCH_FRAME / dt_med).ceil();
     Ok(BenchReport {
         vertices: n,
@@ -243,6 +272,8 @@ pub fn bench(opts: &BenchOptions) -> Result<BenchReport, YarnSimError> {
         } else {
             0.0
         },
+        ms_per_frame_measured: measured,
+        frames_min_distance_ratio: frames_ratio,
         threads: rayon::current_num_threads(),
     })
 }
