@@ -81,6 +81,7 @@ pub struct FrameStats {
     pub max_displacement_ratio: f64,
     /// Energies at the end of the frame.
     pub energy: EnergyTerms,
+    /// Smallest and largest step taken in the frame (s).
     pub dt_min: f64,
     pub dt_max: f64,
     /// Contact pair list rebuilds.
