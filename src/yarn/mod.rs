@@ -4,6 +4,7 @@
 pub mod analytic;
 pub mod pattern;
 pub mod poses;
+pub mod sim;
 pub mod tile;
 
 pub use tile::PeriodicTile;
