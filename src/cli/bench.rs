@@ -355,3 +355,70 @@ mod tests {
         assert_eq!(super::median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
     }
 }
+
+/// `bench yls`: the yarn-level simulator on a generated swatch of about
+/// `--vertices` vertices (courses along x), both x ends clamped and pulled
+/// 30% apart over 1 s ([`crate::yarn::sim::stretch_scene`]).
+pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
+    use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
+    use crate::yarn::pattern::{Layout, PatternParams};
+    use crate::yarn::sim::{bench_yarns, BenchOptions, BENCH_FRAME};
+    let job = |n: usize| PatternJob {
+        source: PatternSource::Builtin(a.pattern.clone()),
+        layout: Layout {
+            courses: n,
+            wales: n,
+            tube_radius: None,
+            helix: false,
+        },
+        params: PatternParams::default(),
+        relax: false,
+    };
+    // About 32 vertices per stitch for the knits; one correction from the
+    // first swatch's count.
+    let mut n = ((a.vertices.max(64) as f64 / 32.0).sqrt().round() as usize).max(2);
+    let (mut yarns, mut report) = generate(&job(n))?;
+    let ratio = a.vertices as f64 / yarns.num_points().max(1) as f64;
+    if !(0.9..=1.1).contains(&ratio) {
+        n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
+        (yarns, report) = generate(&job(n))?;
+    }
+    let opts = BenchOptions {
+        vertices: yarns.num_points(),
+        steps: a.steps.max(1),
+        warmup: a.warmup,
+        frames: a.frames,
+        ..BenchOptions::default()
+    };
+    let r = bench_yarns(&yarns, false, &opts)?;
+    let out = serde_json::json!({
+        "bench": "yls",
+        "input": format!("built-in {} swatch, {n} courses x {n} wales ({} curves)", a.pattern, report.curves),
+        "scene": "stretch: both x ends clamped, pulled 30% apart over 1 s, no gravity",
+        "frame_s": BENCH_FRAME,
+        "vertices": r.vertices,
+        "us_per_vertex_step": r.us_per_vertex_step,
+        "ms_per_frame": r.ms_per_frame,
+        "steps_per_frame": r.steps_per_frame,
+        "dt_median": r.dt_median,
+        "contact_pairs": r.contact_pairs,
+        "candidate_pairs": r.candidate_pairs,
+        "min_distance_ratio": r.min_distance_ratio,
+        "rebuilds": r.rebuilds,
+        "rebuild_ms": r.rebuild_ms,
+        "forces_us_per_vertex_step": r.forces_us_per_vertex_step,
+        "ms_per_frame_measured": r.ms_per_frame_measured,
+        "frames_min_distance_ratio": r.frames_min_distance_ratio,
+        "threads": r.threads,
+        "steps": r.steps,
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!(
+            "yls: {} vertices, {:.3} us per vertex per step (median), {:.0} steps per 1/150 s frame, {:.1} ms per frame, {} contact pairs, min distance / 2r {:.3}",
+            r.vertices, r.us_per_vertex_step, r.steps_per_frame, r.ms_per_frame, r.contact_pairs, r.min_distance_ratio
+        );
+    }
+    Ok(ExitCode::Success)
+}

@@ -7,6 +7,7 @@ mod commands;
 pub mod exit;
 mod pattern;
 mod simulate;
+mod yls;
 
 use std::path::PathBuf;
 
@@ -39,6 +40,8 @@ pub enum Command {
     Export(asset::ExportArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
     Simulate(simulate::SimulateArgs),
+    /// Run a yarn-level scene (schemas/yls-scene.md) and write its frames (knitvox HDF5).
+    Yls(yls::YlsArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
@@ -169,6 +172,8 @@ pub enum BenchTarget {
     Embed(BenchEmbedArgs),
     /// PD time-step cost of a stretched knit swatch of about --tets tets.
     Sim(BenchSimArgs),
+    /// Yarn-level simulator step cost on a generated swatch of about --vertices vertices, 30% stretch.
+    Yls(BenchYlsArgs),
 }
 
 #[derive(Debug, Args)]
@@ -236,6 +241,28 @@ pub struct BenchSimArgs {
 }
 
 #[derive(Debug, Args)]
+pub struct BenchYlsArgs {
+    /// Target vertex count of the swatch (VH's rib comparison: about 22K vertices, 66K DOFs).
+    #[arg(long, default_value_t = 22_000)]
+    pub vertices: usize,
+    /// Built-in stitch pattern of the swatch.
+    #[arg(long, default_value = "rib1x1")]
+    pub pattern: String,
+    /// Timed time steps (the median is reported).
+    #[arg(long, default_value_t = 200)]
+    pub steps: usize,
+    /// Untimed steps first.
+    #[arg(long, default_value_t = 20)]
+    pub warmup: usize,
+    /// Whole 1/150 s frames to run and time after the timed steps.
+    #[arg(long, default_value_t = 0)]
+    pub frames: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Output folder.
     #[arg(long, short, default_value = "demo-out")]
@@ -258,8 +285,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),
             BenchTarget::Sim(b) => bench::sim(&b),
+            BenchTarget::Yls(b) => bench::yls(&b),
         },
         Command::Pattern(a) => pattern::pattern(&a),
+        Command::Yls(a) => yls::yls(&a),
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {
             use clap::CommandFactory;

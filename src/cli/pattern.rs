@@ -65,6 +65,7 @@ fn stage_exit_code(e: &PatternStageError) -> ExitCode {
         // Sizes and shape parameters come from the flags.
         PatternStageError::Pattern(PatternError::BadParameter { .. }) => ExitCode::Usage,
         PatternStageError::Pattern(_) => ExitCode::Internal,
+        PatternStageError::Relax(_) => ExitCode::BadInput,
     }
 }
 

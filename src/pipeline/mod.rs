@@ -7,4 +7,5 @@ pub mod inspect;
 pub mod pattern;
 pub mod sim_scene;
 pub mod simulate;
+pub mod yls;
 pub mod yls_scene;

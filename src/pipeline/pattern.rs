@@ -10,6 +10,9 @@ use crate::yarn::pattern::{
     self, build_tile, lay_out, min_segment_distance, Layout, Pattern, PatternError, PatternParams,
     PatternTile,
 };
+use crate::yarn::sim::{
+    relax as relax_free, relax_periodic, RelaxOptions, RelaxStats, YarnSimParams,
+};
 
 /// Where the pattern comes from.
 #[derive(Debug, Clone, PartialEq)]
@@ -52,6 +55,9 @@ pub enum PatternStageError {
     UnknownPattern(PatternError),
     #[error("{0}")]
     Pattern(PatternError),
+    /// The yarn-level relaxation diverged or was given bad parameters.
+    #[error("relaxation: {0}")]
+    Relax(crate::yarn::sim::YarnSimError),
 }
 
 /// What was generated (lengths in metres).
@@ -86,8 +92,11 @@ pub struct PatternReport {
     /// interpenetration), searched up to 4r; see `yarn::pattern::distance`.
     pub min_distance_ratio: f64,
     pub min_distance: f64,
-    /// Whether the yarn-level relaxation ran (false until `yarn::sim` lands).
+    /// Whether the yarn-level relaxation ran.
     pub relaxed: bool,
+    /// Its statistics (steps, residuals, mean and largest segment strain,
+    /// minimum distance ratio during the relaxation).
+    pub relaxation: Option<RelaxReport>,
     /// Periodic tile figures.
     pub tile_curves: usize,
     pub tile_vertices: usize,
@@ -132,7 +141,7 @@ fn grid_error(path: &Path, e: PatternError) -> PatternStageError {
 pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStageError> {
     let pat = load_pattern(&job.source)?;
     let tile = build_tile(&pat, &job.params).map_err(PatternStageError::Pattern)?;
-    let (yarns, relaxed) = relax_stage(&tile, &job.layout, job.relax)?;
+    let (yarns, relaxation) = relax_stage(&tile, &job.layout, job.relax)?;
     let r = job.params.yarn_radius;
     let md = min_segment_distance(&yarns, std::f64::consts::PI * r, 4.0 * r);
     let stitches = (tile.repeat[0] * tile.repeat[1]).max(1) as f64;
@@ -160,7 +169,8 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
         size: yarns.bounds().map_or([0.0; 3], |b| b.size()),
         min_distance_ratio: md.ratio,
         min_distance: md.distance,
-        relaxed,
+        relaxed: relaxation.is_some(),
+        relaxation,
         tile_curves: tile.tile.yarns.num_curves(),
         tile_vertices: tile.tile.yarns.num_points(),
         lattice: tile.tile.lattice,
@@ -169,33 +179,58 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
     Ok((yarns, report))
 }
 
-/// The relaxation stage (issue 3: periodic relaxation of one tile, then
-/// tiling, then a short non-periodic relaxation of the swatch). Returns the
-/// laid-out yarns and whether a relaxation ran.
-///
-/// TODO(merge): `yarn::sim` is being written beside this module. When it
-/// lands, replace the body with:
-///
-/// ```text
-/// if relax {
-///     let (relaxed, _) = yarn::sim::relax_periodic(&tile.tile, &sim_params, &periodic_opts)?;
-///     let tile = PatternTile { tile: relaxed, ..tile.clone() };
-///     let swatch = lay_out(&tile, layout)?;
-///     let (swatch, _) = yarn::sim::relax(&swatch, &sim_params, &short_opts)?;
-///     return Ok((swatch, true));
-/// }
-/// ```
-///
-/// (with `sim_params` from the pattern's yarn radius, and the stats added to
-/// the report). Until then it lays out the unrelaxed tile, whatever `relax` says.
+/// Most steps of the periodic relaxation of one tile (explicit, Leaf §3;
+/// a tile is a few hundred vertices).
+pub const TILE_RELAX_STEPS: u64 = 20_000;
+/// Most steps of the short non-periodic relaxation of the laid-out swatch
+/// (it only settles the open edges and the tiling seams).
+pub const SWATCH_RELAX_STEPS: u64 = 1_500;
+
+/// Statistics of the relaxation stage.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RelaxReport {
+    pub tile: RelaxStats,
+    pub swatch: RelaxStats,
+}
+
+/// The relaxation stage (issue 3): periodic relaxation of one tile (Leaf
+/// §5, fixed lattice), tiling into the layout, then a short non-periodic
+/// relaxation of the swatch. Returns the laid-out yarns and the statistics
+/// when a relaxation ran.
 fn relax_stage(
     tile: &PatternTile,
     layout: &Layout,
     relax: bool,
-) -> Result<(Yarns, bool), PatternStageError> {
-    let _ = relax; // TODO(merge): see above.
-    let yarns = lay_out(tile, layout).map_err(PatternStageError::Pattern)?;
-    Ok((yarns, false))
+) -> Result<(Yarns, Option<RelaxReport>), PatternStageError> {
+    if !relax {
+        let yarns = lay_out(tile, layout).map_err(PatternStageError::Pattern)?;
+        return Ok((yarns, None));
+    }
+    let params = YarnSimParams::default();
+    let relax_err = PatternStageError::Relax;
+    let tile_opts = RelaxOptions {
+        max_steps: TILE_RELAX_STEPS,
+        ..RelaxOptions::default()
+    };
+    let (relaxed, tile_stats) =
+        relax_periodic(&tile.tile, &params, &tile_opts).map_err(relax_err)?;
+    let relaxed_tile = PatternTile {
+        tile: relaxed,
+        ..tile.clone()
+    };
+    let swatch = lay_out(&relaxed_tile, layout).map_err(PatternStageError::Pattern)?;
+    let swatch_opts = RelaxOptions {
+        max_steps: SWATCH_RELAX_STEPS,
+        ..RelaxOptions::default()
+    };
+    let (swatch, swatch_stats) = relax_free(&swatch, &params, &swatch_opts).map_err(relax_err)?;
+    Ok((
+        swatch,
+        Some(RelaxReport {
+            tile: tile_stats,
+            swatch: swatch_stats,
+        }),
+    ))
 }
 
 #[cfg(test)]
@@ -213,7 +248,7 @@ mod tests {
                 helix: false,
             },
             params: PatternParams::default(),
-            relax: true,
+            relax: false,
         };
         let (y, r) = generate(&job).unwrap();
         assert_eq!(r.curves, 4);

@@ -27,6 +27,13 @@ pub enum HandleMotion {
     /// displaced by `points[k] - points[0]`, linear in between, held after
     /// the last key. `times` increasing, starting at 0.
     FollowCurve { times: Vec<f64>, points: Vec<Vec3> },
+    /// One clamped group of a scripted pose (`yarn::poses`: stretches,
+    /// shear, VH Fig. 19 bends, fan, twist, multi-fold): every vertex
+    /// follows the pose's map of its anchor (rest position) over time.
+    Pose {
+        driver: std::sync::Arc<crate::yarn::poses::PoseDriver>,
+        group: usize,
+    },
 }
 
 /// A scripted handle: vertices and their motion.
@@ -111,6 +118,12 @@ impl Handle {
                 }
                 Ok(())
             }
+            HandleMotion::Pose { driver, group } => {
+                if *group >= driver.num_groups() {
+                    return Err(format!("pose group {group} of {}", driver.num_groups()));
+                }
+                Ok(())
+            }
         }
     }
 
@@ -156,6 +169,7 @@ impl Handle {
                 }
                 out
             }
+            HandleMotion::Pose { driver, group } => driver.group_target(*group, anchor, tau),
             HandleMotion::FollowCurve { times, points } => {
                 let last = times.len() - 1;
                 let d = if tau >= times[last] {
@@ -202,6 +216,7 @@ impl Handle {
                     .fold(0.0, f64::max);
                 angular_velocity.abs() * rmax
             }
+            HandleMotion::Pose { driver, .. } => driver.max_speed(),
             HandleMotion::FollowCurve { times, points } => times
                 .windows(2)
                 .zip(points.windows(2))

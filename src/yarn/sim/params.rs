@@ -11,7 +11,10 @@ use crate::geom::Vec3;
 ///
 /// The yarn radius is not a parameter: it comes from the [`crate::geom::Yarns`]
 /// (per curve or per vertex).
-#[derive(Debug, Clone, PartialEq)]
+/// Deserializes from a table of field overrides (scene files' `[sim]`):
+/// missing fields keep their defaults, unknown ones are errors.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct YarnSimParams {
     /// Young's modulus E of the yarn (Pa). Stretch stiffness is `E * pi r^2`
     /// (N). Default 5e5 Pa: HYLC Table 1, stockinette and rib.

@@ -1,0 +1,369 @@
+//! `knitvox yls SCENE.toml -o frames.h5`: runs a yarn-level scene
+//! (schemas/yls-scene.md) and streams the frames into a knitvox HDF5 file
+//! (rest yarns + frames + times) with the scene text and every simulator
+//! parameter stored beside them (`/metadata/scene_toml`,
+//! `/metadata/parameters_json`).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use crate::anim::Character;
+use crate::geom::{Vec3, Yarns};
+use crate::io::{self, h5::FrameWriter, IoError};
+use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
+use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
+use crate::sim::collide::{MeshCollider, MeshTopology};
+use crate::yarn::pattern::{Layout, PatternParams};
+use crate::yarn::poses::{PoseDriver, PoseError};
+use crate::yarn::sim::{
+    Handle, HandleMotion, PlaneCollider, PointCollider, SphereCollider, YarnSim, YarnSimError,
+    YarnSimParams,
+};
+
+/// Errors of a yarn-level scene run; each names the scene file.
+#[derive(Debug, thiserror::Error)]
+pub enum YlsError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error("{}: swatch: {source}", file.display())]
+    Pattern {
+        file: PathBuf,
+        source: PatternStageError,
+    },
+    #[error("{}: the pose does not fit the swatch: {source}", file.display())]
+    Pose { file: PathBuf, source: PoseError },
+    #[error("{}: {message}", file.display())]
+    Setup { file: PathBuf, message: String },
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error("{}: {source}", file.display())]
+    Sim { file: PathBuf, source: YarnSimError },
+}
+
+impl YlsError {
+    /// The exit-code class. Divergence counts as bad input (the scene asks
+    /// for something the simulator cannot do stably), like `simulate`.
+    pub fn class(&self) -> io::ErrorClass {
+        match self {
+            YlsError::Io(e) => e.class(),
+            YlsError::Pattern {
+                source: PatternStageError::Read { .. },
+                ..
+            } => io::ErrorClass::MissingInput,
+            _ => io::ErrorClass::BadInput,
+        }
+    }
+}
+
+/// What a run did (`--json` prints it).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct YlsReport {
+    pub scene: String,
+    pub output: PathBuf,
+    pub vertices: usize,
+    pub curves: usize,
+    /// Output frames after the rest frame.
+    pub frames: usize,
+    pub steps: u64,
+    /// Clamped (scripted) vertices.
+    pub handled_vertices: usize,
+    /// Minimum over every step of non-adjacent segment distance / 2r.
+    pub min_distance_ratio: f64,
+    /// Largest one-step vertex displacement / r.
+    pub max_displacement_ratio: f64,
+    /// Median wall time of one output frame (ms).
+    pub ms_per_frame_median: f64,
+    /// Wall time of the generated swatch's relaxation (ms; 0 without).
+    pub relax_ms: f64,
+    pub wall_s: f64,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Rotation taking the pattern generator's frame (fabric in XY, front +Z)
+/// to the scene frame (fabric in XZ, front +Y up): `(x, y, z) -> (x, z, -y)`.
+fn lay_flat(p: Vec3) -> Vec3 {
+    [p[0], p[2], -p[1]]
+}
+
+/// The rest yarns of a scene: a generated (and by default relaxed)
+/// pattern laid flat, or a yarn file as it is.
+pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsError> {
+    let s = &scene.swatch;
+    if let Some(path) = &s.file {
+        let d = io::read_path(path, &Default::default())?;
+        return Ok((d.yarns, 0.0));
+    }
+    let source = match (&s.pattern, &s.grid) {
+        (Some(name), _) => PatternSource::Builtin(name.clone()),
+        (None, Some(grid)) => PatternSource::GridFile(grid.clone()),
+        (None, None) => {
+            return Err(YlsError::Setup {
+                file: file.into(),
+                message: "table `swatch` names no source".into(),
+            })
+        }
+    };
+    let mut params = PatternParams::default();
+    if let Some(r) = s.yarn_radius {
+        params.yarn_radius = r;
+    }
+    let job = PatternJob {
+        source,
+        layout: Layout {
+            courses: s.courses.unwrap_or(12) as usize,
+            wales: s.wales.unwrap_or(12) as usize,
+            tube_radius: s.tube_radius,
+            helix: false,
+        },
+        params,
+        relax: s.relax.unwrap_or(true),
+    };
+    let t = Instant::now();
+    let (mut yarns, _) = generate(&job).map_err(|source| YlsError::Pattern {
+        file: file.into(),
+        source,
+    })?;
+    let relax_ms = t.elapsed().as_secs_f64() * 1e3;
+    if s.tube_radius.is_none() {
+        yarns.map_points(lay_flat);
+    }
+    Ok((yarns, relax_ms))
+}
+
+/// Simulator parameters: defaults, the scene's gravity, then `[sim]`
+/// overrides by field name (unknown names are errors naming the key).
+pub fn scene_params(scene: &YlsScene, file: &Path) -> Result<YarnSimParams, YlsError> {
+    let mut table = scene.sim.clone();
+    if !table.contains_key("gravity") {
+        table.insert(
+            "gravity".into(),
+            toml::Value::Array(
+                scene
+                    .gravity
+                    .iter()
+                    .map(|g| toml::Value::Float(*g))
+                    .collect(),
+            ),
+        );
+    }
+    let p: YarnSimParams = toml::Value::Table(table)
+        .try_into()
+        .map_err(|e: toml::de::Error| YlsError::Setup {
+            file: file.into(),
+            message: format!("table `sim`: {}", e.to_string().trim_end()),
+        })?;
+    p.validate().map_err(|source| YlsError::Sim {
+        file: file.into(),
+        source,
+    })?;
+    Ok(p)
+}
+
+/// A skinned glTF body as a yarn collider: the body is posed at the query
+/// time (re-posed when the time moves by more than `repose_s`) and the
+/// signed distance comes from the mesh's BVH and pseudo-normals.
+#[derive(Debug)]
+pub struct CharacterCollider {
+    character: Character,
+    animation: Option<usize>,
+    scale: f64,
+    offset: Vec3,
+    topology: MeshTopology,
+    repose_s: f64,
+    posed: Mutex<Option<(f64, Arc<MeshCollider>)>>,
+}
+
+impl CharacterCollider {
+    /// `animation` by name (`None`: bind pose). Errors name the animation.
+    pub fn new(
+        character: Character,
+        animation: Option<&str>,
+        scale: f64,
+        offset: Vec3,
+    ) -> Result<CharacterCollider, String> {
+        let animation = match animation {
+            None => None,
+            Some(name) => Some(character.animation_index(name).ok_or_else(|| {
+                format!(
+                    "no animation {name:?}; the file has {:?}",
+                    character.animation_names()
+                )
+            })?),
+        };
+        let rest = character.body_mesh(None, 0.0);
+        if rest.triangles.is_empty() {
+            return Err("the character has no skinned triangles".into());
+        }
+        let (topology, _) = MeshTopology::welded(&rest.triangles, &rest.positions);
+        Ok(CharacterCollider {
+            character,
+            animation,
+            scale,
+            offset,
+            topology,
+            repose_s: 1.0 / 600.0,
+            posed: Mutex::new(None),
+        })
+    }
+
+    fn mesh_at(&self, t: f64) -> Option<Arc<MeshCollider>> {
+        let mut g = self.posed.lock().ok()?;
+        if let Some((t0, m)) = g.as_ref() {
+            if (t - t0).abs() <= self.repose_s {
+                return Some(m.clone());
+            }
+        }
+        let body = self.character.body_mesh(self.animation, t);
+        let pos: Vec<Vec3> = body
+            .positions
+            .iter()
+            .map(|p| std::array::from_fn(|k| self.scale * p[k] + self.offset[k]))
+            .collect();
+        let m = Arc::new(MeshCollider::new(&self.topology, &pos).ok()?);
+        *g = Some((t, m.clone()));
+        Some(m)
+    }
+}
+
+impl PointCollider for CharacterCollider {
+    fn signed_distance(&self, p: Vec3, t: f64) -> (f64, Vec3) {
+        match self.mesh_at(t).and_then(|m| m.closest(p)) {
+            Some(hit) => (hit.signed_distance, hit.outward),
+            None => (f64::INFINITY, [0.0, 1.0, 0.0]),
+        }
+    }
+}
+
+/// Runs `scene` (read from `file`, text `text`) and writes `out`.
+/// `progress(done, total)` after every frame.
+pub fn run(
+    scene: &YlsScene,
+    text: &str,
+    file: &Path,
+    out: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<YlsReport, YlsError> {
+    let t0 = Instant::now();
+    let (rest, relax_ms) = scene_swatch(scene, file)?;
+    let params = scene_params(scene, file)?;
+    let sim_err = |source| YlsError::Sim {
+        file: file.into(),
+        source,
+    };
+    let mut sim = YarnSim::new(&rest, params.clone()).map_err(sim_err)?;
+    let driver = Arc::new(PoseDriver::new(&rest.points, scene.pose_params()).map_err(
+        |source| YlsError::Pose {
+            file: file.into(),
+            source,
+        },
+    )?);
+    for g in 0..driver.num_groups() {
+        sim.add_handle(Handle {
+            vertices: driver.group_vertices(g).to_vec(),
+            motion: HandleMotion::Pose {
+                driver: driver.clone(),
+                group: g,
+            },
+            start_time: 0.0,
+        })
+        .map_err(sim_err)?;
+    }
+    let (lo, hi) = rest
+        .bounds()
+        .map_or(([0.0; 3], [0.0; 3]), |b| (b.min, b.max));
+    let r_max = (0..rest.num_points())
+        .map(|v| rest.radius_at(v))
+        .fold(0.0, f64::max);
+    for c in &scene.colliders {
+        let collider: Box<dyn PointCollider> = match c {
+            ColliderSpec::Plane { point, normal } => Box::new(PlaneCollider {
+                point: *point,
+                normal: *normal,
+                friction: 0.0,
+            }),
+            ColliderSpec::Sphere { center, radius } => {
+                let center = center.unwrap_or([
+                    0.5 * (lo[0] + hi[0]),
+                    lo[1] - 2.0 * r_max - radius,
+                    0.5 * (lo[2] + hi[2]),
+                ]);
+                Box::new(SphereCollider {
+                    center,
+                    radius: *radius,
+                    velocity: [0.0; 3],
+                    friction: 0.0,
+                })
+            }
+            ColliderSpec::Character {
+                file: cf,
+                animation,
+                scale,
+                offset,
+            } => {
+                let ch = io::gltf_skin::read_character(cf)?;
+                Box::new(
+                    CharacterCollider::new(
+                        ch,
+                        animation.as_deref(),
+                        scale.unwrap_or(1.0),
+                        offset.unwrap_or([0.0; 3]),
+                    )
+                    .map_err(|message| YlsError::Setup {
+                        file: cf.clone(),
+                        message,
+                    })?,
+                )
+            }
+        };
+        sim.add_collider(collider);
+    }
+
+    let mut writer = FrameWriter::create(out, &rest)?;
+    writer.add_text("scene_toml", text)?;
+    let record = serde_json::json!({
+        "generator": format!("knitvox {}", env!("CARGO_PKG_VERSION")),
+        "scene_file": file.display().to_string(),
+        "yarn_sim_parameters": format!("{params:?}"),
+        "pose": format!("{:?}", scene.pose_params()),
+        "handled_vertices": driver.pinned().len(),
+    });
+    writer.add_text("parameters_json", &record.to_string())?;
+    writer.push(0.0, &rest.points)?;
+    let frames = scene.num_frames();
+    let frame_dt = 1.0 / scene.frame_rate;
+    let (mut steps, mut min_ratio, mut max_disp) = (0u64, f64::INFINITY, 0.0f64);
+    let mut ms = Vec::with_capacity(frames);
+    for f in 1..=frames {
+        let tf = Instant::now();
+        let st = sim.advance(frame_dt).map_err(sim_err)?;
+        ms.push(tf.elapsed().as_secs_f64() * 1e3);
+        steps += st.steps;
+        min_ratio = min_ratio.min(st.min_distance_ratio);
+        max_disp = max_disp.max(st.max_displacement_ratio);
+        writer.push(sim.time(), sim.positions())?;
+        progress(f, frames);
+    }
+    let output = writer.finish()?;
+    Ok(YlsReport {
+        scene: scene.name.clone(),
+        output,
+        vertices: rest.num_points(),
+        curves: rest.num_curves(),
+        frames,
+        steps,
+        handled_vertices: driver.pinned().len(),
+        min_distance_ratio: min_ratio,
+        max_displacement_ratio: max_disp,
+        ms_per_frame_median: median(ms),
+        relax_ms,
+        wall_s: t0.elapsed().as_secs_f64(),
+    })
+}

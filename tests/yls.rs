@@ -1,0 +1,220 @@
+//! `knitvox yls`: yarn-level scenes end to end (generated swatch, scripted
+//! pose, colliders, HDF5 frames with the scene and parameters stored), the
+//! contact bound during stretches and a drape, and error reporting.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use knitvox::io::h5;
+
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(common::knitvox_bin())
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A tiny scene: 3 x 3 stitches of `pattern`, `duration` s at 100 frames/s.
+fn scene(pattern: &str, kind: &str, amount: f64, duration: f64, extra: &str) -> String {
+    format!(
+        r#"name = "{kind} test"
+duration = {duration}
+frame_rate = 100
+gravity = [0.0, 0.0, 0.0]
+{extra}
+[swatch]
+pattern = "{pattern}"
+courses = 3
+wales = 3
+
+[pose]
+kind = "{kind}"
+amount = {amount}
+ramp = {duration}
+"#
+    )
+}
+
+fn x_extent(points: &[[f64; 3]]) -> f64 {
+    let (lo, hi) = points
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p[0]), h.max(p[0]))
+        });
+    hi - lo
+}
+
+/// Runs a scene through the CLI and returns the JSON report.
+fn run_scene(dir: &Path, name: &str, text: &str) -> (serde_json::Value, std::path::PathBuf) {
+    let s = dir.join(format!("{name}.toml"));
+    std::fs::write(&s, text).unwrap();
+    let out = dir.join(format!("{name}.h5"));
+    let (code, stdout, err) = run(&[
+        "yls",
+        s.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    (serde_json::from_str(&stdout).unwrap(), out)
+}
+
+#[test]
+fn stretch_scenes_keep_the_contact_bound_and_store_the_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    for pattern in ["rib1x1", "stockinette"] {
+        let text = scene(pattern, "stretch_courses", 0.3, 0.03, "");
+        let (r, out) = run_scene(dir.path(), pattern, &text);
+        let ratio = r["min_distance_ratio"].as_f64().unwrap();
+        eprintln!(
+            "{pattern}: 30% stretch, {} vertices, {} steps, min distance / 2r {ratio:.3}",
+            r["vertices"], r["steps"]
+        );
+        // Issue 3: never below 2r x 0.75, measured every step.
+        assert!(ratio >= 0.75, "{pattern}: {ratio}");
+        assert!(r["max_displacement_ratio"].as_f64().unwrap() <= 0.1 + 1e-9);
+        // Rest frame + 3 frames; the clamped edge moved by 30% of the width.
+        assert_eq!(h5::frame_count(&out).unwrap(), 4);
+        let first = h5::read_frame(&out, 0).unwrap();
+        let last = h5::read_frame(&out, 3).unwrap();
+        let strain = x_extent(&last) / x_extent(&first) - 1.0;
+        assert!((strain - 0.3).abs() < 0.02, "{pattern}: strain {strain}");
+        // The scene and the parameters travel with the frames.
+        assert_eq!(
+            h5::read_text(&out, "scene_toml").unwrap().as_deref(),
+            Some(text.as_str())
+        );
+        let params = h5::read_text(&out, "parameters_json").unwrap().unwrap();
+        assert!(params.contains("youngs_modulus"), "{params}");
+    }
+}
+
+#[test]
+fn drape_over_a_sphere_keeps_the_contact_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = format!(
+        "{}\n[[colliders]]\ntype = \"sphere\"\nradius = 0.01\n",
+        scene("stockinette", "free", 0.0, 0.05, "")
+    )
+    .replace("gravity = [0.0, 0.0, 0.0]", "gravity = [0.0, -9.81, 0.0]");
+    let (r, out) = run_scene(dir.path(), "drape", &text);
+    let ratio = r["min_distance_ratio"].as_f64().unwrap();
+    eprintln!("drape: min distance / 2r {ratio:.3}");
+    assert!(ratio >= 0.75, "{ratio}");
+    // It fell, and nothing went through the sphere (centre under the
+    // swatch, top one yarn diameter below its lowest point).
+    let first = h5::read_frame(&out, 0).unwrap();
+    let last = h5::read_frame(&out, h5::frame_count(&out).unwrap() - 1).unwrap();
+    let drop = first
+        .iter()
+        .zip(last.iter())
+        .map(|(a, b)| a[1] - b[1])
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
+    let (lo, hi) = first
+        .iter()
+        .fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(l, h), p| {
+            (
+                std::array::from_fn(|k| l[k].min(p[k])),
+                std::array::from_fn(|k| h[k].max(p[k])),
+            )
+        });
+    let r_yarn = 0.001; // the generator's default radius
+    let c = [
+        0.5 * (lo[0] + hi[0]),
+        lo[1] - 2.0 * r_yarn - 0.01,
+        0.5 * (lo[2] + hi[2]),
+    ];
+    for p in &last {
+        let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
+        assert!(
+            d >= 0.01 + 0.5 * r_yarn,
+            "a vertex is {d} m from the centre"
+        );
+    }
+}
+
+#[test]
+fn every_pose_kind_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    for (kind, amount) in [
+        ("stretch_wales", 0.1),
+        ("biaxial", 0.1),
+        ("shear", 0.1),
+        ("bend_central", 0.5),
+        ("bend_diagonal", 0.5),
+        ("fan", 0.1),
+        ("twist", 0.5),
+        ("multi_fold", 0.1),
+        ("hang", 0.0),
+    ] {
+        let text = scene("plain", kind, amount, 0.01, "");
+        let (r, _) = run_scene(dir.path(), kind, &text);
+        assert!(r["handled_vertices"].as_u64().unwrap() > 0, "{kind}");
+        assert!(r["min_distance_ratio"].as_f64().unwrap() >= 0.75, "{kind}");
+    }
+}
+
+#[test]
+fn scene_errors_name_the_key_and_exit_codes_are_distinct() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.h5");
+    let o = out.to_str().unwrap();
+    let cases = [
+        (
+            scene("rib1x1", "stretch_courses", 0.3, 0.01, "").replace("amount", "amout"),
+            "amout",
+        ),
+        (
+            format!(
+                "{}\n[sim]\nyoungs_modulu = 1.0\n",
+                scene("rib1x1", "shear", 0.1, 0.01, "")
+            ),
+            "youngs_modulu",
+        ),
+        (scene("rib1x1", "stretchy", 0.3, 0.01, ""), "stretchy"),
+        (scene("nosuch", "shear", 0.1, 0.01, ""), "nosuch"),
+    ];
+    for (i, (text, key)) in cases.iter().enumerate() {
+        let s = dir.path().join(format!("bad{i}.toml"));
+        std::fs::write(&s, text).unwrap();
+        let (code, _, err) = run(&["yls", s.to_str().unwrap(), "-o", o]);
+        assert_eq!(code, 65, "{key}: {err}");
+        assert!(err.contains(key), "{key} not in {err}");
+        assert!(err.contains(&format!("bad{i}.toml")), "{err}");
+    }
+    assert!(!out.exists(), "no output after a failed run");
+    let (code, _, err) = run(&["yls", "/nonexistent/scene.toml", "-o", o]);
+    assert_eq!(code, 66, "{err}");
+    let s = dir.path().join("good.toml");
+    std::fs::write(&s, scene("plain", "shear", 0.1, 0.01, "")).unwrap();
+    let (code, _, err) = run(&["yls", s.to_str().unwrap(), "-o", "x.ply"]);
+    assert_eq!(code, 65, "{err}");
+}
+
+#[test]
+fn a_diverging_run_names_the_step_and_the_vertex() {
+    let dir = tempfile::tempdir().unwrap();
+    // A speed guard far below the handle speed trips on the first steps.
+    let text = format!(
+        "{}\n[sim]\nmax_speed = 1e-9\n",
+        scene("plain", "stretch_courses", 0.3, 0.01, "")
+    );
+    let s = dir.path().join("div.toml");
+    std::fs::write(&s, text).unwrap();
+    let out = dir.path().join("div.h5");
+    let (code, _, err) = run(&["yls", s.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_ne!(code, 0);
+    assert!(err.contains("diverged at step"), "{err}");
+    assert!(err.contains("vertex"), "{err}");
+    assert!(!out.exists(), "a diverged run leaves no frame file");
+}
