@@ -158,6 +158,7 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     let r = demo::run(&a.out, &super::asset::command_line()).map_err(|e| match e {
         demo::DemoError::Stage(s) => anyhow::Error::new(s),
         demo::DemoError::Shot(s) => anyhow::Error::new(s),
+        demo::DemoError::YarnLevel(s) => anyhow::Error::new(s),
     })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
@@ -206,6 +207,16 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
                 sh.max_penetration_body_m.unwrap_or(sh.max_penetration_m)
             );
         }
+        let y = &r.yls;
+        println!(
+            "yarn level: generated a 1x1 rib swatch ({} vertices) and stretched it 30%: {} frames -> {}; {} steps, {:.1} ms per frame, min distance / 2r {:.3}",
+            y.vertices,
+            y.frames,
+            y.output.display(),
+            y.steps,
+            y.ms_per_frame_median,
+            y.min_distance_ratio
+        );
     }
     Ok(ExitCode::Success)
 }

@@ -31,6 +31,9 @@ pub struct DemoReport {
     pub drape: SimulateReport,
     /// The swatch on the walking fox (examples/fox-walk.toml).
     pub fox: SimulateReport,
+    /// The yarn-level stage: a generated 1x1 rib swatch stretched 30% by
+    /// the yarn simulator (examples/scenes/yls-demo-rib-stretch.toml).
+    pub yls: super::yls::YlsReport,
 }
 
 /// The demo scenes and character, compiled in so the demo runs from any
@@ -39,6 +42,7 @@ const DRAPE_SCENE: &str = include_str!("../../examples/drape-sphere.toml");
 const FOX_SCENE: &str = include_str!("../../examples/fox-walk.toml");
 const FOX_GLB: &[u8] = include_bytes!("../../examples/Fox.glb");
 const CREDITS: &str = include_str!("../../examples/CREDITS.md");
+const YLS_SCENE: &str = include_str!("../../examples/scenes/yls-demo-rib-stretch.toml");
 
 /// Frames of the demo shots (24 fps): a third of a second each (the fox
 /// walks half its cycle after a 0.1 s pre-roll), so that the demo stays
@@ -126,9 +130,22 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
         },
     );
     let (drape, fox) = (drape?, fox?);
+    // Yarn level: generate and relax a 1x1 rib swatch, stretch it 30%.
+    let scene_path = out_dir.join("yls-rib-stretch.toml");
+    atomic_write(&scene_path, YLS_SCENE.as_bytes())?;
+    let scene = super::yls_scene::YlsScene::parse(YLS_SCENE, &scene_path)
+        .map_err(super::yls::YlsError::from)?;
+    let yls = super::yls::run(
+        &scene,
+        YLS_SCENE,
+        &scene_path,
+        &out_dir.join("yls-rib-stretch.h5"),
+        &mut |_, _| {},
+    )?;
     Ok(DemoReport {
         drape,
         fox,
+        yls,
         input,
         input_report,
         outputs,
@@ -147,6 +164,8 @@ pub enum DemoError {
     Stage(#[from] super::asset::StageError),
     #[error(transparent)]
     Shot(#[from] SimulateError),
+    #[error(transparent)]
+    YarnLevel(#[from] super::yls::YlsError),
 }
 
 impl From<IoError> for DemoError {
