@@ -393,3 +393,40 @@ fn cli_errors_have_clear_messages_and_codes() {
     // Nothing was written by the failures.
     assert!(!std::path::Path::new(out).exists());
 }
+
+/// Issue 3: every built-in pattern relaxes (periodic tile, tiling, short
+/// swatch relaxation) to a state that keeps the contact bound (non-adjacent
+/// segments >= 2r x 0.75) with mean segment strain under 2%.
+#[test]
+fn every_builtin_relaxes_within_the_contact_and_strain_bounds() {
+    use knitvox::pipeline::pattern::{generate, PatternJob, PatternSource};
+    for name in knitvox::yarn::pattern::BUILTIN_NAMES {
+        let job = PatternJob {
+            source: PatternSource::Builtin(name.to_string()),
+            layout: knitvox::yarn::pattern::Layout {
+                courses: 4,
+                wales: 4,
+                tube_radius: None,
+                helix: false,
+            },
+            params: Default::default(),
+            relax: true,
+        };
+        let (yarns, r) = generate(&job).unwrap();
+        let relax = r.relaxation.expect("the relaxation ran");
+        for (stage, st) in [("tile", relax.tile), ("swatch", relax.swatch)] {
+            assert!(
+                st.min_distance_ratio >= 0.75,
+                "{name} {stage}: {}",
+                st.min_distance_ratio
+            );
+            assert!(st.mean_strain < 0.02, "{name} {stage}: {}", st.mean_strain);
+        }
+        assert!(
+            r.min_distance_ratio >= 0.75,
+            "{name}: {}",
+            r.min_distance_ratio
+        );
+        yarns.validate().unwrap();
+    }
+}

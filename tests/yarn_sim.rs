@@ -671,3 +671,58 @@ fn knit_stockinette_stretch_30_percent_without_pull_through() {
 fn knit_rib_stretch_30_percent_without_pull_through() {
     knit_stretch("madypg_cartridge_belt_rib.pyp", 2, 2);
 }
+
+/// Issue 3: the HYLC / MADYPG tiles in `$KNITVOX_EXTERNAL_DATA/yarns/*.pyp`
+/// tiled 4x4 and relaxed stay intact: the contact bound holds during the
+/// relaxation (measured every step) and no segment ends stretched by more
+/// than 10% (the tiles' open yarn ends pull back as contacts push apart).
+#[test]
+fn hylc_tiles_4x4_relax_and_stay_intact() {
+    let Some(dir) = common::external_data("yarns") else {
+        return;
+    };
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "pyp"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no .pyp tiles in {}", dir.display());
+    for f in files {
+        let opts = knitvox::io::ReadOptions {
+            tile: [4, 4],
+            ..Default::default()
+        };
+        let yarns = knitvox::io::read_path(&f, &opts).unwrap().yarns;
+        let relax_opts = knitvox::yarn::sim::RelaxOptions {
+            max_steps: 400,
+            ..Default::default()
+        };
+        let (relaxed, st) = knitvox::yarn::sim::relax(
+            &yarns,
+            &knitvox::yarn::sim::YarnSimParams::default(),
+            &relax_opts,
+        )
+        .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        eprintln!(
+            "{}: {} vertices, {} steps, min distance / 2r {:.3}, strain mean {:.2e} max {:.2e}, energy {:.3e} -> {:.3e} J",
+            f.file_name().unwrap().to_string_lossy(),
+            yarns.num_points(),
+            st.steps,
+            st.min_distance_ratio,
+            st.mean_strain,
+            st.max_strain,
+            st.initial_energy,
+            st.final_energy
+        );
+        assert!(relaxed.same_topology(&yarns));
+        assert!(
+            st.min_distance_ratio >= 0.75,
+            "{}: {}",
+            f.display(),
+            st.min_distance_ratio
+        );
+        assert!(st.max_strain < 0.10, "{}: {}", f.display(), st.max_strain);
+        assert!(relaxed.points.iter().flatten().all(|c| c.is_finite()));
+    }
+}
