@@ -476,3 +476,29 @@ fn refactor_matches_a_fresh_solver_and_bad_inputs_are_refused() {
     // The solver still works with its previous materials after a refused refactor.
     a.step(&mut xa, &mut va, &pins).unwrap();
 }
+
+/// Release benchmark, not part of the suite:
+/// `RAYON_NUM_THREADS=2 KNITVOX_BENCH_TETS=79000 cargo test --release --test sim_pd bench_slab_report -- --ignored --nocapture`
+/// (`KNITVOX_BENCH_SOLVER=direct|dd|both`, `KNITVOX_BENCH_STEPS`).
+#[test]
+#[ignore]
+fn bench_slab_report() {
+    use knitvox::sim::dd::DdParams;
+    use knitvox::sim::pd::{bench_slab, GlobalSolver};
+    let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
+    let steps: usize = env("KNITVOX_BENCH_STEPS", "10").parse().unwrap();
+    let which = env("KNITVOX_BENCH_SOLVER", "both");
+    for t in env("KNITVOX_BENCH_TETS", "10000").split(',') {
+        let tets: usize = t.parse().unwrap();
+        for (name, g) in [
+            ("direct", GlobalSolver::Direct),
+            ("dd", GlobalSolver::DomainDecomposed(DdParams::default())),
+        ] {
+            if which != "both" && which != name {
+                continue;
+            }
+            let b = bench_slab(tets, g, steps).unwrap();
+            println!("{}", serde_json::to_string(&b).unwrap());
+        }
+    }
+}
