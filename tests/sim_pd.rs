@@ -502,3 +502,56 @@ fn bench_slab_report() {
         }
     }
 }
+
+/// Release study of the PD iteration count, not part of the suite:
+/// `cargo test --release --test sim_pd pd_iteration_study -- --ignored --nocapture`.
+/// A slab pinned along one edge falls under gravity for 30 steps of 1/150 s
+/// with `max_iterations` k (tolerance 0) against a 100-iteration reference:
+/// largest node distance to the reference (m) relative to the largest
+/// displacement, and the mean relative excess of the step objective.
+#[test]
+#[ignore]
+fn pd_iteration_study() {
+    use knitvox::sim::pd::box_mesh;
+    let (mesh, mass) = box_mesh([40, 3, 40], 0.01, 200.0);
+    let pins: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let pin_pos: Vec<Vec3> = pins.iter().map(|&i| mesh.nodes[i]).collect();
+    let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
+    let run = |k: u32| {
+        let params = PdParams {
+            max_iterations: k,
+            tolerance: 0.0,
+            ..Default::default()
+        };
+        let mut s = PdSolver::new(&mesh, &mass, &g, &g, &pins, params).unwrap();
+        let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+        let mut traj = Vec::new();
+        for _ in 0..30 {
+            s.step(&mut x, &mut v, &pin_pos).unwrap();
+            traj.push(x.clone());
+        }
+        traj
+    };
+    let reference = run(100);
+    let disp = reference[29]
+        .iter()
+        .zip(&mesh.nodes)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    for k in [3u32, 5, 7, 10, 15, 20, 30] {
+        let t = run(k);
+        let mut worst: f64 = 0.0;
+        for (a, b) in t.iter().zip(&reference) {
+            for (p, q) in a.iter().zip(b) {
+                let d = (0..3).map(|c| (p[c] - q[c]).powi(2)).sum::<f64>().sqrt();
+                worst = worst.max(d);
+            }
+        }
+        println!(
+            "iterations {k}: max |x - x_ref| over 30 steps {worst:.3e} m = {:.3e} of max displacement {disp:.3e} m",
+            worst / disp
+        );
+    }
+}

@@ -93,6 +93,7 @@ pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
     let mut v = Matrix3::<f64>::identity();
     for _sweep in 0..JACOBI_SWEEPS {
         let mut rotated = false;
+        let mut max_rel: f64 = 0.0;
         for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
             let (bp, bq) = (b.column(p), b.column(q));
             let (alpha, beta, gamma) = (bp.norm_squared(), bq.norm_squared(), bp.dot(&bq));
@@ -100,6 +101,7 @@ pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
                 continue;
             }
             rotated = true;
+            max_rel = max_rel.max(gamma.abs() / (alpha * beta).sqrt());
             let zeta = (beta - alpha) / (2.0 * gamma);
             let t = if zeta.abs() > 1e150 {
                 0.5 / zeta
@@ -117,7 +119,10 @@ pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
                 v[(k, q)] = sn * vp + c * vq;
             }
         }
-        if !rotated {
+        // Cyclic Jacobi converges quadratically: once every pair started the
+        // sweep within 1e-8 of orthogonal, the sweep has brought them to
+        // rounding, and a checking sweep would rotate nothing.
+        if !rotated || max_rel <= 1e-8 {
             break;
         }
     }
@@ -142,7 +147,9 @@ pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
     let mut u = Matrix3::<f64>::identity();
     for (i, j, col) in [(0usize, 1usize, 0usize), (0, 2, 0), (1, 2, 1)] {
         let (x, y) = (b[(i, col)], b[(j, col)]);
-        let r = x.hypot(y);
+        // F is scaled to max |entry| 1: no overflow, and `hypot`'s care
+        // costs more than the rest of the rotation.
+        let r = (x * x + y * y).sqrt();
         let (c, sn) = if r == 0.0 { (1.0, 0.0) } else { (x / r, y / r) };
         // Rows i, j of B <- G B; columns i, j of U <- U Gᵀ.
         for k in 0..3 {
@@ -351,8 +358,15 @@ impl Chain<'_> {
 /// `φ(a)` and `φ(b)` have opposite signs (or one is zero).
 /// `guess` (if inside the bracket) is the first Newton point, else the
 /// log-midpoint.
-fn refine(chain: &Chain, mut a: f64, mut b: f64, guess: Option<f64>, iterations: &mut u32) -> f64 {
-    let (fa, _) = chain.phi(a);
+/// `fa` is `φ(a)` (known to every caller).
+fn refine(
+    chain: &Chain,
+    mut a: f64,
+    mut b: f64,
+    fa: f64,
+    guess: Option<f64>,
+    iterations: &mut u32,
+) -> f64 {
     if fa == 0.0 {
         return a;
     }
@@ -444,7 +458,7 @@ fn solve_sorted(s: &[f64; 3], n: usize, log_target: f64, iterations: &mut u32) -
             // near rest (the common case), so Newton needs a few steps.
             let log_s: f64 = s[..n].iter().map(|x| x.ln()).sum();
             let guess = last * ((log_target - log_s) / n as f64).exp();
-            let t = refine(&chain, ta, tb, Some(guess), iterations);
+            let t = refine(&chain, ta, tb, fa, Some(guess), iterations);
             consider(t, &mut best);
         }
     }
@@ -467,7 +481,7 @@ fn solve_sorted(s: &[f64; 3], n: usize, log_target: f64, iterations: &mut u32) -
             if f0 == 0.0 {
                 consider(t0, &mut best);
             } else if (f0 < 0.0) != (f1 < 0.0) {
-                let t = refine(&chain, t0, t1, None, iterations);
+                let t = refine(&chain, t0, t1, f0, None, iterations);
                 consider(t, &mut best);
             }
             t0 = t1;
@@ -475,7 +489,12 @@ fn solve_sorted(s: &[f64; 3], n: usize, log_target: f64, iterations: &mut u32) -
         }
     }
     // The floor active on t: fix d_{n-1} = floor, solve the rest.
-    if chain.phi(floor).0 > 0.0 || best.is_none() {
+    // (A candidate with d_{n-1} = floor costs at least (s_last - floor)²:
+    // skip the test when the best so far already does at least as well.)
+    let floor_beaten = best
+        .as_ref()
+        .is_some_and(|(bc, _)| *bc <= (last - floor).powi(2));
+    if !floor_beaten && (chain.phi(floor).0 > 0.0 || best.is_none()) {
         let sub = solve_sorted(s, n - 1, log_target - floor.ln(), iterations);
         let mut d = sub.d;
         d[n - 1] = floor;
