@@ -490,9 +490,40 @@ fn bench_slab_report() {
     let which = env("KNITVOX_BENCH_SOLVER", "both");
     for t in env("KNITVOX_BENCH_TETS", "10000").split(',') {
         let tets: usize = t.parse().unwrap();
+        {
+            // The local step alone (fused elastic rhs), on a sheared slab.
+            use knitvox::sim::backend::ElasticRhs;
+            use knitvox::sim::cpu::CpuElasticRhs;
+            let side = ((tets as f64 / 18.0).sqrt().round() as usize).max(1);
+            let (mesh, _) = knitvox::sim::pd::box_mesh([side, 3, side], 0.01, 200.0);
+            let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
+            let model = ElasticModel::new(&mesh, &g, &g).unwrap();
+            let x: Vec<Vec3> = mesh
+                .nodes
+                .iter()
+                .map(|p| [1.05 * p[0] + 0.2 * p[1], 0.97 * p[1] + 0.01 * p[0], p[2]])
+                .collect();
+            let mut rhs = CpuElasticRhs::new(&model);
+            let mut out = vec![[0.0; 3]; x.len()];
+            let t0 = std::time::Instant::now();
+            for _ in 0..20 {
+                rhs.evaluate(&x, &mut out).unwrap();
+            }
+            println!(
+                "local step (fused rhs), {} tets: {:.2} ms",
+                mesh.num_tets(),
+                t0.elapsed().as_secs_f64() * 1e3 / 20.0
+            );
+        }
         for (name, g) in [
             ("direct", GlobalSolver::Direct),
-            ("dd", GlobalSolver::DomainDecomposed(DdParams::default())),
+            (
+                "dd",
+                GlobalSolver::DomainDecomposed(DdParams {
+                    tolerance: env("KNITVOX_BENCH_DD_TOL", "1e-4").parse().unwrap(),
+                    ..DdParams::default()
+                }),
+            ),
         ] {
             if which != "both" && which != name {
                 continue;

@@ -456,7 +456,7 @@ fn solve_sorted(s: &[f64; 3], n: usize, log_target: f64, iterations: &mut u32) -
             // First Newton point: `s` scaled uniformly onto the constraint,
             // `d ≈ s (exp(log_target) / Π s)^(1/n)`, exact to first order
             // near rest (the common case), so Newton needs a few steps.
-            let log_s: f64 = s[..n].iter().map(|x| x.ln()).sum();
+            let log_s = s[..n].iter().product::<f64>().ln();
             let guess = last * ((log_target - log_s) / n as f64).exp();
             let t = refine(&chain, ta, tb, fa, Some(guess), iterations);
             consider(t, &mut best);
