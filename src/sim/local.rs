@@ -315,20 +315,27 @@ struct Chain<'a> {
 impl Chain<'_> {
     /// `(d, λ)` on the curve at `t`.
     fn point(&self, t: f64) -> ([f64; 3], f64) {
+        let (d, lambda, _) = self.point_q(t);
+        (d, lambda)
+    }
+    /// [`Self::point`] and the roots `q_i = sqrt(s_i² + 4λ)`.
+    fn point_q(&self, t: f64) -> ([f64; 3], f64, [f64; 2]) {
         let last = self.s[self.n - 1];
         let lambda = t * (t - last);
         let mut d = [0.0; 3];
-        for (i, di) in d.iter_mut().enumerate().take(self.n - 1) {
+        let mut q = [0.0; 2];
+        for i in 0..self.n - 1 {
             let si = self.s[i];
-            *di = 0.5 * (si + (si * si + 4.0 * lambda).max(0.0).sqrt());
+            q[i] = (si * si + 4.0 * lambda).max(0.0).sqrt();
+            d[i] = 0.5 * (si + q[i]);
         }
         d[self.n - 1] = t;
-        (d, lambda)
+        (d, lambda, q)
     }
     /// `φ(t)` and `φ'(t)`.
     fn phi(&self, t: f64) -> (f64, f64) {
         let last = self.s[self.n - 1];
-        let (d, lambda) = self.point(t);
+        let (d, _, q) = self.point_q(t);
         let mut dphi = 1.0 / t;
         // One logarithm of the product instead of one per value (the local
         // step's hottest line); the sum of logs only if the product leaves
@@ -342,10 +349,9 @@ impl Chain<'_> {
         } else {
             t.ln() + d.iter().take(self.n - 1).map(|di| di.ln()).sum::<f64>()
         } - self.log_target;
-        for (i, di) in d.iter().enumerate().take(self.n - 1) {
+        for i in 0..self.n - 1 {
             // d ln d_i / dλ = 1 / (d_i sqrt(s_i² + 4λ)); dλ/dt = 2t - s_last.
-            let q = (self.s[i] * self.s[i] + 4.0 * lambda).max(0.0).sqrt();
-            dphi += (2.0 * t - last) / (di * q.max(1e-300));
+            dphi += (2.0 * t - last) / (d[i] * q[i].max(1e-300));
         }
         (phi, dphi)
     }
@@ -443,15 +449,13 @@ fn solve_sorted(s: &[f64; 3], n: usize, log_target: f64, iterations: &mut u32) -
     let ta = (0.5 * last).max(floor);
     let (fa, _) = chain.phi(ta);
     if fa <= 0.0 {
-        let mut tb = (2.0 * ta).max(1.0);
-        let mut ok = false;
-        while tb.is_finite() {
-            if chain.phi(tb).0 >= 0.0 {
-                ok = true;
-                break;
-            }
-            tb *= 2.0;
-        }
+        // For t >= s_last, λ >= 0 so d_i >= s_i and
+        // φ(t) >= ln(t Π_{i<n-1} s_i) - log_target: this t_b has φ >= 0
+        // without evaluating it.
+        let analytic = last.max((log_target - s[..n - 1].iter().product::<f64>().ln()).exp());
+        // (The factor 1 + 1e-9 puts φ(t_b) >= 1e-9, clear of rounding.)
+        let tb = (analytic * (1.0 + 1e-9)).max(2.0 * ta);
+        let ok = tb.is_finite();
         if ok {
             // First Newton point: `s` scaled uniformly onto the constraint,
             // `d ≈ s (exp(log_target) / Π s)^(1/n)`, exact to first order
