@@ -402,6 +402,11 @@ fn refine(
         }
         let newton = t - f / df;
         let next = if df.is_finite() && df != 0.0 && newton > a && newton < b {
+            // Quadratic convergence: a step below 1e-9 t leaves an error of
+            // order 1e-18 t after it, so the checking evaluation is skipped.
+            if (f / df).abs() <= 1e-9 * t {
+                return newton;
+            }
             newton
         } else {
             (a * b).sqrt()
