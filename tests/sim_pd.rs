@@ -479,15 +479,17 @@ fn refactor_matches_a_fresh_solver_and_bad_inputs_are_refused() {
 
 /// Release benchmark, not part of the suite:
 /// `RAYON_NUM_THREADS=2 KNITVOX_BENCH_TETS=79000 cargo test --release --test sim_pd bench_slab_report -- --ignored --nocapture`
-/// (`KNITVOX_BENCH_SOLVER=direct|dd|both`, `KNITVOX_BENCH_STEPS`).
+/// (`KNITVOX_BENCH_SOLVER=direct|dd|both`, `KNITVOX_BENCH_STEPS`,
+/// `KNITVOX_BENCH_THICK` voxels, `KNITVOX_BENCH_DD_TOL`).
 #[test]
 #[ignore]
 fn bench_slab_report() {
     use knitvox::sim::dd::DdParams;
-    use knitvox::sim::pd::{bench_slab, GlobalSolver};
+    use knitvox::sim::pd::{bench_slab_thick, GlobalSolver};
     let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
     let steps: usize = env("KNITVOX_BENCH_STEPS", "10").parse().unwrap();
     let which = env("KNITVOX_BENCH_SOLVER", "both");
+    let thick: usize = env("KNITVOX_BENCH_THICK", "3").parse().unwrap();
     for t in env("KNITVOX_BENCH_TETS", "10000").split(',') {
         let tets: usize = t.parse().unwrap();
         {
@@ -528,7 +530,7 @@ fn bench_slab_report() {
             if which != "both" && which != name {
                 continue;
             }
-            let b = bench_slab(tets, g, steps).unwrap();
+            let b = bench_slab_thick(tets, thick, g, steps).unwrap();
             println!("{}", serde_json::to_string(&b).unwrap());
         }
     }

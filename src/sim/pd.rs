@@ -1236,7 +1236,18 @@ pub struct SlabBench {
 /// Δt = 1/150 s with the default PD parameters and `global` as the solver:
 /// `steps` steps (at least 5), median time per step.
 pub fn bench_slab(tets: usize, global: GlobalSolver, steps: usize) -> Result<SlabBench, SimError> {
-    let thick = 3usize;
+    bench_slab_thick(tets, 3, global, steps)
+}
+
+/// [`bench_slab`] with a slab `thick` voxels thick (at least 1); a 2-voxel
+/// slab is closer to a rib swatch's cross-section.
+pub fn bench_slab_thick(
+    tets: usize,
+    thick: usize,
+    global: GlobalSolver,
+    steps: usize,
+) -> Result<SlabBench, SimError> {
+    let thick = thick.max(1);
     let side = ((tets as f64 / (6.0 * thick as f64)).sqrt().round() as usize).max(1);
     let vox = [side, thick, side];
     let (mesh, mass) = box_mesh(vox, 0.01, 200.0);
