@@ -480,7 +480,8 @@ fn refactor_matches_a_fresh_solver_and_bad_inputs_are_refused() {
 /// Release benchmark, not part of the suite:
 /// `RAYON_NUM_THREADS=2 KNITVOX_BENCH_TETS=79000 cargo test --release --test sim_pd bench_slab_report -- --ignored --nocapture`
 /// (`KNITVOX_BENCH_SOLVER=direct|dd|both`, `KNITVOX_BENCH_STEPS`,
-/// `KNITVOX_BENCH_THICK` voxels, `KNITVOX_BENCH_DD_TOL`).
+/// `KNITVOX_BENCH_THICK` voxels, `KNITVOX_BENCH_DD_TOL`,
+/// `KNITVOX_BENCH_PD_ITERS`).
 #[test]
 #[ignore]
 fn bench_slab_report() {
@@ -530,7 +531,13 @@ fn bench_slab_report() {
             if which != "both" && which != name {
                 continue;
             }
-            let b = bench_slab_thick(tets, thick, g, steps).unwrap();
+            let params = PdParams {
+                global: g,
+                report_residual: false,
+                max_iterations: env("KNITVOX_BENCH_PD_ITERS", "20").parse().unwrap(),
+                ..Default::default()
+            };
+            let b = bench_slab_thick(tets, thick, params, steps).unwrap();
             println!("{}", serde_json::to_string(&b).unwrap());
         }
     }

@@ -1236,18 +1236,25 @@ pub struct SlabBench {
 /// Δt = 1/150 s with the default PD parameters and `global` as the solver:
 /// `steps` steps (at least 5), median time per step.
 pub fn bench_slab(tets: usize, global: GlobalSolver, steps: usize) -> Result<SlabBench, SimError> {
-    bench_slab_thick(tets, 3, global, steps)
+    let params = PdParams {
+        global,
+        report_residual: false,
+        ..Default::default()
+    };
+    bench_slab_thick(tets, 3, params, steps)
 }
 
-/// [`bench_slab`] with a slab `thick` voxels thick (at least 1); a 2-voxel
-/// slab is closer to a rib swatch's cross-section.
+/// [`bench_slab`] with a slab `thick` voxels thick (at least 1; a 2-voxel
+/// slab is closer to a rib swatch's cross-section) and the given parameters
+/// (`params.global` is the solver).
 pub fn bench_slab_thick(
     tets: usize,
     thick: usize,
-    global: GlobalSolver,
+    params: PdParams,
     steps: usize,
 ) -> Result<SlabBench, SimError> {
     let thick = thick.max(1);
+    let global = params.global;
     let side = ((tets as f64 / (6.0 * thick as f64)).sqrt().round() as usize).max(1);
     let vox = [side, thick, side];
     let (mesh, mass) = box_mesh(vox, 0.01, 200.0);
@@ -1256,11 +1263,6 @@ pub fn bench_slab_thick(
         .filter(|&i| mesh.nodes[i][0] < 1e-9)
         .collect();
     let pin_pos: Vec<Vec3> = pins.iter().map(|&i| mesh.nodes[i]).collect();
-    let params = PdParams {
-        global,
-        report_residual: false,
-        ..Default::default()
-    };
     let t0 = Instant::now();
     let g = vec![crate::geom::DEFAULT_GAMMA_S; nt];
     let mut solver = PdSolver::new(&mesh, &mass, &g, &g, &pins, params)?;
