@@ -125,15 +125,16 @@ impl GlobalSolver {
 
 impl Default for GlobalSolver {
     /// The direct solver: on the CPU it is faster than the domain-decomposed
-    /// one at every size measured with [`bench_slab`] (10K to 400K tets, 2
-    /// threads, 20 PD iterations, shared machine): 138 / 523 / 1041 / 2167 /
-    /// 5449 ms per step at 10K / 40K / 79K / 159K / 400K tets against 589 /
-    /// 1580 / 3063 / 6216 / 17540 ms for DD, whose Chebyshev-Jacobi needs
+    /// one at every size measured with [`bench_slab`] (3-voxel slab, 2
+    /// threads, 20 PD iterations, quiet machine): 76 / 266 / 552 / 1108 /
+    /// 2658 ms per step at 10K / 40K / 78K / 159K / 400K tets against 277 /
+    /// 893 / 1972 / 3103 / 8197 ms for DD, whose Chebyshev-Jacobi needs
     /// about 175 iterations per global solve to reach its 1e-4 tolerance
-    /// (about 90 at 1e-2) after the CMS subspace solve. The direct step is
-    /// about 60% local step (31 ms per evaluation at 79K tets) and 40%
-    /// triangular solves (about 18 ms per PD iteration). The DD path is what
-    /// a GPU Jacobi backend accelerates (VH §7.2).
+    /// (about 90 at 1e-2) after the CMS subspace solve. At 78K tets the
+    /// direct step is about 60% local step (15 ms per evaluation) and 40%
+    /// triangular solves (about 11 ms per PD iteration); with 10 PD
+    /// iterations it takes 277 ms. The DD path is what a GPU Jacobi backend
+    /// accelerates (VH §7.2).
     fn default() -> Self {
         GlobalSolver::Direct
     }
