@@ -476,3 +476,122 @@ fn refactor_matches_a_fresh_solver_and_bad_inputs_are_refused() {
     // The solver still works with its previous materials after a refused refactor.
     a.step(&mut xa, &mut va, &pins).unwrap();
 }
+
+/// Release benchmark, not part of the suite:
+/// `RAYON_NUM_THREADS=2 KNITVOX_BENCH_TETS=79000 cargo test --release --test sim_pd bench_slab_report -- --ignored --nocapture`
+/// (`KNITVOX_BENCH_SOLVER=direct|dd|both`, `KNITVOX_BENCH_STEPS`,
+/// `KNITVOX_BENCH_THICK` voxels, `KNITVOX_BENCH_DD_TOL`,
+/// `KNITVOX_BENCH_PD_ITERS`).
+#[test]
+#[ignore]
+fn bench_slab_report() {
+    use knitvox::sim::dd::DdParams;
+    use knitvox::sim::pd::{bench_slab_thick, GlobalSolver};
+    let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
+    let steps: usize = env("KNITVOX_BENCH_STEPS", "10").parse().unwrap();
+    let which = env("KNITVOX_BENCH_SOLVER", "both");
+    let thick: usize = env("KNITVOX_BENCH_THICK", "3").parse().unwrap();
+    for t in env("KNITVOX_BENCH_TETS", "10000").split(',') {
+        let tets: usize = t.parse().unwrap();
+        {
+            // The local step alone (fused elastic rhs), on a sheared slab.
+            use knitvox::sim::backend::ElasticRhs;
+            use knitvox::sim::cpu::CpuElasticRhs;
+            let side = ((tets as f64 / 18.0).sqrt().round() as usize).max(1);
+            let (mesh, _) = knitvox::sim::pd::box_mesh([side, 3, side], 0.01, 200.0);
+            let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
+            let model = ElasticModel::new(&mesh, &g, &g).unwrap();
+            let x: Vec<Vec3> = mesh
+                .nodes
+                .iter()
+                .map(|p| [1.05 * p[0] + 0.2 * p[1], 0.97 * p[1] + 0.01 * p[0], p[2]])
+                .collect();
+            let mut rhs = CpuElasticRhs::new(&model);
+            let mut out = vec![[0.0; 3]; x.len()];
+            let t0 = std::time::Instant::now();
+            for _ in 0..20 {
+                rhs.evaluate(&x, &mut out).unwrap();
+            }
+            println!(
+                "local step (fused rhs), {} tets: {:.2} ms",
+                mesh.num_tets(),
+                t0.elapsed().as_secs_f64() * 1e3 / 20.0
+            );
+        }
+        for (name, g) in [
+            ("direct", GlobalSolver::Direct),
+            (
+                "dd",
+                GlobalSolver::DomainDecomposed(DdParams {
+                    tolerance: env("KNITVOX_BENCH_DD_TOL", "1e-4").parse().unwrap(),
+                    ..DdParams::default()
+                }),
+            ),
+        ] {
+            if which != "both" && which != name {
+                continue;
+            }
+            let params = PdParams {
+                global: g,
+                report_residual: false,
+                max_iterations: env("KNITVOX_BENCH_PD_ITERS", "20").parse().unwrap(),
+                ..Default::default()
+            };
+            let b = bench_slab_thick(tets, thick, params, steps).unwrap();
+            println!("{}", serde_json::to_string(&b).unwrap());
+        }
+    }
+}
+
+/// Release study of the PD iteration count, not part of the suite:
+/// `cargo test --release --test sim_pd pd_iteration_study -- --ignored --nocapture`.
+/// A slab pinned along one edge falls under gravity for 30 steps of 1/150 s
+/// with `max_iterations` k (tolerance 0) against a 100-iteration reference:
+/// largest node distance to the reference (m) relative to the largest
+/// displacement, and the mean relative excess of the step objective.
+#[test]
+#[ignore]
+fn pd_iteration_study() {
+    use knitvox::sim::pd::box_mesh;
+    let (mesh, mass) = box_mesh([40, 3, 40], 0.01, 200.0);
+    let pins: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let pin_pos: Vec<Vec3> = pins.iter().map(|&i| mesh.nodes[i]).collect();
+    let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
+    let run = |k: u32| {
+        let params = PdParams {
+            max_iterations: k,
+            tolerance: 0.0,
+            ..Default::default()
+        };
+        let mut s = PdSolver::new(&mesh, &mass, &g, &g, &pins, params).unwrap();
+        let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+        let mut traj = Vec::new();
+        for _ in 0..30 {
+            s.step(&mut x, &mut v, &pin_pos).unwrap();
+            traj.push(x.clone());
+        }
+        traj
+    };
+    let reference = run(100);
+    let disp = reference[29]
+        .iter()
+        .zip(&mesh.nodes)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    for k in [3u32, 5, 7, 10, 15, 20, 30] {
+        let t = run(k);
+        let mut worst: f64 = 0.0;
+        for (a, b) in t.iter().zip(&reference) {
+            for (p, q) in a.iter().zip(b) {
+                let d = (0..3).map(|c| (p[c] - q[c]).powi(2)).sum::<f64>().sqrt();
+                worst = worst.max(d);
+            }
+        }
+        println!(
+            "iterations {k}: max |x - x_ref| over 30 steps {worst:.3e} m = {:.3e} of max displacement {disp:.3e} m",
+            worst / disp
+        );
+    }
+}

@@ -1,14 +1,19 @@
 //! Sparse SPD factorization shared by the solvers (Y2V shape fit, PD global
 //! step): faer's symbolic Cholesky once per sparsity pattern, the numeric
 //! factor when values change, solves on many right-hand sides. Numeric
-//! factorization and solves are sequential so the same inputs give
-//! bit-identical results whatever the thread count (callers parallelise
-//! across frames or tets instead).
+//! factorization and each column group's solve are sequential so the same
+//! inputs give bit-identical results whatever the thread count (callers
+//! parallelise across frames or tets; solves split the columns in a fixed
+//! way, [`SparseCholesky::solve_in_place`]).
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
 use faer::sparse::SparseColMatRef;
 use faer::{MatMut, Par};
+
+/// Systems below this size are solved in one task (the split costs more
+/// than it saves).
+const PARALLEL_SOLVE_MIN_ROWS: usize = 2000;
 
 /// A Cholesky factor L L^T of a sparse SPD matrix given by its lower triangle.
 #[derive(Debug)]
@@ -65,7 +70,22 @@ impl SparseCholesky {
     }
 
     /// Solves A X = B in place for every column of `rhs`.
+    ///
+    /// The first column and the others are solved as two independent tasks
+    /// (`rayon::join`): the triangular solves are memory-bound on the factor,
+    /// so on two cores this takes about the time of the larger part instead
+    /// of the whole. The split does not depend on the thread count, so the
+    /// result is the same with any number of threads.
     pub fn solve_in_place(&self, rhs: MatMut<'_, f64>) {
+        if rhs.ncols() >= 2 && self.symbolic.nrows() >= PARALLEL_SOLVE_MIN_ROWS {
+            let (first, rest) = rhs.split_at_col_mut(1);
+            rayon::join(|| self.solve_seq(first), || self.solve_seq(rest));
+        } else {
+            self.solve_seq(rhs);
+        }
+    }
+
+    fn solve_seq(&self, rhs: MatMut<'_, f64>) {
         let ncols = rhs.ncols();
         LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
             faer::Conj::No,
