@@ -273,7 +273,14 @@ fn cli_round_trip_h5_and_ply() {
         assert_eq!(d.yarns.num_points() as u64, v["vertices"].as_u64().unwrap());
         assert_eq!(d.yarns.num_curves(), 4);
         assert!(v["min_distance_ratio"].as_f64().unwrap() >= BOUND);
-        assert_eq!(v["relaxed"], false);
+        // Relaxation is on by default and reports its statistics.
+        assert_eq!(v["relaxed"], true);
+        assert!(
+            v["relaxation"]["tile"]["min_distance_ratio"]
+                .as_f64()
+                .unwrap()
+                >= 0.75
+        );
     }
 }
 
