@@ -218,3 +218,40 @@ fn a_diverging_run_names_the_step_and_the_vertex() {
     assert!(err.contains("vertex"), "{err}");
     assert!(!out.exists(), "a diverged run leaves no frame file");
 }
+
+#[test]
+fn bench_yls_prints_its_figures_and_refuses_unknown_patterns() {
+    let (code, stdout, err) = run(&[
+        "bench",
+        "yls",
+        "--vertices",
+        "600",
+        "--steps",
+        "5",
+        "--warmup",
+        "0",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    for key in [
+        "vertices",
+        "us_per_vertex_step",
+        "ms_per_frame",
+        "steps_per_frame",
+        "contact_pairs",
+        "min_distance_ratio",
+    ] {
+        assert!(v.get(key).is_some(), "{key} missing in {stdout}");
+    }
+    let n = v["vertices"].as_f64().unwrap();
+    assert!(
+        (300.0..1200.0).contains(&n),
+        "{n} vertices for a target of 600"
+    );
+    assert!(v["us_per_vertex_step"].as_f64().unwrap() > 0.0);
+    assert!(v["min_distance_ratio"].as_f64().unwrap() >= 0.75);
+    let (code, _, err) = run(&["bench", "yls", "--pattern", "nosuch", "--json"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("rib1x1"), "lists the known patterns: {err}");
+}

@@ -47,6 +47,9 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         if let Some(e) = cause.downcast_ref::<crate::pipeline::simulate::SimulateError>() {
             return of_class(e.class());
         }
+        if let Some(e) = cause.downcast_ref::<crate::pipeline::pattern::PatternStageError>() {
+            return super::pattern::stage_exit_code(e);
+        }
         if let Some(e) = cause.downcast_ref::<crate::pipeline::yls::YlsError>() {
             return of_class(e.class());
         }

@@ -54,7 +54,7 @@ pub struct PatternArgs {
     pub json: bool,
 }
 
-fn stage_exit_code(e: &PatternStageError) -> ExitCode {
+pub(crate) fn stage_exit_code(e: &PatternStageError) -> ExitCode {
     match e {
         PatternStageError::UnknownPattern(_) => ExitCode::Usage,
         PatternStageError::Read { source, .. } => match source.kind() {
