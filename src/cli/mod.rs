@@ -322,3 +322,22 @@ mod tests {
         assert!(parse_tile("99999999999999999999x1").is_err());
     }
 }
+
+/// A frames progress bar on stderr (`label {bar} pos/len frames [elapsed <
+/// eta]`) when `show`, else `None`.
+pub(crate) fn frame_progress(
+    show: bool,
+    frames: usize,
+    label: &str,
+) -> Option<indicatif::ProgressBar> {
+    show.then(|| {
+        let b = indicatif::ProgressBar::new(frames as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(&format!(
+                "{label} {{bar:40}} {{pos}}/{{len}} frames [{{elapsed_precise}} < {{eta}}]"
+            ))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    })
+}

@@ -178,16 +178,11 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
         command: super::asset::command_line(),
     };
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let b = indicatif::ProgressBar::new(req.frames.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "simulating {bar:40} {pos}/{len} frames [{elapsed_precise} < {eta}]",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
+    let bar = super::frame_progress(
+        std::io::stderr().is_terminal(),
+        req.frames.len(),
+        "simulating",
+    );
     let mut progress = |done: usize, _total: usize| {
         if let Some(b) = &bar {
             b.set_position(done as u64);

@@ -41,16 +41,7 @@ pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
     })?;
     let scene = YlsScene::parse(&text, &a.scene).map_err(YlsError::from)?;
     let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
-    let bar = show.then(|| {
-        let b = indicatif::ProgressBar::new(scene.num_frames() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "yarn-level {bar:40} {pos}/{len} frames [{elapsed_precise} < {eta}]",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
+    let bar = super::frame_progress(show, scene.num_frames(), "yarn-level");
     let mut progress = |done: usize, _total: usize| {
         if let Some(b) = &bar {
             b.set_position(done as u64);

@@ -1153,45 +1153,21 @@ impl PdSolver {
 /// voxels' faces match), and lumped node masses (kg) at density `rho`
 /// (kg/m³): a quarter of each tet's mass to each of its nodes.
 pub fn box_mesh(n: [usize; 3], h: f64, rho: f64) -> (TetMesh, Vec<f64>) {
-    let id = |i: usize, j: usize, k: usize| ((i * (n[1] + 1) + j) * (n[2] + 1) + k) as u32;
-    let mut nodes = Vec::with_capacity((n[0] + 1) * (n[1] + 1) * (n[2] + 1));
-    for i in 0..=n[0] {
-        for j in 0..=n[1] {
-            for k in 0..=n[2] {
-                nodes.push([i as f64 * h, j as f64 * h, k as f64 * h]);
+    // Voxels sorted by (i, j, k), as `tetrahedralize` requires.
+    let mut voxels = Vec::with_capacity(n[0] * n[1] * n[2]);
+    for i in 0..n[0] as i32 {
+        for j in 0..n[1] as i32 {
+            for k in 0..n[2] as i32 {
+                voxels.push([i, j, k]);
             }
         }
     }
-    let perms = [
-        [0, 1, 2],
-        [0, 2, 1],
-        [1, 0, 2],
-        [1, 2, 0],
-        [2, 0, 1],
-        [2, 1, 0],
-    ];
-    let mut tets = Vec::with_capacity(6 * n[0] * n[1] * n[2]);
-    for i in 0..n[0] {
-        for j in 0..n[1] {
-            for k in 0..n[2] {
-                for perm in &perms {
-                    let mut c = [0usize; 3];
-                    let mut t = [id(i, j, k); 4];
-                    for (s, &axis) in perm.iter().enumerate() {
-                        c[axis] = 1;
-                        t[s + 1] = id(i + c[0], j + c[1], k + c[2]);
-                    }
-                    tets.push(t);
-                }
-            }
-        }
-    }
-    let mut mesh = TetMesh { nodes, tets };
-    for t in 0..mesh.tets.len() {
-        if mesh.volume(t) < 0.0 {
-            mesh.tets[t].swap(2, 3);
-        }
-    }
+    let grid = crate::geom::VoxelGrid {
+        origin: [0.0; 3],
+        h,
+        voxels,
+    };
+    let (mesh, _) = crate::embed::tetrahedralize(&grid);
     let mut mass = vec![0.0; mesh.num_nodes()];
     for t in 0..mesh.num_tets() {
         let m = rho * mesh.volume(t) / 4.0;

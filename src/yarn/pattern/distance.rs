@@ -120,54 +120,11 @@ pub fn min_segment_distance(yarns: &Yarns, exclude_arc: f64, cutoff: f64) -> Min
     best
 }
 
-/// Distance between segments p0-p1 and q0-q1 (clamped closest points, after
-/// Ericson, Real-Time Collision Detection §5.1.9).
+/// Distance between segments p0-p1 and q0-q1 (clamped closest points,
+/// Ericson §5.1.9): the yarn simulator's contact routine, so the generator's
+/// clearance and the simulator's contact test measure the same thing.
 pub fn segment_distance(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f64 {
-    let sub = |a: Vec3, b: Vec3| -> Vec3 { [a[0] - b[0], a[1] - b[1], a[2] - b[2]] };
-    let dot = |a: Vec3, b: Vec3| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let d1 = sub(p1, p0);
-    let d2 = sub(q1, q0);
-    let r = sub(p0, q0);
-    let a = dot(d1, d1);
-    let e = dot(d2, d2);
-    let f = dot(d2, r);
-    let eps = 1e-300;
-    let (s, t);
-    if a <= eps && e <= eps {
-        return dot(r, r).sqrt();
-    }
-    if a <= eps {
-        s = 0.0;
-        t = (f / e).clamp(0.0, 1.0);
-    } else {
-        let c = dot(d1, r);
-        if e <= eps {
-            t = 0.0;
-            s = (-c / a).clamp(0.0, 1.0);
-        } else {
-            let b = dot(d1, d2);
-            let denom = a * e - b * b;
-            let mut s0 = if denom > 1e-15 * a * e {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let mut t0 = (b * s0 + f) / e;
-            if t0 < 0.0 {
-                t0 = 0.0;
-                s0 = (-c / a).clamp(0.0, 1.0);
-            } else if t0 > 1.0 {
-                t0 = 1.0;
-                s0 = ((b - c) / a).clamp(0.0, 1.0);
-            }
-            s = s0;
-            t = t0;
-        }
-    }
-    let cp =
-        |o: Vec3, d: Vec3, u: f64| -> Vec3 { [o[0] + d[0] * u, o[1] + d[1] * u, o[2] + d[2] * u] };
-    let v = sub(cp(p0, d1, s), cp(q0, d2, t));
-    dot(v, v).sqrt()
+    crate::yarn::sim::contact::segment_distance(p0, p1, q0, q1)
 }
 
 #[cfg(test)]

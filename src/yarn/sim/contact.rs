@@ -56,7 +56,7 @@ pub(crate) struct ContactSet {
 }
 
 /// Closest distance between segments [p0, p1] and [q0, q1] (Ericson 2005, §5.1.9).
-pub(crate) fn segment_distance(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f64 {
+pub fn segment_distance(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f64 {
     let d1 = sub(p1, p0);
     let d2 = sub(q1, q0);
     let r = sub(p0, q0);
