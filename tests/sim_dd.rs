@@ -6,7 +6,7 @@ use knitvox::geom::{TetMesh, Vec3};
 use knitvox::sim::backend::{ElasticRhs, JacobiSolve, LocalEval};
 use knitvox::sim::contact::NodeProjector;
 use knitvox::sim::cpu::CpuElasticRhs;
-use knitvox::sim::dd::DdParams;
+use knitvox::sim::dd::{DdParams, Interiors};
 use knitvox::sim::jacobi::{CpuJacobi, JacobiParams};
 use knitvox::sim::partition::Partition;
 use knitvox::sim::pd::{box_mesh, GlobalSolver, PdParams, PdSolver, StepStats};
@@ -20,11 +20,24 @@ fn tets_of(mesh: &TetMesh) -> Vec<[usize; 4]> {
     mesh.tets.iter().map(|t| t.map(|i| i as usize)).collect()
 }
 
+/// The paper's modal CMS (VH Eq. 32, 8 modes per domain): the Jacobi
+/// iterations have work to do.
 fn dd(tol: f64, nodes_per_domain: usize) -> GlobalSolver {
     GlobalSolver::DomainDecomposed(DdParams {
         tolerance: tol,
         nodes_per_domain,
         modes: 8,
+        interiors: Interiors::Modes,
+        ..Default::default()
+    })
+}
+
+/// Exact interiors (the default): the reduced solve is exact for `K`.
+fn dd_exact(tol: f64, nodes_per_domain: usize) -> GlobalSolver {
+    GlobalSolver::DomainDecomposed(DdParams {
+        tolerance: tol,
+        nodes_per_domain,
+        interiors: Interiors::Exact,
         ..Default::default()
     })
 }
@@ -154,9 +167,11 @@ fn run(
 
 #[test]
 fn dd_step_equals_the_direct_step_to_its_tolerance() {
+    // Plain PD iterations: the comparison is about the global solve alone.
     let base = PdParams {
         tolerance: 0.0,
         max_iterations: 12,
+        anderson_window: 0,
         ..Default::default()
     };
     let n = [8, 2, 5];
@@ -206,6 +221,39 @@ fn dd_step_equals_the_direct_step_to_its_tolerance() {
         );
         assert!(worst_rise < 10.0 * tol, "Φ rose by {worst_rise:.3e}");
     }
+    // Exact interiors: the reduced solve alone is the exact solve, so no
+    // Jacobi iteration runs and the steps agree to rounding.
+    let (_, mut s, _) = cantilever(
+        n,
+        PdParams {
+            global: dd_exact(1e-4, 60),
+            ..base
+        },
+    );
+    let st = s.dd_stats().expect("dd");
+    assert!(st.domains >= 2 && st.modes == 0, "{st:?}");
+    let (x, stats) = run(&mut s, &mesh.nodes, steps, &pins);
+    assert!(stats.iter().all(|s| s.global_iterations == 0));
+    assert!(stats.iter().all(|s| s.global_residual < 1e-10));
+    let err = max_diff(&x, &xd) / size;
+    assert!(err < 1e-10, "exact DD off by {err:.3e}");
+    // With Anderson acceleration (the default) the two solvers still agree.
+    let aa = PdParams {
+        anderson_window: 5,
+        ..base
+    };
+    let (_, mut d, _) = cantilever(n, aa);
+    let (xa, _) = run(&mut d, &mesh.nodes, steps, &pins);
+    let (_, mut s, _) = cantilever(
+        n,
+        PdParams {
+            global: dd_exact(1e-4, 60),
+            ..aa
+        },
+    );
+    let (x, _) = run(&mut s, &mesh.nodes, steps, &pins);
+    let err = max_diff(&x, &xa) / size;
+    assert!(err < 1e-9, "exact DD with Anderson off by {err:.3e}");
     // Given domain ids instead of the bisection: same answer.
     let (_, mut s, _) = cantilever(
         n,
@@ -377,7 +425,7 @@ fn drop_onto(
 
 #[test]
 fn block_dropped_on_a_plane_comes_to_rest_on_it() {
-    for global in [GlobalSolver::Direct, dd(1e-5, 20)] {
+    for global in [GlobalSolver::Direct, dd(1e-5, 20), dd_exact(1e-5, 20)] {
         let plane = Plane { height: 0.0 };
         let (x, last) = drop_onto(&plane, &|p| -p[1], global, [0.0, 0.02, 0.0], 90);
         let lowest = x.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
@@ -413,7 +461,7 @@ fn block_dropped_on_a_sphere_stays_outside() {
         let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
         r - d
     };
-    for global in [GlobalSolver::Direct, dd(1e-5, 20)] {
+    for global in [GlobalSolver::Direct, dd(1e-5, 20), dd_exact(1e-5, 20)] {
         let (x, last) = drop_onto(&sphere, &depth, global, [0.0, 0.01, 0.0], 60);
         let closest = x
             .iter()
@@ -437,6 +485,7 @@ fn reduced_start_saves_jacobi_iterations() {
     let part = Partition::bisect(&mesh.nodes, &tets, 60).unwrap();
     let params = DdParams {
         modes: 12,
+        interiors: Interiors::Modes,
         ..Default::default()
     };
     let dd =
@@ -477,7 +526,7 @@ fn dd_with_contacts_is_deterministic_across_thread_counts() {
         max_iterations: 4,
         ..Default::default()
     };
-    let run_with = |threads: usize| {
+    let run_with = |threads: usize, params: PdParams| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
@@ -493,8 +542,8 @@ fn dd_with_contacts_is_deterministic_across_thread_counts() {
             (x, last.global_iterations, last.contacts, last.objectives)
         })
     };
-    let one = run_with(1);
-    let two = run_with(2);
+    let one = run_with(1, params);
+    let two = run_with(2, params);
     assert!(
         one.1 > 0 && one.2 > 0,
         "{} iterations, {} contacts",
@@ -502,4 +551,17 @@ fn dd_with_contacts_is_deterministic_across_thread_counts() {
         one.2
     );
     assert_eq!(one, two);
+    // Exact interiors: Jacobi still runs for the contact weights.
+    let exact = PdParams {
+        global: dd_exact(1e-5, 200),
+        ..params
+    };
+    let one = run_with(1, exact);
+    assert!(
+        one.1 > 0 && one.2 > 0,
+        "{} iterations, {} contacts",
+        one.1,
+        one.2
+    );
+    assert_eq!(one, run_with(2, exact));
 }

@@ -559,10 +559,11 @@ fn pd_iteration_study() {
         .collect();
     let pin_pos: Vec<Vec3> = pins.iter().map(|&i| mesh.nodes[i]).collect();
     let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
-    let run = |k: u32| {
+    let run = |k: u32, anderson_window: usize| {
         let params = PdParams {
             max_iterations: k,
             tolerance: 0.0,
+            anderson_window,
             ..Default::default()
         };
         let mut s = PdSolver::new(&mesh, &mass, &g, &g, &pins, params).unwrap();
@@ -574,14 +575,17 @@ fn pd_iteration_study() {
         }
         traj
     };
-    let reference = run(100);
+    let reference = run(100, 0);
     let disp = reference[29]
         .iter()
         .zip(&mesh.nodes)
         .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
         .fold(0.0, f64::max);
-    for k in [3u32, 5, 7, 10, 15, 20, 30] {
-        let t = run(k);
+    for (k, aa) in [3u32, 5, 7, 10, 15, 20, 30]
+        .iter()
+        .flat_map(|&k| [(k, 0usize), (k, 5)])
+    {
+        let t = run(k, aa);
         let mut worst: f64 = 0.0;
         for (a, b) in t.iter().zip(&reference) {
             for (p, q) in a.iter().zip(b) {
@@ -590,7 +594,7 @@ fn pd_iteration_study() {
             }
         }
         println!(
-            "iterations {k}: max |x - x_ref| over 30 steps {worst:.3e} m = {:.3e} of max displacement {disp:.3e} m",
+            "iterations {k}, Anderson window {aa}: max |x - x_ref| over 30 steps {worst:.3e} m = {:.3e} of max displacement {disp:.3e} m",
             worst / disp
         );
     }

@@ -236,6 +236,18 @@ struct SimBench {
     pd_iterations_max: u32,
     /// Largest implicit-Euler residual over the steps (N).
     residual: f64,
+    /// Median time of the step's local steps (ms).
+    local_ms_per_step: f64,
+    /// Median time of the step's global solves (ms).
+    global_ms_per_step: f64,
+    /// Mean iterations of the iterative global solves per step (Jacobi for
+    /// dd; 0 for direct without contacts).
+    global_iterations: f64,
+    /// Largest relative residual of the iterative global solves.
+    global_residual: f64,
+    /// Mean local steps per step (PD iterations + 1 + rejected Anderson
+    /// iterates).
+    local_steps: f64,
     peak_rss_mb: Option<f64>,
 }
 
@@ -246,7 +258,22 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
     use crate::pipeline::simulate::{attach_backend, global_solver};
     use crate::sim::pd::{PdParams, PdSolver};
-    let global = global_solver(a.solver);
+    let mut global = global_solver(a.solver);
+    if let (crate::sim::pd::GlobalSolver::DomainDecomposed(dp), Some(t)) =
+        (&mut global, a.dd_tolerance)
+    {
+        dp.tolerance = t;
+    }
+    if let crate::sim::pd::GlobalSolver::DomainDecomposed(dp) = &mut global {
+        match a.dd_interiors.as_deref() {
+            None | Some("exact") => dp.interiors = crate::sim::dd::Interiors::Exact,
+            Some("modes") => dp.interiors = crate::sim::dd::Interiors::Modes,
+            Some(other) => {
+                eprintln!("error: --dd-interiors must be exact or modes, not {other:?}");
+                return Ok(ExitCode::Usage);
+            }
+        }
+    }
     let solver_name = global.name();
     // About 1.7 tets per yarn point at the default voxel size (README
     // embedding table); one correction from the first embedding's ratio.
@@ -280,6 +307,10 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         dt: a.dt,
         mass_damping: 2.0,
         global,
+        max_iterations: a
+            .pd_iterations
+            .unwrap_or(PdParams::default().max_iterations),
+        anderson_window: a.anderson.unwrap_or(PdParams::default().anderson_window),
         ..PdParams::default()
     };
     let t = Instant::now();
@@ -296,6 +327,8 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     let mut x = mesh.nodes.clone();
     let mut v = vec![[0.0; 3]; x.len()];
     let (mut ms, mut iters, mut iters_max, mut residual) = (Vec::new(), 0u64, 0u32, 0.0f64);
+    let (mut local_ms, mut global_ms, mut gits, mut gres) = (Vec::new(), Vec::new(), 0u64, 0.0f64);
+    let mut local_steps = 0u64;
     for s in 1..=steps {
         let dx = speed * a.dt * s as f64;
         let pins: Vec<[f64; 3]> = left
@@ -308,6 +341,11 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
             .collect();
         let st = solver.step(&mut x, &mut v, &pins)?;
         ms.push(st.ms);
+        local_ms.push(st.local_ms);
+        global_ms.push(st.global_ms);
+        gits += st.global_iterations as u64;
+        local_steps += st.iterations as u64 + 1 + st.accelerations_rejected as u64;
+        gres = gres.max(st.global_residual);
         iters += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);
         residual = residual.max(st.residual);
@@ -334,6 +372,11 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         pd_iterations: iters as f64 / steps as f64,
         pd_iterations_max: iters_max,
         residual,
+        local_ms_per_step: median(local_ms),
+        global_ms_per_step: median(global_ms),
+        global_iterations: gits as f64 / steps as f64,
+        global_residual: gres,
+        local_steps: local_steps as f64 / steps as f64,
         peak_rss_mb: peak_rss_mb(),
     };
     if a.json {

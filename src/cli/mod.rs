@@ -235,6 +235,18 @@ pub struct BenchSimArgs {
     /// Global solver: direct or dd.
     #[arg(long, value_name = "direct|dd", default_value = "direct")]
     pub solver: crate::pipeline::sim_scene::SolverChoice,
+    /// Most PD iterations per step [default: the simulator's default].
+    #[arg(long)]
+    pub pd_iterations: Option<u32>,
+    /// Relative residual of the domain-decomposed solver's Jacobi iterations [default: its default].
+    #[arg(long)]
+    pub dd_tolerance: Option<f64>,
+    /// Interiors of the domain-decomposed solver: exact (every interior mode, the default) or modes (VH Eq. 32's 20 lowest per domain).
+    #[arg(long, value_name = "exact|modes")]
+    pub dd_interiors: Option<String>,
+    /// Anderson acceleration window of the PD iterations (0: plain PD) [default: the simulator's default].
+    #[arg(long)]
+    pub anderson: Option<usize>,
     /// Print a JSON object.
     #[arg(long)]
     pub json: bool,

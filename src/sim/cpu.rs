@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, LocalEval};
 use super::energy::{node_gradients, ElasticModel};
-use super::local::{project_diag_sl3, project_volume_detailed, signed_svd};
+use super::local::{project_diag_sl3, project_volume_detailed, signed_svd_warm, SignedSvd};
 use super::SimError;
 use crate::geom::Vec3;
 
@@ -37,6 +37,10 @@ pub struct CpuElasticRhs {
     per_tet: Vec<[Vector3<f64>; 4]>,
     /// Per-tet scratch: energy and clamped flag.
     per_tet_energy: Vec<(f64, bool)>,
+    /// Per tet, the right singular vectors `V` of its last `F`: the warm
+    /// start of the next SVD ([`signed_svd_warm`]; PD iterations and time
+    /// steps move `F` little).
+    warm_v: Vec<Matrix3<f64>>,
 }
 
 impl CpuElasticRhs {
@@ -70,6 +74,7 @@ impl CpuElasticRhs {
             incidence,
             per_tet: vec![[Vector3::zeros(); 4]; rest.len()],
             per_tet_energy: vec![(0.0, false); rest.len()],
+            warm_v: vec![Matrix3::identity(); rest.len()],
         }
     }
 
@@ -87,8 +92,17 @@ fn v3(p: Vec3) -> Vector3<f64> {
 /// public projections compute it twice): bitwise the same results as
 /// `project_rotation` and `project_volume_detailed`, which both start from
 /// `signed_svd(f)` and fall back to the identity when it fails.
+#[cfg(test)]
 fn project_both(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>, bool) {
-    match signed_svd(f) {
+    project_from_svd(f, super::local::signed_svd(f))
+}
+
+/// [`project_both`] from an SVD of `f` (`None`: `f` not finite).
+fn project_from_svd(
+    f: &Matrix3<f64>,
+    svd: Option<SignedSvd>,
+) -> (Matrix3<f64>, Matrix3<f64>, bool) {
+    match svd {
         Some(svd) => {
             let rot = svd.u * svd.v.transpose();
             let p = project_diag_sl3([svd.s[0], svd.s[1], svd.s[2]]);
@@ -124,9 +138,15 @@ impl ElasticRhs for CpuElasticRhs {
         self.per_tet
             .par_chunks_mut(TET_CHUNK)
             .zip(self.per_tet_energy.par_chunks_mut(TET_CHUNK))
+            .zip(self.warm_v.par_chunks_mut(TET_CHUNK))
             .enumerate()
-            .for_each(|(c, (g_chunk, e_chunk))| {
-                for (j, (g, en)) in g_chunk.iter_mut().zip(e_chunk.iter_mut()).enumerate() {
+            .for_each(|(c, ((g_chunk, e_chunk), w_chunk))| {
+                for (j, ((g, en), wv)) in g_chunk
+                    .iter_mut()
+                    .zip(e_chunk.iter_mut())
+                    .zip(w_chunk.iter_mut())
+                    .enumerate()
+                {
                     let e = c * TET_CHUNK + j;
                     let r = &rest[e];
                     let x0 = v3(x[r.nodes[0]]);
@@ -136,7 +156,11 @@ impl ElasticRhs for CpuElasticRhs {
                         v3(x[r.nodes[3]]) - x0,
                     ]);
                     let f = ds * r.dm_inv;
-                    let (rot, vol, clamped) = project_both(&f);
+                    let svd = signed_svd_warm(&f, wv);
+                    if let Some(svd) = &svd {
+                        *wv = svd.v;
+                    }
+                    let (rot, vol, clamped) = project_from_svd(&f, svd);
                     *en = (
                         r.volume
                             * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared()),
@@ -235,6 +259,32 @@ mod tests {
             }
         }
         assert!(rhs.evaluate(&x[..4], &mut out).is_err());
+
+        // A second evaluation starts its SVDs from the first one's V (warm
+        // start): it must still match the cold local step at the new
+        // positions, here strongly deformed and with an inverted tet.
+        let x2: Vec<Vec3> = mesh
+            .nodes
+            .iter()
+            .map(|p| {
+                [
+                    0.7 * p[0] - 0.4 * p[2],
+                    1.3 * p[1] + 0.2 * p[0],
+                    -0.8 * p[2],
+                ]
+            })
+            .collect();
+        let mut out2 = vec![[0.0; 3]; 5];
+        let eval2 = rhs.evaluate(&x2, &mut out2).unwrap();
+        assert!((eval2.elastic_energy - model.energy(&x2).unwrap()).abs() < 1e-10);
+        let mut cold = CpuElasticRhs::new(&model);
+        let mut out_cold = vec![[0.0; 3]; 5];
+        cold.evaluate(&x2, &mut out_cold).unwrap();
+        for (o, e) in out2.iter().zip(&out_cold) {
+            for k in 0..3 {
+                assert!((o[k] - e[k]).abs() < 1e-10, "{o:?} vs {e:?}");
+            }
+        }
     }
 
     #[test]

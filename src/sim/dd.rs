@@ -62,6 +62,24 @@ pub const DENSE_EIGEN_LIMIT: usize = 64;
 /// up convergence of the highest wanted mode).
 const EXTRA_VECTORS: usize = 8;
 
+/// How the reduced solve represents the interiors of the domains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Interiors {
+    /// CMS as in VH Eq. 32: the [`DdParams::modes`] lowest eigenmodes of
+    /// every `Kii_d`. The reduced solution is exact on the boundary and
+    /// misses the interior components above the modes (module doc), which
+    /// the Chebyshev-Jacobi iterations then remove.
+    Modes,
+    /// Every interior mode: the limit of Eq. 32 as the mode count reaches
+    /// the interior size, where `Φ_d Λ_d⁻¹ Φ_dᵀ = Kii_d⁻¹`. Applied with the
+    /// domain's Cholesky factor that the boundary modes `Ψ_d` need anyway,
+    /// so it costs one interior solve per domain, the same as the modal
+    /// form, and no eigenvectors are computed. The reduced solve is then
+    /// exact for `K` (a Schur-complement substructuring solve) and the
+    /// Jacobi iterations only run when contact weights change the matrix.
+    Exact,
+}
+
 /// Parameters of the domain-decomposed global solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DdParams {
@@ -69,8 +87,13 @@ pub struct DdParams {
     /// per-tet domain ids are given). Default
     /// [`DEFAULT_NODES_PER_DOMAIN`].
     pub nodes_per_domain: usize,
-    /// Eigenmodes per domain (VH §7.2: "e.g., 20"). Default 20.
+    /// Eigenmodes per domain (VH §7.2: "e.g., 20") with
+    /// [`Interiors::Modes`]. Default 20.
     pub modes: usize,
+    /// Modal (VH Eq. 32) or exact interiors. Default [`Interiors::Exact`]:
+    /// on the CPU it costs the same per solve as the modal form and leaves
+    /// nothing for the Jacobi iterations (measured in `GlobalSolver`'s doc).
+    pub interiors: Interiors,
     /// Relative residual at which the full-space Chebyshev-Jacobi iterations
     /// stop, measured against the residual of the previous PD iterate (the
     /// global step solves for the correction, so the tolerance does not
@@ -91,6 +114,7 @@ impl Default for DdParams {
         DdParams {
             nodes_per_domain: DEFAULT_NODES_PER_DOMAIN,
             modes: 20,
+            interiors: Interiors::Exact,
             tolerance: 1e-4,
             max_iterations: 1000,
             jacobi: JacobiParams::default(),
@@ -158,6 +182,8 @@ pub struct DdSolver {
     domains: Vec<Domain>,
     /// Factor of the Schur complement `S` (`None` without boundary nodes).
     schur: Option<SparseCholesky>,
+    /// [`Interiors::Exact`].
+    exact: bool,
     stats: DdStats,
 }
 
@@ -252,7 +278,8 @@ impl DdSolver {
             }
         }
 
-        let m_wanted = params.modes;
+        let exact = params.interiors == Interiors::Exact;
+        let m_wanted = if exact { 0 } else { params.modes };
         let built: Vec<Result<BuiltDomain, SimError>> = interiors
             .into_par_iter()
             .map(|interior| build_domain(k, interior, &row_domain, &local, m_wanted))
@@ -294,6 +321,7 @@ impl DdSolver {
             boundary,
             domains,
             schur,
+            exact,
             stats,
         })
     }
@@ -358,15 +386,21 @@ impl DdSolver {
         if let Some(s) = &self.schur {
             s.solve_in_place(xb.as_mut());
         }
-        // Phase 2: interiors.
+        // Phase 2: interiors, x_I = Φ p - Kii⁻¹ Kib x_B, or with exact
+        // interiors Kii⁻¹ (r_I - Kib x_B).
         let xb = &xb;
+        let exact = self.exact;
         let phase2: Vec<Vec<f64>> = self
             .domains
             .par_iter()
             .zip(&phase1)
             .map(|(d, (p, _))| {
                 let ni = d.interior.len();
-                let mut t = Mat::<f64>::zeros(ni, 3);
+                let mut t = if exact {
+                    Mat::<f64>::from_fn(ni, 3, |i, k| -r[3 * d.interior[i] + k])
+                } else {
+                    Mat::<f64>::zeros(ni, 3)
+                };
                 for &(li, lb, v) in &d.kib {
                     for k in 0..3 {
                         t[(li, k)] += v * xb[(d.bnd[lb], k)];
@@ -608,6 +642,7 @@ mod tests {
         // reduced solve is the exact solution.
         let params = DdParams {
             modes: 10,
+            interiors: Interiors::Modes,
             ..Default::default()
         };
         let dd = DdSolver::new(&k, &tets, &part, &free, &params).unwrap();
@@ -630,13 +665,14 @@ mod tests {
             &free,
             &DdParams {
                 modes: 2,
+                interiors: Interiors::Modes,
                 ..Default::default()
             },
         )
         .unwrap();
-        let mut x2 = vec![0.0; 3 * n];
-        dd2.reduced_solve(&b, &mut x2).unwrap();
-        let r: f64 = {
+        let residual = |dd: &DdSolver| {
+            let mut x2 = vec![0.0; 3 * n];
+            dd.reduced_solve(&b, &mut x2).unwrap();
             let mut a2 = vec![0.0; 3 * n];
             k.mul_rows(&x2, 3, &mut a2);
             a2.iter()
@@ -646,7 +682,23 @@ mod tests {
                 .sqrt()
         };
         let bn: f64 = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let r = residual(&dd2);
         assert!(r < bn && r > 1e-6 * bn, "{r} {bn}");
+        // Exact interiors (the default): exact with no modes at all.
+        let dd3 = DdSolver::new(
+            &k,
+            &tets,
+            &part,
+            &free,
+            &DdParams {
+                modes: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(dd3.stats().modes, 0);
+        let r3 = residual(&dd3);
+        assert!(r3 < 1e-12 * bn, "{r3} {bn}");
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! Projective dynamics of the homogenized tet mesh (VH §7; DESIGN.md method
 //! map rows "energy", "local step", "global step").
 //!
+//! * [`anderson`]: Anderson acceleration of the PD iterations (Peng et al.
+//!   2018).
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
 //! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
 //!   closest volume-preserving matrix per tet.
@@ -20,6 +22,7 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod anderson;
 pub mod backend;
 pub mod cholesky;
 pub mod collide;

@@ -92,6 +92,7 @@ use faer::Mat;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use super::anderson::Anderson;
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
 use super::cholesky::SparseCholesky;
 use super::contact::{NoContact, NodeProjector};
@@ -195,6 +196,14 @@ pub struct PdParams {
     /// Compute [`StepStats::residual`] (one more gradient evaluation per
     /// step). Default true; benchmarks switch it off.
     pub report_residual: bool,
+    /// Anderson acceleration of the PD iterations over this many past
+    /// iterates ([`super::anderson`], Peng et al. 2018), 0 for plain PD.
+    /// An accelerated iterate is kept only when it lowers `Φ` below the
+    /// previous iterate's value; otherwise the plain PD iterate replaces it
+    /// (one more local step) and the history restarts, so `Φ` still never
+    /// rises. The history also restarts when the contact set changes.
+    /// Default 0.
+    pub anderson_window: usize,
 }
 
 impl Default for PdParams {
@@ -203,7 +212,7 @@ impl Default for PdParams {
             dt: 1.0 / 150.0,
             gravity: [0.0, -9.81, 0.0],
             mass_damping: 0.0,
-            max_iterations: 20,
+            max_iterations: 8,
             tolerance: 1e-6,
             max_speed: 100.0,
             energy_blowup: 1e6,
@@ -212,6 +221,7 @@ impl Default for PdParams {
             contact_tolerance: 1e-6,
             contact_max_iterations: 100,
             report_residual: true,
+            anderson_window: 5,
         }
     }
 }
@@ -306,6 +316,14 @@ pub struct StepStats {
     pub contacts: usize,
     /// Free nodes moved onto their projection after the last iteration.
     pub projected: usize,
+    /// Anderson-accelerated iterates rejected because they did not lower
+    /// `Φ` (each cost one more local step; [`PdParams::anderson_window`]).
+    pub accelerations_rejected: u32,
+    /// Wall time of the local steps (elastic projections and right-hand
+    /// side, [`ElasticRhs::evaluate`]) of the step (ms).
+    pub local_ms: f64,
+    /// Wall time of the global solves of the step (ms).
+    pub global_ms: f64,
     /// Wall time of the step (ms).
     pub ms: f64,
 }
@@ -987,8 +1005,15 @@ impl PdSolver {
         let wscale = p.contact_stiffness / (dt * dt);
         let mut rhs = vec![0.0; 3 * nf];
         let mut xf = vec![0.0; 3 * nf];
+        let (mut local_ms, mut global_ms) = (0.0, 0.0);
+        let mut anderson = (p.anderson_window > 0).then(|| Anderson::new(p.anderson_window));
+        // The plain PD iterate while `xk` is an accelerated one.
+        let mut fallback: Option<Vec<f64>> = None;
+        let mut accelerations_rejected = 0u32;
         let elastic_after = loop {
+            let tl = Instant::now();
             let eval = self.elastic.evaluate(&xk, &mut out)?;
+            local_ms += tl.elapsed().as_secs_f64() * 1e3;
             clamped_tets = clamped_tets.max(eval.clamped_tets);
             // Contact projections at the current iterate (local step).
             let proj: Vec<Option<Vec3>> = free_nodes
@@ -997,9 +1022,6 @@ impl PdSolver {
                 .map(|&i| contacts.project(i, xk[i]))
                 .collect();
             let active: Vec<bool> = proj.iter().map(|q| q.is_some()).collect();
-            contacts_active = active.iter().filter(|&&a| a).count();
-            let changed = active != prev_active && iterations > 0;
-            prev_active = active;
             let mut contact_energy = 0.0;
             for (fi, q) in proj.iter().enumerate() {
                 if let Some(q) = q {
@@ -1017,6 +1039,24 @@ impl PdSolver {
                 })
                 .sum();
             let phi = inertia + eval.elastic_energy + contact_energy;
+            if let Some(plain) = fallback.take() {
+                // Safeguard (Peng et al. 2018 Alg. 2): an accelerated
+                // iterate must lower Φ, else the plain one replaces it.
+                let prev = *objectives.last().unwrap_or(&f64::INFINITY);
+                if !(phi < prev) {
+                    accelerations_rejected += 1;
+                    if let Some(a) = anderson.as_mut() {
+                        a.reset();
+                    }
+                    for (fi, &i) in free_nodes.iter().enumerate() {
+                        xk[i] = [plain[3 * fi], plain[3 * fi + 1], plain[3 * fi + 2]];
+                    }
+                    continue;
+                }
+            }
+            contacts_active = active.iter().filter(|&&a| a).count();
+            let changed = active != prev_active && iterations > 0;
+            prev_active = active;
             objectives.push(phi);
             if iterations > 0 && !changed {
                 let (first, prev) = (objectives[0], objectives[objectives.len() - 2]);
@@ -1052,13 +1092,31 @@ impl PdSolver {
                     }
                 }
             }
+            let tg = Instant::now();
             let st = self
                 .global_solve(&mut rhs, &xf, weights.as_deref())
                 .map_err(row_to_node)?;
+            global_ms += tg.elapsed().as_secs_f64() * 1e3;
             global_iterations += st.iterations;
             global_residual = global_residual.max(st.relative_residual);
+            let next = match anderson.as_mut() {
+                Some(a) => {
+                    if changed {
+                        a.reset();
+                    }
+                    let next = a.step(&xf, &rhs);
+                    if next != rhs {
+                        fallback = Some(rhs.clone());
+                    }
+                    next
+                }
+                None => std::mem::take(&mut rhs),
+            };
             for (fi, &i) in free_nodes.iter().enumerate() {
-                xk[i] = [rhs[3 * fi], rhs[3 * fi + 1], rhs[3 * fi + 2]];
+                xk[i] = [next[3 * fi], next[3 * fi + 1], next[3 * fi + 2]];
+            }
+            if rhs.len() != 3 * nf {
+                rhs = next;
             }
             iterations += 1;
             if let Some(fi) = (0..nf).find(|&fi| !finite(&xk[free_nodes[fi]])) {
@@ -1109,7 +1167,25 @@ impl PdSolver {
         }
 
         // Residual of the implicit-Euler equations at the returned positions.
-        let residual = if p.report_residual {
+        let residual = if p.report_residual && fixes.is_empty() && nf > 0 {
+            // The last local step ran at these positions, and for the PD
+            // energy ∇E(x) = K_el x - b_el(x) (the projections minimize it),
+            // so ∇Φ = K x - rhs0 - out: one product with K instead of a
+            // gradient evaluation (another SVD per tet).
+            for (fi, &i) in free_nodes.iter().enumerate() {
+                xf[3 * fi..3 * fi + 3].copy_from_slice(&xk[i]);
+            }
+            let mut kx = vec![0.0; 3 * nf];
+            mul_plus_diag(&self.k_free, None, &xf, &mut kx);
+            (0..nf)
+                .map(|fi| {
+                    let i = free_nodes[fi];
+                    norm(std::array::from_fn(|k| {
+                        kx[3 * fi + k] - rhs0[3 * fi + k] - out[i][k]
+                    }))
+                })
+                .fold(0.0, f64::max)
+        } else if p.report_residual {
             let grad = self.model.gradient(&xk)?;
             free_nodes
                 .iter()
@@ -1143,6 +1219,9 @@ impl PdSolver {
             global_residual,
             contacts: contacts_active,
             projected: fixes.len(),
+            accelerations_rejected,
+            local_ms,
+            global_ms,
             ms: t0.elapsed().as_secs_f64() * 1e3,
         })
     }
