@@ -581,7 +581,7 @@ fn pd_iteration_study() {
         .zip(&mesh.nodes)
         .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
         .fold(0.0, f64::max);
-    for (k, aa) in [3u32, 5, 7, 10, 15, 20, 30]
+    for (k, aa) in [3u32, 5, 6, 8, 10, 15, 20, 30]
         .iter()
         .flat_map(|&k| [(k, 0usize), (k, 5)])
     {

@@ -151,8 +151,13 @@ pub struct SimulationSection {
     /// settles a drape within a second of shot time without visibly slowing
     /// the motion a character drives through the pins.
     pub damping: f64,
-    /// Most PD iterations per step. Default 20 (sim::pd).
+    /// Most PD iterations per step. Default 8 (sim::pd: with Anderson
+    /// acceleration 8 iterations are closer to the converged step than 20
+    /// plain ones).
     pub max_iterations: u32,
+    /// Anderson acceleration window of the PD iterations, 0 for plain PD.
+    /// Default 5 (sim::pd).
+    pub anderson_window: usize,
     /// Fraction (0..1) of a contacting node's tangential velocity removed
     /// at each contact (velocity-level friction against colliders). Default
     /// 0.5: a swatch dropped on a sphere stays on it instead of sliding off.
@@ -176,7 +181,8 @@ impl Default for SimulationSection {
             fps: 24.0,
             gravity: [0.0, -9.81, 0.0],
             damping: 2.0,
-            max_iterations: 20,
+            max_iterations: 8,
+            anderson_window: 5,
             friction: 0.5,
             tolerance: 1e-6,
             preroll: None,

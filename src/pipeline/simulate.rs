@@ -682,6 +682,7 @@ pub fn simulate(
         gravity: sim.gravity,
         mass_damping: sim.damping,
         max_iterations: sim.max_iterations,
+        anderson_window: sim.anderson_window,
         tolerance: sim.tolerance,
         global: global_solver(sim.solver),
         ..PdParams::default()

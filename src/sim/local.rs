@@ -277,6 +277,17 @@ pub fn project_diag_sl3(s: [f64; 3]) -> DiagProjection {
             clamped: false,
         };
     }
+    if sc == s {
+        if let Some(p) = near_rest_projection(s) {
+            return p;
+        }
+    }
+    general_projection(s, sc)
+}
+
+/// [`project_diag_sl3`] without the near-rest fast path (`sc`: `s` clamped
+/// to the floor).
+fn general_projection(s: [f64; 3], sc: [f64; 3]) -> DiagProjection {
     let mut order = [0usize, 1, 2];
     order.sort_by(|&a, &b| sc[b].total_cmp(&sc[a]));
     let sorted = order.map(|o| sc[o]);
@@ -293,6 +304,64 @@ pub fn project_diag_sl3(s: [f64; 3]) -> DiagProjection {
         iterations,
         clamped,
     }
+}
+
+/// Newton steps of [`near_rest_projection`] before it gives up.
+const NEAR_REST_NEWTON_STEPS: u32 = 8;
+
+/// The fast path of [`project_diag_sl3`] for singular values `s >= floor`
+/// (the common case: tets near their rest shape), or `None` to take the
+/// general solver.
+///
+/// The KKT conditions of Eq. 26 give `d_i² - s_i d_i - λ = 0`, and the
+/// branch with every `d_i = (s_i + sqrt(s_i² + 4λ)) / 2` is the one the
+/// general solver tries first (`t >= s_last / 2`). Newton on
+/// `h(λ) = d1 d2 d3 - 1` (no logarithm) from its linearization at `λ = 0`
+/// converges in two or three steps near rest. The result is accepted under
+/// the same tests that let the general solver skip its other branches: cost
+/// `|d - s|² <= s_min² / 4` (no root with `t < s_last / 2` can do better)
+/// and `<= (s_min - floor)²` (nor one on the floor), with every
+/// `d_i >= floor` and `d1 d2 d3 = 1` to rounding. It is then the same root
+/// as the general solver's, to rounding.
+fn near_rest_projection(s: [f64; 3]) -> Option<DiagProjection> {
+    let prod = s[0] * s[1] * s[2];
+    let inv2: f64 = s.iter().map(|x| 1.0 / (x * x)).sum();
+    let mut lambda = -(prod - 1.0) / (prod * inv2);
+    let s_min = s[0].min(s[1]).min(s[2]);
+    let lambda_min = -0.25 * s_min * s_min;
+    for it in 1..=NEAR_REST_NEWTON_STEPS {
+        if !(lambda > lambda_min) {
+            return None;
+        }
+        let q = s.map(|x| (x * x + 4.0 * lambda).sqrt());
+        let d = [
+            0.5 * (s[0] + q[0]),
+            0.5 * (s[1] + q[1]),
+            0.5 * (s[2] + q[2]),
+        ];
+        let p = d[0] * d[1] * d[2];
+        let h = p - 1.0;
+        if h.abs() <= 4.0 * f64::EPSILON {
+            let cost: f64 = (0..3).map(|k| (d[k] - s[k]).powi(2)).sum();
+            let ok = d.iter().all(|&x| x >= SINGULAR_VALUE_FLOOR)
+                && cost <= 0.25 * s_min * s_min
+                && cost <= (s_min - SINGULAR_VALUE_FLOOR).powi(2);
+            return ok.then_some(DiagProjection {
+                d,
+                lambda,
+                iterations: it,
+                clamped: false,
+            });
+        }
+        // dh/dλ = p Σ 1 / (d_i q_i)   (d d_i / dλ = 1 / q_i).
+        let dh = p * (0..3).map(|k| 1.0 / (d[k] * q[k])).sum::<f64>();
+        let step = h / dh;
+        if !step.is_finite() {
+            return None;
+        }
+        lambda -= step;
+    }
+    None
 }
 
 /// Closest volume-preserving matrix `V(F) = argmin_{A in SL(3)} |F - A|_F`
@@ -685,6 +754,39 @@ mod tests {
                 .all(|&x| x >= SINGULAR_VALUE_FLOOR * (1.0 - 1e-12)));
         }
         assert!(max_it <= 200, "{max_it} iterations");
+    }
+
+    #[test]
+    fn near_rest_fast_path_is_the_general_root() {
+        let mut rng = Rng(5);
+        let mut taken = 0;
+        for case in 0..2000 {
+            // Near rest (most tets), moderate and large deformations.
+            let spread = [0.02, 0.3, 2.0][case % 3];
+            let s = [(); 3].map(|_| (spread * (2.0 * rng.next() - 1.0)).exp());
+            let general = general_projection(s, s);
+            if let Some(fast) = near_rest_projection(s) {
+                taken += 1;
+                for k in 0..3 {
+                    assert!(
+                        (fast.d[k] - general.d[k]).abs() < 1e-13 * general.d[k],
+                        "s {s:?}: fast {fast:?} vs general {general:?}"
+                    );
+                }
+                assert!(
+                    (fast.lambda - general.lambda).abs() < 1e-12 * (1.0 + general.lambda.abs())
+                );
+                assert!(!fast.clamped && fast.iterations <= NEAR_REST_NEWTON_STEPS);
+            } else {
+                // Only large deformations may need the general solver.
+                assert!(spread > 0.02, "fast path refused near-rest {s:?}");
+            }
+            assert_eq!(project_diag_sl3(s).d.map(|x| x > 0.0), [true; 3]);
+        }
+        assert!(taken > 1000, "fast path taken {taken} times of 2000");
+        // Strong compression (the other branch wins) and values under the
+        // floor go to the general solver.
+        assert!(near_rest_projection([30.0, 30.0, 0.02]).is_none());
     }
 
     #[test]
