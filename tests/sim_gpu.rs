@@ -798,8 +798,15 @@ fn relative_gap(a: &[Vec3], b: &[Vec3]) -> f64 {
 #[test]
 fn gpu_and_cpu_stretch_runs_agree_after_100_steps() {
     let Some(ctx) = gpu() else { return };
+    use knitvox::sim::dd::{DdParams, Interiors};
+    // Modal interiors: the GPU Chebyshev-Jacobi does the full-space solve.
+    let modal = DdParams {
+        interiors: Interiors::Modes,
+        ..Default::default()
+    };
     for global in [
         knitvox::sim::pd::GlobalSolver::Direct,
+        knitvox::sim::pd::GlobalSolver::DomainDecomposed(modal),
         knitvox::sim::pd::GlobalSolver::DomainDecomposed(Default::default()),
     ] {
         let cpu = stretch_run(None, global, 100);

@@ -109,10 +109,10 @@ pub struct DdParams {
     /// stop, measured against the residual of the previous PD iterate (the
     /// global step solves for the correction, so the tolerance does not
     /// depend on where the mesh is in space). Default 1e-4 (dimensionless).
-    /// Measured on `bench_slab` (3-voxel slab, 10K-400K tets): about 150-180
-    /// Chebyshev-Jacobi iterations per global solve at 1e-4, about 90 at
-    /// 1e-2; the CMS subspace removes the smooth error but the Jacobi
-    /// iterations still dominate the CPU cost (see `GlobalSolver::default`).
+    /// With [`Interiors::Modes`] and 20 modes per domain the knit swatches of
+    /// `knitvox bench sim` need about 400 iterations per global solve to get
+    /// there (the README's table); with [`Interiors::Exact`] the reduced
+    /// solution already meets it unless contact weights are active.
     pub tolerance: f64,
     /// Most Chebyshev-Jacobi iterations per global solve. Default 1000.
     pub max_iterations: u32,

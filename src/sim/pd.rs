@@ -61,10 +61,14 @@
 //! the global system becomes `(K + W) x = b + W P`. The direct solver keeps
 //! its factor of `K` and solves this system by preconditioned conjugate
 //! gradients with `K⁻¹` as the preconditioner (`W` has low rank, so few
-//! iterations; no refactorization per step). The domain-decomposed solver
-//! hands `W` to the Jacobi iterations as an extra diagonal (its subspace is
-//! untouched: VH's point that DD is insensitive to new collision
-//! constraints). After the last iteration every free node still not
+//! iterations; no refactorization per step); so does the domain-decomposed
+//! solver with exact interiors, its reduced solve being an exact `K⁻¹`.
+//! With modal interiors it hands `W` to the Jacobi iterations as an extra
+//! diagonal (its subspace is untouched: VH's point that DD is insensitive to
+//! new collision constraints). Measured on the drape of
+//! `examples/drape-sphere.toml` (918 nodes, 24 frames): Chebyshev-Jacobi on
+//! `K + W` from the exact `K` solution cost 100 ms per step, the
+//! preconditioned CG 15 ms (direct: 12 ms). After the last iteration every free node still not
 //! admissible is moved to its projection (a hard guarantee: no free node ends
 //! a step inside a collider); pinned nodes are never projected. Velocities
 //! are then the finite differences of the final positions.
@@ -114,7 +118,7 @@ use super::cholesky::SparseCholesky;
 use super::contact::{NoContact, NodeProjector};
 use super::cpu::CpuElasticRhs;
 use super::csr::CsrMatrix;
-use super::dd::{DdParams, DdSolver, DdStats};
+use super::dd::{DdParams, DdSolver, DdStats, Interiors};
 use super::energy::ElasticModel;
 use super::jacobi::CpuJacobi;
 use super::partition::Partition;
@@ -321,8 +325,9 @@ pub struct StepStats {
     /// Backend of the local step ("cpu", "gpu").
     pub backend: &'static str,
     /// Iterations of the iterative global solves summed over the step
-    /// (Chebyshev-Jacobi for "dd", preconditioned CG for "direct" with
-    /// active contacts; 0 for plain direct solves).
+    /// (Chebyshev-Jacobi for "dd" with modal interiors; preconditioned CG
+    /// with active contacts for "direct" and for "dd" with exact interiors;
+    /// else 0).
     pub global_iterations: u32,
     /// Largest relative residual of the step's iterative global solves (0
     /// for plain direct solves; for "dd" relative to the residual of the
@@ -813,7 +818,11 @@ impl PdSolver {
         w: Option<&[f64]>,
     ) -> Result<IterStats, SimError> {
         let nf = self.k_free.n;
-        if let (Some(dd), Some(jac)) = (&self.dd, self.jacobi.as_mut()) {
+        let exact_dd = matches!(
+            self.params.global,
+            GlobalSolver::DomainDecomposed(dp) if dp.interiors == Interiors::Exact
+        );
+        if let (Some(dd), Some(jac), false) = (&self.dd, self.jacobi.as_mut(), exact_dd) {
             // Correction system K δ = b - (K + W) x_k (module doc).
             let mut r0 = vec![0.0; 3 * nf];
             mul_plus_diag(&self.k_free, w, xk, &mut r0);
@@ -829,20 +838,30 @@ impl PdSolver {
             }
             return Ok(st);
         }
-        let Some(f) = &self.factor else {
+        // An exact solve with K: the Cholesky factor, or the domain-
+        // decomposed solve with exact interiors (a substructuring solve).
+        let (factor, dd) = (&self.factor, &self.dd);
+        if factor.is_none() && dd.is_none() {
             return Ok(IterStats::default());
-        };
-        let solve = |r: &[f64], out: &mut [f64]| {
-            let mut m = Mat::<f64>::from_fn(nf, 3, |i, k| r[3 * i + k]);
-            f.solve_in_place(m.as_mut());
-            for i in 0..nf {
-                for k in 0..3 {
-                    out[3 * i + k] = m[(i, k)];
+        }
+        let solve = |r: &[f64], out: &mut [f64]| -> Result<(), SimError> {
+            if let Some(f) = factor {
+                let mut m = Mat::<f64>::from_fn(nf, 3, |i, k| r[3 * i + k]);
+                f.solve_in_place(m.as_mut());
+                for i in 0..nf {
+                    for k in 0..3 {
+                        out[3 * i + k] = m[(i, k)];
+                    }
                 }
+                Ok(())
+            } else if let Some(dd) = dd {
+                dd.reduced_solve(r, out)
+            } else {
+                Ok(())
             }
         };
         let rhs = b.to_vec();
-        solve(&rhs, b);
+        solve(&rhs, b)?;
         let Some(w) = w else {
             return Ok(IterStats::default());
         };
@@ -856,7 +875,7 @@ impl PdSolver {
         // the tolerance does not depend on where the mesh is in space.
         let bn = dot3(&r, &r).iter().sum::<f64>().sqrt();
         let mut z = vec![0.0; 3 * nf];
-        solve(&r, &mut z);
+        solve(&r, &mut z)?;
         let mut p = z.clone();
         let mut rz = dot3(&r, &z);
         let mut q = vec![0.0; 3 * nf];
@@ -879,7 +898,7 @@ impl PdSolver {
             if !rel.is_finite() {
                 break;
             }
-            solve(&r, &mut z);
+            solve(&r, &mut z)?;
             let rz_new = dot3(&r, &z);
             for k in 0..3 {
                 let beta = if rz[k] > 0.0 { rz_new[k] / rz[k] } else { 0.0 };
