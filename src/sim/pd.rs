@@ -145,17 +145,16 @@ impl GlobalSolver {
 }
 
 impl Default for GlobalSolver {
-    /// The direct solver: on the CPU it is faster than the domain-decomposed
-    /// one at every size measured with [`bench_slab`] (3-voxel slab, 2
-    /// threads, 20 PD iterations, quiet machine): 76 / 266 / 552 / 1108 /
-    /// 2658 ms per step at 10K / 40K / 78K / 159K / 400K tets against 277 /
-    /// 893 / 1972 / 3103 / 8197 ms for DD, whose Chebyshev-Jacobi needs
-    /// about 175 iterations per global solve to reach its 1e-4 tolerance
-    /// (about 90 at 1e-2) after the CMS subspace solve. At 78K tets the
-    /// direct step is about 60% local step (15 ms per evaluation) and 40%
-    /// triangular solves (about 11 ms per PD iteration); with 10 PD
-    /// iterations it takes 277 ms. The DD path is what a GPU Jacobi backend
-    /// accelerates (VH §7.2).
+    /// The direct solver, by a small margin on 2 CPU cores. `knitvox bench
+    /// sim --tets N --steps 7 --solver direct|dd [--dd-interiors modes]
+    /// --backend cpu` (knit swatch, 8 Anderson-accelerated PD iterations, 2
+    /// threads), ms per step direct / DD with exact interiors / DD with 20
+    /// modes per domain: 10K tets 26 / 27 / 229, 44K (12.7K nodes) 114 / 114
+    /// / 791, 79K 213 / 220 / 1313, 161K 433 / 420 / 2970, 407K 1119 / 1092
+    /// / 7603. The modal form needs ~3,300 Chebyshev-Jacobi iterations per
+    /// step (~400 per global solve at 1e-4); with exact interiors the
+    /// reduced solve is the solve and costs about one Cholesky solve. Both
+    /// leave ~75% of the step to the local step.
     fn default() -> Self {
         GlobalSolver::Direct
     }
@@ -171,16 +170,19 @@ pub struct PdParams {
     /// Mass-proportional damping `c` (1/s), applied implicitly (module doc).
     /// Default 0.
     pub mass_damping: f64,
-    /// Most PD iterations (local + global) per time step. Default 20.
+    /// Most PD iterations (local + global) per time step. Default 8.
     ///
     /// Measured trade-off (`tests/sim_pd.rs` `pd_iteration_study`: a
     /// 40x3x40-voxel slab at the asset stiffnesses, pinned along one edge,
-    /// falling 30 steps of 1/150 s, tolerance 0, against 100 iterations):
-    /// largest node deviation from the reference relative to the largest
-    /// displacement (26 cm) is 15% at 3 iterations, 9.8% at 5, 4.1% at 10,
-    /// 2.0% at 15, 1.1% at 20 and 0.45% at 30. PD's slow convergence shows
-    /// as extra damping of soft, large motions; 20 keeps it near 1%, while
-    /// 10 (common in PD codes) halves the cost for about 4%. The step time is
+    /// falling 30 steps of 1/150 s, tolerance 0, against 100 plain
+    /// iterations): largest node deviation from the reference relative to
+    /// the largest displacement (26 cm), plain PD / with Anderson
+    /// acceleration (window 5, [`Self::anderson_window`]): 3 iterations 15% /
+    /// 10%, 5 9.8% / 0.93%, 6 8.1% / 0.60%, 8 5.7% / 0.32%, 10 4.1% / 0.14%,
+    /// 15 2.0% / 0.011%, 20 1.1% / 0.013% (the reference's own error), 30
+    /// 0.45%. PD's slow convergence shows as extra damping of soft, large
+    /// motions; 8 accelerated iterations deviate 3.4x less than 20 plain
+    /// ones (the previous default) at 40% of the cost. The step time is
     /// proportional to this count.
     pub max_iterations: u32,
     /// Stop the PD iterations of a step when the last iteration decreased
