@@ -1142,10 +1142,16 @@ impl PdSolver {
                         a.reset();
                     }
                     let next = a.step(&xf, &rhs);
-                    if next != rhs {
-                        fallback = Some(rhs.clone());
+                    if !next.iter().all(|v| v.is_finite()) {
+                        // Overflow in the mixing: take the plain iterate.
+                        a.reset();
+                        std::mem::take(&mut rhs)
+                    } else {
+                        if next != rhs {
+                            fallback = Some(rhs.clone());
+                        }
+                        next
                     }
-                    next
                 }
                 None => std::mem::take(&mut rhs),
             };
