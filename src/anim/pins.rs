@@ -14,22 +14,9 @@
 // `!(a > b)` is deliberate throughout: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use crate::geom::vec3::{cross, dot, sub};
 use crate::geom::Vec3;
 use crate::sim::collide::{MeshCollider, MeshTopology};
-
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
 
 /// Default pin distance (m): garment nodes within this unsigned distance of
 /// the bind-pose body surface are pinned. 5 mm: a few voxels of the default

@@ -7,21 +7,8 @@ use serde::Serialize;
 
 use super::{BenchEmbedArgs, BenchIoArgs, BenchSimArgs, ExitCode};
 use crate::io::{self, Format, ReadOptions, WriteOptions};
+use crate::pipeline::simulate::median;
 use crate::yarn::analytic::knit_swatch_with_points;
-
-/// Median of a set of timings (ms).
-pub fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
 
 fn time_ms<T>(runs: usize, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<f64> {
     let mut t = Vec::with_capacity(runs);
@@ -259,19 +246,13 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     use crate::pipeline::simulate::{attach_backend, global_solver};
     use crate::sim::pd::{PdParams, PdSolver};
     let mut global = global_solver(a.solver);
-    if let (crate::sim::pd::GlobalSolver::DomainDecomposed(dp), Some(t)) =
-        (&mut global, a.dd_tolerance)
-    {
-        dp.tolerance = t;
-    }
     if let crate::sim::pd::GlobalSolver::DomainDecomposed(dp) = &mut global {
-        match a.dd_interiors.as_deref() {
-            None | Some("exact") => dp.interiors = crate::sim::dd::Interiors::Exact,
-            Some("modes") => dp.interiors = crate::sim::dd::Interiors::Modes,
-            Some(other) => {
-                eprintln!("error: --dd-interiors must be exact or modes, not {other:?}");
-                return Ok(ExitCode::Usage);
-            }
+        if let Some(t) = a.dd_tolerance {
+            dp.tolerance = t;
+        }
+        // clap admits only "exact" and "modes".
+        if a.dd_interiors.as_deref() == Some("modes") {
+            dp.interiors = crate::sim::dd::Interiors::Modes;
         }
     }
     let solver_name = global.name();
@@ -390,15 +371,6 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn median_odd_even() {
-        assert_eq!(super::median(vec![3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(super::median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
-    }
-}
-
 /// `bench yls`: the yarn-level simulator on a generated swatch of about
 /// `--vertices` vertices (courses along x), both x ends clamped and pulled
 /// 30% apart over 1 s ([`crate::yarn::sim::stretch_scene`]).
@@ -464,4 +436,13 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::Success)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn median_odd_even() {
+        assert_eq!(super::median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(super::median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
+    }
 }

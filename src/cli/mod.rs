@@ -242,7 +242,7 @@ pub struct BenchSimArgs {
     #[arg(long)]
     pub dd_tolerance: Option<f64>,
     /// Interiors of the domain-decomposed solver: exact (every interior mode, the default) or modes (VH Eq. 32's 20 lowest per domain).
-    #[arg(long, value_name = "exact|modes")]
+    #[arg(long, value_parser = ["exact", "modes"])]
     pub dd_interiors: Option<String>,
     /// Anderson acceleration window of the PD iterations (0: plain PD) [default: the simulator's default].
     #[arg(long)]
@@ -315,6 +315,37 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// Runs `job` with a frames progress bar on stderr (`label {bar} pos/len
+/// frames [elapsed < eta]`) when `show`: `job` gets the callback that moves
+/// it (frames done, total); the bar is cleared when `job` returns.
+pub(crate) fn with_frame_progress<T>(
+    show: bool,
+    frames: usize,
+    label: &str,
+    job: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T,
+) -> T {
+    let bar = show.then(|| {
+        let b = indicatif::ProgressBar::new(frames as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(&format!(
+                "{label} {{bar:40}} {{pos}}/{{len}} frames [{{elapsed_precise}} < {{eta}}]"
+            ))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let mut progress = |done: usize, _total: usize| {
+        if let Some(b) = &bar {
+            b.set_position(done as u64);
+        }
+    };
+    let result = job(&mut progress);
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    result
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -333,23 +364,4 @@ mod tests {
         assert!(parse_tile("3").is_err());
         assert!(parse_tile("99999999999999999999x1").is_err());
     }
-}
-
-/// A frames progress bar on stderr (`label {bar} pos/len frames [elapsed <
-/// eta]`) when `show`, else `None`.
-pub(crate) fn frame_progress(
-    show: bool,
-    frames: usize,
-    label: &str,
-) -> Option<indicatif::ProgressBar> {
-    show.then(|| {
-        let b = indicatif::ProgressBar::new(frames as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(&format!(
-                "{label} {{bar:40}} {{pos}}/{{len}} frames [{{elapsed_precise}} < {{eta}}]"
-            ))
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    })
 }

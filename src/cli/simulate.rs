@@ -178,20 +178,12 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
         command: super::asset::command_line(),
     };
-    let bar = super::frame_progress(
+    let result = super::with_frame_progress(
         std::io::stderr().is_terminal(),
         req.frames.len(),
         "simulating",
+        |progress| stage::simulate(&asset, &a.asset, &scene, &req, progress),
     );
-    let mut progress = |done: usize, _total: usize| {
-        if let Some(b) = &bar {
-            b.set_position(done as u64);
-        }
-    };
-    let result = stage::simulate(&asset, &a.asset, &scene, &req, &mut progress);
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
     let r = result?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

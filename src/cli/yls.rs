@@ -41,16 +41,9 @@ pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
     })?;
     let scene = YlsScene::parse(&text, &a.scene).map_err(YlsError::from)?;
     let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
-    let bar = super::frame_progress(show, scene.num_frames(), "yarn-level");
-    let mut progress = |done: usize, _total: usize| {
-        if let Some(b) = &bar {
-            b.set_position(done as u64);
-        }
-    };
-    let result = run(&scene, &text, &a.scene, &a.output, &mut progress);
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    let result = super::with_frame_progress(show, scene.num_frames(), "yarn-level", |progress| {
+        run(&scene, &text, &a.scene, &a.output, progress)
+    });
     let r = result?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

@@ -12,6 +12,7 @@
 
 use super::tetrahedralize::{kuhn_weights, locate_nearest};
 use super::EmbedError;
+use crate::geom::vec3::dot;
 use crate::geom::{Vec3, VoxelGrid, YarnPiece};
 use rayon::prelude::*;
 
@@ -149,10 +150,6 @@ pub(crate) fn lump_masses(
         }
     }
     mass
-}
-
-fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
 //! Tetrahedral meshes built from voxels, and the embedding of yarns in them.
 
+use super::vec3::{cross, dot, sub};
 use super::Vec3;
 
 /// The voxels of an embedding: axis-aligned cubes of edge `h` on the grid
@@ -108,18 +109,4 @@ pub struct YarnPiece {
     pub t1: f64,
     /// Rest length of the piece (m).
     pub length: f64,
-}
-
-pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-pub(crate) fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-pub(crate) fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }

@@ -9,6 +9,7 @@ mod asset;
 mod frame_spec;
 mod mesh;
 mod units;
+pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};

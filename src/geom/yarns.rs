@@ -1,5 +1,6 @@
 //! Yarn curves (`Yarns`) and time sequences of their vertex positions (`YarnFrames`).
 
+use super::vec3::{norm, sub};
 use super::{Units, UpAxis, Vec3};
 
 /// Why a set of yarns or frames is not well formed.
@@ -412,11 +413,7 @@ impl YarnFrames {
 
 /// Euclidean distance between two points.
 pub fn dist(a: Vec3, b: Vec3) -> f64 {
-    norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]])
-}
-
-fn norm(v: Vec3) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+    norm(sub(a, b))
 }
 
 fn bounds_of(points: &[Vec3]) -> Option<Bounds> {

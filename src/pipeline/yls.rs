@@ -12,6 +12,7 @@ use crate::anim::Character;
 use crate::geom::{Vec3, Yarns};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
+use crate::pipeline::simulate::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
 use crate::sim::collide::{MeshCollider, MeshTopology};
 use crate::yarn::pattern::{Layout, PatternParams};
@@ -77,14 +78,6 @@ pub struct YlsReport {
     /// Wall time of the generated swatch's relaxation (ms; 0 without).
     pub relax_ms: f64,
     pub wall_s: f64,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Rotation taking the pattern generator's frame (fabric in XY, front +Z)

@@ -60,3 +60,34 @@ pub trait JacobiSolve {
     /// A short name for statistics ("cpu", "gpu").
     fn name(&self) -> &'static str;
 }
+
+/// The argument checks every [`JacobiSolve`] makes: `b` and `x` hold `n x 3`
+/// values, `extra_diag` (if any) `n` entries, each finite and `>= 0`.
+/// `who` names the solver in the message.
+pub(crate) fn check_jacobi_inputs(
+    who: &str,
+    n: usize,
+    b: &[f64],
+    extra_diag: Option<&[f64]>,
+    x: &[f64],
+) -> Result<(), SimError> {
+    if b.len() != 3 * n || x.len() != 3 * n || extra_diag.is_some_and(|w| w.len() != n) {
+        return Err(SimError::Inconsistent(format!(
+            "{who} of {n} rows got b of {}, x of {} and {} extra diagonal entries",
+            b.len(),
+            x.len(),
+            extra_diag.map_or(0, |w| w.len())
+        )));
+    }
+    if let Some((i, d)) = extra_diag
+        .into_iter()
+        .flatten()
+        .enumerate()
+        .find(|(_, d)| !(d.is_finite() && **d >= 0.0))
+    {
+        return Err(SimError::Inconsistent(format!(
+            "{who}: extra diagonal of row {i} is {d}; it must be finite and >= 0"
+        )));
+    }
+    Ok(())
+}

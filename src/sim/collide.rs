@@ -24,30 +24,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::contact::NodeProjector;
+use crate::geom::vec3::{add, cross, dot, norm, scale, sub};
 use crate::geom::Vec3;
 
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn add(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn scale(a: Vec3, s: f64) -> Vec3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn norm(a: Vec3) -> f64 {
-    dot(a, a).sqrt()
-}
 fn normalized(a: Vec3) -> Option<Vec3> {
     let n = norm(a);
     (n > 0.0 && n.is_finite()).then(|| scale(a, 1.0 / n))

@@ -79,6 +79,21 @@ impl CsrMatrix {
     }
 }
 
+/// Triplets of the `n x n` tridiagonal matrix with `diag` on the diagonal
+/// and -1 beside it (both triangles): the 1D test matrix of the solvers.
+#[cfg(test)]
+pub(crate) fn tridiagonal_triplets(n: usize, diag: f64) -> Vec<(usize, usize, f64)> {
+    let mut t = Vec::new();
+    for i in 0..n {
+        t.push((i, i, diag));
+        if i + 1 < n {
+            t.push((i, i + 1, -1.0));
+            t.push((i + 1, i, -1.0));
+        }
+    }
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

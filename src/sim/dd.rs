@@ -630,20 +630,14 @@ fn lowest_modes(a: &CsrMatrix, factor: &SparseCholesky, m: usize) -> (Vec<f64>, 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sim::csr::tridiagonal_triplets;
 
     /// A 1D chain of `n` nodes as "tets" [i, i+1, i+1, i+1] (only the
     /// connectivity matters here) with a Laplacian-plus-mass matrix.
     #[test]
     fn reduced_solve_is_exact_when_modes_span_the_interiors() {
         let n = 40;
-        let mut t = Vec::new();
-        for i in 0..n {
-            t.push((i, i, 2.1));
-            if i + 1 < n {
-                t.push((i, i + 1, -1.0));
-                t.push((i + 1, i, -1.0));
-            }
-        }
+        let t = tridiagonal_triplets(n, 2.1);
         let k = CsrMatrix::from_triplets(n, &t).unwrap();
         let tets: Vec<[usize; 4]> = (0..n - 1).map(|i| [i, i + 1, i + 1, i + 1]).collect();
         let ids: Vec<u32> = (0..n - 1).map(|i| (i / 10) as u32).collect();
@@ -715,14 +709,7 @@ mod tests {
     #[test]
     fn subspace_iteration_finds_the_lowest_modes() {
         let n = 200;
-        let mut t = Vec::new();
-        for i in 0..n {
-            t.push((i, i, 2.0));
-            if i + 1 < n {
-                t.push((i, i + 1, -1.0));
-                t.push((i + 1, i, -1.0));
-            }
-        }
+        let t = tridiagonal_triplets(n, 2.0);
         let a = CsrMatrix::from_triplets(n, &t).unwrap();
         let lower: Vec<Triplet<usize, usize, f64>> = t
             .iter()

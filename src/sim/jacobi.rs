@@ -43,7 +43,7 @@
 
 use rayon::prelude::*;
 
-use super::backend::{IterStats, JacobiSolve};
+use super::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
 use super::csr::CsrMatrix;
 use super::SimError;
 
@@ -285,21 +285,7 @@ impl JacobiSolve for CpuJacobi {
         max_iterations: u32,
     ) -> Result<IterStats, SimError> {
         let n = self.a.n;
-        if b.len() != 3 * n || x.len() != 3 * n || extra_diag.is_some_and(|w| w.len() != n) {
-            return Err(SimError::Inconsistent(format!(
-                "Jacobi solve of {n} rows got b of {}, x of {} and {} extra diagonal entries",
-                b.len(),
-                x.len(),
-                extra_diag.map_or(0, |w| w.len())
-            )));
-        }
-        if let Some(i) =
-            extra_diag.and_then(|w| w.iter().position(|v| !(*v >= 0.0 && v.is_finite())))
-        {
-            return Err(SimError::Inconsistent(format!(
-                "extra diagonal entry {i} must be finite and >= 0"
-            )));
-        }
+        check_jacobi_inputs("Jacobi solve", n, b, extra_diag, x)?;
         let bnorm = sum_sq(b).sqrt();
         if bnorm == 0.0 {
             x.iter_mut().for_each(|v| *v = 0.0);
@@ -422,15 +408,7 @@ mod tests {
 
     /// 1D Laplacian plus a mass shift, on `n` rows.
     fn laplace(n: usize, shift: f64) -> CsrMatrix {
-        let mut t = Vec::new();
-        for i in 0..n {
-            t.push((i, i, 2.0 + shift));
-            if i + 1 < n {
-                t.push((i, i + 1, -1.0));
-                t.push((i + 1, i, -1.0));
-            }
-        }
-        CsrMatrix::from_triplets(n, &t).unwrap()
+        CsrMatrix::from_triplets(n, &crate::sim::csr::tridiagonal_triplets(n, 2.0 + shift)).unwrap()
     }
 
     #[test]

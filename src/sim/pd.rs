@@ -123,6 +123,7 @@ use super::energy::ElasticModel;
 use super::jacobi::CpuJacobi;
 use super::partition::Partition;
 use super::SimError;
+use crate::geom::vec3::norm;
 use crate::geom::{TetMesh, Vec3};
 
 /// Which solver does the global step.
@@ -510,10 +511,6 @@ fn dot3(a: &[f64], b: &[f64]) -> [f64; 3] {
 
 fn llt_error(e: impl std::fmt::Debug) -> SimError {
     SimError::Inconsistent(format!("the PD matrix K is not positive definite: {e:?}"))
-}
-
-fn norm(p: Vec3) -> f64 {
-    (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
 }
 
 /// Index and value of the largest entry of `it` (NaN counts as largest).
@@ -1136,30 +1133,22 @@ impl PdSolver {
             global_ms += tg.elapsed().as_secs_f64() * 1e3;
             global_iterations += st.iterations;
             global_residual = global_residual.max(st.relative_residual);
-            let next = match anderson.as_mut() {
-                Some(a) => {
-                    if changed {
-                        a.reset();
-                    }
-                    let next = a.step(&xf, &rhs);
-                    if !next.iter().all(|v| v.is_finite()) {
-                        // Overflow in the mixing: take the plain iterate.
-                        a.reset();
-                        std::mem::take(&mut rhs)
-                    } else {
-                        if next != rhs {
-                            fallback = Some(rhs.clone());
-                        }
-                        next
-                    }
+            // `rhs` now holds the plain PD iterate G(x_k); with acceleration
+            // it is swapped for the mixed one and kept as the fallback.
+            if let Some(a) = anderson.as_mut() {
+                if changed {
+                    a.reset();
                 }
-                None => std::mem::take(&mut rhs),
-            };
-            for (fi, &i) in free_nodes.iter().enumerate() {
-                xk[i] = [next[3 * fi], next[3 * fi + 1], next[3 * fi + 2]];
+                let mixed = a.step(&xf, &rhs);
+                if !mixed.iter().all(|v| v.is_finite()) {
+                    // Overflow in the mixing: take the plain iterate.
+                    a.reset();
+                } else if mixed != rhs {
+                    fallback = Some(std::mem::replace(&mut rhs, mixed));
+                }
             }
-            if rhs.len() != 3 * nf {
-                rhs = next;
+            for (fi, &i) in free_nodes.iter().enumerate() {
+                xk[i] = [rhs[3 * fi], rhs[3 * fi + 1], rhs[3 * fi + 2]];
             }
             iterations += 1;
             if let Some(fi) = (0..nf).find(|&fi| !finite(&xk[free_nodes[fi]])) {

@@ -546,9 +546,7 @@ mod tests {
         v
     }
 
-    fn dist(a: Vec3, b: Vec3) -> f64 {
-        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-    }
+    use crate::geom::dist;
 
     #[test]
     fn start_at_rest_for_every_kind() {

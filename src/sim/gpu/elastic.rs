@@ -10,7 +10,7 @@
 //! clamp flags per workgroup. One submission, one readback (the result and
 //! the partial sums together).
 
-use super::{grid, grid_groups, layout_entry, to_u32, GpuContext, GpuError};
+use super::{grid, grid_groups, to_u32, GpuContext, GpuError};
 use crate::geom::Vec3;
 use crate::sim::backend::{ElasticRhs, LocalEval};
 use crate::sim::energy::ElasticModel;
@@ -149,59 +149,27 @@ impl GpuElasticRhs {
         );
 
         use wgpu::BufferBindingType as T;
-        let ro = T::Storage { read_only: true };
-        let rw = T::Storage { read_only: false };
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("elastic layout"),
-                entries: &[
-                    layout_entry(0, T::Uniform, false),
-                    layout_entry(1, ro, false),
-                    layout_entry(2, ro, false),
-                    layout_entry(3, ro, false),
-                    layout_entry(4, rw, false),
-                    layout_entry(5, ro, false),
-                    layout_entry(6, rw, false),
-                    layout_entry(7, rw, false),
-                ],
-            });
-        let buffers = [
-            &params_buf,
-            &tets_buf,
-            &rest_buf,
-            &x_buf,
-            &corners_buf,
-            &inc_buf,
-            &out_buf,
-            &partials_buf,
-        ];
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("elastic bind group"),
-            layout: &layout,
-            entries: &entries,
-        });
-        let module = ctx
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("elastic.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-            });
-        let pl = ctx
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("elastic pipeline layout"),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
+        let ro = (T::Storage { read_only: true }, false);
+        let rw = (T::Storage { read_only: false }, false);
+        let (module, layout, pl) = ctx.kernel_layouts(
+            "elastic.wgsl",
+            SHADER,
+            &[(T::Uniform, false), ro, ro, ro, rw, ro, rw, rw],
+        );
+        let bind_group = ctx.bind_buffers(
+            "elastic bind group",
+            &layout,
+            &[
+                &params_buf,
+                &tets_buf,
+                &rest_buf,
+                &x_buf,
+                &corners_buf,
+                &inc_buf,
+                &out_buf,
+                &partials_buf,
+            ],
+        );
         let tet_pipeline = ctx.pipeline("tet_kernel", &pl, &module, "tet_kernel");
         let gather_pipeline = ctx.pipeline("gather_kernel", &pl, &module, "gather_kernel");
         let reduce_pipeline = ctx.pipeline("reduce_kernel", &pl, &module, "reduce_kernel");

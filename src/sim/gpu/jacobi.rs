@@ -22,8 +22,8 @@
 // `!(a > b)` is deliberate: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{grid, grid_groups, layout_entry, to_u32, GpuContext, GpuError};
-use crate::sim::backend::{IterStats, JacobiSolve};
+use super::{grid, grid_groups, to_u32, GpuContext, GpuError};
+use crate::sim::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
 use crate::sim::csr::CsrMatrix;
 use crate::sim::SimError;
 
@@ -360,37 +360,14 @@ impl GpuJacobi {
         );
 
         use wgpu::BufferBindingType as T;
-        let ro = T::Storage { read_only: true };
-        let rw = T::Storage { read_only: false };
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("jacobi layout"),
-                entries: &[
-                    layout_entry(0, T::Uniform, true),
-                    layout_entry(1, ro, false),
-                    layout_entry(2, ro, false),
-                    layout_entry(3, ro, false),
-                    layout_entry(4, ro, false),
-                    layout_entry(5, ro, false),
-                    layout_entry(6, ro, false),
-                    layout_entry(7, rw, false),
-                    layout_entry(8, rw, false),
-                ],
-            });
-        let module = ctx
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("jacobi.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-            });
-        let pl = ctx
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("jacobi pipeline layout"),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
+        let ro = (T::Storage { read_only: true }, false);
+        let rw = (T::Storage { read_only: false }, false);
+        // Binding 0 (parameters) has a dynamic offset: one slot per dispatch.
+        let (module, layout, pl) = ctx.kernel_layouts(
+            "jacobi.wgsl",
+            SHADER,
+            &[(T::Uniform, true), ro, ro, ro, ro, ro, ro, rw, rw],
+        );
         let cheb_pipeline = ctx.pipeline("cheb_kernel", &pl, &module, "cheb_kernel");
         let residual_pipeline = ctx.pipeline("residual_kernel", &pl, &module, "residual_kernel");
         let align = ctx.device.limits().min_uniform_buffer_offset_alignment as u64;
@@ -475,27 +452,10 @@ impl GpuJacobi {
         max_iterations: u32,
     ) -> Result<IterStats, SimError> {
         let n = self.n;
-        if b.len() != 3 * n || x.len() != 3 * n || extra_diag.is_some_and(|d| d.len() != n) {
-            return Err(SimError::Inconsistent(format!(
-                "GPU Jacobi of {n} rows got b {}, x {}, extra diagonal {:?} entries",
-                b.len(),
-                x.len(),
-                extra_diag.map(|d| d.len())
-            )));
-        }
+        check_jacobi_inputs("GPU Jacobi", n, b, extra_diag, x)?;
         if !(tolerance >= 0.0) {
             return Err(SimError::Inconsistent(format!(
                 "Jacobi tolerance {tolerance} must be >= 0"
-            )));
-        }
-        if let Some((i, d)) = extra_diag
-            .into_iter()
-            .flatten()
-            .enumerate()
-            .find(|(_, d)| !(d.is_finite() && **d >= 0.0))
-        {
-            return Err(SimError::Inconsistent(format!(
-                "extra diagonal of row {i} is {d}; it must be finite and >= 0"
             )));
         }
         let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();

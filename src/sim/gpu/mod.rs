@@ -264,6 +264,69 @@ impl GpuContext {
         Ok(bytes)
     }
 
+    /// The shader module of the WGSL `source`, the bind group layout of its
+    /// buffer `bindings` (binding `i` = entry `i`: type and whether it has a
+    /// dynamic offset) and the pipeline layout with that one group: what
+    /// every kernel file needs before [`Self::pipeline`].
+    pub(crate) fn kernel_layouts(
+        &self,
+        label: &str,
+        source: &str,
+        bindings: &[(wgpu::BufferBindingType, bool)],
+    ) -> (
+        wgpu::ShaderModule,
+        wgpu::BindGroupLayout,
+        wgpu::PipelineLayout,
+    ) {
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+            .iter()
+            .enumerate()
+            .map(|(i, &(ty, dynamic))| layout_entry(i as u32, ty, dynamic))
+            .collect();
+        let layout = self
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(&format!("{label} layout")),
+                entries: &entries,
+            });
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let pipeline_layout = self
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(&format!("{label} pipeline layout")),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+        (module, layout, pipeline_layout)
+    }
+
+    /// A bind group binding `buffers[i]` whole at binding `i`.
+    pub(crate) fn bind_buffers(
+        &self,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
+    }
+
     /// A compute pipeline for `entry` of `module` with `layout`.
     pub(crate) fn pipeline(
         &self,

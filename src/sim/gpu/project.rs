@@ -6,7 +6,7 @@
 //! [`project_point`], the `f64` CPU version, which also serves as a
 //! [`NodeProjector`] through [`Colliders`]).
 
-use super::{grid, layout_entry, to_u32, GpuContext, GpuError};
+use super::{grid, to_u32, GpuContext, GpuError};
 use crate::geom::Vec3;
 use crate::sim::contact::NodeProjector;
 
@@ -167,30 +167,17 @@ impl GpuNodeProjector {
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
         use wgpu::BufferBindingType as T;
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("project layout"),
-                entries: &[
-                    layout_entry(0, T::Uniform, false),
-                    layout_entry(1, T::Storage { read_only: true }, false),
-                    layout_entry(2, T::Storage { read_only: true }, false),
-                    layout_entry(3, T::Storage { read_only: false }, false),
-                ],
-            });
-        let module = ctx
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("project.wgsl"),
-                source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-            });
-        let pl = ctx
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("project pipeline layout"),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
+        let ro = (T::Storage { read_only: true }, false);
+        let (module, layout, pl) = ctx.kernel_layouts(
+            "project.wgsl",
+            SHADER,
+            &[
+                (T::Uniform, false),
+                ro,
+                ro,
+                (T::Storage { read_only: false }, false),
+            ],
+        );
         let pipeline = ctx.pipeline("project_kernel", &pl, &module, "project_kernel");
         ctx.check("creating the projection kernel")?;
         Ok(GpuNodeProjector {
@@ -273,28 +260,11 @@ impl GpuNodeProjector {
             bytemuck::cast_slice(&packed),
             wgpu::BufferUsages::empty(),
         );
-        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("project bind group"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.params_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: self.x_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: colliders_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: self.out_buf.as_entire_binding(),
-                },
-            ],
-        });
+        let bind_group = ctx.bind_buffers(
+            "project bind group",
+            &self.layout,
+            &[&self.params_buf, &self.x_buf, &colliders_buf, &self.out_buf],
+        );
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {

@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 
 use super::model::{CSeg, Model};
-use super::rod::{axpy, dot, norm, scale, sub};
+use crate::geom::vec3::{axpy, dot, norm, scale, sub};
 use crate::geom::Vec3;
 
 /// One candidate pair of contact segments with its weight (1 for two real

@@ -32,8 +32,9 @@ use super::damping::{damped_velocity, damping_dt_limit};
 use super::handles::Handle;
 use super::model::Model;
 use super::params::YarnSimParams;
-use super::rod::{bend, norm, stretch, sub};
+use super::rod::{bend, stretch};
 use super::YarnSimError;
+use crate::geom::vec3::{norm, sub};
 use crate::geom::{Vec3, Yarns};
 use crate::yarn::PeriodicTile;
 

@@ -7,6 +7,7 @@
 //! `-dE/dx_real` with ghosts folded onto their real vertices is exactly the
 //! force of the infinite tiling.
 
+use crate::geom::vec3::{norm, sub};
 use std::collections::BTreeMap;
 
 use super::params::YarnSimParams;
@@ -121,12 +122,6 @@ struct Topo {
     shifts: Vec<[i32; 2]>,
 }
 
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn norm(a: Vec3) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
-}
 fn add2(a: [i32; 2], b: [i32; 2]) -> [i32; 2] {
     [a[0] + b[0], a[1] + b[1]]
 }

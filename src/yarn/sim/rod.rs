@@ -12,38 +12,8 @@
 //!   straight (a set of measure zero, where we take the zero subgradient).
 
 use super::model::{Hinge, Seg};
+use crate::geom::vec3::{cross, dot, norm, scale, sub};
 use crate::geom::Vec3;
-
-#[inline]
-pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-pub(crate) fn dot(a: Vec3, b: Vec3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-pub(crate) fn norm(a: Vec3) -> f64 {
-    dot(a, a).sqrt()
-}
-#[inline]
-pub(crate) fn scale(a: Vec3, s: f64) -> Vec3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-#[inline]
-pub(crate) fn axpy(y: &mut Vec3, s: f64, x: Vec3) {
-    y[0] += s * x[0];
-    y[1] += s * x[1];
-    y[2] += s * x[2];
-}
-#[inline]
-pub(crate) fn cross(a: Vec3, b: Vec3) -> Vec3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
 
 /// Stretch energy and the forces `-dE/dx` on the two ends.
 #[inline]
