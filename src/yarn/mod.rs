@@ -5,6 +5,7 @@ pub mod analytic;
 pub mod pattern;
 pub mod poses;
 pub mod sim;
+pub mod statics;
 pub mod tile;
 
 pub use tile::PeriodicTile;

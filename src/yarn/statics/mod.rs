@@ -1,0 +1,13 @@
+//! Quasi-static yarn mechanics: the total potential over generalized
+//! coordinates, split into terms (rods, contact, friction, gravity, ...), and
+//! the Newton solver that brings it to equilibrium (issue: knit ground truth).
+//!
+//! Coordinates `q` (SI units): `3 * n_vertices` positions (m) first, vertex
+//! `v` at `q[3v..3v + 3]`, then one twist angle (rad) per rod edge where the
+//! model carries material frames. Every term sees the whole `q`.
+//!
+//! Pure: no files, no printing, no environment.
+
+pub mod term;
+
+pub use term::{EnergyTerm, Triplets};
