@@ -29,6 +29,7 @@ fn swatch(name: &str, courses: usize, wales: usize, tube: Option<f64>) -> Yarns 
             wales,
             tube_radius: tube,
             helix: false,
+            separate_courses: false,
         },
     )
     .unwrap()
@@ -53,16 +54,14 @@ fn every_builtin_builds_valid_tiles_and_swatches() {
             "{name}"
         );
         let (n, m) = (5, 3);
-        let y = lay_out(
-            &t,
-            &Layout {
-                courses: n,
-                wales: m,
-                tube_radius: None,
-                helix: false,
-            },
-        )
-        .unwrap();
+        let layout = |separate_courses| Layout {
+            courses: n,
+            wales: m,
+            tube_radius: None,
+            helix: false,
+            separate_courses,
+        };
+        let y = lay_out(&t, &layout(true)).unwrap();
         y.validate().unwrap();
         let expect = match pat {
             Pattern::Knit(_) => n,
@@ -70,6 +69,29 @@ fn every_builtin_builds_valid_tiles_and_swatches() {
         };
         assert_eq!(y.num_curves(), expect, "{name}");
         assert_eq!(y.num_closed(), 0);
+        // By default the courses (wefts) are one yarn knitted back and forth:
+        // course k's points in order (odd courses reversed), joined by turns
+        // outside the edges.
+        let joined = lay_out(&t, &layout(false)).unwrap();
+        joined.validate().unwrap();
+        assert_eq!(joined.num_curves(), expect - n + 1, "{name}");
+        let one = joined.curve(0);
+        let mut at = 0;
+        for k in 0..n {
+            let mut course = y.curve(k).to_vec();
+            if k % 2 == 1 {
+                course.reverse();
+            }
+            let start = one[at..]
+                .windows(course.len())
+                .position(|w| w == course.as_slice())
+                .unwrap_or_else(|| panic!("{name}: course {k} is not in the joined yarn in order"));
+            at += start + course.len();
+        }
+        assert_eq!(at, one.len(), "{name}: the joined yarn ends with the last course");
+        let (yb, jb) = (y.bounds().unwrap(), joined.bounds().unwrap());
+        assert!(jb.min[0] < yb.min[0] && jb.max[0] > yb.max[0], "{name}: turns lie outside the edges");
+        assert!(joined.max_segment_length() < 1.6 * p.spacing * p.yarn_radius, "{name}");
         // The swatch spans M pitches along x and N along y (to the loop sizes).
         let b = y.bounds().unwrap();
         assert!(
@@ -147,6 +169,7 @@ fn tubes_close_courses_into_rings_with_clearance() {
             wales,
             tube_radius: Some(radius),
             helix: false,
+            separate_courses: false,
         };
         assert!((layout.circumferential_stretch(&t) - 1.0).abs() < 1e-12);
         let y = lay_out(&t, &layout).unwrap();
@@ -178,6 +201,7 @@ fn tubes_close_courses_into_rings_with_clearance() {
             wales: 6,
             tube_radius: Some(0.05),
             helix: false,
+            separate_courses: false,
         },
     );
     assert!(matches!(
@@ -199,6 +223,7 @@ fn helix_tubes_are_one_rising_yarn() {
             wales,
             tube_radius: Some(radius),
             helix: true,
+            separate_courses: false,
         };
         let y = lay_out(&t, &layout).unwrap();
         let woven = name == "plain";
@@ -271,7 +296,8 @@ fn cli_round_trip_h5_and_ply() {
         let d = io::read_path(&out, &ReadOptions::default()).unwrap();
         assert_eq!(d.yarns.num_curves() as u64, v["curves"].as_u64().unwrap());
         assert_eq!(d.yarns.num_points() as u64, v["vertices"].as_u64().unwrap());
-        assert_eq!(d.yarns.num_curves(), 4);
+        // One yarn knitted back and forth (the default for flat swatches).
+        assert_eq!(d.yarns.num_curves(), 1);
         assert!(v["min_distance_ratio"].as_f64().unwrap() >= BOUND);
         // Relaxation is on by default and reports its statistics.
         assert_eq!(v["relaxed"], true);
@@ -415,6 +441,7 @@ fn every_builtin_relaxes_within_the_contact_and_strain_bounds() {
                 wales: 4,
                 tube_radius: None,
                 helix: false,
+                separate_courses: false,
             },
             params: Default::default(),
             relax: true,

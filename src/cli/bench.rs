@@ -385,6 +385,7 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
             wales: n,
             tube_radius: None,
             helix: false,
+            separate_courses: false,
         },
         params: PatternParams::default(),
         relax: false,

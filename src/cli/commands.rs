@@ -125,6 +125,15 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
+    if d.yarns.rest.is_some() && out_format != io::Format::Hdf5 {
+        eprintln!(
+            "note: {} carries a rest shape (rest lengths, curvatures, material frames) that {} \
+             cannot hold: it is dropped (only .h5 keeps it; simulations from the output start \
+             from its positions)",
+            a.input.display(),
+            a.output.display()
+        );
+    }
     let written = io::write_path(&a.output, &d.yarns, frames, &a.write_options())
         .with_context(|| format!("converting {} to {}", a.input.display(), a.output.display()))?;
     if a.json {

@@ -36,6 +36,10 @@ pub struct PatternArgs {
     /// knitting in the round makes it) instead of rings.
     #[arg(long, requires = "tube_radius")]
     pub helix: bool,
+    /// Flat swatches: keep each course (weft) a separate open yarn instead of
+    /// one yarn knitted back and forth with a turn at each edge.
+    #[arg(long, conflicts_with = "tube_radius")]
+    pub separate_courses: bool,
     /// Yarn radius r (m); stitch sizes scale with it [default: 0.001, HYLC's r].
     #[arg(long, value_name = "METRES")]
     pub yarn_radius: Option<f64>,
@@ -95,6 +99,7 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
             wales: a.wales,
             tube_radius: a.tube_radius,
             helix: a.helix,
+            separate_courses: a.separate_courses,
         },
         params,
         relax: !a.no_relax,

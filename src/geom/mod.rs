@@ -8,6 +8,7 @@
 mod asset;
 mod frame_spec;
 mod mesh;
+mod rest;
 mod units;
 pub(crate) mod vec3;
 mod yarns;
@@ -15,6 +16,7 @@ mod yarns;
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 pub use frame_spec::{FrameSpec, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
+pub use rest::RestShape;
 pub use units::{Units, UpAxis};
 pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};
 

@@ -1,7 +1,7 @@
 //! Yarn curves (`Yarns`) and time sequences of their vertex positions (`YarnFrames`).
 
 use super::vec3::{norm, sub};
-use super::{Units, UpAxis, Vec3};
+use super::{RestShape, Units, UpAxis, Vec3};
 
 /// Why a set of yarns or frames is not well formed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -70,6 +70,9 @@ pub struct Yarns {
     /// Optional per-curve linear density (kg/m). When absent, later stages
     /// derive it from the radius and a material density.
     pub linear_density: Option<Vec<f64>>,
+    /// Optional rest shape of the yarn-level rod model (rest lengths,
+    /// curvatures, material frames); only the knitvox HDF5 format keeps it.
+    pub rest: Option<RestShape>,
 }
 
 impl Yarns {
@@ -253,6 +256,9 @@ impl Yarns {
                 return Err(GeomError::BadLinearDensity { curve: c, value: d });
             }
         }
+        if let Some(rest) = &self.rest {
+            rest.validate(self.num_segments(), self.points.len())?;
+        }
         Ok(())
     }
 
@@ -269,6 +275,9 @@ impl Yarns {
         let s = units.metres_per_unit;
         self.map_points(|p| up.to_internal([p[0] * s, p[1] * s, p[2] * s]));
         self.scale_attributes(s);
+        if let Some(rest) = &mut self.rest {
+            rest.transform(s, |d| up.to_internal(d));
+        }
     }
 
     /// Converts from knitvox's metres, +Y up into a file frame (unit, up axis).
@@ -279,6 +288,9 @@ impl Yarns {
             [q[0] * s, q[1] * s, q[2] * s]
         });
         self.scale_attributes(s);
+        if let Some(rest) = &mut self.rest {
+            rest.transform(s, |d| up.from_internal(d));
+        }
     }
 
     fn scale_attributes(&mut self, s: f64) {
@@ -505,6 +517,36 @@ mod tests {
             }
         }
         assert!((y.linear_density.as_ref().unwrap()[0] - 0.002).abs() < 1e-15);
+    }
+
+    #[test]
+    fn rest_shape_converts_with_units_and_axis() {
+        let mut y = square(false);
+        let ns = y.num_segments();
+        let nv = y.num_points();
+        y.rest = Some(RestShape {
+            lengths: vec![2.0; ns],
+            directors: vec![[0.0, 0.0, 1.0]; ns],
+            curvature: vec![[0.5, -0.25, 0.5, -0.25]; nv],
+            twist: vec![0.0; nv],
+        });
+        y.validate().unwrap();
+        // A Z-up file in centimetres: lengths scale to metres, the director
+        // +Z (file up) becomes +Y, curvatures stay.
+        y.file_to_internal(Units::CENTIMETRES, UpAxis::Z);
+        let r = y.rest.as_ref().unwrap();
+        assert!(r.lengths.iter().all(|l| (l - 0.02).abs() < 1e-15));
+        assert!(r.directors.iter().all(|d| d == &[0.0, 1.0, 0.0]));
+        assert_eq!(r.curvature[0], [0.5, -0.25, 0.5, -0.25]);
+        y.internal_to_file(Units::CENTIMETRES, UpAxis::Z);
+        let r = y.rest.as_ref().unwrap();
+        assert!(r.lengths.iter().all(|l| (l - 2.0).abs() < 1e-12));
+        assert!(r.directors.iter().all(|d| (d[2] - 1.0).abs() < 1e-15));
+        // Sizes and values are checked.
+        y.rest.as_mut().unwrap().lengths[0] = 0.0;
+        assert!(y.validate().is_err());
+        y.rest.as_mut().unwrap().lengths.pop();
+        assert!(matches!(y.validate(), Err(GeomError::Layout(_))));
     }
 
     #[test]

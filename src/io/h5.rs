@@ -26,7 +26,7 @@ use hdf5::types::{FixedAscii, FixedUnicode, TypeDescriptor, VarLenAscii, VarLenU
 use hdf5::{Dataset, Extent, Group, LinkType, LocationType};
 
 use super::{Decoded, Format, FormatError, IoError, ReadOptions};
-use crate::geom::{Units, UpAxis, Vec3, YarnFrames, Yarns};
+use crate::geom::{RestShape, Units, UpAxis, Vec3, YarnFrames, Yarns};
 
 /// Value of the root attribute `knitvox_format` in a yarns file.
 pub const FORMAT_NAME: &str = "yarns";
@@ -855,8 +855,13 @@ pub(crate) fn read_yarns_group(
         radius,
         vertex_radius,
         linear_density,
+        rest: None,
     };
-    Ok((yarns, radius_in_file))
+    let rest = match open_group(yg, "rest", &format!("{gp}/rest"))? {
+        Some(rg) => Some(read_rest_group(&rg, &format!("{gp}/rest"), &yarns)?),
+        None => None,
+    };
+    Ok((Yarns { rest, ..yarns }, radius_in_file))
 }
 
 /// Validates and reads an open knitvox yarns file.
@@ -1063,6 +1068,66 @@ pub(crate) fn write_yarns_group(g: &Group, y: &Yarns) -> hdf5::Result<()> {
     if let Some(ld) = &y.linear_density {
         write_1d(g, "linear_density", ld, Some("kg/m"))?;
     }
+    if let Some(rest) = &y.rest {
+        write_rest_group(g, rest)?;
+    }
+    Ok(())
+}
+
+/// Reads the rest shape of a yarns group (`<yarns>/rest`, see
+/// schemas/yarns-hdf5.md): lengths and directors per segment, curvature and
+/// twist per vertex, checked against the yarns' segment and vertex counts.
+fn read_rest_group(rg: &Group, gp: &str, y: &Yarns) -> Result<RestShape, FormatError> {
+    let (ns, nv) = (y.num_segments(), y.points.len());
+    let read = |name: &str, shape: &[Option<usize>], what: &str| -> Result<Vec<f64>, FormatError> {
+        let ds = Ds::open(rg, gp, name, true)?
+            .ok_or_else(|| FormatError::at_path(format!("{gp}/{name}"), "missing"))?;
+        ds.expect_shape(shape, what)?;
+        ds.expect_float()?;
+        let elems = shape.iter().map(|d| d.unwrap_or(0)).product();
+        let v = ds.read_f64(elems)?;
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(ds.err(format!("value {i} is not finite")));
+        }
+        Ok(v)
+    };
+    let lengths = read("lengths", &[Some(ns)], &format!("[{ns}] (one per segment)"))?;
+    let directors = read("directors", &[Some(ns), Some(3)], &format!("[{ns}, 3]"))?;
+    let curvature = read("curvature", &[Some(nv), Some(4)], &format!("[{nv}, 4]"))?;
+    let twist = read("twist", &[Some(nv)], &format!("[{nv}] (one per vertex)"))?;
+    let rest = RestShape {
+        lengths,
+        directors: directors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        curvature: curvature
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect(),
+        twist,
+    };
+    rest.validate(ns, nv)
+        .map_err(|e| FormatError::at_path(gp, e.to_string()))?;
+    Ok(rest)
+}
+
+/// Writes a rest shape as `<yarns>/rest` (lengths in metres).
+fn write_rest_group(g: &Group, rest: &RestShape) -> hdf5::Result<()> {
+    let rg = g.create_group("rest")?;
+    write_1d(&rg, "lengths", &rest.lengths, Some("m"))?;
+    let dirs = rg
+        .new_dataset::<f64>()
+        .shape([rest.directors.len(), 3])
+        .create("directors")?;
+    if !rest.directors.is_empty() {
+        dirs.write_raw(rest.directors.as_flattened())?;
+    }
+    let k = rg
+        .new_dataset::<f64>()
+        .shape([rest.curvature.len(), 4])
+        .create("curvature")?;
+    if !rest.curvature.is_empty() {
+        k.write_raw(rest.curvature.as_flattened())?;
+    }
+    write_1d(&rg, "twist", &rest.twist, Some("rad"))?;
     Ok(())
 }
 
@@ -1529,6 +1594,40 @@ mod tests {
         assert!(matches!(read_frame(&p, 3), Err(IoError::Format { .. })));
         // Only the target is left in the directory.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    fn sample_rest(y: &Yarns) -> RestShape {
+        let (ns, nv) = (y.num_segments(), y.num_points());
+        RestShape {
+            lengths: (0..ns).map(|s| 0.5 + s as f64 * 0.125).collect(),
+            directors: (0..ns)
+                .map(|s| if s % 2 == 0 { [1.0, 0.0, 0.0] } else { [0.0, 0.6, 0.8] })
+                .collect(),
+            curvature: (0..nv).map(|v| [v as f64, -0.5, 0.25 * v as f64, 1.0]).collect(),
+            twist: (0..nv).map(|v| 0.1 * v as f64).collect(),
+        }
+    }
+
+    #[test]
+    fn rest_shape_round_trips_and_is_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("rest.h5");
+        let mut y = sample();
+        y.rest = Some(sample_rest(&y));
+        write_file(&p, &y, None).unwrap();
+        let d = read_file(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(d.yarns.rest, y.rest);
+        // A rest shape that does not fit the yarns is refused, naming the dataset.
+        let bad = dir.path().join("bad.h5");
+        let mut short = y.clone();
+        short.rest.as_mut().unwrap().lengths.pop();
+        short.rest.as_mut().unwrap().directors.pop();
+        let file = create_h5(&bad).unwrap();
+        write_yarns(&file, &Yarns { rest: None, ..y.clone() }).unwrap();
+        write_rest_group(&file.group("yarns").unwrap(), short.rest.as_ref().unwrap()).unwrap();
+        drop(file);
+        let e = read_file(&bad, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("/yarns/rest/lengths"), "{e}");
     }
 
     #[test]

@@ -1101,6 +1101,7 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         radius: vec![opts.radius; ncurves],
         vertex_radius: None,
         linear_density: None,
+        rest: None,
     };
     let radius_in_file = sink.radius.is_some();
     if let Some(r) = &sink.radius {

@@ -75,6 +75,9 @@ pub struct PatternReport {
     pub tube_radius: Option<f64>,
     /// Tubes: courses joined into one helix (else closed rings).
     pub helix: bool,
+    /// Flat swatches: each course a separate yarn (else one yarn knitted
+    /// back and forth).
+    pub separate_courses: bool,
     /// 2 pi R / (wales * wale width) for tubes, 1 for flat swatches.
     pub circumferential_stretch: f64,
     pub yarn_radius: f64,
@@ -141,8 +144,13 @@ fn grid_error(path: &Path, e: PatternError) -> PatternStageError {
 pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStageError> {
     let pat = load_pattern(&job.source)?;
     let tile = build_tile(&pat, &job.params).map_err(PatternStageError::Pattern)?;
-    let (yarns, relaxation) = relax_stage(&tile, &job.layout, job.relax)?;
+    let (mut yarns, relaxation) = relax_stage(&tile, &job.layout, job.relax)?;
     let r = job.params.yarn_radius;
+    // One density source: the yarn model's density times the cross-section,
+    // written with the curves so that `yls`, `embed` and `simulate` weigh
+    // the same yarn (kg/m).
+    let linear_density = YarnSimParams::default().density * std::f64::consts::PI * r * r;
+    yarns.linear_density = Some(vec![linear_density; yarns.num_curves()]);
     let md = min_segment_distance(&yarns, std::f64::consts::PI * r, 4.0 * r);
     let stitches = (tile.repeat[0] * tile.repeat[1]).max(1) as f64;
     // Woven: a crossing holds one weft and one warp interval.
@@ -158,6 +166,7 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
         wales: job.layout.wales,
         tube_radius: job.layout.tube_radius,
         helix: job.layout.helix,
+        separate_courses: job.layout.separate_courses,
         circumferential_stretch: job.layout.circumferential_stretch(&tile),
         yarn_radius: r,
         pitch: tile.pitch,
@@ -246,6 +255,7 @@ mod tests {
                 wales: 5,
                 tube_radius: None,
                 helix: false,
+                separate_courses: false,
             },
             params: PatternParams::default(),
             relax: false,

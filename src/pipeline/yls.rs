@@ -115,6 +115,7 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
             wales: s.wales.unwrap_or(12) as usize,
             tube_radius: s.tube_radius,
             helix: false,
+            separate_courses: false,
         },
         params,
         relax: s.relax.unwrap_or(true),

@@ -2,6 +2,7 @@
 //! by the stitch-pattern generator and the yarn-level simulator.
 
 pub mod analytic;
+pub mod fabric;
 pub mod pattern;
 pub mod poses;
 pub mod sim;

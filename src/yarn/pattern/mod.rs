@@ -282,6 +282,12 @@ pub struct Layout {
     /// Tubes only: join the courses (wefts) into one helix, as knitting in
     /// the round does, instead of closing each into a ring.
     pub helix: bool,
+    /// Flat swatches only: keep every course (weft) a separate open yarn.
+    /// By default (false) the courses are one yarn, as flat knitting (and
+    /// weaving) makes it: course after course, alternately left to right and
+    /// right to left, joined by a turn at the edge, so the swatch cannot
+    /// come apart course by course.
+    pub separate_courses: bool,
 }
 
 /// Largest swatch side accepted (courses and wales), against runaway memory.
@@ -374,8 +380,18 @@ pub fn lay_out(tile: &PatternTile, layout: &Layout) -> Result<Yarns, PatternErro
     let r = tile.radius;
     let mut yarns = Yarns::new();
     match layout.tube_radius {
-        None => {
+        None if layout.separate_courses => {
             for (_, pts) in chains.iter().flatten() {
+                yarns.push_curve(pts, false, r);
+            }
+        }
+        None => {
+            let spacing = mean_segment_length(&t.yarns);
+            let joined = join_back_and_forth(&chains[0], extent[0], spacing, r);
+            if joined.len() >= 2 {
+                yarns.push_curve(&joined, false, r);
+            }
+            for (_, pts) in &chains[1] {
                 yarns.push_curve(pts, false, r);
             }
         }
@@ -460,6 +476,61 @@ pub fn lay_out(tile: &PatternTile, layout: &Layout) -> Result<Yarns, PatternErro
     }
     yarns.validate()?;
     Ok(yarns)
+}
+
+/// Mean segment length of a set of yarns (m), 0 without segments.
+fn mean_segment_length(y: &Yarns) -> f64 {
+    let n = y.num_segments();
+    if n == 0 {
+        return 0.0;
+    }
+    y.segments()
+        .map(|[a, b]| crate::geom::dist(y.points[a], y.points[b]))
+        .sum::<f64>()
+        / n as f64
+}
+
+/// Joins courses (bottom first, each running from x = 0 to x = `width`) into
+/// one flat-knitted yarn: even courses left to right, odd ones right to left,
+/// each turn a half ellipse outside the edge (x beyond 0 or `width`) from the
+/// end of one course to the start of the next, sampled at `spacing`.
+///
+/// The turn bulges out by at least 2r so that it clears the edge stitches'
+/// legs (which stay within the edge sinkers in x), and eases z between the
+/// two courses' end heights.
+fn join_back_and_forth(courses: &[(usize, Vec<Vec3>)], width: f64, spacing: f64, r: f64) -> Vec<Vec3> {
+    let mut out: Vec<Vec3> = Vec::new();
+    for (k, (_, pts)) in courses.iter().enumerate() {
+        let forward = k % 2 == 0;
+        let course: Vec<Vec3> = if forward {
+            pts.clone()
+        } else {
+            pts.iter().rev().copied().collect()
+        };
+        if let (Some(&p), Some(&q)) = (out.last(), course.first()) {
+            // A backward course starts at the right edge, a forward one at the left.
+            let side = if forward { -1.0 } else { 1.0 };
+            let edge_x = if forward { 0.0 } else { width };
+            let dy = q[1] - p[1];
+            let bulge = (0.5 * dy.abs()).max(2.0 * r);
+            // Half-ellipse arc length (Ramanujan), for the sample count.
+            let (a, b) = (bulge, 0.5 * dy.abs());
+            let h = ((a - b) / (a + b).max(1e-300)).powi(2);
+            let arc = 0.5 * PI * (a + b) * (1.0 + 3.0 * h / (10.0 + (4.0 - 3.0 * h).sqrt()));
+            let n = ((arc / spacing.max(1e-300)).ceil() as usize).max(3);
+            for i in 1..n {
+                let th = PI * i as f64 / n as f64;
+                let f = 0.5 - 0.5 * th.cos();
+                out.push([
+                    edge_x + side * bulge * th.sin() + (1.0 - f) * (p[0] - edge_x) + f * (q[0] - edge_x),
+                    p[1] + dy * f,
+                    ease(p[2], q[2], f),
+                ]);
+            }
+        }
+        out.extend(course);
+    }
+    out
 }
 
 impl Layout {
@@ -696,6 +767,7 @@ mod tests {
                 wales: 3,
                 tube_radius: None,
                 helix: false,
+                separate_courses: false,
             },
         )
         .unwrap_err();

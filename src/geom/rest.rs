@@ -1,0 +1,91 @@
+//! The rest (stress-free) shape of yarns as the yarn-level rod model sees it.
+//!
+//! A relaxed knit is held by contact: its yarns are bent and slightly
+//! stretched, so its rest lengths, rest curvatures and rest twists are *not*
+//! those of its current positions (Leaf 2018 §6.1 rest-length scaling; Sperl
+//! 2022 §7.2 "a stable but slightly pre-tensed rest state"). Simulations start
+//! from these values, never from positions alone. Only the knitvox HDF5
+//! format stores them (`/rest`, schemas/yarns-hdf5.md).
+
+use super::yarns::GeomError;
+use super::Vec3;
+
+/// Rest shape of a set of yarns, in the order of [`super::Yarns::segments`]
+/// (segments) and of the points (vertices). Lengths in metres; curvatures
+/// are the dimensionless discrete curvatures `2 tan(phi / 2)` of discrete
+/// elastic rods (Bergou et al. 2008), so they do not change with the unit.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RestShape {
+    /// Per segment: rest length (m), > 0.
+    pub lengths: Vec<f64>,
+    /// Per segment: rest material director `d1` (unit, perpendicular to the
+    /// segment's rest tangent): the twist-free (Bishop) frame of the rest
+    /// curve, so rest twists are zero except where a closed curve's frame
+    /// comes back rotated.
+    pub directors: Vec<Vec3>,
+    /// Per vertex: rest material curvature `(k1, k2)` in the material frame
+    /// of the incoming segment, then of the outgoing one (Bergou et al. 2010);
+    /// zeros at the ends of open curves, which have no hinge.
+    pub curvature: Vec<[f64; 4]>,
+    /// Per vertex: rest twist (rad); zero at open ends.
+    pub twist: Vec<f64>,
+}
+
+impl RestShape {
+    /// Checks the sizes against a yarn set (`segments`, `vertices`) and the
+    /// values (finite, positive lengths, unit directors).
+    pub fn validate(&self, segments: usize, vertices: usize) -> Result<(), GeomError> {
+        if self.lengths.len() != segments || self.directors.len() != segments {
+            return Err(GeomError::Layout(format!(
+                "rest shape: {} lengths and {} directors for {segments} segments",
+                self.lengths.len(),
+                self.directors.len()
+            )));
+        }
+        if self.curvature.len() != vertices || self.twist.len() != vertices {
+            return Err(GeomError::Layout(format!(
+                "rest shape: {} curvatures and {} twists for {vertices} vertices",
+                self.curvature.len(),
+                self.twist.len()
+            )));
+        }
+        if let Some((s, l)) = self
+            .lengths
+            .iter()
+            .enumerate()
+            .find(|(_, l)| !(l.is_finite() && **l > 0.0))
+        {
+            return Err(GeomError::Layout(format!(
+                "rest shape: segment {s}: rest length {l} is not a positive finite number"
+            )));
+        }
+        if let Some((s, d)) = self.directors.iter().enumerate().find(|(_, d)| {
+            let n2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            !(n2.is_finite() && (n2 - 1.0).abs() < 1e-6)
+        }) {
+            return Err(GeomError::Layout(format!(
+                "rest shape: segment {s}: director {d:?} is not a unit vector"
+            )));
+        }
+        let bad_k = self
+            .curvature
+            .iter()
+            .position(|k| !k.iter().all(|x| x.is_finite()));
+        let bad_t = self.twist.iter().position(|t| !t.is_finite());
+        if let Some(v) = bad_k.or(bad_t) {
+            return Err(GeomError::Layout(format!(
+                "rest shape: vertex {v}: curvature or twist is not finite"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Applies a length scale `s` and a rotation `rot` (a proper rotation of
+    /// the frame, e.g. the Z-up to Y-up map): lengths scale, directors
+    /// rotate, curvatures and twists (dimensionless, in the material frame)
+    /// stay.
+    pub fn transform(&mut self, s: f64, rot: impl Fn(Vec3) -> Vec3) {
+        self.lengths.iter_mut().for_each(|l| *l *= s);
+        self.directors.iter_mut().for_each(|d| *d = rot(*d));
+    }
+}
