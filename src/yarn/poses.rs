@@ -312,13 +312,20 @@ impl PoseDriver {
                 // Arc coordinate along the diagonal d2 = (X - Z)/√2 through
                 // the centre; the corner bands at both ends of d2 are held
                 // on the arc.
+                // The bands are measured from the vertices farthest along d2
+                // (the box corners may hold no yarn, e.g. beside the edge
+                // turns of a flat-knitted swatch).
                 let half = 0.5 * (lx + lz) / std::f64::consts::SQRT_2;
                 let band = p.band * 2.0 * half;
+                let d2_of = move |q: &Vec3| ((q[0] - c[0]) - (q[2] - c[2])) / std::f64::consts::SQRT_2;
+                let (lo, hi) = rest.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
+                    (lo.min(d2_of(q)), hi.max(d2_of(q)))
+                });
                 let role = Role::Bend { sign, diag: true };
                 rules.push((
                     Box::new(move |q: &Vec3| {
-                        let d2 = ((q[0] - c[0]) - (q[2] - c[2])) / std::f64::consts::SQRT_2;
-                        d2.abs() >= half - band
+                        let d2 = d2_of(q);
+                        d2 >= hi - band || d2 <= lo + band
                     }),
                     role,
                 ));
@@ -353,8 +360,15 @@ impl PoseDriver {
                 }
             }
             PoseKind::Hang => {
+                // The corners of the top band, measured from the extremes of
+                // the vertices in it (a flat-knitted swatch's edge turns
+                // reach farther out in X lower down).
+                let (lo, hi) = rest.iter().filter(|q| front(q)).fold(
+                    (f64::INFINITY, f64::NEG_INFINITY),
+                    |(lo, hi), q| (lo.min(q[0]), hi.max(q[0])),
+                );
                 rules.push((
-                    Box::new(move |q: &Vec3| front(q) && (left(q) || right(q))),
+                    Box::new(move |q: &Vec3| front(q) && (q[0] <= lo + bx || q[0] >= hi - bx)),
                     Role::Hold,
                 ));
             }
