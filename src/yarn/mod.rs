@@ -4,6 +4,7 @@
 pub mod analytic;
 pub mod pattern;
 pub mod poses;
+pub mod rods;
 pub mod sim;
 pub mod statics;
 pub mod tile;
