@@ -180,7 +180,8 @@ impl<const N: usize> Real for D1<N> {
 }
 
 /// Second-order dual number over `N` variables: value, gradient and the
-/// full (symmetric) Hessian, row-major.
+/// Hessian. Only the upper triangle (`h[i][j]`, `j >= i`) is propagated
+/// (half the work); [`D2::hessian`] returns the full symmetric matrix.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct D2<const N: usize> {
     pub v: f64,
@@ -199,6 +200,17 @@ impl<const N: usize> D2<N> {
             h: [[0.0; N]; N],
         }
     }
+    /// The full symmetric Hessian (upper triangle mirrored).
+    pub fn hessian(&self) -> [[f64; N]; N] {
+        let mut h = self.h;
+        for i in 0..N {
+            for j in 0..i {
+                h[i][j] = h[j][i];
+            }
+        }
+        h
+    }
+
     /// `f(self)` given `f'` and `f''` at the value.
     #[inline]
     fn chain(self, f: f64, df: f64, ddf: f64) -> Self {
@@ -210,7 +222,7 @@ impl<const N: usize> D2<N> {
         for i in 0..N {
             out.g[i] = df * self.g[i];
             let gi = ddf * self.g[i];
-            for j in 0..N {
+            for j in i..N {
                 out.h[i][j] = df * self.h[i][j] + gi * self.g[j];
             }
         }
@@ -225,7 +237,7 @@ impl<const N: usize> Add for D2<N> {
         self.v += o.v;
         for i in 0..N {
             self.g[i] += o.g[i];
-            for j in 0..N {
+            for j in i..N {
                 self.h[i][j] += o.h[i][j];
             }
         }
@@ -239,7 +251,7 @@ impl<const N: usize> Sub for D2<N> {
         self.v -= o.v;
         for i in 0..N {
             self.g[i] -= o.g[i];
-            for j in 0..N {
+            for j in i..N {
                 self.h[i][j] -= o.h[i][j];
             }
         }
@@ -265,7 +277,7 @@ impl<const N: usize> Mul for D2<N> {
         for i in 0..N {
             out.g[i] = self.v * o.g[i] + o.v * self.g[i];
             let (ai, bi) = (self.g[i], o.g[i]);
-            for j in 0..N {
+            for j in i..N {
                 out.h[i][j] = self.v * o.h[i][j]
                     + o.v * self.h[i][j]
                     + ai * o.g[j]
@@ -302,7 +314,7 @@ impl<const N: usize> Real for D2<N> {
         self.v *= s;
         for i in 0..N {
             self.g[i] *= s;
-            for j in 0..N {
+            for j in i..N {
                 self.h[i][j] *= s;
             }
         }
@@ -342,7 +354,7 @@ impl<const N: usize> Real for D2<N> {
         for i in 0..N {
             out.g[i] = py * self.g[i] + px * x.g[i];
             let (yi, xi) = (self.g[i], x.g[i]);
-            for j in 0..N {
+            for j in i..N {
                 let (yj, xj) = (self.g[j], x.g[j]);
                 out.h[i][j] = py * self.h[i][j]
                     + px * x.h[i][j]
@@ -376,6 +388,7 @@ mod tests {
         let d1 = f(D1::<2>::var(x0, 0), D1::<2>::var(y0, 1));
         assert!((d1.g[0] - gx).abs() < 1e-8 && (d1.g[1] - gy).abs() < 1e-8);
         let d2 = f(D2::<2>::var(x0, 0), D2::<2>::var(y0, 1));
+        let hess = d2.hessian();
         assert!((d2.v - fx(0.0, 0.0)).abs() < 1e-14);
         assert!((d2.g[0] - gx).abs() < 1e-8 && (d2.g[1] - gy).abs() < 1e-8);
         // Hessian against differences of the exact (D1) gradient.
@@ -388,7 +401,7 @@ mod tests {
             };
             for i in 0..2 {
                 let fd = (p[i] - m[i]) / (2.0 * h);
-                assert!((d2.h[i][j] - fd).abs() < 1e-7, "h[{i}][{j}] {} vs {fd}", d2.h[i][j]);
+                assert!((hess[i][j] - fd).abs() < 1e-7, "h[{i}][{j}] {} vs {fd}", hess[i][j]);
             }
         }
     }

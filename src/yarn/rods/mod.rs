@@ -22,6 +22,13 @@
 //! negative transverse part dropped; hinge: eigenvalues of the 8x8 block in
 //! edge-vector coordinates clamped at 0, which keeps `J^T H J` PSD).
 //!
+//! State: the reference frames start as the rest directors made
+//! perpendicular to the tangents of the initial `q` (exactly the rest frames
+//! when `q` has the rest positions; twists in `q` are then measured from
+//! them), and move with `begin_iteration` / `accept` by time-parallel
+//! transport. `max_step` keeps every edge in the half-space of its stored
+//! tangent, where that transport is regular.
+//!
 //! Pure: no files, no printing, no environment.
 
 mod dual;
@@ -223,6 +230,7 @@ pub struct RodEnergy {
     /// Per hinge: `(B, beta, lbar)`.
     hinge_k: Vec<[f64; 3]>,
     state: RodState,
+    params: RodParams,
     /// Project element Hessians to PSD (always, except in tests of the exact
     /// Hessian).
     project: bool,
@@ -274,32 +282,31 @@ impl RodEnergy {
     ) -> Result<RodEnergy, RodError> {
         params.check()?;
         let state = RodState::new(&topo, &rest, q)?;
-        let ks = topo
-            .edge_radius
-            .iter()
-            .map(|&r| params.stretch_stiffness(r))
-            .collect();
-        let hinge_k = topo
-            .hinges
-            .iter()
-            .map(|h| {
-                let [ea, eb] = h.edges;
-                let r = 0.5 * (topo.edge_radius[ea] + topo.edge_radius[eb]);
-                [
-                    params.bend_stiffness(r),
-                    params.twist_stiffness(r),
-                    0.5 * (rest.l0[ea] + rest.l0[eb]),
-                ]
-            })
-            .collect();
+        let (ks, hinge_k) = stiffnesses(&topo, &rest, params);
         Ok(RodEnergy {
             topo,
             rest,
             ks,
             hinge_k,
             state,
+            params: *params,
             project: true,
         })
+    }
+
+    /// Replaces the rest state (e.g. after rest-length scaling, Leaf 2018
+    /// §6.1); the reference frames stay.
+    pub fn set_rest(&mut self, rest: RodRest) -> Result<(), RodError> {
+        rest.check(&self.topo)?;
+        let (ks, hinge_k) = stiffnesses(&self.topo, &rest, &self.params);
+        self.ks = ks;
+        self.hinge_k = hinge_k;
+        self.rest = rest;
+        Ok(())
+    }
+
+    pub fn params(&self) -> &RodParams {
+        &self.params
     }
 
     pub fn topology(&self) -> &RodTopology {
@@ -429,7 +436,8 @@ impl RodEnergy {
                 out.energy.bend += b.v;
                 out.energy.twist += t.v;
                 let s = b + t;
-                (s.g, Some(if self.project { project_psd(&s.h) } else { s.h }))
+                let h = s.hessian();
+                (s.g, Some(if self.project { project_psd(&h) } else { h }))
             } else {
                 let ed: [[D1<8>; 3]; 2] =
                     std::array::from_fn(|j| std::array::from_fn(|i| D1::var(e[j][i], 3 * j + i)));
@@ -486,13 +494,41 @@ impl RodEnergy {
     }
 }
 
-/// Clamps the eigenvalues of a symmetric block at zero.
+/// Per-edge stretch stiffness and per-hinge `(B, beta, lbar)`.
+fn stiffnesses(topo: &RodTopology, rest: &RodRest, params: &RodParams) -> (Vec<f64>, Vec<[f64; 3]>) {
+    let ks = topo
+        .edge_radius
+        .iter()
+        .map(|&r| params.stretch_stiffness(r))
+        .collect();
+    let hinge_k = topo
+        .hinges
+        .iter()
+        .map(|h| {
+            let [ea, eb] = h.edges;
+            let r = 0.5 * (topo.edge_radius[ea] + topo.edge_radius[eb]);
+            [
+                params.bend_stiffness(r),
+                params.twist_stiffness(r),
+                0.5 * (rest.l0[ea] + rest.l0[eb]),
+            ]
+        })
+        .collect();
+    (ks, hinge_k)
+}
+
+/// Clamps the eigenvalues of a symmetric block at zero (a block already PSD
+/// to within 1e-12 of its trace is returned unchanged).
 fn project_psd(h: &[[f64; 8]; 8]) -> [[f64; 8]; 8] {
     let m = nalgebra::SMatrix::<f64, 8, 8>::from_fn(|i, j| 0.5 * (h[i][j] + h[j][i]));
-    let eig = m.symmetric_eigen();
-    if eig.eigenvalues.iter().all(|&l| l >= 0.0) {
+    // Cheap test first: a block that is PSD up to 1e-12 of its trace
+    // (Cholesky of the slightly shifted block succeeds) is kept as it is.
+    let shift = 1e-12 * m.trace().abs() + f64::MIN_POSITIVE;
+    let shifted = m + nalgebra::SMatrix::<f64, 8, 8>::identity() * shift;
+    if shifted.cholesky().is_some() {
         return std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]));
     }
+    let eig = m.symmetric_eigen();
     let lam = eig.eigenvalues.map(|l| l.max(0.0));
     let p = &eig.eigenvectors * nalgebra::SMatrix::<f64, 8, 8>::from_diagonal(&lam) * eig.eigenvectors.transpose();
     std::array::from_fn(|i| std::array::from_fn(|j| 0.5 * (p[(i, j)] + p[(j, i)])))
@@ -507,6 +543,22 @@ impl EnergyTerm for RodEnergy {
     /// exact Hessian (see the module docs).
     fn eval(&self, q: &[f64], grad: &mut [f64], hess: Option<&mut Triplets>) -> f64 {
         self.eval_parts(q, grad, hess).total()
+    }
+
+    /// Keeps every edge inside the open half-space of its stored tangent
+    /// (`t_stored . e(alpha) >= 0.1 t_stored . e(0)`): the time-parallel
+    /// transport of the reference directors is singular when an edge turns
+    /// round, and an edge cannot collapse to zero length on the way.
+    fn max_step(&self, q: &[f64], dq: &[f64]) -> f64 {
+        let mut alpha: f64 = 1.0;
+        for (e, &ed) in self.topo.edges.iter().enumerate() {
+            let tp = self.state.t[e];
+            let (a, da) = (dot(tp, edge_vec(q, ed)), dot(tp, edge_vec(dq, ed)));
+            if da < 0.0 && a > 0.0 {
+                alpha = alpha.min(0.9 * a / -da);
+            }
+        }
+        alpha
     }
 
     fn begin_iteration(&mut self, q: &[f64]) {

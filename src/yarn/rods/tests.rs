@@ -600,3 +600,40 @@ fn bench_eval_22k_vertices() {
         times_g[2] * 1e3
     );
 }
+
+#[test]
+fn max_step_keeps_edges_from_turning_round() {
+    let pts = straight(4, 1e-3);
+    let (mut en, q) = rods(&pts, false, &RodParams::default());
+    en.begin_iteration(&q);
+    // Moving the last vertex back by 3 mm would reverse the last edge
+    // (through zero length).
+    let mut dq = vec![0.0; q.len()];
+    dq[9] = -3e-3;
+    let alpha = en.max_step(&q, &dq);
+    // t . e goes 1 mm -> 1 mm - alpha 3 mm, kept >= 0.1 mm.
+    assert!((alpha - 0.3).abs() < 1e-12, "{alpha}");
+    let qa: Vec<f64> = q.iter().zip(&dq).map(|(a, b)| a + alpha * b).collect();
+    let (e, g) = grad(&en, &qa);
+    assert!(e.is_finite() && g.iter().all(|x| x.is_finite()));
+    // Small and sideways steps are not limited.
+    dq[9] = 0.0;
+    dq[10] = 5e-3;
+    assert_eq!(en.max_step(&q, &dq), 1.0);
+}
+
+#[test]
+fn set_rest_matches_a_fresh_build() {
+    let pts = knit_loop(10);
+    let (mut en, q0) = rods(&pts, false, &RodParams::default());
+    let q = perturb(&q0, 3 * pts.len(), 2e-4, 0.2, 12);
+    let mut rest = en.rest().clone();
+    let factors: Vec<f64> = (0..rest.l0.len()).map(|e| 0.9 + 0.01 * e as f64).collect();
+    rest.scale_lengths(&factors).unwrap();
+    let fresh = RodEnergy::new(en.topology().clone(), rest.clone(), &RodParams::default(), &q0).unwrap();
+    let before = en.energies(&q);
+    en.set_rest(rest).unwrap();
+    let (a, b) = (en.energies(&q), fresh.energies(&q));
+    assert_eq!(a, b);
+    assert!(a.stretch > before.stretch);
+}
