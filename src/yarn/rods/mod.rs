@@ -363,7 +363,7 @@ impl RodEnergy {
         let mut out = ChunkOut {
             energy: RodEnergies::default(),
             grad: Vec::with_capacity(6 * r.len()),
-            hess: Triplets::new(),
+            hess: triplets_with_capacity(if want_h { 36 * r.len() } else { 0 }),
         };
         for e in r {
             let [a, b] = self.topo.edges[e];
@@ -423,7 +423,7 @@ impl RodEnergy {
         let mut out = ChunkOut {
             energy: RodEnergies::default(),
             grad: Vec::with_capacity(11 * r.len()),
-            hess: Triplets::new(),
+            hess: triplets_with_capacity(if want_h { 121 * r.len() } else { 0 }),
         };
         for k in r {
             let c = self.hinge_const(k);
@@ -479,6 +479,12 @@ impl RodEnergy {
         let h = chunks(self.topo.num_hinges(), |r| self.hinge_chunk(q, r, want_h));
         let mut total = RodEnergies::default();
         let mut hess = hess;
+        if let Some(t) = hess.as_deref_mut() {
+            let n: usize = s.iter().chain(&h).map(|c| c.hess.len()).sum();
+            t.rows.reserve(n);
+            t.cols.reserve(n);
+            t.vals.reserve(n);
+        }
         for c in s.iter().chain(&h) {
             total.stretch += c.energy.stretch;
             total.bend += c.energy.bend;
@@ -491,6 +497,14 @@ impl RodEnergy {
             }
         }
         total
+    }
+}
+
+fn triplets_with_capacity(n: usize) -> Triplets {
+    Triplets {
+        rows: Vec::with_capacity(n),
+        cols: Vec::with_capacity(n),
+        vals: Vec::with_capacity(n),
     }
 }
 
