@@ -200,6 +200,20 @@ impl<const N: usize> D2<N> {
             h: [[0.0; N]; N],
         }
     }
+    /// A dual over `M` variables seen as one over `N`: its variable `k` is
+    /// variable `map[k]` here.
+    pub fn embed<const M: usize>(d: &D2<M>, map: [usize; M]) -> Self {
+        let mut out = D2::cst(d.v);
+        for a in 0..M {
+            out.g[map[a]] = d.g[a];
+            for b in a..M {
+                let (i, j) = (map[a].min(map[b]), map[a].max(map[b]));
+                out.h[i][j] = d.h[a][b];
+            }
+        }
+        out
+    }
+
     /// The full symmetric Hessian (upper triangle mirrored).
     pub fn hessian(&self) -> [[f64; N]; N] {
         let mut h = self.h;
@@ -278,10 +292,8 @@ impl<const N: usize> Mul for D2<N> {
             out.g[i] = self.v * o.g[i] + o.v * self.g[i];
             let (ai, bi) = (self.g[i], o.g[i]);
             for j in i..N {
-                out.h[i][j] = self.v * o.h[i][j]
-                    + o.v * self.h[i][j]
-                    + ai * o.g[j]
-                    + bi * self.g[j];
+                out.h[i][j] =
+                    self.v * o.h[i][j] + o.v * self.h[i][j] + ai * o.g[j] + bi * self.g[j];
             }
         }
         out
@@ -401,7 +413,11 @@ mod tests {
             };
             for i in 0..2 {
                 let fd = (p[i] - m[i]) / (2.0 * h);
-                assert!((hess[i][j] - fd).abs() < 1e-7, "h[{i}][{j}] {} vs {fd}", hess[i][j]);
+                assert!(
+                    (hess[i][j] - fd).abs() < 1e-7,
+                    "h[{i}][{j}] {} vs {fd}",
+                    hess[i][j]
+                );
             }
         }
     }

@@ -8,6 +8,10 @@ use crate::geom::Vec3;
 pub(crate) type V<R> = [R; 3];
 
 #[inline]
+fn vsub<R: Real>(a: V<R>, b: V<R>) -> V<R> {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
 fn vadd<R: Real>(a: V<R>, b: V<R>) -> V<R> {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
@@ -75,7 +79,6 @@ pub(crate) fn transport(a: Vec3, b: Vec3, u: Vec3) -> Vec3 {
     transport_gen::<f64>(a, b, u)
 }
 
-
 /// A unit vector perpendicular to the unit vector `t`.
 pub(crate) fn perpendicular(t: Vec3) -> Vec3 {
     // Cross with the axis least aligned with t.
@@ -99,15 +102,64 @@ pub(crate) fn unit<R: Real>(e: V<R>) -> (V<R>, R) {
     (vmul(e, inv), l)
 }
 
-/// Geometry of one hinge: edges `e = [e_{i-1}, e_i]`, their unit tangents,
-/// reference directors `u` (unit, perpendicular to the tangents) and twist
-/// angles `theta`.
-pub(crate) struct HingeGeom<R: Real> {
-    pub e: [V<R>; 2],
-    pub l: [R; 2],
-    pub t: [V<R>; 2],
-    pub u: [V<R>; 2],
-    pub theta: [R; 2],
+/// One edge with its frames: edge vector `e`, length `l`, unit tangent `t`,
+/// reference frame `(u, v = t x u)`, twist angle `theta` and material frame
+/// `m1 = cos(theta) u + sin(theta) v`, `m2 = -sin(theta) u + cos(theta) v`.
+#[derive(Clone, Copy)]
+pub(crate) struct EdgeFrame<R: Real> {
+    pub e: V<R>,
+    pub l: R,
+    pub t: V<R>,
+    pub u: V<R>,
+    pub v: V<R>,
+    pub theta: R,
+    pub m1: V<R>,
+    pub m2: V<R>,
+}
+
+impl<R: Real> EdgeFrame<R> {
+    #[inline]
+    pub fn new(e: V<R>, l: R, t: V<R>, u: V<R>, theta: R) -> Self {
+        let v = vcross(t, u);
+        let (s, c) = theta.sin_cos();
+        EdgeFrame {
+            e,
+            l,
+            t,
+            u,
+            v,
+            theta,
+            m1: vadd(vmul(u, c), vmul(v, s)),
+            m2: vsub(vmul(v, c), vmul(u, s)),
+        }
+    }
+
+    /// The same frame with every scalar mapped by `f` (changes the dual
+    /// number type).
+    #[inline]
+    pub fn map<S: Real>(&self, f: impl Fn(&R) -> S) -> EdgeFrame<S> {
+        let m = |x: &V<R>| [f(&x[0]), f(&x[1]), f(&x[2])];
+        EdgeFrame {
+            e: m(&self.e),
+            l: f(&self.l),
+            t: m(&self.t),
+            u: m(&self.u),
+            v: m(&self.v),
+            theta: f(&self.theta),
+            m1: m(&self.m1),
+            m2: m(&self.m2),
+        }
+    }
+}
+
+/// The frame of edge vector `e` with twist `theta`, its reference director
+/// the time-parallel transport of the stored `up` from the stored tangent
+/// `tp` to the tangent of `e`.
+#[inline]
+pub(crate) fn edge_frame<R: Real>(e: V<R>, theta: R, tp: Vec3, up: Vec3) -> EdgeFrame<R> {
+    let (t, l) = unit(e);
+    let u = transport_from(tp, t, up);
+    EdgeFrame::new(e, l, t, u, theta)
 }
 
 /// Bergou 2010 material curvatures of the hinge `(k1, k2)` in the frames of
@@ -117,22 +169,18 @@ pub(crate) struct HingeGeom<R: Real> {
 /// the signed angle about `t_i` from the space-parallel transport of `u_{i-1}`
 /// to edge `i` to `u_i` (Bergou 2008 §4.2.2 / §6).
 #[inline]
-pub(crate) fn hinge_terms<R: Real>(g: &HingeGeom<R>) -> ([R; 4], R) {
-    let den = g.l[0] * g.l[1] + vdot(g.e[0], g.e[1]);
-    let kb = vmul(vcross(g.e[0], g.e[1]), R::cst(2.0) / den);
-    let mut kappa = [R::cst(0.0); 4];
-    for j in 0..2 {
-        let v = vcross(g.t[j], g.u[j]);
-        let (s, c) = g.theta[j].sin_cos();
-        // m1 = c u + s v, m2 = -s u + c v.
-        let (ku, kv) = (vdot(kb, g.u[j]), vdot(kb, v));
-        kappa[2 * j] = kv * c - ku * s; // kb . m2
-        kappa[2 * j + 1] = -(ku * c + kv * s); // -kb . m1
-    }
-    let w = transport_gen(g.t[0], g.t[1], g.u[0]);
-    let v1 = vcross(g.t[1], g.u[1]);
+pub(crate) fn hinge_terms<R: Real>(f0: &EdgeFrame<R>, f1: &EdgeFrame<R>) -> ([R; 4], R) {
+    let den = f0.l * f1.l + vdot(f0.e, f1.e);
+    let kb = vmul(vcross(f0.e, f1.e), R::cst(2.0) / den);
+    let kappa = [
+        vdot(kb, f0.m2),
+        -vdot(kb, f0.m1),
+        vdot(kb, f1.m2),
+        -vdot(kb, f1.m1),
+    ];
+    let w = transport_gen(f0.t, f1.t, f0.u);
     // Angle from w to u1 about t1: sin = (w x u1) . t1 = -w . v1.
-    let ref_twist = (-vdot(w, v1)).atan2(vdot(w, g.u[1]));
+    let ref_twist = (-vdot(w, f1.v)).atan2(vdot(w, f1.u));
     (kappa, ref_twist)
 }
 
@@ -173,23 +221,20 @@ pub(crate) fn unwrap_near<R: Real>(raw: R, prev: f64) -> R {
 /// `m = theta_i - theta_{i-1} + reference twist` (Bergou 2008 §4.2.2).
 /// Also returns the (unwrapped) reference twist.
 #[inline]
-pub(crate) fn hinge_energy<R: Real>(
-    e: [V<R>; 2],
-    theta: [R; 2],
+pub(crate) fn hinge_energy<R: Real>(e: [V<R>; 2], theta: [R; 2], c: &HingeConst) -> (R, R, R) {
+    let f0 = edge_frame(e[0], theta[0], c.tp[0], c.up[0]);
+    let f1 = edge_frame(e[1], theta[1], c.tp[1], c.up[1]);
+    hinge_energy_frames(&f0, &f1, c)
+}
+
+/// [`hinge_energy`] from the two edge frames.
+#[inline]
+pub(crate) fn hinge_energy_frames<R: Real>(
+    f0: &EdgeFrame<R>,
+    f1: &EdgeFrame<R>,
     c: &HingeConst,
 ) -> (R, R, R) {
-    let (t0, l0) = unit(e[0]);
-    let (t1, l1) = unit(e[1]);
-    let u0 = transport_from(c.tp[0], t0, c.up[0]);
-    let u1 = transport_from(c.tp[1], t1, c.up[1]);
-    let g = HingeGeom {
-        e,
-        l: [l0, l1],
-        t: [t0, t1],
-        u: [u0, u1],
-        theta,
-    };
-    let (kappa, raw) = hinge_terms(&g);
+    let (kappa, raw) = hinge_terms(f0, f1);
     let mut sq = R::cst(0.0);
     for k in 0..4 {
         let d = kappa[k].add_c(-c.kappa_bar[k]);
@@ -197,7 +242,7 @@ pub(crate) fn hinge_energy<R: Real>(
     }
     let bend = sq.scale(0.25 * c.bend / c.lbar);
     let reft = unwrap_near(raw, c.ref_prev);
-    let m = (theta[1] - theta[0] + reft).add_c(-c.m_bar);
+    let m = (f1.theta - f0.theta + reft).add_c(-c.m_bar);
     let twist = (m * m).scale(0.5 * c.twist / c.lbar);
     (bend, twist, reft)
 }

@@ -46,7 +46,10 @@ use crate::geom::vec3::{dot, norm, scale, sub};
 use crate::geom::{GeomError, Vec3};
 use crate::yarn::statics::{EnergyTerm, Triplets};
 use dual::{Real, D1, D2};
-use frame::{hinge_energy, hinge_terms, perpendicular, transport, unwrap_near, HingeConst, HingeGeom};
+use frame::{
+    edge_frame, hinge_energy, hinge_energy_frames, hinge_terms, perpendicular, transport,
+    unwrap_near, EdgeFrame, HingeConst,
+};
 use rayon::prelude::*;
 
 /// Why rods could not be built.
@@ -151,14 +154,10 @@ impl RodState {
             .map(|(h, &prev)| {
                 let [ea, eb] = h.edges;
                 let e = [edge_vec(q, topo.edges[ea]), edge_vec(q, topo.edges[eb])];
-                let g = HingeGeom {
-                    e,
-                    l: [norm(e[0]), norm(e[1])],
-                    t: [self.t[ea], self.t[eb]],
-                    u: [self.u[ea], self.u[eb]],
-                    theta: [0.0, 0.0],
+                let f = |j: usize, ed: usize| {
+                    EdgeFrame::new(e[j], norm(e[j]), self.t[ed], self.u[ed], 0.0)
                 };
-                unwrap_near(hinge_terms(&g).1, prev)
+                unwrap_near(hinge_terms(&f(0, ea), &f(1, eb)).1, prev)
             })
             .collect()
     }
@@ -414,7 +413,10 @@ impl RodEnergy {
         let h = &self.topo.hinges[k];
         let [ea, eb] = h.edges;
         (
-            [edge_vec(q, self.topo.edges[ea]), edge_vec(q, self.topo.edges[eb])],
+            [
+                edge_vec(q, self.topo.edges[ea]),
+                edge_vec(q, self.topo.edges[eb]),
+            ],
             [q[self.topo.twist_dof(ea)], q[self.topo.twist_dof(eb)]],
         )
     }
@@ -429,10 +431,15 @@ impl RodEnergy {
             let c = self.hinge_const(k);
             let (e, th) = self.hinge_vars(q, k);
             let (g8, h8) = if want_h {
-                let ed: [[D2<8>; 3]; 2] =
-                    std::array::from_fn(|j| std::array::from_fn(|i| D2::var(e[j][i], 3 * j + i)));
-                let td = [D2::var(th[0], 6), D2::var(th[1], 7)];
-                let (b, t, _) = hinge_energy(ed, td, &c);
+                // Each edge frame depends on 4 of the 8 variables: build it
+                // over those (a quarter of the Hessian work), then embed.
+                let frame = |j: usize| {
+                    let ev: [D2<4>; 3] = std::array::from_fn(|i| D2::var(e[j][i], i));
+                    let f = edge_frame(ev, D2::var(th[j], 3), c.tp[j], c.up[j]);
+                    let map = if j == 0 { [0, 1, 2, 6] } else { [3, 4, 5, 7] };
+                    f.map(|x| D2::<8>::embed(x, map))
+                };
+                let (b, t, _) = hinge_energy_frames(&frame(0), &frame(1), &c);
                 out.energy.bend += b.v;
                 out.energy.twist += t.v;
                 let s = b + t;
@@ -472,7 +479,11 @@ impl RodEnergy {
     }
 
     fn eval_parts(&self, q: &[f64], grad: &mut [f64], hess: Option<&mut Triplets>) -> RodEnergies {
-        assert_eq!(q.len(), self.topo.num_dofs(), "rods: q has the wrong length");
+        assert_eq!(
+            q.len(),
+            self.topo.num_dofs(),
+            "rods: q has the wrong length"
+        );
         assert_eq!(grad.len(), q.len(), "rods: grad has the wrong length");
         let want_h = hess.is_some();
         let s = chunks(self.topo.num_edges(), |r| self.stretch_chunk(q, r, want_h));
@@ -509,7 +520,11 @@ fn triplets_with_capacity(n: usize) -> Triplets {
 }
 
 /// Per-edge stretch stiffness and per-hinge `(B, beta, lbar)`.
-fn stiffnesses(topo: &RodTopology, rest: &RodRest, params: &RodParams) -> (Vec<f64>, Vec<[f64; 3]>) {
+fn stiffnesses(
+    topo: &RodTopology,
+    rest: &RodRest,
+    params: &RodParams,
+) -> (Vec<f64>, Vec<[f64; 3]>) {
     let ks = topo
         .edge_radius
         .iter()
@@ -544,7 +559,9 @@ fn project_psd(h: &[[f64; 8]; 8]) -> [[f64; 8]; 8] {
     }
     let eig = m.symmetric_eigen();
     let lam = eig.eigenvalues.map(|l| l.max(0.0));
-    let p = &eig.eigenvectors * nalgebra::SMatrix::<f64, 8, 8>::from_diagonal(&lam) * eig.eigenvectors.transpose();
+    let p = &eig.eigenvectors
+        * nalgebra::SMatrix::<f64, 8, 8>::from_diagonal(&lam)
+        * eig.eigenvectors.transpose();
     std::array::from_fn(|i| std::array::from_fn(|j| 0.5 * (p[(i, j)] + p[(j, i)])))
 }
 

@@ -1,6 +1,6 @@
 //! The rest state of the rods and their material parameters.
 
-use super::frame::{hinge_terms, perpendicular, transport, HingeGeom};
+use super::frame::{hinge_terms, perpendicular, transport, EdgeFrame};
 use super::{RodError, RodTopology};
 use crate::geom::vec3::{norm, scale, sub};
 use crate::geom::Vec3;
@@ -70,17 +70,10 @@ impl RodRest {
         let mut m_bar = Vec::with_capacity(topo.num_hinges());
         for h in &topo.hinges {
             let [ea, eb] = h.edges;
-            let g = HingeGeom {
-                e: [
-                    scale(tangents[ea], l0[ea]),
-                    scale(tangents[eb], l0[eb]),
-                ],
-                l: [l0[ea], l0[eb]],
-                t: [tangents[ea], tangents[eb]],
-                u: [d1[ea], d1[eb]],
-                theta: [0.0, 0.0],
+            let f = |e: usize| {
+                EdgeFrame::new(scale(tangents[e], l0[e]), l0[e], tangents[e], d1[e], 0.0)
             };
-            let (kappa, ref_twist) = hinge_terms(&g);
+            let (kappa, ref_twist) = hinge_terms(&f(ea), &f(eb));
             kappa_bar.push(kappa);
             m_bar.push(ref_twist);
         }

@@ -162,7 +162,10 @@ fn gradient_matches_finite_differences() {
             for seed in [1, 2] {
                 let q = perturb(&q0, n_pos, 3e-4, 0.3, seed);
                 let err = fd_gradient_error(&en, &q, n_pos);
-                assert!(err < 1e-5, "{name} {part} seed {seed}: relative error {err:e}");
+                assert!(
+                    err < 1e-5,
+                    "{name} {part} seed {seed}: relative error {err:e}"
+                );
             }
         }
     }
@@ -264,8 +267,14 @@ fn pushed_hessian_is_positive_semidefinite() {
         exact.project = false;
         let (lo_exact, _) = min_eigenvalue(&dense_hessian(&exact, &q));
         let (lo, scale) = min_eigenvalue(&dense_hessian(&en, &q));
-        assert!(lo_exact < -1e-6 * scale, "{name}: test should start indefinite");
-        assert!(lo >= -1e-10 * scale, "{name}: min eigenvalue {lo:e} (scale {scale:e})");
+        assert!(
+            lo_exact < -1e-6 * scale,
+            "{name}: test should start indefinite"
+        );
+        assert!(
+            lo >= -1e-10 * scale,
+            "{name}: min eigenvalue {lo:e} (scale {scale:e})"
+        );
     }
 }
 
@@ -280,7 +289,11 @@ fn rest_configuration_has_zero_energy_and_gradient() {
         let (e, g) = grad(&en, &q);
         let ks = params.stretch_stiffness(R);
         assert!(e.abs() < 1e-20, "{name}: rest energy {e:e}");
-        assert!(max_abs(&g) < 1e-10 * ks, "{name}: rest gradient {:e}", max_abs(&g));
+        assert!(
+            max_abs(&g) < 1e-10 * ks,
+            "{name}: rest gradient {:e}",
+            max_abs(&g)
+        );
         let n_open = en.rest().m_bar.len() - usize::from(closed);
         assert!(
             en.rest().m_bar[..n_open].iter().all(|m| m.abs() < 1e-12),
@@ -296,7 +309,10 @@ fn rest_configuration_has_zero_energy_and_gradient() {
         let mut en2 = en.clone();
         en2.begin_iteration(&q);
         let (e2, g2) = grad(&en2, &q);
-        assert!(e2.abs() < 1e-20 && max_abs(&g2) < 1e-10 * ks, "{name}: after update");
+        assert!(
+            e2.abs() < 1e-20 && max_abs(&g2) < 1e-10 * ks,
+            "{name}: after update"
+        );
     }
 }
 
@@ -354,7 +370,10 @@ fn rigid_motions_cost_nothing() {
             expect[3 * v..3 * v + 3].copy_from_slice(&p);
         }
         let diff: Vec<f64> = gr.iter().zip(&expect).map(|(a, b)| a - b).collect();
-        assert!(max_abs(&diff) <= 1e-8 * max_abs(&g), "{name}: gradient not rotated");
+        assert!(
+            max_abs(&diff) <= 1e-8 * max_abs(&g),
+            "{name}: gradient not rotated"
+        );
         // Infinitesimally: a rotation w x x of the positions with material
         // frames turning along (twist change w . t_e per edge, since the
         // reference directors follow by parallel transport) and any
@@ -401,7 +420,11 @@ fn twist_of_a_straight_rod() {
     let beta = params.twist_stiffness(R);
     let expect = beta * theta * theta / (2.0 * (n - 2) as f64 * l);
     let got = en.energies(&q);
-    assert!((got.twist - expect).abs() < 1e-12 * expect, "{} vs {expect}", got.twist);
+    assert!(
+        (got.twist - expect).abs() < 1e-12 * expect,
+        "{} vs {expect}",
+        got.twist
+    );
     assert!(got.bend.abs() < 1e-30 && got.stretch.abs() < 1e-30);
 }
 
@@ -432,7 +455,11 @@ fn rest_curvature_is_signed() {
     let b = params.bend_stiffness(R);
     let expect = (n - 2) as f64 * 2.0 * b * kappa * kappa / l;
     let got = en.energies(&q);
-    assert!((got.bend - expect).abs() < 1e-9 * expect, "{} vs {expect}", got.bend);
+    assert!(
+        (got.bend - expect).abs() < 1e-9 * expect,
+        "{} vs {expect}",
+        got.bend
+    );
     assert!(got.twist.abs() < 1e-24);
     // The mirror image (same |curvature|) with the frames the rest state
     // starts it with is not at rest either (an unsigned model says 0).
@@ -443,7 +470,10 @@ fn rest_curvature_is_signed() {
         .collect();
     let fresh = RodEnergy::new(en.topology().clone(), en.rest().clone(), &params, &mirror).unwrap();
     let e_mirror = fresh.energies(&mirror).bend;
-    assert!(e_mirror > 0.1 * expect, "mirror energy {e_mirror:e} vs {expect:e}");
+    assert!(
+        e_mirror > 0.1 * expect,
+        "mirror energy {e_mirror:e} vs {expect:e}"
+    );
 }
 
 #[test]
@@ -469,7 +499,9 @@ fn reference_twist_is_continuous_over_many_steps() {
     let start = en.state().ref_twist[1];
     let mut prev = start;
     for k in 1..=turns * steps {
-        let q = en.topology().q_from_points(&at(k as f64 * 2.0 * PI / steps as f64));
+        let q = en
+            .topology()
+            .q_from_points(&at(k as f64 * 2.0 * PI / steps as f64));
         en.begin_iteration(&q);
         en.accept(&q);
         let r = en.state().ref_twist[1];
@@ -493,7 +525,10 @@ fn same_result_for_any_thread_count() {
     let (en, q0) = rods(&pts, false, &RodParams::default());
     let q = perturb(&q0, 3 * pts.len(), 3e-4, 0.3, 11);
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let mut g = vec![0.0; q.len()];
             let mut t = Triplets::new();
@@ -527,7 +562,10 @@ fn rest_length_scaling_and_bad_input() {
     let expect = 4.0 * 0.5 * k * l0 * (1e-3 / l0 - 1.0f64).powi(2);
     let got = en.energies(&q);
     assert!((got.stretch - expect).abs() < 1e-12 * expect);
-    assert!(matches!(rest.scale_lengths(&[1.0; 3]), Err(RodError::Length { .. })));
+    assert!(matches!(
+        rest.scale_lengths(&[1.0; 3]),
+        Err(RodError::Length { .. })
+    ));
     assert!(matches!(
         rest.scale_lengths(&[1.0, -1.0, 1.0, 1.0]),
         Err(RodError::BadParameter { .. })
@@ -602,4 +640,47 @@ fn bench_eval_22k_vertices() {
         time(&en, false),
         time(&exact, true),
     );
+}
+
+#[test]
+fn max_step_keeps_edges_from_turning_round() {
+    let pts = straight(4, 1e-3);
+    let (mut en, q) = rods(&pts, false, &RodParams::default());
+    en.begin_iteration(&q);
+    // Moving the last vertex back by 3 mm would reverse the last edge
+    // (through zero length).
+    let mut dq = vec![0.0; q.len()];
+    dq[9] = -3e-3;
+    let alpha = en.max_step(&q, &dq);
+    // t . e goes 1 mm -> 1 mm - alpha 3 mm, kept >= 0.1 mm.
+    assert!((alpha - 0.3).abs() < 1e-12, "{alpha}");
+    let qa: Vec<f64> = q.iter().zip(&dq).map(|(a, b)| a + alpha * b).collect();
+    let (e, g) = grad(&en, &qa);
+    assert!(e.is_finite() && g.iter().all(|x| x.is_finite()));
+    // Small and sideways steps are not limited.
+    dq[9] = 0.0;
+    dq[10] = 5e-3;
+    assert_eq!(en.max_step(&q, &dq), 1.0);
+}
+
+#[test]
+fn set_rest_matches_a_fresh_build() {
+    let pts = knit_loop(10);
+    let (mut en, q0) = rods(&pts, false, &RodParams::default());
+    let q = perturb(&q0, 3 * pts.len(), 2e-4, 0.2, 12);
+    let mut rest = en.rest().clone();
+    let factors: Vec<f64> = (0..rest.l0.len()).map(|e| 0.9 + 0.01 * e as f64).collect();
+    rest.scale_lengths(&factors).unwrap();
+    let fresh = RodEnergy::new(
+        en.topology().clone(),
+        rest.clone(),
+        &RodParams::default(),
+        &q0,
+    )
+    .unwrap();
+    let before = en.energies(&q);
+    en.set_rest(rest).unwrap();
+    let (a, b) = (en.energies(&q), fresh.energies(&q));
+    assert_eq!(a, b);
+    assert!(a.stretch > before.stretch);
 }
