@@ -5,6 +5,7 @@ pub mod analytic;
 pub mod fabric;
 pub mod pattern;
 pub mod poses;
+pub mod rods;
 pub mod sim;
 pub mod statics;
 pub mod tile;
