@@ -8,6 +8,12 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod external;
+pub mod solver;
 pub mod term;
 
+pub use external::GravityTerm;
+pub use solver::{
+    evaluate, reaction_forces, solve_static, StaticError, StaticParams, StaticStats, SymbolicCache,
+};
 pub use term::{EnergyTerm, Triplets};

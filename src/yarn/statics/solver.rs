@@ -1,0 +1,376 @@
+//! Newton's method with a backtracking line search on the total potential
+//! `E(q) = sum of terms`, with clamped (fixed) coordinates eliminated.
+//!
+//! Each iteration assembles the terms' PSD Hessians on the free coordinates,
+//! factors them with faer's sparse Cholesky (the symbolic analysis is reused
+//! while the sparsity pattern stays the same, so a contact set that does not
+//! change costs one numeric factorization per iteration), solves
+//! `H dq = -g`, clips the step by every term's `max_step` and by a
+//! per-vertex displacement cap (so no contact can be jumped over), and
+//! halves it until the energy decreases enough (Armijo). A matrix that is
+//! not numerically SPD gets a diagonal shift that grows until it factors.
+//!
+//! Converged when the largest free-coordinate force `|dE/dq_i|` (N for
+//! positions, N m for twists) is at most `force_tolerance`, or at most
+//! `relative_tolerance` times the largest force at the start.
+
+use std::time::Instant;
+
+use faer::sparse::linalg::cholesky::SymbolicCholesky;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::Mat;
+
+use super::term::{EnergyTerm, Triplets};
+use crate::sim::cholesky::SparseCholesky;
+
+/// Controls of [`solve_static`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StaticParams {
+    /// Absolute force tolerance (N): converged when every free coordinate's
+    /// `|dE/dq|` is at most this. Default 1e-6 N (a millionth of the ~1 N
+    /// forces of a fabric stretch test; a 1 mm yarn's weight per vertex is
+    /// ~1e-6 N at HYLC density).
+    pub force_tolerance: f64,
+    /// Relative tolerance against the largest free force at the start.
+    /// Default 1e-9.
+    pub relative_tolerance: f64,
+    /// Most Newton iterations. Default 200.
+    pub max_iterations: usize,
+    /// Largest displacement of one vertex in one iteration (m). Default
+    /// infinity; contact problems set about half a yarn radius.
+    pub max_displacement: f64,
+    /// Armijo constant. Default 1e-4.
+    pub armijo: f64,
+    /// Most step halvings per iteration. Default 40.
+    pub max_halvings: usize,
+}
+
+impl Default for StaticParams {
+    fn default() -> Self {
+        StaticParams {
+            force_tolerance: 1e-6,
+            relative_tolerance: 1e-9,
+            max_iterations: 200,
+            max_displacement: f64::INFINITY,
+            armijo: 1e-4,
+            max_halvings: 40,
+        }
+    }
+}
+
+/// What a solve did.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct StaticStats {
+    pub iterations: usize,
+    pub converged: bool,
+    /// Largest free force at the start and at the end (N).
+    pub initial_residual: f64,
+    pub residual: f64,
+    /// Largest free force after each iteration (N).
+    pub residual_history: Vec<f64>,
+    /// Total energy at the end (J) and per term, by name.
+    pub energy: f64,
+    pub energies: Vec<(String, f64)>,
+    pub halvings: usize,
+    pub symbolic_factorizations: usize,
+    pub numeric_factorizations: usize,
+    /// Iterations that needed a diagonal shift to factor.
+    pub regularized: usize,
+    pub assembly_ms: f64,
+    pub factor_ms: f64,
+    pub solve_ms: f64,
+    pub line_search_ms: f64,
+}
+
+/// Why a solve failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StaticError {
+    #[error("static solve: {what} is not finite at iteration {iteration} (coordinate {dof})")]
+    NonFinite {
+        iteration: usize,
+        dof: usize,
+        what: &'static str,
+    },
+    #[error("static solve: coordinate vector has {got} entries, the fixed mask {expected}")]
+    Size { got: usize, expected: usize },
+    #[error("static solve: the line search cannot decrease the energy at iteration {iteration} (largest force {residual:.3e} N at coordinate {dof})")]
+    LineSearch {
+        iteration: usize,
+        residual: f64,
+        dof: usize,
+    },
+    #[error("static solve: the Hessian cannot be factored at iteration {iteration}: {message}")]
+    Factorization { iteration: usize, message: String },
+    #[error("static solve: no equilibrium after {iterations} iterations (largest force {residual:.3e} N at coordinate {dof}, tolerance {tolerance:.1e} N)")]
+    NotConverged {
+        iterations: usize,
+        residual: f64,
+        dof: usize,
+        tolerance: f64,
+    },
+}
+
+/// Energy and gradient (and Hessian entries) of all terms at `q`.
+pub fn evaluate(
+    terms: &[&mut dyn EnergyTerm],
+    q: &[f64],
+    grad: &mut [f64],
+    mut hess: Option<&mut Triplets>,
+) -> f64 {
+    grad.iter_mut().for_each(|g| *g = 0.0);
+    let mut e = 0.0;
+    for t in terms {
+        e += t.eval(q, grad, hess.as_deref_mut());
+    }
+    e
+}
+
+/// Largest `|g_i|` over free coordinates and where.
+fn residual(grad: &[f64], fixed: &[bool]) -> (f64, usize) {
+    grad.iter()
+        .zip(fixed)
+        .enumerate()
+        .filter(|(_, (_, f))| !**f)
+        .fold((0.0, 0), |(m, at), (i, (g, _))| {
+            if g.abs() > m || g.is_nan() {
+                (g.abs(), i)
+            } else {
+                (m, at)
+            }
+        })
+}
+
+/// Forces the clamps exert on the yarns at equilibrium: `dE/dq_i` on every
+/// fixed coordinate (0 elsewhere). At equilibrium the free forces vanish, so
+/// the sum over a clamp's coordinates is the force it applies (N); the yarn
+/// pulls on the clamp with the opposite force.
+pub fn reaction_forces(terms: &[&mut dyn EnergyTerm], q: &[f64], fixed: &[bool]) -> Vec<f64> {
+    let mut g = vec![0.0; q.len()];
+    evaluate(terms, q, &mut g, None);
+    g.iter().zip(fixed).map(|(g, f)| if *f { *g } else { 0.0 }).collect()
+}
+
+/// A symbolic analysis kept for the next solve while the pattern holds.
+#[derive(Default)]
+pub struct SymbolicCache {
+    key: Option<(Vec<usize>, Vec<usize>)>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+}
+
+impl std::fmt::Debug for SymbolicCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SymbolicCache").field("cached", &self.symbolic.is_some()).finish()
+    }
+}
+
+/// Brings `q` to equilibrium: `dE/dq_i = 0` on every coordinate with
+/// `fixed[i] == false`; fixed coordinates keep their values (the caller
+/// places clamps and handles). `q` holds the last accepted iterate also on
+/// error.
+pub fn solve_static(
+    terms: &mut [&mut dyn EnergyTerm],
+    q: &mut [f64],
+    fixed: &[bool],
+    params: &StaticParams,
+    cache: &mut SymbolicCache,
+) -> Result<StaticStats, StaticError> {
+    let n = q.len();
+    if fixed.len() != n {
+        return Err(StaticError::Size {
+            got: n,
+            expected: fixed.len(),
+        });
+    }
+    let free: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
+    let mut index = vec![usize::MAX; n];
+    for (k, &i) in free.iter().enumerate() {
+        index[i] = k;
+    }
+    let nf = free.len();
+    let mut stats = StaticStats::default();
+    let mut grad = vec![0.0; n];
+    let mut trial_grad = vec![0.0; n];
+    let mut trip = Triplets::new();
+    let mut trial = q.to_vec();
+    for it in 0..=params.max_iterations {
+        for t in terms.iter_mut() {
+            t.begin_iteration(q);
+        }
+        let t0 = Instant::now();
+        trip.clear();
+        let e = evaluate(terms, q, &mut grad, Some(&mut trip));
+        stats.assembly_ms += t0.elapsed().as_secs_f64() * 1e3;
+        if !e.is_finite() {
+            return Err(StaticError::NonFinite {
+                iteration: it,
+                dof: 0,
+                what: "the energy",
+            });
+        }
+        let (res, at) = residual(&grad, fixed);
+        if !res.is_finite() {
+            return Err(StaticError::NonFinite {
+                iteration: it,
+                dof: at,
+                what: "the gradient",
+            });
+        }
+        if it == 0 {
+            stats.initial_residual = res;
+        }
+        stats.residual = res;
+        stats.energy = e;
+        if res <= params.force_tolerance
+            || res <= params.relative_tolerance * stats.initial_residual
+            || nf == 0
+        {
+            stats.converged = true;
+            break;
+        }
+        if it == params.max_iterations {
+            return Err(StaticError::NotConverged {
+                iterations: it,
+                residual: res,
+                dof: at,
+                tolerance: params.force_tolerance,
+            });
+        }
+        // Free-free lower triangle.
+        let t1 = Instant::now();
+        let mut lower: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(trip.len() / 2 + nf);
+        let mut diag_sum = 0.0;
+        for ((&r, &c), &v) in trip.rows.iter().zip(&trip.cols).zip(&trip.vals) {
+            let (fr, fc) = (index[r as usize], index[c as usize]);
+            if fr == usize::MAX || fc == usize::MAX || fr < fc {
+                continue;
+            }
+            if fr == fc {
+                diag_sum += v;
+            }
+            lower.push(Triplet::new(fr, fc, v));
+        }
+        // Every diagonal entry present (zeros where no term reaches), so
+        // shifts keep the pattern.
+        for k in 0..nf {
+            lower.push(Triplet::new(k, k, 0.0));
+        }
+        let mean_diag = (diag_sum / nf as f64).max(f64::MIN_POSITIVE);
+        let build = |shift: f64| -> Result<SparseColMat<usize, f64>, String> {
+            let mut l = lower.clone();
+            if shift > 0.0 {
+                for k in 0..nf {
+                    l.push(Triplet::new(k, k, shift));
+                }
+            }
+            SparseColMat::try_new_from_triplets(nf, nf, &l).map_err(|e| format!("{e:?}"))
+        };
+        let mut shift = 0.0;
+        let factor = loop {
+            let mat = build(shift).map_err(|message| StaticError::Factorization {
+                iteration: it,
+                message,
+            })?;
+            let key = (
+                mat.symbolic().col_ptr().to_vec(),
+                mat.symbolic().row_idx().to_vec(),
+            );
+            let symbolic = match (cache.key.as_ref() == Some(&key), cache.symbolic.take()) {
+                (true, Some(s)) => s,
+                _ => {
+                    stats.symbolic_factorizations += 1;
+                    SparseCholesky::symbolic(mat.as_ref()).map_err(|message| {
+                        StaticError::Factorization {
+                            iteration: it,
+                            message,
+                        }
+                    })?
+                }
+            };
+            cache.key = Some(key);
+            stats.numeric_factorizations += 1;
+            // A failed numeric factorization consumes the analysis (rare:
+            // the next try redoes it).
+            match SparseCholesky::numeric(symbolic, mat.as_ref()) {
+                Ok(f) => break f,
+                Err(message) => {
+                    cache.key = None;
+                    shift = if shift == 0.0 { 1e-10 * mean_diag } else { shift * 10.0 };
+                    if shift > 1e6 * mean_diag {
+                        return Err(StaticError::Factorization {
+                            iteration: it,
+                            message,
+                        });
+                    }
+                }
+            }
+        };
+        if shift > 0.0 {
+            stats.regularized += 1;
+        }
+        stats.factor_ms += t1.elapsed().as_secs_f64() * 1e3;
+        let t2 = Instant::now();
+        let mut rhs = Mat::<f64>::from_fn(nf, 1, |k, _| -grad[free[k]]);
+        factor.solve_in_place(rhs.as_mut());
+        cache.symbolic = Some(factor.into_symbolic());
+        let mut dq = vec![0.0; n];
+        for (k, &i) in free.iter().enumerate() {
+            dq[i] = rhs[(k, 0)];
+        }
+        stats.solve_ms += t2.elapsed().as_secs_f64() * 1e3;
+        // Step bounds: the terms' and the displacement cap.
+        let t3 = Instant::now();
+        let mut alpha: f64 = 1.0;
+        for t in terms.iter() {
+            alpha = alpha.min(t.max_step(q, &dq));
+        }
+        let n_vert = n / 3;
+        let max_move = (0..n_vert)
+            .map(|v| (dq[3 * v].powi(2) + dq[3 * v + 1].powi(2) + dq[3 * v + 2].powi(2)).sqrt())
+            .fold(0.0, f64::max);
+        if max_move * alpha > params.max_displacement {
+            alpha = params.max_displacement / max_move;
+        }
+        let slope: f64 = grad.iter().zip(&dq).map(|(g, d)| g * d).sum();
+        let mut accepted = false;
+        for _ in 0..=params.max_halvings {
+            for i in 0..n {
+                trial[i] = q[i] + alpha * dq[i];
+            }
+            let et = evaluate(terms, &trial, &mut trial_grad, None);
+            let (rt, _) = residual(&trial_grad, fixed);
+            let armijo = et <= e + params.armijo * alpha * slope;
+            // Near convergence energy differences drown in rounding: accept a
+            // step that keeps the energy (to rounding) and lowers the force.
+            let flat = et <= e + 1e-12 * e.abs().max(f64::MIN_POSITIVE) && rt < res;
+            if et.is_finite() && (armijo || flat) {
+                accepted = true;
+                break;
+            }
+            alpha *= 0.5;
+            stats.halvings += 1;
+        }
+        stats.line_search_ms += t3.elapsed().as_secs_f64() * 1e3;
+        if !accepted {
+            return Err(StaticError::LineSearch {
+                iteration: it,
+                residual: res,
+                dof: at,
+            });
+        }
+        q.copy_from_slice(&trial);
+        for t in terms.iter_mut() {
+            t.accept(q);
+        }
+        stats.iterations = it + 1;
+        let (r_new, _) = residual(&trial_grad, fixed);
+        stats.residual_history.push(r_new);
+    }
+    stats.energies = terms
+        .iter()
+        .map(|t| {
+            let mut g = vec![0.0; n];
+            (t.name().to_string(), t.eval(q, &mut g, None))
+        })
+        .collect();
+    Ok(stats)
+}

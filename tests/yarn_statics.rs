@@ -1,0 +1,134 @@
+//! The quasi-static Newton solver (yarn::statics) on discrete elastic rods:
+//! analytic axial stretch, a cantilever under gravity against Euler-Bernoulli,
+//! reaction forces balancing the load, determinism.
+
+use knitvox::geom::Yarns;
+use knitvox::yarn::rods::{RodEnergy, RodParams, RodRest, RodTopology};
+use knitvox::yarn::statics::{
+    reaction_forces, solve_static, EnergyTerm, GravityTerm, StaticParams, SymbolicCache,
+};
+
+const R: f64 = 1e-3;
+
+fn straight_rod(n: usize, len: f64) -> Yarns {
+    let pts: Vec<[f64; 3]> = (0..n)
+        .map(|i| [len * i as f64 / (n - 1) as f64, 0.0, 0.0])
+        .collect();
+    let mut y = Yarns::new();
+    y.push_curve(&pts, false, R);
+    y
+}
+
+/// Rods of `y` at rest with `params`, and the clamp mask of the first two and
+/// (optionally) last two vertices with their edges' twists.
+fn setup(y: &Yarns, params: &RodParams, clamp_end: bool) -> (RodEnergy, Vec<f64>, Vec<bool>) {
+    let topo = RodTopology::new(y).unwrap();
+    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
+    let q = topo.q_from_points(&y.points);
+    let n = y.num_points();
+    let mut fixed = vec![false; q.len()];
+    let ne = topo.num_edges();
+    let mut clamp = |v: usize| fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
+    clamp(0);
+    clamp(1);
+    if clamp_end {
+        clamp(n - 2);
+        clamp(n - 1);
+    }
+    fixed[topo.twist_dof(0)] = true;
+    if clamp_end {
+        fixed[topo.twist_dof(ne - 1)] = true;
+    }
+    let rods = RodEnergy::new(topo, rest, params, &q).unwrap();
+    (rods, q, fixed)
+}
+
+#[test]
+fn axial_stretch_matches_ea_strain() {
+    let (n, len, delta) = (21, 0.1, 0.01);
+    let y = straight_rod(n, len);
+    let params = RodParams::default();
+    let (mut rods, mut q, fixed) = setup(&y, &params, true);
+    for v in [n - 2, n - 1] {
+        q[3 * v] += delta;
+    }
+    let sp = StaticParams {
+        force_tolerance: 1e-10,
+        ..StaticParams::default()
+    };
+    let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods];
+    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    assert!(stats.converged && stats.residual <= 1e-10, "{stats:?}");
+    // Only the free span stretches: its rest length is len - 2h.
+    let h = len / (n - 1) as f64;
+    let ea = params.young_modulus * std::f64::consts::PI * R * R;
+    let expect = ea * delta / (len - 2.0 * h);
+    let react = reaction_forces(&terms, &q, &fixed);
+    let right: f64 = (n - 2..n).map(|v| react[3 * v]).sum();
+    let left: f64 = (0..2).map(|v| react[3 * v]).sum();
+    assert!((right - expect).abs() <= 1e-6 * expect, "{right} vs {expect}");
+    assert!((left + expect).abs() <= 1e-6 * expect, "{left} vs {expect}");
+    // Straight stays straight.
+    for v in 0..n {
+        assert!(q[3 * v + 1].abs() < 1e-12 && q[3 * v + 2].abs() < 1e-12);
+    }
+}
+
+fn cantilever(n: usize) -> (Vec<f64>, Vec<bool>, f64, f64, RodParams) {
+    let len = 0.02;
+    let y = straight_rod(n, len);
+    // A stiff rod (bend scale 1) so the deflection stays small (~1% of L).
+    let params = RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    };
+    let (mut rods, mut q, fixed) = setup(&y, &params, false);
+    let h = len / (n - 1) as f64;
+    let mu = 120.0 * std::f64::consts::PI * R * R;
+    let mass: Vec<f64> = (0..n)
+        .map(|v| if v == 0 || v == n - 1 { 0.5 * mu * h } else { mu * h })
+        .collect();
+    let total_weight: f64 = mass.iter().sum::<f64>() * 9.81;
+    let mut gravity = GravityTerm {
+        mass,
+        g: [0.0, -9.81, 0.0],
+    };
+    let sp = StaticParams {
+        force_tolerance: 1e-12,
+        ..StaticParams::default()
+    };
+    let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut gravity];
+    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    assert!(stats.converged, "{stats:?}");
+    let react = reaction_forces(&terms, &q, &fixed);
+    let support: f64 = (0..2).map(|v| react[3 * v + 1]).sum();
+    (q, fixed, support, total_weight, params)
+}
+
+#[test]
+fn cantilever_under_gravity_matches_euler_bernoulli_and_balances() {
+    let n = 41;
+    let (q, _, support, weight, params) = cantilever(n);
+    // The clamp holds the whole weight (its own vertices' too): reactions +
+    // weight = 0 up to the free forces left (<= 1e-12 N on 39 vertices).
+    assert!((support - weight).abs() <= 1e-6 * weight, "{support} vs {weight}");
+    // Euler-Bernoulli tip deflection w = q L^4 / (8 EI), uniform load
+    // q = mu g, of the span from the middle of the clamped edge (the first
+    // hinge's Voronoi region starts there: length L - h/2).
+    let len = 0.02;
+    let h = len / (n - 1) as f64;
+    let span = len - 0.5 * h;
+    let ei = params.bend_stiffness(R);
+    let load = 120.0 * std::f64::consts::PI * R * R * 9.81;
+    let expect = load * span.powi(4) / (8.0 * ei);
+    let tip = -q[3 * (n - 1) + 1];
+    assert!(expect < 0.02 * len, "small-deflection regime: {expect}");
+    assert!((tip - expect).abs() <= 0.01 * expect, "tip {tip} vs Euler-Bernoulli {expect}");
+}
+
+#[test]
+fn solves_are_deterministic() {
+    let (a, ..) = cantilever(31);
+    let (b, ..) = cantilever(31);
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
