@@ -132,3 +132,90 @@ fn solves_are_deterministic() {
     let (b, ..) = cantilever(31);
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
 }
+
+/// Yarn A along x at z = 0, yarn B along z... crossing above it at height
+/// `h` (centre distance), both 2 cm long with 41 vertices.
+fn crossing(h: f64) -> Yarns {
+    let n = 41;
+    let a: Vec<[f64; 3]> = (0..n).map(|i| [-0.01 + 0.02 * i as f64 / (n - 1) as f64, 0.0, 0.0]).collect();
+    let b: Vec<[f64; 3]> = (0..n).map(|i| [0.0, h, -0.01 + 0.02 * i as f64 / (n - 1) as f64]).collect();
+    let mut y = Yarns::new();
+    y.push_curve(&a, false, R);
+    y.push_curve(&b, false, R);
+    y
+}
+
+#[test]
+fn contact_gradient_matches_finite_differences() {
+    use knitvox::yarn::sim::YarnSimParams;
+    use knitvox::yarn::statics::ContactTerm;
+    let y = crossing(1.5 * R);
+    let term = ContactTerm::new(&y, &YarnSimParams::default(), 0.5 * R).unwrap();
+    let mut q: Vec<f64> = y.points.iter().flatten().copied().collect();
+    // Tilt yarn B a little so the pair is not symmetric.
+    for v in 41..82 {
+        q[3 * v] += 0.05 * (q[3 * v + 2]);
+    }
+    let mut g = vec![0.0; q.len()];
+    let e0 = term.eval(&q, &mut g, None);
+    assert!(e0 > 0.0);
+    let mut checked = 0;
+    for i in 0..q.len() {
+        if g[i].abs() < 1e-9 {
+            continue;
+        }
+        let eps = 1e-9;
+        let (mut qp, mut qm) = (q.clone(), q.clone());
+        qp[i] += eps;
+        qm[i] -= eps;
+        let mut s = vec![0.0; q.len()];
+        let fd = (term.eval(&qp, &mut s, None) - term.eval(&qm, &mut s, None)) / (2.0 * eps);
+        assert!((fd - g[i]).abs() <= 1e-5 * g[i].abs().max(1e-6), "{i}: fd {fd} vs {}", g[i]);
+        checked += 1;
+    }
+    assert!(checked >= 12, "{checked} coordinates checked");
+}
+
+#[test]
+fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
+    use knitvox::yarn::sim::YarnSimParams;
+    use knitvox::yarn::statics::ContactTerm;
+    // Centre distance 1.6 r: deep in contact (ratio 0.8); the clamped ends
+    // hold both yarns, so they bend apart until contact balances bending.
+    let y = crossing(1.6 * R);
+    let params = RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    };
+    let topo = RodTopology::new(&y).unwrap();
+    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
+    let mut q = topo.q_from_points(&y.points);
+    let mut fixed = vec![false; q.len()];
+    for v in [0, 1, 39, 40, 41, 42, 80, 81] {
+        fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
+    }
+    for e in [0, 39, 40, 79] {
+        fixed[topo.twist_dof(e)] = true;
+    }
+    let mut rods = RodEnergy::new(topo, rest, &params, &q).unwrap();
+    let mut contact = ContactTerm::new(&y, &YarnSimParams::default(), 0.5 * R).unwrap();
+    let sp = StaticParams {
+        force_tolerance: 1e-9,
+        max_displacement: 0.25 * R,
+        ..StaticParams::default()
+    };
+    let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
+    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    assert!(stats.converged, "{stats:?}");
+    let react = reaction_forces(&terms, &q, &fixed);
+    let fa: f64 = [0, 1, 39, 40].iter().map(|v| react[3 * v + 1]).sum();
+    let fb: f64 = [41, 42, 80, 81].iter().map(|v| react[3 * v + 1]).sum();
+    // Contact pushes A (below) down and B up; their clamps hold them with
+    // equal and opposite forces.
+    assert!(fa > 1e-6 && fb < -1e-6, "{fa} {fb}");
+    assert!((fa + fb).abs() <= 1e-6 * fa, "{fa} {fb}");
+    let st = contact.stats(&q);
+    assert!(st.active_pairs > 0 && st.min_distance_ratio > 0.75, "{st:?}");
+    // They separated from the initial 0.8.
+    assert!(st.min_distance_ratio > 0.8, "{st:?}");
+}

@@ -8,10 +8,12 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod contact;
 pub mod external;
 pub mod solver;
 pub mod term;
 
+pub use contact::{ContactStats, ContactTerm};
 pub use external::GravityTerm;
 pub use solver::{
     evaluate, reaction_forces, solve_static, StaticError, StaticParams, StaticStats, SymbolicCache,

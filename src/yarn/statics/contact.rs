@@ -1,0 +1,206 @@
+//! Yarn-yarn contact for the quasi-static solver: exactly the Kaldor
+//! potential of the explicit simulator (`yarn::sim::contact`; Leaf 2018 Eq.
+//! 9-10, f(d) = 1/d^2 + d^2 - 2 for d = dist / (rA + rB) < 1, Simpson
+//! samples over the rest arclength of both segments), with its gradient
+//! and a PSD Hessian.
+//!
+//! Hessian: per sample pair with `u = pA - pB`, `phi(|u|) = k w f(|u|/R)`
+//! has `d2phi/du2 = phi'' n n^T + (phi'/|u|) (I - n n^T)`. `f'' > 0`
+//! everywhere, but `f' < 0` inside contact, so the transverse part is
+//! negative: it is dropped (clamped at zero), leaving `phi'' n n^T`, mapped
+//! to the four segment vertices through the sample weights
+//! `(1 - s, s, -(1 - t), -t)`.
+//!
+//! Candidate pairs come from the simulator's spatial hash (same exclusion of
+//! near neighbours along a yarn), rebuilt at every Newton iteration with a
+//! skin at least the solver's displacement cap, so no pair can enter
+//! contact unseen within an iteration.
+
+use rayon::prelude::*;
+
+use super::term::{EnergyTerm, Triplets};
+use crate::geom::vec3::{dot, sub};
+use crate::geom::{Vec3, Yarns};
+use crate::yarn::sim::contact::{simpson, ContactSet};
+use crate::yarn::sim::model::Model;
+use crate::yarn::sim::{YarnSimError, YarnSimParams};
+
+/// Kaldor contact over the position coordinates of `q`.
+#[derive(Debug, Clone)]
+pub struct ContactTerm {
+    model: Model,
+    set: ContactSet,
+    /// Contact stiffness k_contact (J/m^2 = kg/s^2). Default from
+    /// [`YarnSimParams`] (HYLC Table 1: 60).
+    pub stiffness: f64,
+    weights: Vec<f64>,
+    samples: Vec<f64>,
+}
+
+/// Contact figures at a state.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ContactStats {
+    /// Segment pairs closer than the sum of their radii.
+    pub active_pairs: usize,
+    /// `2 * active_pairs / vertices`.
+    pub contacts_per_vertex: f64,
+    /// Smallest closest distance / (rA + rB) over the candidate pairs.
+    pub min_distance_ratio: f64,
+}
+
+fn points_of(q: &[f64], n: usize) -> Vec<Vec3> {
+    (0..n).map(|v| [q[3 * v], q[3 * v + 1], q[3 * v + 2]]).collect()
+}
+
+impl ContactTerm {
+    /// Contact between the segments of `yarns` (rest arclengths from its
+    /// points), candidate pairs found within the radii plus `2 skin` (m).
+    pub fn new(yarns: &Yarns, params: &YarnSimParams, skin: f64) -> Result<ContactTerm, YarnSimError> {
+        let model = Model::from_yarns(yarns, params, None)?;
+        let ns = model.n_samples;
+        let mut set = ContactSet {
+            skin: skin.max(params.contact_skin * model.r_min),
+            ..ContactSet::default()
+        };
+        set.build(&model, &yarns.points);
+        Ok(ContactTerm {
+            stiffness: params.contact_stiffness,
+            weights: simpson(ns),
+            samples: (0..ns).map(|k| k as f64 / (ns - 1) as f64).collect(),
+            model,
+            set,
+        })
+    }
+
+    /// Active pairs, contacts per vertex and the minimum distance ratio at `q`.
+    pub fn stats(&self, q: &[f64]) -> ContactStats {
+        let n = self.model.n_real;
+        let x = points_of(q, n);
+        let cs = &self.model.csegs;
+        let (active, min_ratio) = self
+            .set
+            .pairs
+            .iter()
+            .map(|p| {
+                let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
+                let d = crate::yarn::sim::contact::segment_distance(
+                    x[a.v[0] as usize],
+                    x[a.v[1] as usize],
+                    x[b.v[0] as usize],
+                    x[b.v[1] as usize],
+                );
+                d / (a.radius + b.radius)
+            })
+            .fold((0usize, f64::INFINITY), |(c, m), r| {
+                (c + usize::from(r < 1.0), m.min(r))
+            });
+        ContactStats {
+            active_pairs: active,
+            contacts_per_vertex: 2.0 * active as f64 / n.max(1) as f64,
+            min_distance_ratio: min_ratio,
+        }
+    }
+
+    /// Energy, the 12 gradient entries and the 12x12 PSD Hessian of one pair.
+    fn pair(&self, pi: usize, x: &[Vec3], want_h: bool) -> Option<(f64, [usize; 4], [f64; 12], Vec<f64>)> {
+        let p = self.set.pairs[pi];
+        let cs = &self.model.csegs;
+        let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
+        let ids = [
+            a.v[0] as usize,
+            a.v[1] as usize,
+            b.v[0] as usize,
+            b.v[1] as usize,
+        ];
+        let (a0, a1, b0, b1) = (x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]]);
+        let rsum = a.radius + b.radius;
+        if crate::yarn::sim::contact::segment_distance(a0, a1, b0, b1) >= rsum {
+            return None;
+        }
+        let (da, db) = (sub(a1, a0), sub(b1, b0));
+        let inv_r = 1.0 / rsum;
+        let cw = self.stiffness * p.w * a.l0 * b.l0;
+        let mut e = 0.0;
+        let mut g = [0.0; 12];
+        let mut h = if want_h { vec![0.0; 144] } else { Vec::new() };
+        for (k, &sk) in self.samples.iter().enumerate() {
+            let pa = [a0[0] + sk * da[0], a0[1] + sk * da[1], a0[2] + sk * da[2]];
+            for (m, &tm) in self.samples.iter().enumerate() {
+                let pb = [b0[0] + tm * db[0], b0[1] + tm * db[1], b0[2] + tm * db[2]];
+                let u = sub(pa, pb);
+                let d2 = dot(u, u) * inv_r * inv_r;
+                if d2 >= 1.0 {
+                    continue;
+                }
+                let d = d2.sqrt();
+                let ww = cw * self.weights[k] * self.weights[m];
+                e += ww * (1.0 / d2 + d2 - 2.0);
+                // dphi/du = ww f'(d) / R * n, n = u / |u|.
+                let fp = -2.0 / (d2 * d) + 2.0 * d;
+                let fpp = 6.0 / (d2 * d2) + 2.0;
+                let dist = d * rsum;
+                let nrm = [u[0] / dist, u[1] / dist, u[2] / dist];
+                let gu = ww * fp * inv_r;
+                let hu = ww * fpp * inv_r * inv_r;
+                let sh = [1.0 - sk, sk, -(1.0 - tm), -tm];
+                for (j, &s) in sh.iter().enumerate() {
+                    for c in 0..3 {
+                        g[3 * j + c] += s * gu * nrm[c];
+                    }
+                }
+                if want_h {
+                    for (j1, &s1) in sh.iter().enumerate() {
+                        for (j2, &s2) in sh.iter().enumerate() {
+                            let f = s1 * s2 * hu;
+                            for c1 in 0..3 {
+                                for c2 in 0..3 {
+                                    h[(3 * j1 + c1) * 12 + 3 * j2 + c2] += f * nrm[c1] * nrm[c2];
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Some((e, ids, g, h))
+    }
+}
+
+impl EnergyTerm for ContactTerm {
+    fn name(&self) -> &'static str {
+        "contact"
+    }
+
+    fn eval(&self, q: &[f64], grad: &mut [f64], hess: Option<&mut Triplets>) -> f64 {
+        let x = points_of(q, self.model.n_real);
+        let want_h = hess.is_some();
+        // Per pair in pair order (collect keeps it), then summed in order:
+        // the same result for any thread count.
+        let outs: Vec<_> = (0..self.set.pairs.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .filter_map(|i| self.pair(i, &x, want_h))
+            .collect();
+        let mut e = 0.0;
+        for (pe, ids, g, _) in &outs {
+            e += pe;
+            for (j, &v) in ids.iter().enumerate() {
+                for c in 0..3 {
+                    grad[3 * v + c] += g[3 * j + c];
+                }
+            }
+        }
+        if let Some(t) = hess {
+            for (_, ids, _, h) in &outs {
+                let dofs: Vec<usize> = ids.iter().flat_map(|&v| [3 * v, 3 * v + 1, 3 * v + 2]).collect();
+                t.push_block(&dofs, h);
+            }
+        }
+        e
+    }
+
+    fn begin_iteration(&mut self, q: &[f64]) {
+        let x = points_of(q, self.model.n_real);
+        self.set.build(&self.model, &x);
+    }
+}
