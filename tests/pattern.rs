@@ -88,10 +88,20 @@ fn every_builtin_builds_valid_tiles_and_swatches() {
                 .unwrap_or_else(|| panic!("{name}: course {k} is not in the joined yarn in order"));
             at += start + course.len();
         }
-        assert_eq!(at, one.len(), "{name}: the joined yarn ends with the last course");
+        assert_eq!(
+            at,
+            one.len(),
+            "{name}: the joined yarn ends with the last course"
+        );
         let (yb, jb) = (y.bounds().unwrap(), joined.bounds().unwrap());
-        assert!(jb.min[0] < yb.min[0] && jb.max[0] > yb.max[0], "{name}: turns lie outside the edges");
-        assert!(joined.max_segment_length() < 1.6 * p.spacing * p.yarn_radius, "{name}");
+        assert!(
+            jb.min[0] < yb.min[0] && jb.max[0] > yb.max[0],
+            "{name}: turns lie outside the edges"
+        );
+        assert!(
+            joined.max_segment_length() < 1.6 * p.spacing * p.yarn_radius,
+            "{name}"
+        );
         // The swatch spans M pitches along x and N along y (to the loop sizes).
         let b = y.bounds().unwrap();
         assert!(

@@ -57,7 +57,14 @@ fn axial_stretch_matches_ea_strain() {
         ..StaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods];
-    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    let stats = solve_static(
+        &mut terms,
+        &mut q,
+        &fixed,
+        &sp,
+        &mut SymbolicCache::default(),
+    )
+    .unwrap();
     assert!(stats.converged && stats.residual <= 1e-10, "{stats:?}");
     // Only the free span stretches: its rest length is len - 2h.
     let h = len / (n - 1) as f64;
@@ -66,7 +73,10 @@ fn axial_stretch_matches_ea_strain() {
     let react = reaction_forces(&terms, &q, &fixed);
     let right: f64 = (n - 2..n).map(|v| react[3 * v]).sum();
     let left: f64 = (0..2).map(|v| react[3 * v]).sum();
-    assert!((right - expect).abs() <= 1e-6 * expect, "{right} vs {expect}");
+    assert!(
+        (right - expect).abs() <= 1e-6 * expect,
+        "{right} vs {expect}"
+    );
     assert!((left + expect).abs() <= 1e-6 * expect, "{left} vs {expect}");
     // Straight stays straight.
     for v in 0..n {
@@ -86,7 +96,13 @@ fn cantilever(n: usize) -> (Vec<f64>, Vec<bool>, f64, f64, RodParams) {
     let h = len / (n - 1) as f64;
     let mu = 120.0 * std::f64::consts::PI * R * R;
     let mass: Vec<f64> = (0..n)
-        .map(|v| if v == 0 || v == n - 1 { 0.5 * mu * h } else { mu * h })
+        .map(|v| {
+            if v == 0 || v == n - 1 {
+                0.5 * mu * h
+            } else {
+                mu * h
+            }
+        })
         .collect();
     let total_weight: f64 = mass.iter().sum::<f64>() * 9.81;
     let mut gravity = GravityTerm {
@@ -98,7 +114,14 @@ fn cantilever(n: usize) -> (Vec<f64>, Vec<bool>, f64, f64, RodParams) {
         ..StaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut gravity];
-    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    let stats = solve_static(
+        &mut terms,
+        &mut q,
+        &fixed,
+        &sp,
+        &mut SymbolicCache::default(),
+    )
+    .unwrap();
     assert!(stats.converged, "{stats:?}");
     let react = reaction_forces(&terms, &q, &fixed);
     let support: f64 = (0..2).map(|v| react[3 * v + 1]).sum();
@@ -111,7 +134,10 @@ fn cantilever_under_gravity_matches_euler_bernoulli_and_balances() {
     let (q, _, support, weight, params) = cantilever(n);
     // The clamp holds the whole weight (its own vertices' too): reactions +
     // weight = 0 up to the free forces left (<= 1e-12 N on 39 vertices).
-    assert!((support - weight).abs() <= 1e-6 * weight, "{support} vs {weight}");
+    assert!(
+        (support - weight).abs() <= 1e-6 * weight,
+        "{support} vs {weight}"
+    );
     // Euler-Bernoulli tip deflection w = q L^4 / (8 EI), uniform load
     // q = mu g, of the span from the middle of the clamped edge (the first
     // hinge's Voronoi region starts there: length L - h/2).
@@ -123,7 +149,10 @@ fn cantilever_under_gravity_matches_euler_bernoulli_and_balances() {
     let expect = load * span.powi(4) / (8.0 * ei);
     let tip = -q[3 * (n - 1) + 1];
     assert!(expect < 0.02 * len, "small-deflection regime: {expect}");
-    assert!((tip - expect).abs() <= 0.01 * expect, "tip {tip} vs Euler-Bernoulli {expect}");
+    assert!(
+        (tip - expect).abs() <= 0.01 * expect,
+        "tip {tip} vs Euler-Bernoulli {expect}"
+    );
 }
 
 #[test]
@@ -137,8 +166,12 @@ fn solves_are_deterministic() {
 /// `h` (centre distance), both 2 cm long with 41 vertices.
 fn crossing(h: f64) -> Yarns {
     let n = 41;
-    let a: Vec<[f64; 3]> = (0..n).map(|i| [-0.01 + 0.02 * i as f64 / (n - 1) as f64, 0.0, 0.0]).collect();
-    let b: Vec<[f64; 3]> = (0..n).map(|i| [0.0, h, -0.01 + 0.02 * i as f64 / (n - 1) as f64]).collect();
+    let a: Vec<[f64; 3]> = (0..n)
+        .map(|i| [-0.01 + 0.02 * i as f64 / (n - 1) as f64, 0.0, 0.0])
+        .collect();
+    let b: Vec<[f64; 3]> = (0..n)
+        .map(|i| [0.0, h, -0.01 + 0.02 * i as f64 / (n - 1) as f64])
+        .collect();
     let mut y = Yarns::new();
     y.push_curve(&a, false, R);
     y.push_curve(&b, false, R);
@@ -170,7 +203,11 @@ fn contact_gradient_matches_finite_differences() {
         qm[i] -= eps;
         let mut s = vec![0.0; q.len()];
         let fd = (term.eval(&qp, &mut s, None) - term.eval(&qm, &mut s, None)) / (2.0 * eps);
-        assert!((fd - g[i]).abs() <= 1e-5 * g[i].abs().max(1e-6), "{i}: fd {fd} vs {}", g[i]);
+        assert!(
+            (fd - g[i]).abs() <= 1e-5 * g[i].abs().max(1e-6),
+            "{i}: fd {fd} vs {}",
+            g[i]
+        );
         checked += 1;
     }
     assert!(checked >= 12, "{checked} coordinates checked");
@@ -205,7 +242,14 @@ fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
         ..StaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
-    let stats = solve_static(&mut terms, &mut q, &fixed, &sp, &mut SymbolicCache::default()).unwrap();
+    let stats = solve_static(
+        &mut terms,
+        &mut q,
+        &fixed,
+        &sp,
+        &mut SymbolicCache::default(),
+    )
+    .unwrap();
     assert!(stats.converged, "{stats:?}");
     let react = reaction_forces(&terms, &q, &fixed);
     let fa: f64 = [0, 1, 39, 40].iter().map(|v| react[3 * v + 1]).sum();
@@ -215,7 +259,10 @@ fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
     assert!(fa > 1e-6 && fb < -1e-6, "{fa} {fb}");
     assert!((fa + fb).abs() <= 1e-6 * fa, "{fa} {fb}");
     let st = contact.stats(&q);
-    assert!(st.active_pairs > 0 && st.min_distance_ratio > 0.75, "{st:?}");
+    assert!(
+        st.active_pairs > 0 && st.min_distance_ratio > 0.75,
+        "{st:?}"
+    );
     // They separated from the initial 0.8.
     assert!(st.min_distance_ratio > 0.8, "{st:?}");
 }

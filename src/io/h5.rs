@@ -1097,7 +1097,10 @@ fn read_rest_group(rg: &Group, gp: &str, y: &Yarns) -> Result<RestShape, FormatE
     let twist = read("twist", &[Some(nv)], &format!("[{nv}] (one per vertex)"))?;
     let rest = RestShape {
         lengths,
-        directors: directors.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        directors: directors
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
         curvature: curvature
             .chunks_exact(4)
             .map(|c| [c[0], c[1], c[2], c[3]])
@@ -1601,9 +1604,17 @@ mod tests {
         RestShape {
             lengths: (0..ns).map(|s| 0.5 + s as f64 * 0.125).collect(),
             directors: (0..ns)
-                .map(|s| if s % 2 == 0 { [1.0, 0.0, 0.0] } else { [0.0, 0.6, 0.8] })
+                .map(|s| {
+                    if s % 2 == 0 {
+                        [1.0, 0.0, 0.0]
+                    } else {
+                        [0.0, 0.6, 0.8]
+                    }
+                })
                 .collect(),
-            curvature: (0..nv).map(|v| [v as f64, -0.5, 0.25 * v as f64, 1.0]).collect(),
+            curvature: (0..nv)
+                .map(|v| [v as f64, -0.5, 0.25 * v as f64, 1.0])
+                .collect(),
             twist: (0..nv).map(|v| 0.1 * v as f64).collect(),
         }
     }
@@ -1623,10 +1634,19 @@ mod tests {
         short.rest.as_mut().unwrap().lengths.pop();
         short.rest.as_mut().unwrap().directors.pop();
         let file = create_h5(&bad).unwrap();
-        write_yarns(&file, &Yarns { rest: None, ..y.clone() }).unwrap();
+        write_yarns(
+            &file,
+            &Yarns {
+                rest: None,
+                ..y.clone()
+            },
+        )
+        .unwrap();
         write_rest_group(&file.group("yarns").unwrap(), short.rest.as_ref().unwrap()).unwrap();
         drop(file);
-        let e = read_file(&bad, &ReadOptions::default()).unwrap_err().to_string();
+        let e = read_file(&bad, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("/yarns/rest/lengths"), "{e}");
     }
 

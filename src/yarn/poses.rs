@@ -317,10 +317,13 @@ impl PoseDriver {
                 // turns of a flat-knitted swatch).
                 let half = 0.5 * (lx + lz) / std::f64::consts::SQRT_2;
                 let band = p.band * 2.0 * half;
-                let d2_of = move |q: &Vec3| ((q[0] - c[0]) - (q[2] - c[2])) / std::f64::consts::SQRT_2;
-                let (lo, hi) = rest.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
-                    (lo.min(d2_of(q)), hi.max(d2_of(q)))
-                });
+                let d2_of =
+                    move |q: &Vec3| ((q[0] - c[0]) - (q[2] - c[2])) / std::f64::consts::SQRT_2;
+                let (lo, hi) = rest
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
+                        (lo.min(d2_of(q)), hi.max(d2_of(q)))
+                    });
                 let role = Role::Bend { sign, diag: true };
                 rules.push((
                     Box::new(move |q: &Vec3| {
@@ -363,10 +366,12 @@ impl PoseDriver {
                 // The corners of the top band, measured from the extremes of
                 // the vertices in it (a flat-knitted swatch's edge turns
                 // reach farther out in X lower down).
-                let (lo, hi) = rest.iter().filter(|q| front(q)).fold(
-                    (f64::INFINITY, f64::NEG_INFINITY),
-                    |(lo, hi), q| (lo.min(q[0]), hi.max(q[0])),
-                );
+                let (lo, hi) = rest
+                    .iter()
+                    .filter(|q| front(q))
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
+                        (lo.min(q[0]), hi.max(q[0]))
+                    });
                 rules.push((
                     Box::new(move |q: &Vec3| front(q) && (q[0] <= lo + bx || q[0] >= hi - bx)),
                     Role::Hold,

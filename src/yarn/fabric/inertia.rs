@@ -72,7 +72,11 @@ mod tests {
             qm[i] -= eps;
             let mut sink = vec![0.0; 6];
             let fd = (t.eval(&qp, &mut sink, None) - t.eval(&qm, &mut sink, None)) / (2.0 * eps);
-            assert!((fd - g[i]).abs() <= 1e-6 * g[i].abs().max(1.0), "{i}: {fd} vs {}", g[i]);
+            assert!(
+                (fd - g[i]).abs() <= 1e-6 * g[i].abs().max(1.0),
+                "{i}: {fd} vs {}",
+                g[i]
+            );
         }
         assert_eq!(h.len(), 6);
         assert_eq!(h.vals[0], 2.0 / 1e-4);

@@ -498,7 +498,12 @@ fn mean_segment_length(y: &Yarns) -> f64 {
 /// The turn bulges out by at least 2r so that it clears the edge stitches'
 /// legs (which stay within the edge sinkers in x), and eases z between the
 /// two courses' end heights.
-fn join_back_and_forth(courses: &[(usize, Vec<Vec3>)], width: f64, spacing: f64, r: f64) -> Vec<Vec3> {
+fn join_back_and_forth(
+    courses: &[(usize, Vec<Vec3>)],
+    width: f64,
+    spacing: f64,
+    r: f64,
+) -> Vec<Vec3> {
     let mut out: Vec<Vec3> = Vec::new();
     for (k, (_, pts)) in courses.iter().enumerate() {
         let forward = k % 2 == 0;
@@ -522,7 +527,10 @@ fn join_back_and_forth(courses: &[(usize, Vec<Vec3>)], width: f64, spacing: f64,
                 let th = PI * i as f64 / n as f64;
                 let f = 0.5 - 0.5 * th.cos();
                 out.push([
-                    edge_x + side * bulge * th.sin() + (1.0 - f) * (p[0] - edge_x) + f * (q[0] - edge_x),
+                    edge_x
+                        + side * bulge * th.sin()
+                        + (1.0 - f) * (p[0] - edge_x)
+                        + f * (q[0] - edge_x),
                     p[1] + dy * f,
                     ease(p[2], q[2], f),
                 ]);

@@ -34,6 +34,7 @@
 mod dual;
 mod frame;
 mod rest;
+mod shape;
 mod topology;
 
 #[cfg(test)]

@@ -49,13 +49,19 @@ pub struct ContactStats {
 }
 
 fn points_of(q: &[f64], n: usize) -> Vec<Vec3> {
-    (0..n).map(|v| [q[3 * v], q[3 * v + 1], q[3 * v + 2]]).collect()
+    (0..n)
+        .map(|v| [q[3 * v], q[3 * v + 1], q[3 * v + 2]])
+        .collect()
 }
 
 impl ContactTerm {
     /// Contact between the segments of `yarns` (rest arclengths from its
     /// points), candidate pairs found within the radii plus `2 skin` (m).
-    pub fn new(yarns: &Yarns, params: &YarnSimParams, skin: f64) -> Result<ContactTerm, YarnSimError> {
+    pub fn new(
+        yarns: &Yarns,
+        params: &YarnSimParams,
+        skin: f64,
+    ) -> Result<ContactTerm, YarnSimError> {
         let model = Model::from_yarns(yarns, params, None)?;
         let ns = model.n_samples;
         let mut set = ContactSet {
@@ -102,7 +108,12 @@ impl ContactTerm {
     }
 
     /// Energy, the 12 gradient entries and the 12x12 PSD Hessian of one pair.
-    fn pair(&self, pi: usize, x: &[Vec3], want_h: bool) -> Option<(f64, [usize; 4], [f64; 12], Vec<f64>)> {
+    fn pair(
+        &self,
+        pi: usize,
+        x: &[Vec3],
+        want_h: bool,
+    ) -> Option<(f64, [usize; 4], [f64; 12], Vec<f64>)> {
         let p = self.set.pairs[pi];
         let cs = &self.model.csegs;
         let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
@@ -192,7 +203,10 @@ impl EnergyTerm for ContactTerm {
         }
         if let Some(t) = hess {
             for (_, ids, _, h) in &outs {
-                let dofs: Vec<usize> = ids.iter().flat_map(|&v| [3 * v, 3 * v + 1, 3 * v + 2]).collect();
+                let dofs: Vec<usize> = ids
+                    .iter()
+                    .flat_map(|&v| [3 * v, 3 * v + 1, 3 * v + 2])
+                    .collect();
                 t.push_block(&dofs, h);
             }
         }

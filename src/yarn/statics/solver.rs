@@ -147,7 +147,10 @@ fn residual(grad: &[f64], fixed: &[bool]) -> (f64, usize) {
 pub fn reaction_forces(terms: &[&mut dyn EnergyTerm], q: &[f64], fixed: &[bool]) -> Vec<f64> {
     let mut g = vec![0.0; q.len()];
     evaluate(terms, q, &mut g, None);
-    g.iter().zip(fixed).map(|(g, f)| if *f { *g } else { 0.0 }).collect()
+    g.iter()
+        .zip(fixed)
+        .map(|(g, f)| if *f { *g } else { 0.0 })
+        .collect()
 }
 
 /// A symbolic analysis kept for the next solve while the pattern holds.
@@ -159,7 +162,9 @@ pub struct SymbolicCache {
 
 impl std::fmt::Debug for SymbolicCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SymbolicCache").field("cached", &self.symbolic.is_some()).finish()
+        f.debug_struct("SymbolicCache")
+            .field("cached", &self.symbolic.is_some())
+            .finish()
     }
 }
 
@@ -294,7 +299,11 @@ pub fn solve_static(
                 Ok(f) => break f,
                 Err(message) => {
                     cache.key = None;
-                    shift = if shift == 0.0 { 1e-10 * mean_diag } else { shift * 10.0 };
+                    shift = if shift == 0.0 {
+                        1e-10 * mean_diag
+                    } else {
+                        shift * 10.0
+                    };
                     if shift > 1e6 * mean_diag {
                         return Err(StaticError::Factorization {
                             iteration: it,
