@@ -122,8 +122,9 @@ impl StressDerivative {
         let psi: [f64; 3] =
             std::array::from_fn(|i| w * (gamma_s * (s[i] - 1.0) + gamma_v * (s[i] - d[i])));
         let sc = s.map(|x| x.max(SINGULAR_VALUE_FLOOR));
-        let free: [bool; 3] =
-            std::array::from_fn(|i| d[i] > SINGULAR_VALUE_FLOOR * (1.0 + 1e-9) && s[i] > SINGULAR_VALUE_FLOOR);
+        let free: [bool; 3] = std::array::from_fn(|i| {
+            d[i] > SINGULAR_VALUE_FLOOR * (1.0 + 1e-9) && s[i] > SINGULAR_VALUE_FLOOR
+        });
         let lambda = (0..3)
             .filter(|&i| free[i])
             .max_by(|&i, &j| d[i].total_cmp(&d[j]))
@@ -336,7 +337,10 @@ mod tests {
                     continue;
                 }
                 let err = fd_error(&f, &rest, 1e4, 3e4);
-                assert!(err < 1e-5, "scale {scale}: relative FD error {err} at F = {f}");
+                assert!(
+                    err < 1e-5,
+                    "scale {scale}: relative FD error {err} at F = {f}"
+                );
             }
         }
     }
@@ -350,10 +354,18 @@ mod tests {
             let (u, v) = (rng.rotation(), rng.rotation());
             let s = if k % 2 == 0 {
                 // Smallest value just above the floor.
-                Vector3::new(1.0 + rng.next(), 0.5 + 0.3 * rng.next(), 0.0105 + 0.005 * rng.next())
+                Vector3::new(
+                    1.0 + rng.next(),
+                    0.5 + 0.3 * rng.next(),
+                    0.0105 + 0.005 * rng.next(),
+                )
             } else {
                 // Inverted: negative third value, well away from the kinks.
-                Vector3::new(1.2 + rng.next(), 0.6 + 0.3 * rng.next(), -0.2 - 0.3 * rng.next())
+                Vector3::new(
+                    1.2 + rng.next(),
+                    0.6 + 0.3 * rng.next(),
+                    -0.2 - 0.3 * rng.next(),
+                )
             };
             let f = u * Matrix3::from_diagonal(&s) * v.transpose();
             let err = fd_error(&f, &rest, 2e4, 1e4);
@@ -377,7 +389,10 @@ mod tests {
             let eig = h.symmetric_eigen();
             let min = eig.eigenvalues.min();
             let max = eig.eigenvalues.max();
-            assert!(min >= -1e-9 * max, "case {k}: min eigenvalue {min} (max {max})");
+            assert!(
+                min >= -1e-9 * max,
+                "case {k}: min eigenvalue {min} (max {max})"
+            );
         }
         // Stretch (all σ > 1): every eigenvalue of the exact form is >= 0, so
         // projection changes nothing.
@@ -387,7 +402,11 @@ mod tests {
             element_hessian(&f, &rest, 1e4, 1e4, false),
             element_hessian(&f, &rest, 1e4, 1e4, true),
         );
-        assert!((a - b).norm() < 1e-9 * a.norm(), "{}", (a - b).norm() / a.norm());
+        assert!(
+            (a - b).norm() < 1e-9 * a.norm(),
+            "{}",
+            (a - b).norm() / a.norm()
+        );
     }
 
     #[test]
