@@ -492,3 +492,44 @@ mod tests {
             .is_err());
     }
 }
+
+#[cfg(test)]
+mod bench {
+    use super::*;
+    use crate::sim::pd::box_mesh;
+
+    /// Timing only (`cargo test --lib sim::statics::bench -- --ignored --nocapture`):
+    /// a slab of `n` voxels (6 tets each), one end pinned, the other pulled 30 %.
+    #[test]
+    #[ignore]
+    fn newton_slab_timings() {
+        for n in [[24usize, 12, 6], [48, 24, 12]] {
+            let h = 0.005;
+            let (mesh, mass) = box_mesh(n, h, 120.0);
+            let nt = mesh.num_tets();
+            let model = ElasticModel::new(&mesh, &vec![1e4; nt], &vec![1e4; nt]).unwrap();
+            let lx = n[0] as f64 * h;
+            let mut pinned = Vec::new();
+            let mut x = mesh.nodes.clone();
+            for (i, p) in mesh.nodes.iter().enumerate() {
+                if p[0] < 1e-9 {
+                    pinned.push(i);
+                } else if p[0] > lx - 1e-9 {
+                    pinned.push(i);
+                    x[i][0] = 1.3 * lx;
+                }
+            }
+            let f_ext: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
+            let mut s = StaticSolver::new(model, &mass, &pinned).unwrap();
+            let (_, st) = s.solve(&x, &f_ext, None, &StaticParams::default()).unwrap();
+            println!(
+                "tets {nt}: iterations {}, residual {:e}, total {:.0} ms, factor {:.0} ms, symbolic {:.0} ms",
+                st.iterations,
+                st.residuals.last().unwrap(),
+                st.total_ms,
+                st.factor_ms,
+                s.symbolic_ms
+            );
+        }
+    }
+}
