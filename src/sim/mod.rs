@@ -4,6 +4,9 @@
 //! * [`anderson`]: Anderson acceleration of the PD iterations (Peng et al.
 //!   2018).
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
+//! * [`hessian`]: its force Jacobian (exact and PSD-projected) and the
+//!   derivatives of the force with respect to `γs`, `γv`.
+//! * [`statics`]: Newton equilibrium of the tet mesh (VH Eq. 13-14).
 //! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
 //!   closest volume-preserving matrix per tet.
 //! * [`collide`]: planes, spheres and posed triangle meshes as colliders.
@@ -32,10 +35,12 @@ pub mod csr;
 pub mod dd;
 pub mod energy;
 pub mod gpu;
+pub mod hessian;
 pub mod jacobi;
 pub mod local;
 pub mod partition;
 pub mod pd;
+pub mod statics;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};
 pub use local::{
