@@ -653,3 +653,29 @@ fn tea_cozy_embeds_in_under_a_second() {
         );
     }
 }
+
+/// Issue 13 item 5: a dense garment whose per-segment bound (16+ voxels per
+/// segment) is far above the limit but whose real voxel count is small embeds;
+/// the limit still applies to the real count.
+#[test]
+fn dense_garment_bound_counts_real_voxels() {
+    // 200K segments zig-zagging inside a 4 cm cube: bound >= 3.2M, real < 2K at 4 mm.
+    let n = 200_001;
+    let pts: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let t = i as f64;
+            [0.02 + 0.019 * (t * 0.37).sin(), 0.02 + 0.019 * (t * 0.11).cos(), 0.02 + 0.019 * (t * 0.05).sin()]
+        })
+        .collect();
+    let y = yarns_of(&[(pts, false)]);
+    let h = 0.004;
+    let (grid, _) = voxelize(&y, h, None, 1_000_000).expect("real voxels fit");
+    assert!(grid.voxels.len() < 2_000, "{}", grid.voxels.len());
+    assert!(grid.voxels.len() > 100, "{}", grid.voxels.len());
+    let real = grid.voxels.len() as u64;
+    let err = voxelize(&y, h, None, real - 1).unwrap_err();
+    assert!(
+        matches!(err, EmbedError::TooManyVoxels { estimate, limit, .. } if estimate > limit && limit == real - 1),
+        "{err}"
+    );
+}
