@@ -140,8 +140,9 @@ pub struct ConvertArgs {
     /// Up axis of the written coordinates for bcc, obj, ply (glTF and HDF5 are always +Y up).
     #[arg(long, value_name = "y|z", default_value = "y")]
     pub out_up_axis: UpAxis,
-    /// First frame number of a written sequence.
-    #[arg(long, default_value_t = 1)]
+    /// First frame number of a written sequence (-1e9 to 1e9).
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true,
+          value_parser = clap::value_parser!(i64).range(-crate::geom::MAX_FRAME_NUMBER..=crate::geom::MAX_FRAME_NUMBER))]
     pub first_frame: i64,
     /// Print what was written as JSON.
     #[arg(long)]

@@ -13,7 +13,7 @@ pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
-pub use frame_spec::{FrameSpec, MAX_SPEC_FRAMES};
+pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use units::{Units, UpAxis};
 pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};

@@ -147,12 +147,21 @@ impl YarnSimParams {
             ("max_energy_per_vertex", self.max_energy_per_vertex),
         ];
         for (name, v) in pos {
-            if !(v > 0.0) || v.is_nan() {
+            if !(v > 0.0 && v.is_finite()) {
                 return Err(YarnSimError::Param {
                     name,
-                    message: format!("{v} is not a positive number"),
+                    message: format!("{v} is not a positive finite number"),
                 });
             }
+        }
+        if self.min_dt > self.max_dt {
+            return Err(YarnSimError::Param {
+                name: "min_dt",
+                message: format!(
+                    "{} s is larger than max_dt ({} s)",
+                    self.min_dt, self.max_dt
+                ),
+            });
         }
         if self.gravity.iter().any(|g| !g.is_finite()) {
             return Err(YarnSimError::Param {
