@@ -455,13 +455,15 @@ fn guards_give_the_right_errors() {
         &good,
         &EmbedParams {
             voxel_size: Some(0.1),
-            max_voxels: 50,
+            // The 1 m segment covers 11 voxels of 0.1 m (issue 13: the limit
+            // applies to the real voxels, not the 8 (C + 2) = 96 bound).
+            max_voxels: 10,
             ..EmbedParams::default()
         },
     )
     .unwrap_err();
     assert!(
-        matches!(err, EmbedError::TooManyVoxels { limit: 50, .. }),
+        matches!(err, EmbedError::TooManyVoxels { limit: 10, estimate: 11, .. }),
         "{err}"
     );
     // Two tiny yarns ten kilometres apart at a micrometre voxel: grid too wide.

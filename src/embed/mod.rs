@@ -24,7 +24,7 @@ pub enum EmbedError {
     #[error("invalid voxel size {0}: it must be a positive finite length in metres")]
     BadVoxelSize(f64),
     /// `estimate`: the unique voxels found before the walk stopped, or the
-    /// per-segment upper bound when one segment alone exceeds the limit.
+    /// voxels one segment alone covers at least.
     #[error("voxel size {h} m makes more than the limit of {limit} voxels (estimate {estimate}; raise --max-voxels or the voxel size)")]
     TooManyVoxels { h: f64, estimate: u64, limit: u64 },
     #[error("invalid yarns: {0}")]

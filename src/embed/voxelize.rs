@@ -144,7 +144,7 @@ impl Prepared {
                 .fold(0.0f64, f64::max)
                 + 1.0;
             if lower > max_voxels as f64 {
-                return Err(too_many(self.voxel_bound()));
+                return Err(too_many(lower.min(u64::MAX as f64) as u64));
             }
         }
         let walk = |chunk: &[[usize; 2]]| {
