@@ -452,12 +452,6 @@ impl Ds {
         if needed == 0 {
             return Ok(());
         }
-        if needed > self.budget {
-            return Err(self.err(format!(
-                "declares {elems} values ({needed} bytes), more than the memory budget of {} bytes (--max-memory)",
-                self.budget
-            )));
-        }
         let stored = self.ds.storage_size();
         let filtered = !self.ds.filters().is_empty();
         let justified = if filtered {
@@ -469,6 +463,12 @@ impl Ds {
             return Err(self.err(format!(
                 "declares {elems} values ({needed} bytes) but the file stores only {stored} bytes for it{}",
                 if filtered { " (compressed)" } else { "" }
+            )));
+        }
+        if needed > self.budget {
+            return Err(self.err(format!(
+                "declares {elems} values ({needed} bytes), more than the memory budget of {} bytes (--max-memory)",
+                self.budget
             )));
         }
         Ok(())
@@ -1288,6 +1288,8 @@ pub struct FrameWriter {
     frames: Option<FramesOut>,
     file: Option<hdf5::File>,
     tmp: Option<tempfile::TempPath>,
+    /// Removes the temporary file on SIGINT/SIGTERM (see io::atomic).
+    _registered: super::atomic::TempGuard,
     path: PathBuf,
 }
 
@@ -1313,6 +1315,7 @@ impl FrameWriter {
             .tempfile_in(&dir)
             .map_err(|e| write_err(path, e))?
             .into_temp_path();
+        let registered = super::atomic::TempGuard::register(&tmp);
         let file = create_h5(&tmp).map_err(|e| write_err(path, e))?;
         write_yarns(&file, yarns).map_err(|e| write_err(path, e))?;
         let frames =
@@ -1321,6 +1324,7 @@ impl FrameWriter {
             frames: Some(frames),
             file: Some(file),
             tmp: Some(tmp),
+            _registered: registered,
             path: path.to_path_buf(),
         })
     }

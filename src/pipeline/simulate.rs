@@ -954,9 +954,18 @@ pub fn simulate(
             sha256: super::asset::sha256_file(&p)?,
         });
     }
-    io::vtkhdf::write_asset(&req.output, &out)?;
+    // All or nothing (issue 13 item 4): the yarn frames (the output more
+    // likely to fail: format, sequence names) are written first and removed
+    // again if the asset cannot be written, so a failing command leaves no
+    // fresh output under a final name.
     if let Some(y) = &req.yarns_out {
         report.yarn_files = write_yarns(&out, &recorded, y, &req.write)?;
+    }
+    if let Err(e) = io::vtkhdf::write_asset(&req.output, &out) {
+        for f in &report.yarn_files {
+            let _ = std::fs::remove_file(f);
+        }
+        return Err(e.into());
     }
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
@@ -998,7 +1007,16 @@ fn write_yarns(
             first_frame: *f,
             ..opts.clone()
         };
-        written.extend(io::write_path(path, &asset.rest_yarns, Some(&one), &o)?);
+        match io::write_path(path, &asset.rest_yarns, Some(&one), &o) {
+            Ok(w) => written.extend(w),
+            Err(e) => {
+                // Leave no partial sequence behind.
+                for f in &written {
+                    let _ = std::fs::remove_file(f);
+                }
+                return Err(e.into());
+            }
+        }
     }
     Ok(written)
 }
