@@ -326,3 +326,53 @@ fn outputs_never_overwrite_inputs() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn sigterm_mid_write_leaves_no_temporary() {
+    let dir = scratch("sigterm");
+    // A long yarn-level run streams its frames into a temporary HDF5 file.
+    std::fs::write(
+        dir.join("long.toml"),
+        "name = \"long\"\nduration = 100.0\nframe_rate = 60\ngravity = [0.0, 0.0, 0.0]\n\
+         [swatch]\npattern = \"rib1x1\"\ncourses = 10\nwales = 10\n\
+         [pose]\nkind = \"biaxial\"\namount = 0.2\n",
+    )
+    .unwrap();
+    let mut child = Command::new(common::knitvox_bin())
+        .args(["yls", "long.toml", "-o", "out.h5", "--no-progress"])
+        .current_dir(&dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let temps = |dir: &Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".tmp"))
+            .collect()
+    };
+    // Wait until the temporary exists (the write is in flight).
+    let t0 = Instant::now();
+    while temps(&dir).is_empty() {
+        if let Some(s) = child.try_wait().unwrap() {
+            panic!("yls ended early ({s}): {:?}", child.wait_with_output().unwrap().stderr);
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60), "no temporary file appeared");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let t1 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t1.elapsed() < Duration::from_secs(10), "SIGTERM did not end the run");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(status.signal(), Some(libc::SIGTERM), "{status}");
+    assert!(temps(&dir).is_empty(), "left behind: {:?}", temps(&dir));
+    assert!(!dir.join("out.h5").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
