@@ -269,6 +269,7 @@ with h5py.File("bomb.h5", "a") as f:
 #[test]
 fn overflowing_counts_are_usage_errors() {
     let dir = scratch("counts");
+    std::fs::write(dir.join("s.toml"), "[simulation]\n").unwrap();
     for (args, want) in [
         (
             &["export", "a.vtkhdf", "--frames", "9223372036854775807", "-o", "d"][..],
@@ -280,6 +281,14 @@ fn overflowing_counts_are_usage_errors() {
         ),
         (&["convert", "a.obj", "b.obj", "--first-frame", "9223372036854775807"], "first-frame"),
         (&["embed", "a.obj", "-o", "a.vtkhdf", "--max-memory", "12Q"], "max-memory"),
+        (
+            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-1000000", "--dt", "1e-6", "-o", "o.vtkhdf"],
+            "more than the limit of 10000000",
+        ),
+        (
+            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-2", "--fps", "1e-300", "-o", "o.vtkhdf"],
+            "more than the limit of 10000000",
+        ),
     ] {
         let (o, t) = knitvox_in(&dir, args, Duration::from_secs(10));
         let e = stderr(&o);
@@ -374,5 +383,41 @@ fn sigterm_mid_write_leaves_no_temporary() {
     assert_eq!(status.signal(), Some(libc::SIGTERM), "{status}");
     assert!(temps(&dir).is_empty(), "left behind: {:?}", temps(&dir));
     assert!(!dir.join("out.h5").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn scene_counts_are_bounded_and_name_the_key() {
+    let dir = scratch("scenes");
+    std::fs::write(dir.join("it.toml"), "[simulation]\nmax_iterations = 4000000000\n").unwrap();
+    std::fs::write(
+        dir.join("folds.toml"),
+        "name = \"f\"\nduration = 1.0\nframe_rate = 60\n[swatch]\npattern = \"rib1x1\"\ncourses = 4\nwales = 4\n\
+         [pose]\nkind = \"multi_fold\"\namount = 0.1\nfolds = 4000000000\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("frames.toml"),
+        "name = \"f\"\nduration = 1e300\nframe_rate = 1e300\n[swatch]\npattern = \"rib1x1\"\ncourses = 4\nwales = 4\n\
+         [pose]\nkind = \"biaxial\"\namount = 0.1\n",
+    )
+    .unwrap();
+    for (args, words) in [
+        (
+            &["simulate", "a.vtkhdf", "--scene", "it.toml", "--frames", "1-2", "-o", "o.vtkhdf"][..],
+            &["it.toml", "max_iterations", "10000"][..],
+        ),
+        (&["yls", "folds.toml", "-o", "o.h5"], &["folds", "10000"]),
+        (&["yls", "frames.toml", "-o", "o.h5"], &["frames.toml", "duration", "1000000"]),
+    ] {
+        let (o, t) = knitvox_in(&dir, args, Duration::from_secs(20));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{args:?}: {e}");
+        for w in words {
+            assert!(e.contains(w), "{args:?}: {e} lacks {w}");
+        }
+        assert!(t < Duration::from_secs(5), "{args:?}: {t:?}");
+        assert!(!dir.join("o.h5").exists() && !dir.join("o.vtkhdf").exists());
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
