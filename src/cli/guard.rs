@@ -55,8 +55,8 @@ pub fn default_max_memory() -> u64 {
 
 /// The command's input and output paths (outputs that are folders excluded).
 fn io_paths(cli: &Cli) -> (Vec<&Path>, Vec<&Path>) {
-    fn p(x: &PathBuf) -> &Path {
-        x.as_path()
+    fn p(x: &Path) -> &Path {
+        x
     }
     match &cli.command {
         Command::Convert(a) => (vec![p(&a.input)], vec![p(&a.output)]),
@@ -76,7 +76,7 @@ fn io_paths(cli: &Cli) -> (Vec<&Path>, Vec<&Path>) {
             (ins, outs)
         }
         Command::Yls(a) => (vec![p(&a.scene)], vec![p(&a.output)]),
-        Command::Pattern(a) => (a.grid.iter().map(p).collect(), vec![p(&a.output)]),
+        Command::Pattern(a) => (a.grid.iter().map(|g| g.as_path()).collect(), vec![p(&a.output)]),
         _ => (Vec::new(), Vec::new()),
     }
 }
