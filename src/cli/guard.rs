@@ -3,7 +3,7 @@
 //! --name` stays a plain file name, and `--max-memory` sets the memory
 //! budget of the readers.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use super::{Cli, Command};
 

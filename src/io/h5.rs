@@ -1228,6 +1228,23 @@ pub fn read_text(path: &Path, name: &str) -> Result<Option<String>, IoError> {
         return Ok(None);
     };
     let at = format!("/metadata/{name}");
+    if let Ok(g) = file.group("metadata") {
+        check_link(&g, name, &at).map_err(|e| format_err(path, e))?;
+    }
+    check_storage(&ds, &at).map_err(|e| format_err(path, e))?;
+    if ds.size() as u64 > super::max_memory() {
+        return Err(format_err(
+            path,
+            FormatError::at_path(
+                &at,
+                format!(
+                    "declares {} bytes, more than the memory budget of {} bytes (--max-memory)",
+                    ds.size(),
+                    super::max_memory()
+                ),
+            ),
+        ));
+    }
     let bytes: Vec<u8> = ds
         .read_raw()
         .map_err(|e| format_err(path, FormatError::at_path(&at, format!("unreadable: {e}"))))?;
