@@ -12,6 +12,15 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // SIGINT/SIGTERM (a farm killing a task): remove the temporary files of
+    // writes in flight, then die of the signal as usual.
+    #[cfg(unix)]
+    // SAFETY: installing an async-signal-safe handler before any thread starts.
+    unsafe {
+        let handler = knitvox::io::atomic::remove_temporaries_on_signal as extern "C" fn(libc::c_int);
+        libc::signal(libc::SIGINT, handler as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
+    }
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {

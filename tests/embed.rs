@@ -455,13 +455,15 @@ fn guards_give_the_right_errors() {
         &good,
         &EmbedParams {
             voxel_size: Some(0.1),
-            max_voxels: 50,
+            // The 1 m segment covers 11 voxels of 0.1 m (issue 13: the limit
+            // applies to the real voxels, not the 8 (C + 2) = 96 bound).
+            max_voxels: 10,
             ..EmbedParams::default()
         },
     )
     .unwrap_err();
     assert!(
-        matches!(err, EmbedError::TooManyVoxels { limit: 50, .. }),
+        matches!(err, EmbedError::TooManyVoxels { limit: 10, estimate: 11, .. }),
         "{err}"
     );
     // Two tiny yarns ten kilometres apart at a micrometre voxel: grid too wide.
@@ -652,4 +654,30 @@ fn tea_cozy_embeds_in_under_a_second() {
             "embedding the tea cozy took {median:.1} ms"
         );
     }
+}
+
+/// Issue 13 item 5: a dense garment whose per-segment bound (16+ voxels per
+/// segment) is far above the limit but whose real voxel count is small embeds;
+/// the limit still applies to the real count.
+#[test]
+fn dense_garment_bound_counts_real_voxels() {
+    // 200K segments zig-zagging inside a 4 cm cube: bound >= 3.2M, real < 2K at 4 mm.
+    let n = 200_001;
+    let pts: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let t = i as f64;
+            [0.02 + 0.019 * (t * 0.37).sin(), 0.02 + 0.019 * (t * 0.11).cos(), 0.02 + 0.019 * (t * 0.05).sin()]
+        })
+        .collect();
+    let y = yarns_of(&[(pts, false)]);
+    let h = 0.004;
+    let (grid, _) = voxelize(&y, h, None, 1_000_000).expect("real voxels fit");
+    assert!(grid.voxels.len() < 2_000, "{}", grid.voxels.len());
+    assert!(grid.voxels.len() > 100, "{}", grid.voxels.len());
+    let real = grid.voxels.len() as u64;
+    let err = voxelize(&y, h, None, real - 1).unwrap_err();
+    assert!(
+        matches!(err, EmbedError::TooManyVoxels { estimate, limit, .. } if estimate > limit && limit == real - 1),
+        "{err}"
+    );
 }

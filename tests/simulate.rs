@@ -519,3 +519,47 @@ velocity = [0.02, 0.0, 0.0]
         .zip(&asset.mesh.nodes)
         .any(|(a, b)| a[0] - b[0] > 1e-5));
 }
+
+/// Issue 13 item 4: a failing `--yarns-out` leaves no fresh asset and no
+/// partial frame sequence; `-o` equal to the asset is refused (exit 2).
+#[test]
+fn failing_yarns_out_leaves_no_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let scene = dir.path().join("s.toml");
+    std::fs::write(&scene, "[simulation]\n").unwrap();
+    // Frame 2's file name is taken by a folder: its rename fails.
+    std::fs::create_dir_all(dir.path().join("ys/s.0002.ply")).unwrap();
+    let out = dir.path().join("out.vtkhdf");
+    let ys = dir.path().join("ys/s.####.ply");
+    let (code, _, err) = run(&[
+        "simulate",
+        asset_path.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--frames",
+        "1-2",
+        "-o",
+        out.to_str().unwrap(),
+        "--yarns-out",
+        ys.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0, "{err}");
+    assert!(!out.exists(), "a fresh asset was left: {err}");
+    assert!(!dir.path().join("ys/s.0001.ply").exists(), "a partial sequence was left");
+    // Output == input.
+    let before = std::fs::read(&asset_path).unwrap();
+    let (code, _, err) = run(&[
+        "simulate",
+        asset_path.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--frames",
+        "1-2",
+        "-o",
+        asset_path.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("never overwrites an input"), "{err}");
+    assert_eq!(std::fs::read(&asset_path).unwrap(), before);
+}

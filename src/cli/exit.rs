@@ -38,6 +38,9 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         ErrorClass::Transient => ExitCode::Transient,
     };
     for cause in err.chain() {
+        if cause.downcast_ref::<super::guard::UsageError>().is_some() {
+            return ExitCode::Usage;
+        }
         if let Some(e) = cause.downcast_ref::<IoError>() {
             return of_class(e.class());
         }

@@ -5,6 +5,7 @@ mod asset;
 mod bench;
 mod commands;
 pub mod exit;
+pub mod guard;
 mod pattern;
 mod simulate;
 mod yls;
@@ -24,6 +25,11 @@ pub use exit::{exit_code_for, ExitCode};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// Memory budget in bytes (suffixes K, M, G, T: 512M, 4G): the most a reader
+    /// allocates for what a file declares (compressed HDF5, external glTF buffers,
+    /// --tile) [default: a quarter of the physical memory].
+    #[arg(long, global = true, value_name = "BYTES", value_parser = guard::parse_bytes)]
+    pub max_memory: Option<u64>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -140,8 +146,9 @@ pub struct ConvertArgs {
     /// Up axis of the written coordinates for bcc, obj, ply (glTF and HDF5 are always +Y up).
     #[arg(long, value_name = "y|z", default_value = "y")]
     pub out_up_axis: UpAxis,
-    /// First frame number of a written sequence.
-    #[arg(long, default_value_t = 1)]
+    /// First frame number of a written sequence (-1e9 to 1e9).
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true,
+          value_parser = clap::value_parser!(i64).range(-crate::geom::MAX_FRAME_NUMBER..=crate::geom::MAX_FRAME_NUMBER))]
     pub first_frame: i64,
     /// Print what was written as JSON.
     #[arg(long)]
@@ -286,6 +293,8 @@ pub struct DemoArgs {
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    crate::io::set_max_memory(cli.max_memory.unwrap_or_else(guard::default_max_memory));
+    guard::check(&cli)?;
     match cli.command {
         Command::Inspect(a) => commands::inspect(&a),
         Command::Convert(a) => commands::convert(&a),

@@ -166,6 +166,7 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     check_asset_ext(&a.asset)?;
     check_asset_ext(&a.output)?;
     let scene = scene_of(a)?;
+    check_step_count(a, &scene)?;
     let asset = vtkhdf::read_asset(&a.asset)?;
     let req = ShotRequest {
         frames: a.frames.frames(),
@@ -236,4 +237,30 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::Success)
+}
+
+/// `--frames` (with `--dt`, `--fps`, `--preroll` or the scene's values) asking
+/// for more PD steps than a shot may take is a usage error (exit 2), found
+/// before the asset is read; the pipeline checks the same bound again.
+fn check_step_count(a: &SimulateArgs, scene: &Scene) -> anyhow::Result<()> {
+    use crate::pipeline::simulate::MAX_TOTAL_STEPS;
+    let frames = a.frames.frames();
+    let (Some(first), Some(last)) = (frames.iter().min(), frames.iter().max()) else {
+        return Ok(());
+    };
+    let s = &scene.simulation;
+    let per_frame = ((1.0 / s.fps) / s.dt.0).ceil().max(1.0);
+    let preroll = s.preroll.unwrap_or(0.0) / s.dt.0;
+    let steps = per_frame * (last - first) as f64 + preroll.ceil();
+    if !(steps <= MAX_TOTAL_STEPS as f64) {
+        return Err(super::guard::UsageError(format!(
+            "--frames {} at {} fps with dt {} s (pre-roll {} s) needs {steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
+            a.frames,
+            s.fps,
+            s.dt.0,
+            s.preroll.unwrap_or(0.0)
+        ))
+        .into());
+    }
+    Ok(())
 }

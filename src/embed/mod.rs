@@ -23,7 +23,9 @@ pub enum EmbedError {
     Empty,
     #[error("invalid voxel size {0}: it must be a positive finite length in metres")]
     BadVoxelSize(f64),
-    #[error("voxel size {h} m would make up to {estimate} voxels, more than the limit of {limit} (raise --max-voxels or the voxel size)")]
+    /// `estimate`: the unique voxels found before the walk stopped, or the
+    /// voxels one segment alone covers at least.
+    #[error("voxel size {h} m makes more than the limit of {limit} voxels (estimate {estimate}; raise --max-voxels or the voxel size)")]
     TooManyVoxels { h: f64, estimate: u64, limit: u64 },
     #[error("invalid yarns: {0}")]
     Yarns(#[from] crate::geom::GeomError),

@@ -153,8 +153,8 @@ fn start_size(yarns: &Yarns) -> f64 {
     }
 }
 
-/// Voxelizes at `h` (default origin) and counts nodes; `None` when the voxel
-/// bound exceeds `max_voxels`.
+/// Voxelizes at `h` (default origin) and counts nodes; `None` when there are
+/// more than `max_voxels` voxels.
 fn evaluate(yarns: &Yarns, h: f64, max_voxels: u64) -> Result<Option<Trial>, EmbedError> {
     let prep = match Prepared::new(yarns, h, None) {
         Ok(p) => p,
@@ -162,10 +162,11 @@ fn evaluate(yarns: &Yarns, h: f64, max_voxels: u64) -> Result<Option<Trial>, Emb
         Err(EmbedError::Parameter(_)) => return Ok(None),
         Err(e) => return Err(e),
     };
-    if prep.voxel_bound() > max_voxels {
-        return Ok(None);
-    }
-    let (keys, extra) = prep.voxels();
+    let (keys, extra) = match prep.voxels_capped(max_voxels) {
+        Ok(v) => v,
+        Err(EmbedError::TooManyVoxels { .. }) => return Ok(None),
+        Err(e) => return Err(e),
+    };
     let voxels: Vec<[i32; 3]> = keys.into_iter().map(key_cell).collect();
     let nodes = unique_corner_keys(&voxels).len();
     Ok(Some(Trial {

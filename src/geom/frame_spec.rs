@@ -13,6 +13,21 @@ pub struct FrameSpec {
 /// Largest number of frames a spec may expand to (guards `1-99999999999`).
 pub const MAX_SPEC_FRAMES: u64 = 10_000_000;
 
+/// Largest magnitude of a frame number (a spec item, `--first-frame`): far
+/// beyond any shot, and small enough that no frame arithmetic overflows
+/// (`--frames 9223372036854775807` would wrap `i64`).
+pub const MAX_FRAME_NUMBER: i64 = 1_000_000_000;
+
+/// Checks a frame number against [`MAX_FRAME_NUMBER`]; the error names `what`.
+pub fn check_frame_number(what: &str, f: i64) -> Result<i64, String> {
+    if f.unsigned_abs() > MAX_FRAME_NUMBER as u64 {
+        return Err(format!(
+            "{what} {f} is beyond the supported frame numbers (-{MAX_FRAME_NUMBER} to {MAX_FRAME_NUMBER})"
+        ));
+    }
+    Ok(f)
+}
+
 impl FrameSpec {
     /// The frames in spec order, duplicates removed (first occurrence kept).
     pub fn frames(&self) -> Vec<i64> {
@@ -20,6 +35,8 @@ impl FrameSpec {
         let mut out = Vec::new();
         for &(a, b, s) in &self.items {
             let mut f = a;
+            // Parsing bounds a, b and s by MAX_FRAME_NUMBER and the
+            // count by MAX_SPEC_FRAMES, so this never overflows.
             while f <= b {
                 if seen.insert(f) {
                     out.push(f);
@@ -91,9 +108,19 @@ impl FromStr for FrameSpec {
                     .map_err(|_| format!("frame spec '{s}': '{t}' is not a frame number"))
             };
             let (a, b) = (parse(a)?, parse(b)?);
+            for f in [a, b] {
+                check_frame_number(&format!("frame spec '{s}': frame"), f)?;
+            }
+            if step > 2 * MAX_FRAME_NUMBER {
+                return Err(format!(
+                    "frame spec '{s}': step {step} is larger than the limit of {}",
+                    2 * MAX_FRAME_NUMBER
+                ));
+            }
             if b < a {
                 return Err(format!("frame spec '{s}': range '{item}' runs backwards"));
             }
+            // |a|, |b| <= 1e9 and step <= 2e9: no overflow.
             total = total.saturating_add(((b - a) / step + 1) as u64);
             if total > MAX_SPEC_FRAMES {
                 return Err(format!(
@@ -122,9 +149,24 @@ mod tests {
         assert_eq!(f("3,1-3"), vec![3, 1, 2]);
         assert_eq!(f("-2--1"), vec![-2, -1]);
         assert_eq!(f("7"), vec![7]);
-        for bad in ["", "1-", "a", "5-1", "1-10x0", "1,,2", "0-99999999999"] {
+        for bad in [
+            "",
+            "1-",
+            "a",
+            "5-1",
+            "1-10x0",
+            "1,,2",
+            "0-99999999999",
+            "9223372036854775807",
+            "-9223372036854775808-9223372036854775807",
+            "-9223372036854775807-9223372036854775807x9223372036854775807",
+            "1-5x9223372036854775807",
+        ] {
             assert!(bad.parse::<FrameSpec>().is_err(), "{bad}");
         }
         assert_eq!(FrameSpec::all(3).frames(), vec![0, 1, 2]);
+        let e = "9223372036854775807".parse::<FrameSpec>().unwrap_err();
+        assert!(e.contains("9223372036854775807") && e.contains("1000000000"), "{e}");
+        assert_eq!(f("999999999-1000000000"), vec![999_999_999, 1_000_000_000]);
     }
 }

@@ -14,7 +14,7 @@ pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
-pub use frame_spec::{FrameSpec, MAX_SPEC_FRAMES};
+pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use rest::RestShape;
 pub use units::{Units, UpAxis};

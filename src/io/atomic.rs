@@ -5,8 +5,78 @@
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicPtr, Ordering};
 
 use super::IoError;
+
+/// Temporary files in flight, for [`remove_temporaries_on_signal`]: a fixed
+/// table of leaked C strings so the signal handler needs no allocation or
+/// lock (async-signal-safe: atomic loads and `unlink`).
+const MAX_TEMPS: usize = 64;
+static TEMPS: [AtomicPtr<libc::c_char>; MAX_TEMPS] = [const { AtomicPtr::new(std::ptr::null_mut()) }; MAX_TEMPS];
+
+/// A temporary path registered for removal on SIGINT/SIGTERM; unregistered
+/// (and its C string freed) when dropped.
+pub struct TempGuard(Option<usize>);
+
+impl TempGuard {
+    /// Registers `path` (best effort: a full table or a path with a NUL byte
+    /// is simply not registered).
+    pub fn register(path: &Path) -> TempGuard {
+        #[cfg(unix)]
+        {
+            use std::os::unix::ffi::OsStrExt;
+            let Ok(c) = std::ffi::CString::new(path.as_os_str().as_bytes()) else {
+                return TempGuard(None);
+            };
+            let raw = c.into_raw();
+            for (i, slot) in TEMPS.iter().enumerate() {
+                if slot
+                    .compare_exchange(std::ptr::null_mut(), raw, Ordering::AcqRel, Ordering::Acquire)
+                    .is_ok()
+                {
+                    return TempGuard(Some(i));
+                }
+            }
+            // SAFETY: `raw` came from CString::into_raw above and was not stored.
+            drop(unsafe { std::ffi::CString::from_raw(raw) });
+        }
+        TempGuard(None)
+    }
+}
+
+impl Drop for TempGuard {
+    fn drop(&mut self) {
+        if let Some(i) = self.0 {
+            let raw = TEMPS[i].swap(std::ptr::null_mut(), Ordering::AcqRel);
+            if !raw.is_null() {
+                // SAFETY: only TempGuard::register stores pointers, from CString::into_raw.
+                drop(unsafe { std::ffi::CString::from_raw(raw) });
+            }
+        }
+    }
+}
+
+/// Signal handler body for SIGINT/SIGTERM: removes every registered
+/// temporary file, then re-raises the signal with its default action (so
+/// the exit status still says "killed by signal"). Installed by the binary.
+/// Async-signal-safe: atomic loads, `unlink`, `signal`, `raise`.
+#[cfg(unix)]
+pub extern "C" fn remove_temporaries_on_signal(sig: libc::c_int) {
+    for slot in &TEMPS {
+        let p = slot.load(Ordering::Acquire);
+        if !p.is_null() {
+            // SAFETY: p is a NUL-terminated string from CString::into_raw.
+            unsafe { libc::unlink(p) };
+        }
+    }
+    // SAFETY: resetting to the default action and re-raising is the usual
+    // way to end with the signal's status; both are async-signal-safe.
+    unsafe {
+        libc::signal(sig, libc::SIG_DFL);
+        libc::raise(sig);
+    }
+}
 
 fn write_err(path: &Path, source: std::io::Error) -> IoError {
     IoError::Write {
@@ -64,6 +134,7 @@ pub fn write_with(
         .tempfile_in(&dir)
         .map_err(|e| write_err(path, e))?;
     let tmp_path = tmp.path().to_path_buf();
+    let _registered = TempGuard::register(&tmp_path);
     produce(&tmp_path).map_err(|e| write_err(path, e))?;
     File::open(&tmp_path)
         .and_then(|f| f.sync_all())

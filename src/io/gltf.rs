@@ -949,12 +949,24 @@ impl<'a> Reader<'a> {
                     Some(uri) if uri.starts_with("data:") => {
                         Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?)
                     }
-                    Some(uri) => Cow::Owned(self.res.load(uri).map_err(|e| {
-                        at(
-                            format!("{path}/uri"),
-                            format!("cannot load external buffer '{uri}': {e}"),
-                        )
-                    })?),
+                    Some(uri) => {
+                        let declared = buf.byte_length.0;
+                        if declared > self.opts.max_memory {
+                            return Err(at(
+                                format!("{path}/byteLength"),
+                                format!(
+                                    "external buffer declares {declared} bytes, more than the memory budget of {} bytes (--max-memory)",
+                                    self.opts.max_memory
+                                ),
+                            ));
+                        }
+                        Cow::Owned(self.res.load(uri, declared).map_err(|e| {
+                            at(
+                                format!("{path}/uri"),
+                                format!("cannot load external buffer '{uri}': {e}"),
+                            )
+                        })?)
+                    }
                 };
             let declared = buf.byte_length.0;
             if (data.len() as u64) < declared {

@@ -300,6 +300,54 @@ pub(crate) fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
     })
 }
 
+/// Refuses an external link: its target lives in another file, which a
+/// dropped file must not make knitvox open (issue 13 item 1). Hard and soft
+/// links (paths inside this file) are followed.
+pub(crate) fn check_link(group: &Group, name: &str, loc: &str) -> Result<(), FormatError> {
+    let mut kind = None;
+    group
+        .iter_visit_default(|n, info| {
+            if n == name {
+                kind = Some(info.link_type);
+            }
+            Ok(())
+        })
+        .map_err(|e| loc_err(loc, &e))?;
+    match kind {
+        Some(LinkType::External) => Err(FormatError::at_path(
+            loc,
+            "is an external link to another file; knitvox reads only what the file itself holds",
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Refuses datasets whose data lives in other files: external storage
+/// (raw data in named files) and virtual datasets (mapped from other
+/// datasets, possibly in other files). Every HDF5 reader opens datasets
+/// through [`Ds::open`], which calls this.
+pub(crate) fn check_storage(ds: &Dataset, loc: &str) -> Result<(), FormatError> {
+    let dcpl = ds.create_plist().map_err(|e| loc_err(loc, &e))?;
+    if dcpl.layout() == hdf5::dataset::Layout::Virtual {
+        return Err(FormatError::at_path(
+            loc,
+            "is a virtual dataset (its data is mapped from other datasets or files); knitvox reads only data stored in the file",
+        ));
+    }
+    let external = dcpl.get_external().map_err(|e| loc_err(loc, &e))?;
+    if let Some(first) = external.first() {
+        return Err(FormatError::at_path(
+            loc,
+            format!(
+                "stores its data in {} external file(s) ('{}'...); knitvox reads only data stored in the file",
+                external.len(),
+                first.name
+            ),
+        ));
+    }
+    Ok(())
+}
+
 pub(crate) fn loc_err(loc: &str, e: &hdf5::Error) -> FormatError {
     FormatError::at_path(loc, format!("libhdf5 cannot read it: {}", h5_message(e)))
 }
@@ -310,6 +358,8 @@ pub(crate) struct Ds {
     pub(crate) loc: String,
     pub(crate) shape: Vec<usize>,
     pub(crate) ty: TypeInfo,
+    /// Memory budget (bytes) for reading it, see [`ReadOptions::max_memory`].
+    pub(crate) budget: u64,
 }
 
 impl Ds {
@@ -337,11 +387,25 @@ impl Ds {
             }
             Err(e) => return Err(loc_err(&loc, &e)),
         }
+        check_link(group, name, &loc)?;
         let ds = group.dataset(name).map_err(|e| loc_err(&loc, &e))?;
+        check_storage(&ds, &loc)?;
         let space = ds.space().map_err(|e| loc_err(&loc, &e))?;
         let shape = space.shape();
         let ty = type_info(&ds.dtype().map_err(|e| loc_err(&loc, &e))?);
-        Ok(Some(Ds { ds, loc, shape, ty }))
+        Ok(Some(Ds {
+            ds,
+            loc,
+            shape,
+            ty,
+            budget: super::max_memory(),
+        }))
+    }
+
+    /// The same dataset read under the memory budget `bytes`.
+    pub(crate) fn with_budget(mut self, bytes: u64) -> Ds {
+        self.budget = bytes;
+        self
     }
 
     pub(crate) fn err(&self, message: impl Into<String>) -> FormatError {
@@ -401,6 +465,12 @@ impl Ds {
                 if filtered { " (compressed)" } else { "" }
             )));
         }
+        if needed > self.budget {
+            return Err(self.err(format!(
+                "declares {elems} values ({needed} bytes), more than the memory budget of {} bytes (--max-memory)",
+                self.budget
+            )));
+        }
         Ok(())
     }
 
@@ -416,6 +486,7 @@ impl Ds {
     }
 
     pub(crate) fn read_f64(&self, elems: usize) -> Result<Vec<f64>, FormatError> {
+        self.guard_storage(elems)?;
         let mut v = vec![0.0; elems];
         self.read_f64_into(&mut v)?;
         Ok(v)
@@ -627,6 +698,7 @@ pub(crate) fn open_group(
     if !parent.link_exists(name) {
         return Ok(None);
     }
+    check_link(parent, name, loc)?;
     match parent.loc_type_by_name(name) {
         Ok(LocationType::Group) => parent.group(name).map(Some).map_err(|e| loc_err(loc, &e)),
         Ok(other) => Err(FormatError::at_path(
@@ -640,7 +712,8 @@ pub(crate) fn open_group(
 /// Reads `/frames/points` and `/frames/times` (positions stay in file units).
 fn read_frames(g: &Group, n: usize, opts: &ReadOptions) -> Result<YarnFrames, FormatError> {
     let pts = Ds::open(g, "/frames", "points", true)?
-        .ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?;
+        .ok_or_else(|| FormatError::at_path("/frames/points", "missing"))?
+        .with_budget(opts.max_memory);
     pts.expect_shape(
         &[None, None, Some(3)],
         "F x N x 3 (frames x vertices x xyz)",
@@ -669,6 +742,7 @@ fn read_frames(g: &Group, n: usize, opts: &ReadOptions) -> Result<YarnFrames, Fo
     if let Some((i, x)) = t.iter().enumerate().find(|(_, x)| !x.is_finite()) {
         return Err(times.err(format!("frame {i}: time {x} is not finite")));
     }
+    pts.guard_storage(total.saturating_mul(3))?;
     let mut points = vec![[0.0; 3]; total];
     pts.read_f64_into(points.as_flattened_mut())?;
     if let Some(i) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
@@ -695,7 +769,8 @@ pub(crate) fn read_yarns_group(
 ) -> Result<(Yarns, bool), FormatError> {
     // Points: N x 3 floats.
     let pts = Ds::open(yg, gp, "points", true)?
-        .ok_or_else(|| FormatError::at_path(format!("{gp}/points"), "missing"))?;
+        .ok_or_else(|| FormatError::at_path(format!("{gp}/points"), "missing"))?
+        .with_budget(opts.max_memory);
     pts.expect_shape(&[None, Some(3)], "N x 3 (vertices x xyz)")?;
     pts.expect_float()?;
     let n = pts.shape[0];
@@ -1221,6 +1296,23 @@ pub fn read_text(path: &Path, name: &str) -> Result<Option<String>, IoError> {
         return Ok(None);
     };
     let at = format!("/metadata/{name}");
+    if let Ok(g) = file.group("metadata") {
+        check_link(&g, name, &at).map_err(|e| format_err(path, e))?;
+    }
+    check_storage(&ds, &at).map_err(|e| format_err(path, e))?;
+    if ds.size() as u64 > super::max_memory() {
+        return Err(format_err(
+            path,
+            FormatError::at_path(
+                &at,
+                format!(
+                    "declares {} bytes, more than the memory budget of {} bytes (--max-memory)",
+                    ds.size(),
+                    super::max_memory()
+                ),
+            ),
+        ));
+    }
     let bytes: Vec<u8> = ds
         .read_raw()
         .map_err(|e| format_err(path, FormatError::at_path(&at, format!("unreadable: {e}"))))?;
@@ -1281,6 +1373,8 @@ pub struct FrameWriter {
     frames: Option<FramesOut>,
     file: Option<hdf5::File>,
     tmp: Option<tempfile::TempPath>,
+    /// Removes the temporary file on SIGINT/SIGTERM (see io::atomic).
+    _registered: super::atomic::TempGuard,
     path: PathBuf,
 }
 
@@ -1306,6 +1400,7 @@ impl FrameWriter {
             .tempfile_in(&dir)
             .map_err(|e| write_err(path, e))?
             .into_temp_path();
+        let registered = super::atomic::TempGuard::register(&tmp);
         let file = create_h5(&tmp).map_err(|e| write_err(path, e))?;
         write_yarns(&file, yarns).map_err(|e| write_err(path, e))?;
         let frames =
@@ -1314,6 +1409,7 @@ impl FrameWriter {
             frames: Some(frames),
             file: Some(file),
             tmp: Some(tmp),
+            _registered: registered,
             path: path.to_path_buf(),
         })
     }

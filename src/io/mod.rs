@@ -8,6 +8,7 @@
 pub mod atomic;
 pub mod bcc;
 pub mod bytes;
+pub mod confined;
 mod error;
 pub mod gltf;
 pub mod gltf_skin;
@@ -32,6 +33,26 @@ pub const DEFAULT_RADIUS_M: f64 = 1.0e-3;
 /// Largest number of points a reader accepts by default (2^31): beyond every real garment,
 /// well below what would exhaust memory.
 pub const DEFAULT_MAX_POINTS: u64 = 1 << 31;
+
+/// Default memory budget of a read (bytes): 4 GiB. The binary replaces it
+/// with `--max-memory` (default a quarter of the physical memory) through
+/// [`set_max_memory`].
+pub const DEFAULT_MAX_MEMORY: u64 = 4 << 30;
+
+static MAX_MEMORY: std::sync::atomic::AtomicU64 =
+    std::sync::atomic::AtomicU64::new(DEFAULT_MAX_MEMORY);
+
+/// Sets the process's memory budget (bytes): the default of
+/// [`ReadOptions::max_memory`] and the budget of the asset (`.vtkhdf`)
+/// readers, which take no options. Called once by the binary (`--max-memory`).
+pub fn set_max_memory(bytes: u64) {
+    MAX_MEMORY.store(bytes, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The process's memory budget (bytes), see [`set_max_memory`].
+pub fn max_memory() -> u64 {
+    MAX_MEMORY.load(std::sync::atomic::Ordering::Relaxed)
+}
 
 /// The yarn-curve file formats knitvox reads and writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
@@ -142,6 +163,11 @@ pub struct ReadOptions {
     pub override_radius: bool,
     /// Refuse files with more points than this (guards memory). Default [`DEFAULT_MAX_POINTS`].
     pub max_points: u64,
+    /// Memory budget (bytes): the most a reader allocates for data a file
+    /// declares (compressed HDF5 datasets, external buffers, tiled copies),
+    /// checked before allocating. Default [`max_memory`] ([`DEFAULT_MAX_MEMORY`]
+    /// unless the binary set `--max-memory`, default a quarter of the physical memory).
+    pub max_memory: u64,
 }
 
 impl Default for ReadOptions {
@@ -154,6 +180,7 @@ impl Default for ReadOptions {
             radius: DEFAULT_RADIUS_M,
             override_radius: false,
             max_points: DEFAULT_MAX_POINTS,
+            max_memory: max_memory(),
         }
     }
 }
@@ -215,54 +242,31 @@ pub struct YarnData {
 
 /// Loads resources a file refers to by URI (glTF external buffers).
 pub trait Resources {
-    fn load(&self, uri: &str) -> Result<Vec<u8>, String>;
+    /// The bytes of `uri`: exactly `declared` bytes (a resource holding fewer
+    /// is an error; more are never read).
+    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, String>;
 }
 
 /// No external resources: every external reference is an error.
 pub struct NoResources;
 
 impl Resources for NoResources {
-    fn load(&self, uri: &str) -> Result<Vec<u8>, String> {
+    fn load(&self, uri: &str, _declared: u64) -> Result<Vec<u8>, String> {
         Err(format!(
             "external resource '{uri}' cannot be loaded when parsing from bytes alone"
         ))
     }
 }
 
-/// Resources relative to a directory (the directory of the referring file).
-/// URIs that escape with absolute paths or schemes are refused.
+/// Resources inside a directory (the directory of the referring file), read
+/// through [`confined::read_confined`]: no absolute paths, schemes, escapes
+/// from the folder (`..`, symlinks), FIFOs or devices.
 pub struct DirResources(pub PathBuf);
 
 impl Resources for DirResources {
-    fn load(&self, uri: &str) -> Result<Vec<u8>, String> {
-        if uri.contains("://") || Path::new(uri).is_absolute() {
-            return Err(format!("refusing non-relative resource URI '{uri}'"));
-        }
-        let decoded = percent_decode(uri);
-        let p = self.0.join(&decoded);
-        std::fs::read(&p).map_err(|e| format!("cannot read '{}': {e}", p.display()))
+    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, String> {
+        confined::read_confined(&self.0, uri, declared, declared)
     }
-}
-
-fn percent_decode(s: &str) -> String {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' && i + 2 < b.len() {
-            let hex = std::str::from_utf8(&b[i + 1..i + 3])
-                .ok()
-                .and_then(|h| u8::from_str_radix(h, 16).ok());
-            if let Some(v) = hex {
-                out.push(v);
-                i += 3;
-                continue;
-            }
-        }
-        out.push(b[i]);
-        i += 1;
-    }
-    String::from_utf8_lossy(&out).into_owned()
 }
 
 /// Decodes the bytes of one file of `format` (no frame sequences, no unit conversion).
@@ -477,12 +481,5 @@ mod tests {
         );
         assert_eq!(Format::from_path(Path::new("x.txt")), None);
         assert_eq!(Format::from_path(Path::new("noext")), None);
-    }
-
-    #[test]
-    fn percent_decoding() {
-        assert_eq!(percent_decode("a%20b.bin"), "a b.bin");
-        assert_eq!(percent_decode("100%"), "100%");
-        assert_eq!(percent_decode("%zz"), "%zz");
     }
 }

@@ -219,6 +219,18 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                 ),
             )
         })?;
+    // The tiled copy is built in memory: 32 bytes a point (position, and
+    // the per-vertex slot of the curves) against the memory budget.
+    let bytes = total.saturating_mul(32);
+    if bytes > opts.max_memory {
+        return Err(FormatError::at_line(
+            pl,
+            format!(
+                "tiling {tn} x {tm} copies of {n} vertices needs about {bytes} bytes, more than the memory budget of {} bytes (--max-memory)",
+                opts.max_memory
+            ),
+        ));
+    }
 
     // *Q: one row per vertex. Row counts are compared before anything is
     // allocated from n, so n never drives allocation beyond the file's rows.

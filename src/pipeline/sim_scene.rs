@@ -27,6 +27,12 @@ pub enum SolverChoice {
     Dd,
 }
 
+/// Most PD iterations per step a scene may ask for (8 is the default; more
+/// than this is a typo, not a setting).
+pub const MAX_PD_ITERATIONS: u32 = 10_000;
+/// Largest Anderson window (each slot holds two copies of the positions).
+pub const MAX_ANDERSON_WINDOW: usize = 64;
+
 /// Where the PD iterations run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -392,6 +398,21 @@ impl Scene {
         }
         if s.max_iterations == 0 {
             return Err("simulation.max_iterations: must be >= 1".into());
+        }
+        if s.max_iterations > MAX_PD_ITERATIONS {
+            return Err(format!(
+                "simulation.max_iterations: {} is more than the limit of {MAX_PD_ITERATIONS}",
+                s.max_iterations
+            ));
+        }
+        if s.anderson_window > MAX_ANDERSON_WINDOW {
+            return Err(format!(
+                "simulation.anderson_window: {} is more than the limit of {MAX_ANDERSON_WINDOW}",
+                s.anderson_window
+            ));
+        }
+        if !(s.dt.0.is_finite() && s.dt.0 > 0.0) {
+            return Err(format!("simulation.dt: must be > 0 and finite (got {})", s.dt.0));
         }
         if !finite(&self.garment.rotate_deg)
             || !finite(&self.garment.translate)

@@ -455,6 +455,10 @@ fn surface_height(topology: &MeshTopology, pos: &[Vec3], x: f64, z: f64) -> Opti
     best
 }
 
+/// Most PD steps one shot may take (pre-roll included): hours of work at
+/// the fastest step; larger requests are refused before any work starts.
+pub const MAX_TOTAL_STEPS: usize = 10_000_000;
+
 /// Simulates `asset` (read from `asset_path`) under `scene` and writes the
 /// outputs of `req`. `progress(done, total)` is called after every frame.
 pub fn simulate(
@@ -494,7 +498,20 @@ pub fn simulate(
 
     // Character.
     let frame_dt = 1.0 / sim.fps;
-    let steps_per_frame = ((frame_dt / sim.dt.0) * (1.0 - 1e-12)).ceil().max(1.0) as usize;
+    let spf = ((frame_dt / sim.dt.0) * (1.0 - 1e-12)).ceil().max(1.0);
+    // Bounded before any work (issue 13 item 3): dt, fps and the frame range
+    // are user input; the pre-roll is added once the character is known.
+    let frame_steps = spf * (last - first) as f64;
+    if !(frame_steps <= MAX_TOTAL_STEPS as f64) {
+        return Err(invalid(
+            asset_path,
+            format!(
+                "frames {first}-{last} at {} fps with dt {} s need {frame_steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
+                sim.fps, sim.dt.0
+            ),
+        ));
+    }
+    let steps_per_frame = spf as usize;
     let dt = frame_dt / steps_per_frame as f64;
     let mut body: Option<Body> = None;
     let mut char_report = None;
@@ -730,7 +747,18 @@ pub fn simulate(
     let preroll_steps = body
         .as_ref()
         .map_or(0, |b| (b.preroll / dt).ceil() as usize);
-    let total_steps = preroll_steps + (last - first) as usize * steps_per_frame;
+    let total_steps = preroll_steps
+        .checked_add((last - first) as usize * steps_per_frame)
+        .filter(|&t| t <= MAX_TOTAL_STEPS)
+        .ok_or_else(|| {
+            invalid(
+                asset_path,
+                format!(
+                    "a pre-roll of {preroll_steps} steps plus {} frame steps is more than the limit of {MAX_TOTAL_STEPS} steps",
+                    (last - first) as usize * steps_per_frame
+                ),
+            )
+        })?;
     let mut v = vec![[0.0; 3]; n];
     let mut recorded: Vec<(i64, Vec<Vec3>)> = Vec::with_capacity(frames.len());
     let mut max_pen = 0.0f64;
@@ -926,9 +954,18 @@ pub fn simulate(
             sha256: super::asset::sha256_file(&p)?,
         });
     }
-    io::vtkhdf::write_asset(&req.output, &out)?;
+    // All or nothing (issue 13 item 4): the yarn frames (the output more
+    // likely to fail: format, sequence names) are written first and removed
+    // again if the asset cannot be written, so a failing command leaves no
+    // fresh output under a final name.
     if let Some(y) = &req.yarns_out {
         report.yarn_files = write_yarns(&out, &recorded, y, &req.write)?;
+    }
+    if let Err(e) = io::vtkhdf::write_asset(&req.output, &out) {
+        for f in &report.yarn_files {
+            let _ = std::fs::remove_file(f);
+        }
+        return Err(e.into());
     }
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
@@ -970,7 +1007,16 @@ fn write_yarns(
             first_frame: *f,
             ..opts.clone()
         };
-        written.extend(io::write_path(path, &asset.rest_yarns, Some(&one), &o)?);
+        match io::write_path(path, &asset.rest_yarns, Some(&one), &o) {
+            Ok(w) => written.extend(w),
+            Err(e) => {
+                // Leave no partial sequence behind.
+                for f in &written {
+                    let _ = std::fs::remove_file(f);
+                }
+                return Err(e.into());
+            }
+        }
     }
     Ok(written)
 }

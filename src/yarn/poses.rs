@@ -81,6 +81,9 @@ impl PoseKind {
     ];
 }
 
+/// Most folds of a `MultiFold` pose (every fold is a band of handles).
+pub const MAX_FOLDS: u32 = 10_000;
+
 /// Parameters of a pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseParams {
@@ -90,7 +93,7 @@ pub struct PoseParams {
     /// angle (rad) for bends and twist, fold height over fold length for the
     /// multi-fold (< 0.5). Unused by `Hang` and `Free`.
     pub amount: f64,
-    /// Number of folds of `MultiFold` (>= 1). Default 3.
+    /// Number of folds of `MultiFold` (1 to [`MAX_FOLDS`]). Default 3.
     pub folds: u32,
     /// The mirrored counterpart (VH Fig. 19 uses both). Default false.
     pub mirror: bool,
@@ -218,8 +221,8 @@ impl PoseDriver {
         }
         match p.kind {
             PoseKind::MultiFold => {
-                if p.folds == 0 {
-                    return bad("folds is 0 (must be >= 1)".into());
+                if p.folds == 0 || p.folds > MAX_FOLDS {
+                    return bad(format!("folds is {} (must be 1 to {MAX_FOLDS})", p.folds));
                 }
                 if !(p.amount.abs() < 0.5) {
                     return bad(format!(

@@ -147,12 +147,21 @@ impl YarnSimParams {
             ("max_energy_per_vertex", self.max_energy_per_vertex),
         ];
         for (name, v) in pos {
-            if !(v > 0.0) || v.is_nan() {
+            if !(v > 0.0 && v.is_finite()) {
                 return Err(YarnSimError::Param {
                     name,
-                    message: format!("{v} is not a positive number"),
+                    message: format!("{v} is not a positive finite number"),
                 });
             }
+        }
+        if self.min_dt > self.max_dt {
+            return Err(YarnSimError::Param {
+                name: "min_dt",
+                message: format!(
+                    "{} s is larger than max_dt ({} s)",
+                    self.min_dt, self.max_dt
+                ),
+            });
         }
         if self.gravity.iter().any(|g| !g.is_finite()) {
             return Err(YarnSimError::Param {
@@ -199,6 +208,28 @@ impl YarnSimParams {
             max_speed: self.max_speed * gamma,
             max_energy_per_vertex: self.max_energy_per_vertex,
             ..self.clone()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn infinite_and_inconsistent_values_are_refused() {
+        assert!(YarnSimParams::default().validate().is_ok());
+        let cases = [
+            (YarnSimParams { cfl: f64::INFINITY, ..Default::default() }, "cfl"),
+            (YarnSimParams { density: f64::INFINITY, ..Default::default() }, "density"),
+            (YarnSimParams { max_dt: f64::NAN, ..Default::default() }, "max_dt"),
+            (YarnSimParams { min_dt: 1e-3, max_dt: 1e-4, ..Default::default() }, "min_dt"),
+        ];
+        for (p, key) in cases {
+            match p.validate() {
+                Err(YarnSimError::Param { name, .. }) => assert_eq!(name, key),
+                other => panic!("{key}: {other:?}"),
+            }
         }
     }
 }

@@ -1,0 +1,218 @@
+//! Confined reads of files that another file refers to (glTF buffer URIs,
+//! for the yarn reader and the character reader alike).
+//!
+//! A referenced file is attacker-controlled text in a dropped file, so the
+//! URI is percent-decoded first (RFC 3986; `%2Fetc%2Fpasswd` is an absolute
+//! path once decoded) and then refused when it
+//! * has a scheme (`file:`, `http:`) or is absolute,
+//! * resolves outside the referring file's folder (`..`, or a symlink that
+//!   leads out: the path is canonicalized and its prefix checked),
+//! * is not a regular file (FIFO, device, directory: checked on the metadata
+//!   before opening, and again on the opened descriptor, which is opened
+//!   non-blocking so a FIFO swapped in between cannot hang the read),
+//! * holds fewer bytes than declared; at most the declared bytes are read.
+
+use std::ffi::OsString;
+use std::io::Read;
+use std::path::{Component, Path, PathBuf};
+
+/// Why a confined read was refused (the message names the URI's target).
+pub type ConfinedError = String;
+
+/// Percent-decodes a URI path (invalid escapes are kept as they are).
+pub fn percent_decode_bytes(s: &str) -> Vec<u8> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            let hex = std::str::from_utf8(&b[i + 1..i + 3])
+                .ok()
+                .and_then(|h| u8::from_str_radix(h, 16).ok());
+            if let Some(v) = hex {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    out
+}
+
+/// The relative path a URI names, or why it may not be followed.
+pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
+    // A scheme (`file:`, `http:`, a Windows drive `C:`) comes before any '/'.
+    let head = uri.split(['/', '?', '#']).next().unwrap_or("");
+    if head.contains(':') {
+        return Err(format!("refusing URI '{uri}': only relative paths are followed (it has a scheme)"));
+    }
+    let bytes = percent_decode_bytes(uri);
+    if bytes.contains(&0) {
+        return Err(format!("refusing URI '{uri}': it holds a NUL byte once decoded"));
+    }
+    #[cfg(unix)]
+    let path = {
+        use std::os::unix::ffi::OsStringExt;
+        PathBuf::from(OsString::from_vec(bytes.clone()))
+    };
+    #[cfg(not(unix))]
+    let path = PathBuf::from(OsString::from(String::from_utf8_lossy(&bytes).into_owned()));
+    if path.as_os_str().is_empty() {
+        return Err(format!("refusing URI '{uri}': empty path"));
+    }
+    if path.is_absolute()
+        || path.has_root()
+        || path.components().any(|c| matches!(c, Component::Prefix(_) | Component::RootDir))
+        || bytes.starts_with(b"\\")
+    {
+        return Err(format!(
+            "refusing URI '{uri}': it names the absolute path '{}'; only paths inside the file's folder are followed",
+            path.display()
+        ));
+    }
+    Ok(path)
+}
+
+/// Reads the file `uri` names inside `dir`: at most `max_bytes` bytes, and an
+/// error if the file holds fewer than `min_bytes`.
+pub fn read_confined(
+    dir: &Path,
+    uri: &str,
+    min_bytes: u64,
+    max_bytes: u64,
+) -> Result<Vec<u8>, ConfinedError> {
+    let rel = relative_path(uri)?;
+    let base_dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let base = std::fs::canonicalize(base_dir)
+        .map_err(|e| format!("cannot resolve the folder '{}': {e}", base_dir.display()))?;
+    let joined = base.join(&rel);
+    let target = std::fs::canonicalize(&joined)
+        .map_err(|e| format!("cannot read '{}': {e}", joined.display()))?;
+    if !target.starts_with(&base) {
+        return Err(format!(
+            "refusing URI '{uri}': it resolves to '{}', outside the file's folder '{}'",
+            target.display(),
+            base.display()
+        ));
+    }
+    let meta = std::fs::metadata(&target)
+        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+    if !meta.is_file() {
+        return Err(format!(
+            "refusing URI '{uri}': '{}' is not a regular file ({})",
+            target.display(),
+            kind_of(&meta)
+        ));
+    }
+    if meta.len() < min_bytes {
+        return Err(format!(
+            "'{}' holds {} bytes, fewer than the {min_bytes} declared",
+            target.display(),
+            meta.len()
+        ));
+    }
+    let mut opts = std::fs::OpenOptions::new();
+    opts.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        // A FIFO swapped in after the check must not block the open.
+        opts.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = opts
+        .open(&target)
+        .map_err(|e| format!("cannot open '{}': {e}", target.display()))?;
+    let meta = file
+        .metadata()
+        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+    if !meta.is_file() {
+        return Err(format!(
+            "refusing URI '{uri}': '{}' is not a regular file ({})",
+            target.display(),
+            kind_of(&meta)
+        ));
+    }
+    let mut data = Vec::new();
+    file.take(max_bytes)
+        .read_to_end(&mut data)
+        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+    if (data.len() as u64) < min_bytes {
+        return Err(format!(
+            "'{}' holds {} bytes, fewer than the {min_bytes} declared",
+            target.display(),
+            data.len()
+        ));
+    }
+    Ok(data)
+}
+
+fn kind_of(meta: &std::fs::Metadata) -> &'static str {
+    let ft = meta.file_type();
+    if ft.is_dir() {
+        return "a directory";
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if ft.is_fifo() {
+            return "a FIFO";
+        }
+        if ft.is_char_device() || ft.is_block_device() {
+            return "a device";
+        }
+        if ft.is_socket() {
+            return "a socket";
+        }
+    }
+    "not a plain file"
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decoding_and_refusals() {
+        assert_eq!(percent_decode_bytes("a%20b.bin"), b"a b.bin");
+        assert_eq!(percent_decode_bytes("100%"), b"100%");
+        assert_eq!(percent_decode_bytes("%zz"), b"%zz");
+        assert_eq!(percent_decode_bytes("x%2"), b"x%2");
+        assert_eq!(relative_path("a%20b.bin").unwrap(), PathBuf::from("a b.bin"));
+        for bad in ["%2Fetc%2Fpasswd", "/etc/passwd", "file:///etc/passwd", "C:x", "a%00b", ""] {
+            assert!(relative_path(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn reads_stay_in_the_folder() {
+        let root = std::env::temp_dir().join(format!("knitvox-confined-{}", std::process::id()));
+        let dir = root.join("in");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(root.join("secret.bin"), b"SECRET").unwrap();
+        std::fs::write(dir.join("ok.bin"), b"0123456789").unwrap();
+        assert_eq!(read_confined(&dir, "ok.bin", 4, 4).unwrap(), b"0123");
+        let e = read_confined(&dir, "ok.bin", 11, 11).unwrap_err();
+        assert!(e.contains("fewer than the 11 declared"), "{e}");
+        let e = read_confined(&dir, "../secret.bin", 1, 6).unwrap_err();
+        assert!(e.contains("outside the file's folder"), "{e}");
+        let e = read_confined(&dir, "..%2Fsecret.bin", 1, 6).unwrap_err();
+        assert!(e.contains("outside the file's folder"), "{e}");
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(root.join("secret.bin"), dir.join("link.bin")).unwrap();
+            let e = read_confined(&dir, "link.bin", 1, 6).unwrap_err();
+            assert!(e.contains("outside the file's folder"), "{e}");
+            let e = read_confined(&dir, "/dev/zero", 1, 6).unwrap_err();
+            assert!(e.contains("absolute"), "{e}");
+        }
+        let e = read_confined(&dir, ".", 1, 6).unwrap_err();
+        assert!(e.contains("not a regular file"), "{e}");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}

@@ -1,0 +1,423 @@
+//! Hostile inputs (issue 13, items 1-5): reads stay in the input's folder,
+//! declared sizes are bounded by the memory budget, counts are bounded,
+//! outputs never overwrite inputs. Every input is generated here; every run
+//! has a deadline.
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs knitvox with a deadline (a hang is a failure, not a stuck test).
+fn knitvox_in(dir: &Path, args: &[&str], deadline: Duration) -> (Output, Duration) {
+    let t0 = Instant::now();
+    let mut child = Command::new(common::knitvox_bin())
+        .args(args)
+        .current_dir(dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run knitvox");
+    loop {
+        if child.try_wait().expect("wait").is_some() {
+            break;
+        }
+        if t0.elapsed() > deadline {
+            let _ = child.kill();
+            let o = child.wait_with_output().unwrap();
+            panic!(
+                "knitvox {args:?} still running after {deadline:?}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let elapsed = t0.elapsed();
+    (child.wait_with_output().unwrap(), elapsed)
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("knitvox-hostile-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// 4 float32 points (48 bytes) whose values are recognisable in an output.
+const MARK: [f32; 12] = [
+    1.25, 2.5, 3.75, 4.5, 5.25, 6.75, 7.5, 8.25, 9.75, 10.5, 11.25, 12.75,
+];
+
+fn mark_bytes() -> Vec<u8> {
+    MARK.iter().flat_map(|f| f.to_le_bytes()).collect()
+}
+
+/// A glTF with one LINE_STRIP of 4 points in buffer 0 at `uri`.
+fn gltf_with_uri(uri: &str) -> String {
+    serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scenes": [{"nodes": [0]}], "scene": 0,
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "mode": 3}]}],
+        "buffers": [{"byteLength": 48, "uri": uri}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                       "min": [1.25, 2.5, 3.75], "max": [10.5, 11.25, 12.75]}]
+    })
+    .to_string()
+}
+
+#[test]
+fn gltf_uris_stay_in_the_folder() {
+    let root = scratch("uri");
+    let input = root.join("in");
+    std::fs::create_dir_all(&input).unwrap();
+    let secret = root.join("secret.bin");
+    std::fs::write(&secret, mark_bytes()).unwrap();
+    std::fs::write(input.join("ok.bin"), mark_bytes()).unwrap();
+    std::os::unix::fs::symlink(&secret, input.join("link.bin")).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", input.join("zero.bin")).unwrap();
+    let fifo = input.join("fifo.bin");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+
+    // Control: a URI inside the folder is read (the test can fail).
+    std::fs::write(input.join("a.gltf"), gltf_with_uri("ok.bin")).unwrap();
+    let (o, _) = knitvox_in(&input, &["convert", "a.gltf", "ok.obj"], Duration::from_secs(20));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(input.join("ok.obj")).unwrap().contains("1.25"));
+
+    let abs = secret.to_str().unwrap().to_string();
+    let abs_encoded = abs.replace('/', "%2F");
+    let cases: Vec<(String, &str)> = vec![
+        ("../secret.bin".into(), "outside the file's folder"),
+        ("..%2Fsecret.bin".into(), "outside the file's folder"),
+        ("%2E%2E/secret.bin".into(), "outside the file's folder"),
+        (abs.clone(), "absolute"),
+        (abs_encoded, "absolute"),
+        ("%2Fetc%2Fpasswd".into(), "absolute"),
+        (format!("file://{abs}"), "scheme"),
+        ("link.bin".into(), "outside the file's folder"),
+        ("fifo.bin".into(), "FIFO"),
+        ("zero.bin".into(), "outside the file's folder"),
+        ("/dev/zero".into(), "absolute"),
+        (".".into(), "not a regular file"),
+    ];
+    for (i, (uri, why)) in cases.iter().enumerate() {
+        let name = format!("h{i}.gltf");
+        std::fs::write(input.join(&name), gltf_with_uri(uri)).unwrap();
+        let out = format!("h{i}.obj");
+        let (o, t) = knitvox_in(&input, &["convert", &name, &out], Duration::from_secs(20));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{uri}: {e}");
+        assert!(e.contains(&name) && e.contains("/buffers/0/uri") && e.contains(why), "{uri}: {e}");
+        assert!(t < Duration::from_secs(10), "{uri}: took {t:?}");
+        assert!(!input.join(&out).exists(), "{uri}: output written");
+    }
+    // No byte from outside the folder in any output.
+    for entry in std::fs::read_dir(&input).unwrap() {
+        let p = entry.unwrap().path();
+        if p.extension().is_some_and(|e| e == "obj") && p.file_name().unwrap() != "ok.obj" {
+            panic!("unexpected output {}", p.display());
+        }
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+#[test]
+fn gltf_buffer_reads_at_most_byte_length() {
+    let root = scratch("short");
+    // Declares 48 bytes, file holds 20: refused with both numbers.
+    std::fs::write(root.join("short.bin"), &mark_bytes()[..20]).unwrap();
+    std::fs::write(root.join("a.gltf"), gltf_with_uri("short.bin")).unwrap();
+    let (o, _) = knitvox_in(&root, &["inspect", "a.gltf"], Duration::from_secs(20));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(e.contains("20 bytes") && e.contains("48"), "{e}");
+    // Declares more than the memory budget: refused before reading.
+    let big = gltf_with_uri("short.bin").replace("\"byteLength\":48,\"uri\"", "\"byteLength\":1000000000000,\"uri\"");
+    assert!(big.contains("1000000000000"), "{big}");
+    std::fs::write(root.join("b.gltf"), big).unwrap();
+    let (o, _) = knitvox_in(&root, &["inspect", "--max-memory", "1G", "b.gltf"], Duration::from_secs(20));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(e.contains("b.gltf") && e.contains("/buffers/0/byteLength") && e.contains("1073741824"), "{e}");
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+fn have_h5py() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import h5py"])
+        .status()
+        .is_ok_and(|s| s.success());
+    common::require_tool(ok, "python3 with h5py")
+}
+
+fn python(dir: &Path, script: &str) {
+    let o = Command::new("python3")
+        .args(["-c", script])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// A valid knitvox yarns file `base.h5` in `dir` (made by the binary).
+fn yarns_h5(dir: &Path) {
+    std::fs::write(dir.join("ok.bin"), mark_bytes()).unwrap();
+    std::fs::write(dir.join("src.gltf"), gltf_with_uri("ok.bin")).unwrap();
+    let (o, _) = knitvox_in(dir, &["convert", "src.gltf", "base.h5"], Duration::from_secs(20));
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn hdf5_data_outside_the_file_is_refused() {
+    if !have_h5py() {
+        return;
+    }
+    let dir = scratch("h5ext");
+    yarns_h5(&dir);
+    // Control: the base file reads.
+    let (o, _) = knitvox_in(&dir, &["inspect", "base.h5"], Duration::from_secs(20));
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(dir.join("secret.raw"), vec![0u8; 96]).unwrap();
+    python(
+        &dir,
+        r#"
+import h5py, shutil, numpy as np
+for name in ["ext", "link", "virt"]:
+    shutil.copy("base.h5", name + ".h5")
+with h5py.File("ext.h5", "a") as f:
+    del f["yarns/points"]
+    f["yarns"].create_dataset("points", (4, 3), "f8", external=[("secret.raw", 0, 96)])
+with h5py.File("other.h5", "w") as g:
+    g["data"] = np.zeros((4, 3))
+with h5py.File("link.h5", "a") as f:
+    del f["yarns/points"]
+    f["yarns/points"] = h5py.ExternalLink("other.h5", "/data")
+with h5py.File("virt.h5", "a") as f:
+    del f["yarns/points"]
+    lay = h5py.VirtualLayout(shape=(4, 3), dtype="f8")
+    lay[:] = h5py.VirtualSource("other.h5", "data", shape=(4, 3))
+    f["yarns"].create_virtual_dataset("points", lay)
+"#,
+    );
+    for (file, why) in [
+        ("ext.h5", "external file"),
+        ("link.h5", "external link"),
+        ("virt.h5", "virtual dataset"),
+    ] {
+        // `inspect` lists hard links only; `convert` reads the yarns.
+        let (o, _) = knitvox_in(&dir, &["convert", file, "out.obj"], Duration::from_secs(20));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{file}: {e}");
+        assert!(!dir.join("out.obj").exists());
+        assert!(e.contains(file) && e.contains("/yarns/points") && e.contains(why), "{file}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn decompression_bomb_is_refused_under_the_budget() {
+    if !have_h5py() {
+        return;
+    }
+    let dir = scratch("bomb");
+    yarns_h5(&dir);
+    // 180M points declared (4.3 GB of f64), gzip, one chunk written: a 4 MB file.
+    python(
+        &dir,
+        r#"
+import h5py, shutil, numpy as np
+shutil.copy("base.h5", "bomb.h5")
+with h5py.File("bomb.h5", "a") as f:
+    n = 180_000_000
+    for k in ["points", "offsets", "closed", "radius"]:
+        if k in f["yarns"]:
+            del f["yarns"][k]
+    d = f["yarns"].create_dataset("points", (n, 3), "f8", chunks=(1 << 20, 3), compression="gzip")
+    # About 4 MB of incompressible data: the file could plausibly expand
+    # (gzip ratio) to what it declares, so only the budget refuses it.
+    d[:200_000] = np.random.default_rng(1).random((200_000, 3))
+    f["yarns"].create_dataset("offsets", data=np.array([0, n], dtype="i8"))
+    f["yarns"].create_dataset("closed", data=np.array([0], dtype="u1"))
+    f["yarns"].create_dataset("radius", data=np.array([0.001]))
+"#,
+    );
+    let size = std::fs::metadata(dir.join("bomb.h5")).unwrap().len();
+    assert!(size < 5 << 20, "bomb file is {size} bytes");
+    let (o, t) = knitvox_in(
+        &dir,
+        &["inspect", "--max-memory", "1G", "bomb.h5"],
+        Duration::from_secs(20),
+    );
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(
+        e.contains("bomb.h5") && e.contains("/yarns/points") && e.contains("4320000000 bytes") && e.contains("1073741824"),
+        "{e}"
+    );
+    eprintln!("bomb of {size} bytes refused in {t:?}");
+    assert!(t < Duration::from_secs(5), "took {t:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn overflowing_counts_are_usage_errors() {
+    let dir = scratch("counts");
+    std::fs::write(dir.join("s.toml"), "[simulation]\n").unwrap();
+    for (args, want) in [
+        (
+            &["export", "a.vtkhdf", "--frames", "9223372036854775807", "-o", "d"][..],
+            "9223372036854775807",
+        ),
+        (
+            &["export", "a.vtkhdf", "--frames=-9223372036854775808-9223372036854775807", "-o", "d"],
+            "1000000000",
+        ),
+        (&["convert", "a.obj", "b.obj", "--first-frame", "9223372036854775807"], "first-frame"),
+        (&["embed", "a.obj", "-o", "a.vtkhdf", "--max-memory", "12Q"], "max-memory"),
+        (
+            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-1000000", "--dt", "1e-6", "-o", "o.vtkhdf"],
+            "more than the limit of 10000000",
+        ),
+        (
+            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-2", "--fps", "1e-300", "-o", "o.vtkhdf"],
+            "more than the limit of 10000000",
+        ),
+    ] {
+        let (o, t) = knitvox_in(&dir, args, Duration::from_secs(10));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(want), "{args:?}: {e}");
+        assert!(t < Duration::from_secs(5));
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let dir = scratch("overwrite");
+    let obj = "v 0 0 0\nv 0.01 0 0\nv 0.02 0.01 0\nl 1 2 3\n";
+    std::fs::write(dir.join("a.obj"), obj).unwrap();
+    std::os::unix::fs::symlink(dir.join("a.obj"), dir.join("alias.obj")).unwrap();
+    std::fs::create_dir_all(dir.join("sub")).unwrap();
+    for args in [
+        &["convert", "a.obj", "a.obj"][..],
+        &["convert", "a.obj", "./a.obj"],
+        &["convert", "a.obj", "alias.obj"],
+        &["convert", "a.obj", "sub/../a.obj"],
+        &["embed", "a.obj", "-o", "./alias.obj"],
+        &["pattern", "--grid", "a.obj", "--courses", "2", "--wales", "2", "-o", "a.obj"],
+    ] {
+        let (o, _) = knitvox_in(&dir, args, Duration::from_secs(20));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains("never overwrites an input") && e.contains("a.obj"), "{args:?}: {e}");
+        assert_eq!(std::fs::read_to_string(dir.join("a.obj")).unwrap(), obj, "{args:?}");
+    }
+    // Control: another name converts.
+    let (o, _) = knitvox_in(&dir, &["convert", "a.obj", "b.obj"], Duration::from_secs(20));
+    assert!(o.status.success(), "{}", stderr(&o));
+    for name in ["../x", "a/b", ".."] {
+        let (o, _) = knitvox_in(
+            &dir,
+            &["export", "a.vtkhdf", "-o", "sub", "--name", name],
+            Duration::from_secs(10),
+        );
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{name}: {e}");
+        assert!(e.contains("--name"), "{name}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sigterm_mid_write_leaves_no_temporary() {
+    let dir = scratch("sigterm");
+    // A long yarn-level run streams its frames into a temporary HDF5 file.
+    std::fs::write(
+        dir.join("long.toml"),
+        "name = \"long\"\nduration = 100.0\nframe_rate = 60\ngravity = [0.0, 0.0, 0.0]\n\
+         [swatch]\npattern = \"rib1x1\"\ncourses = 10\nwales = 10\n\
+         [pose]\nkind = \"biaxial\"\namount = 0.2\n",
+    )
+    .unwrap();
+    let mut child = Command::new(common::knitvox_bin())
+        .args(["yls", "long.toml", "-o", "out.h5", "--no-progress"])
+        .current_dir(&dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let temps = |dir: &Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".tmp"))
+            .collect()
+    };
+    // Wait until the temporary exists (the write is in flight).
+    let t0 = Instant::now();
+    while temps(&dir).is_empty() {
+        if let Some(s) = child.try_wait().unwrap() {
+            panic!("yls ended early ({s}): {:?}", child.wait_with_output().unwrap().stderr);
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60), "no temporary file appeared");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let t1 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t1.elapsed() < Duration::from_secs(10), "SIGTERM did not end the run");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(status.signal(), Some(libc::SIGTERM), "{status}");
+    assert!(temps(&dir).is_empty(), "left behind: {:?}", temps(&dir));
+    assert!(!dir.join("out.h5").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn scene_counts_are_bounded_and_name_the_key() {
+    let dir = scratch("scenes");
+    std::fs::write(dir.join("it.toml"), "[simulation]\nmax_iterations = 4000000000\n").unwrap();
+    std::fs::write(
+        dir.join("folds.toml"),
+        "name = \"f\"\nduration = 1.0\nframe_rate = 60\n[swatch]\npattern = \"rib1x1\"\ncourses = 4\nwales = 4\n\
+         [pose]\nkind = \"multi_fold\"\namount = 0.1\nfolds = 4000000000\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("frames.toml"),
+        "name = \"f\"\nduration = 1e300\nframe_rate = 1e300\n[swatch]\npattern = \"rib1x1\"\ncourses = 4\nwales = 4\n\
+         [pose]\nkind = \"biaxial\"\namount = 0.1\n",
+    )
+    .unwrap();
+    for (args, words) in [
+        (
+            &["simulate", "a.vtkhdf", "--scene", "it.toml", "--frames", "1-2", "-o", "o.vtkhdf"][..],
+            &["it.toml", "max_iterations", "10000"][..],
+        ),
+        (&["yls", "folds.toml", "-o", "o.h5"], &["folds", "10000"]),
+        (&["yls", "frames.toml", "-o", "o.h5"], &["frames.toml", "duration", "1000000"]),
+    ] {
+        let (o, t) = knitvox_in(&dir, args, Duration::from_secs(20));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{args:?}: {e}");
+        for w in words {
+            assert!(e.contains(w), "{args:?}: {e} lacks {w}");
+        }
+        assert!(t < Duration::from_secs(5), "{args:?}: {t:?}");
+        assert!(!dir.join("o.h5").exists() && !dir.join("o.vtkhdf").exists());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
