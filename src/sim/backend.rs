@@ -5,6 +5,7 @@
 //! Layout of node arrays: `n x 3` row-major `f64` (`a[3 * i + k]`), the same
 //! as `&[Vec3]` flattened.
 
+use super::energy::ElasticModel;
 use super::SimError;
 use crate::geom::Vec3;
 
@@ -28,6 +29,12 @@ pub trait ElasticRhs {
     fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError>;
     /// A short name for statistics ("cpu", "gpu").
     fn name(&self) -> &'static str;
+    /// Takes the per-tet stiffnesses of `model` (same mesh, new `γs`, `γv`)
+    /// in place, so a fitted material keeps its backend. Returns false when
+    /// the backend cannot (the caller then falls back to the CPU one).
+    fn update_materials(&mut self, _model: &ElasticModel) -> Result<bool, SimError> {
+        Ok(false)
+    }
 }
 
 /// Statistics of an iterative linear solve.

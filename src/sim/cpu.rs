@@ -206,6 +206,14 @@ impl ElasticRhs for CpuElasticRhs {
     fn name(&self) -> &'static str {
         "cpu"
     }
+
+    fn update_materials(&mut self, model: &ElasticModel) -> Result<bool, SimError> {
+        if model.rest().len() != self.model.rest().len() || model.num_nodes() != self.model.num_nodes() {
+            return Ok(false);
+        }
+        *self = CpuElasticRhs::new(model);
+        Ok(true)
+    }
 }
 
 #[cfg(test)]

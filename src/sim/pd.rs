@@ -659,9 +659,11 @@ impl PdSolver {
     }
 
     /// New per-tet stiffnesses (Pa): redoes only the numeric factorization
-    /// (direct) or the domain precomputation (domain-decomposed). The local
-    /// step and Jacobi backends go back to the CPU ones: call
-    /// [`Self::set_backend`] again for another backend.
+    /// (direct) or the domain precomputation (domain-decomposed). The
+    /// local-step backend takes the new materials in place (a GPU backend
+    /// stays on the GPU, `ElasticRhs::update_materials`); the Jacobi backend
+    /// of the domain-decomposed solver goes back to the CPU one (`K`
+    /// changed): call [`Self::set_backend`] with a new one for the GPU.
     pub fn refactor(&mut self, gamma_s: &[f64], gamma_v: &[f64]) -> Result<(), SimError> {
         let model = ElasticModel::new(&self.mesh, gamma_s, gamma_v)?;
         let old = std::mem::replace(&mut self.model, model);
@@ -671,7 +673,10 @@ impl PdSolver {
             self.model = old;
             self.factorize(false)?;
         }
-        self.elastic = Box::new(CpuElasticRhs::new(&self.model));
+        if !self.elastic.update_materials(&self.model)? {
+            self.elastic = Box::new(CpuElasticRhs::new(&self.model));
+        }
+        self.last = None;
         r
     }
 

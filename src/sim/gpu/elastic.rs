@@ -28,6 +28,7 @@ pub struct GpuElasticRhs {
     num_nodes: usize,
     num_tets: usize,
     x_buf: wgpu::Buffer,
+    rest_buf: wgpu::Buffer,
     out_buf: wgpu::Buffer,
     partials_buf: wgpu::Buffer,
     staging: wgpu::Buffer,
@@ -62,6 +63,27 @@ fn f32_checked(v: f64, what: &str, tet: usize) -> Result<f32, GpuError> {
     }
 }
 
+/// Per tet: the three columns of `Dm⁻¹`, each followed by one of rest
+/// volume, `γs`, `γv` (12 `f32`, the `rest` buffer's layout).
+fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
+    let rest = model.rest();
+    let mut data: Vec<f32> = Vec::with_capacity(12 * rest.len());
+    for (e, r) in rest.iter().enumerate() {
+        let extra = [
+            (r.volume, "rest volume"),
+            (model.gamma_s()[e], "gamma_s"),
+            (model.gamma_v()[e], "gamma_v"),
+        ];
+        for (c, (w, what)) in extra.iter().enumerate() {
+            for k in 0..3 {
+                data.push(f32_checked(r.dm_inv[(k, c)], "Dm^-1", e)?);
+            }
+            data.push(f32_checked(*w, what, e)?);
+        }
+    }
+    Ok(data)
+}
+
 impl GpuElasticRhs {
     /// Uploads the rest data of `model` (node indices, `Dm⁻¹`, rest volumes,
     /// `γs`, `γv`, all rounded to `f32`) and the node -> tet incidence once.
@@ -72,23 +94,12 @@ impl GpuElasticRhs {
         to_u32(4 * nt, "4 x tet count")?;
         to_u32(3 * nn + 1, "3 x node count")?;
         let mut tets: Vec<u32> = Vec::with_capacity(4 * nt);
-        let mut rest_data: Vec<f32> = Vec::with_capacity(12 * nt);
-        for (e, r) in rest.iter().enumerate() {
+        for r in rest {
             for &i in &r.nodes {
                 tets.push(to_u32(i, "node index")?);
             }
-            let extra = [
-                (r.volume, "rest volume"),
-                (model.gamma_s()[e], "gamma_s"),
-                (model.gamma_v()[e], "gamma_v"),
-            ];
-            for (c, (w, what)) in extra.iter().enumerate() {
-                for k in 0..3 {
-                    rest_data.push(f32_checked(r.dm_inv[(k, c)], "Dm^-1", e)?);
-                }
-                rest_data.push(f32_checked(*w, what, e)?);
-            }
         }
+        let rest_data = rest_data(model)?;
         // Node -> (tet, corner) incidence in CSR form, tet order within a node.
         let mut incidence = vec![0u32; nn + 1 + 4 * nt];
         for r in rest {
@@ -127,7 +138,12 @@ impl GpuElasticRhs {
                 })
         };
         let tets_buf = ctx.storage_init("tets", bytemuck::cast_slice(&tets), none);
-        let rest_buf = ctx.storage_init("rest", bytemuck::cast_slice(&rest_data), none);
+        // COPY_DST: new materials are written in place (update_materials).
+        let rest_buf = ctx.storage_init(
+            "rest",
+            bytemuck::cast_slice(&rest_data),
+            wgpu::BufferUsages::COPY_DST,
+        );
         let inc_buf = ctx.storage_init("incidence", bytemuck::cast_slice(&incidence), none);
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let x_buf = ctx.buffer("x", 12 * nn as u64, storage);
@@ -179,6 +195,7 @@ impl GpuElasticRhs {
             num_nodes: nn,
             num_tets: nt,
             x_buf,
+            rest_buf,
             out_buf,
             partials_buf,
             staging,
@@ -291,5 +308,16 @@ impl ElasticRhs for GpuElasticRhs {
 
     fn name(&self) -> &'static str {
         "gpu"
+    }
+
+    fn update_materials(&mut self, model: &ElasticModel) -> Result<bool, SimError> {
+        if model.rest().len() != self.num_tets || model.num_nodes() != self.num_nodes {
+            return Ok(false);
+        }
+        let data = rest_data(model).map_err(|e| SimError::Inconsistent(e.to_string()))?;
+        self.ctx
+            .queue
+            .write_buffer(&self.rest_buf, 0, bytemuck::cast_slice(&data));
+        Ok(true)
     }
 }
