@@ -125,6 +125,8 @@ fn y2v_is_exact_for_affine_maps() {
                 stats.ms
             );
             assert!((stats.rms_error - rms).abs() <= 1e-12 * size);
+            assert_eq!(stats.inverted_tets, 0);
+            assert!((stats.min_det_f - a.determinant()).abs() < 1e-9, "{stats:?}");
             if !(rms < 1e-9 * size && node_err < 1e-9 * size) {
                 bad.push(format!(
                     "{} points, {name}: V2Y RMS {rms:.3e} m, node error {node_err:.3e} m, size {size:.3e} m",
@@ -243,6 +245,8 @@ fn y2v_stretch_of_30_percent_inverts_no_tet() {
         extent(&nodes) / extent(&e.mesh.nodes)
     );
     assert_eq!(inverted, 0);
+    assert_eq!(stats.inverted_tets, 0);
+    assert!((stats.min_det_f - min_det).abs() < 1e-12);
     // The mesh carries the stretch (rotation-only normals gave 1.22).
     let ratio = extent(&nodes) / extent(&e.mesh.nodes);
     assert!((ratio - 1.3).abs() < 0.02, "mesh x extent ratio {ratio}");
