@@ -143,7 +143,8 @@ const STENCIL_RADII: [f64; 4] = [1.5, 2.25, 3.375, 5.0];
 /// covariance is at least this fraction of the largest.
 const MIN_SPREAD: f64 = 1e-2;
 
-/// Uniform grid over the rest yarn vertices, for radius queries.
+/// Uniform grid over the rest yarn vertices, for radius queries (cell: the
+/// first stencil radius, so a first query visits at most 27 cells).
 struct PointGrid {
     cell: f64,
     /// Vertex indices sorted by (cell, index).
@@ -827,7 +828,7 @@ fn attach_stencils(points: &[Vec3], segments: &mut [RestSegment], h: f64) -> Vec
     if !(h > 0.0) || segments.is_empty() {
         return Vec::new();
     }
-    let grid = PointGrid::new(points, h);
+    let grid = PointGrid::new(points, STENCIL_RADII[0] * h);
     let stencils: Vec<Option<(Vec<(u32, [f32; 2])>, Matrix3<f64>)>> = segments
         .par_iter()
         .map_init(Vec::new, |buf, s| affine_stencil(points, &grid, s, h, buf))

@@ -291,3 +291,68 @@ fn bench_y2v_ms_per_frame() {
         );
     }
 }
+
+/// Same fitter and same fitted nodes, bit for bit, on 1 and 3 threads.
+#[test]
+fn y2v_is_the_same_for_any_thread_count() {
+    let p = wide_swatch();
+    let y = knit_swatch(&p);
+    let e = embed(&y, &EmbedParams::default()).unwrap();
+    let (w, h) = (p.wale_width, p.course_height);
+    let frame = loops(p.courses, p.wales, p.points_per_loop, 1.2 * w, 0.95 * h, 0.6, 0.2 * w);
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let f = ShapeFitter::from_embedded(&y, &e, &ShapeFitParams::default()).unwrap();
+                let (nodes, stats) = f.fit(&frame).unwrap();
+                (f.prepare.stencil_taps, nodes, stats.rms_error, stats.min_det_f)
+            })
+    };
+    assert_eq!(run(1), run(3));
+}
+
+/// A lone planar yarn has no neighbourhood that spans 3D: every segment
+/// falls back to rotation-only normals, and rigid motions stay exact.
+#[test]
+fn y2v_planar_yarn_falls_back_to_rotations() {
+    let pts: Vec<Vec3> = (0..80)
+        .map(|i| {
+            let t = i as f64 * 0.25;
+            [1e-3 * t, 2e-3 * t.sin(), 0.0]
+        })
+        .collect();
+    let mut y = Yarns::new();
+    y.push_curve(&pts, false, 2e-4);
+    let e = embed(&y, &EmbedParams::default()).unwrap();
+    let fitter = ShapeFitter::from_embedded(&y, &e, &ShapeFitParams::default()).unwrap();
+    assert_eq!(fitter.prepare.segments, 79);
+    assert_eq!(fitter.prepare.affine_segments, 0);
+    assert_eq!(fitter.prepare.stencil_taps, 0);
+    let size = y.bounds().unwrap().diagonal();
+    let r = Rotation3::new(Vector3::new(0.3, -1.1, 0.7)).into_inner();
+    let t = Vector3::new(0.01, -0.02, 0.5);
+    let (nodes, stats) = fitter.fit(&apply(&r, &t, &y.points)).unwrap();
+    let expect = apply(&r, &t, &e.mesh.nodes);
+    let err = nodes.iter().zip(&expect).map(|(p, q)| dist(*p, *q)).fold(0.0, f64::max);
+    assert!(err < 1e-9 * size, "node error {err:e}");
+    assert!(stats.rms_error < 1e-9 * size);
+}
+
+/// A mirrored pose (det A < 0) has no orientation-preserving F^Y: the guard
+/// falls back to rotations, the fit stays finite, and the report says how
+/// many tets it had to turn inside out.
+#[test]
+fn y2v_mirror_is_guarded_and_reported() {
+    let (y, e, fitter) = fixture(&small_swatch());
+    let m = Matrix3::from_diagonal(&Vector3::new(-1.0, 1.0, 1.0));
+    let (nodes, stats) = fitter.fit(&apply(&m, &Vector3::zeros(), &y.points)).unwrap();
+    assert!(nodes.iter().flatten().all(|x| x.is_finite()));
+    let (inverted, min_det) = det_stats(&e.mesh, &nodes);
+    eprintln!("mirror: {stats:?}");
+    assert_eq!(stats.inverted_tets, inverted);
+    assert!((stats.min_det_f - min_det).abs() < 1e-12);
+    assert!(stats.min_det_f.is_finite());
+}
