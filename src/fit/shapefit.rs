@@ -205,6 +205,10 @@ impl PointGrid {
     }
 }
 
+/// A segment's stencil taps (vertex, coefficients of n1 and n2) and the
+/// inverse of its rest frame [x̄1 - x̄0, n̂1, n̂2].
+type Stencil = (Vec<(u32, [f32; 2])>, Matrix3<f64>);
+
 /// Local affine stencil of one segment: the coefficients of n1, n2 on
 /// (x_k - x0) and the inverse rest frame, or None when no radius of
 /// [`STENCIL_RADII`] gives a neighbourhood that spans 3D.
@@ -214,7 +218,7 @@ fn affine_stencil(
     s: &RestSegment,
     h: f64,
     buf: &mut Vec<u32>,
-) -> Option<(Vec<(u32, [f32; 2])>, Matrix3<f64>)> {
+) -> Option<Stencil> {
     let (x0, x1) = (v3(points[s.a]), v3(points[s.b]));
     let mid = 0.5 * (x0 + x1);
     for f in STENCIL_RADII {
@@ -231,7 +235,7 @@ fn affine_stencil(
             })
             .collect();
         let wsum: f64 = w.iter().sum();
-        if !(wsum > 0.0) {
+        if wsum <= 0.0 || wsum.is_nan() {
             continue;
         }
         let centre = buf
@@ -247,7 +251,7 @@ fn affine_stencil(
         }
         let eig = cov.symmetric_eigen();
         let (lmin, lmax) = (eig.eigenvalues.min(), eig.eigenvalues.max());
-        if !(lmax > 0.0) || lmin < MIN_SPREAD * lmax {
+        if lmax <= 0.0 || lmax.is_nan() || lmin < MIN_SPREAD * lmax {
             continue;
         }
         let cinv = eig.eigenvectors
@@ -371,7 +375,7 @@ fn kabsch(rest: &[Vector3<f64>], cur: &[Vector3<f64>]) -> Option<Matrix3<f64>> {
     let s = svd.singular_values;
     let mut sorted = [s[0], s[1], s[2]];
     sorted.sort_by(|a, b| b.total_cmp(a));
-    if !(sorted[0] > 0.0) || sorted[1] <= 1e-9 * sorted[0] {
+    if sorted[0] <= 0.0 || sorted[0].is_nan() || sorted[1] <= 1e-9 * sorted[0] {
         return None;
     }
     let (u, v_t) = (svd.u?, svd.v_t?);
@@ -466,9 +470,9 @@ impl ShapeFitter {
 
         // Position-term weights from the yarn vertex masses.
         let mut vertex_mass = vec![0.0; yarns.num_points()];
-        for c in 0..yarns.num_curves() {
+        for (c, &density) in linear_density.iter().enumerate() {
             for [a, b] in yarns.segments_of(c) {
-                let m = linear_density[c] * crate::geom::dist(yarns.points[a], yarns.points[b]);
+                let m = density * crate::geom::dist(yarns.points[a], yarns.points[b]);
                 vertex_mass[a] += 0.5 * m;
                 vertex_mass[b] += 0.5 * m;
             }
@@ -724,7 +728,7 @@ impl ShapeFitter {
                     f += v3(nodes[ids[a] as usize]) * self.grads[t][a].transpose();
                 }
                 let d = f.determinant();
-                (usize::from(!(d > 0.0)), d)
+                (usize::from(d <= 0.0 || d.is_nan()), d)
             })
             .reduce(
                 || (0, f64::INFINITY),
@@ -825,11 +829,11 @@ fn rest_segments(yarns: &Yarns) -> Vec<RestSegment> {
 /// Builds every segment's affine stencil (in parallel, deterministic) and
 /// returns the concatenated taps; segments without one keep an empty range.
 fn attach_stencils(points: &[Vec3], segments: &mut [RestSegment], h: f64) -> Vec<(u32, [f32; 2])> {
-    if !(h > 0.0) || segments.is_empty() {
+    if h <= 0.0 || h.is_nan() || segments.is_empty() {
         return Vec::new();
     }
     let grid = PointGrid::new(points, STENCIL_RADII[0] * h);
-    let stencils: Vec<Option<(Vec<(u32, [f32; 2])>, Matrix3<f64>)>> = segments
+    let stencils: Vec<Option<Stencil>> = segments
         .par_iter()
         .map_init(Vec::new, |buf, s| affine_stencil(points, &grid, s, h, buf))
         .collect();

@@ -126,7 +126,10 @@ fn y2v_is_exact_for_affine_maps() {
             );
             assert!((stats.rms_error - rms).abs() <= 1e-12 * size);
             assert_eq!(stats.inverted_tets, 0);
-            assert!((stats.min_det_f - a.determinant()).abs() < 1e-9, "{stats:?}");
+            assert!(
+                (stats.min_det_f - a.determinant()).abs() < 1e-9,
+                "{stats:?}"
+            );
             if !(rms < 1e-9 * size && node_err < 1e-9 * size) {
                 bad.push(format!(
                     "{} points, {name}: V2Y RMS {rms:.3e} m, node error {node_err:.3e} m, size {size:.3e} m",
@@ -182,9 +185,15 @@ fn y2v_keeps_a_ten_voxel_wave() {
                 .collect();
             worst = worst.min(kept(&e, &fitter, &y.points, &u));
         }
-        eprintln!("wave along {name}, 10 voxels long (h = {h:.3e} m): keeps {:.1}%", 100.0 * worst);
+        eprintln!(
+            "wave along {name}, 10 voxels long (h = {h:.3e} m): keeps {:.1}%",
+            100.0 * worst
+        );
         if !(worst >= 0.9) {
-            bad.push(format!("wave along {name} keeps only {:.1}%", 100.0 * worst));
+            bad.push(format!(
+                "wave along {name} keeps only {:.1}%",
+                100.0 * worst
+            ));
         }
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));
@@ -219,8 +228,19 @@ fn y2v_stretch_of_30_percent_inverts_no_tet() {
     let (w, h) = (p.wale_width, p.course_height);
     let rest = loops(p.courses, p.wales, p.points_per_loop, w, h, 0.8, 0.25 * w);
     assert_eq!(rest.len(), y.num_points());
-    assert!(rest.iter().zip(&y.points).all(|(a, b)| dist(*a, *b) < 1e-15));
-    let mut stretched = loops(p.courses, p.wales, p.points_per_loop, 1.3 * w, 0.9 * h, 0.55, 0.18 * w);
+    assert!(rest
+        .iter()
+        .zip(&y.points)
+        .all(|(a, b)| dist(*a, *b) < 1e-15));
+    let mut stretched = loops(
+        p.courses,
+        p.wales,
+        p.points_per_loop,
+        1.3 * w,
+        0.9 * h,
+        0.55,
+        0.18 * w,
+    );
     for q in &mut stretched {
         q[1] -= 0.0005 * (q[0] * 400.0).sin().abs();
     }
@@ -232,9 +252,11 @@ fn y2v_stretch_of_30_percent_inverts_no_tet() {
         stats.rms_error
     );
     let extent = |pts: &[Vec3]| {
-        let (lo, hi) = pts.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, u), q| {
-            (l.min(q[0]), u.max(q[0]))
-        });
+        let (lo, hi) = pts
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, u), q| {
+                (l.min(q[0]), u.max(q[0]))
+            });
         hi - lo
     };
     let back = e.embedding.v2y(&e.mesh, &nodes);
@@ -299,7 +321,15 @@ fn y2v_is_the_same_for_any_thread_count() {
     let y = knit_swatch(&p);
     let e = embed(&y, &EmbedParams::default()).unwrap();
     let (w, h) = (p.wale_width, p.course_height);
-    let frame = loops(p.courses, p.wales, p.points_per_loop, 1.2 * w, 0.95 * h, 0.6, 0.2 * w);
+    let frame = loops(
+        p.courses,
+        p.wales,
+        p.points_per_loop,
+        1.2 * w,
+        0.95 * h,
+        0.6,
+        0.2 * w,
+    );
     let run = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -308,7 +338,12 @@ fn y2v_is_the_same_for_any_thread_count() {
             .install(|| {
                 let f = ShapeFitter::from_embedded(&y, &e, &ShapeFitParams::default()).unwrap();
                 let (nodes, stats) = f.fit(&frame).unwrap();
-                (f.prepare.stencil_taps, nodes, stats.rms_error, stats.min_det_f)
+                (
+                    f.prepare.stencil_taps,
+                    nodes,
+                    stats.rms_error,
+                    stats.min_det_f,
+                )
             })
     };
     assert_eq!(run(1), run(3));
@@ -336,7 +371,11 @@ fn y2v_planar_yarn_falls_back_to_rotations() {
     let t = Vector3::new(0.01, -0.02, 0.5);
     let (nodes, stats) = fitter.fit(&apply(&r, &t, &y.points)).unwrap();
     let expect = apply(&r, &t, &e.mesh.nodes);
-    let err = nodes.iter().zip(&expect).map(|(p, q)| dist(*p, *q)).fold(0.0, f64::max);
+    let err = nodes
+        .iter()
+        .zip(&expect)
+        .map(|(p, q)| dist(*p, *q))
+        .fold(0.0, f64::max);
     assert!(err < 1e-9 * size, "node error {err:e}");
     assert!(stats.rms_error < 1e-9 * size);
 }
@@ -348,7 +387,9 @@ fn y2v_planar_yarn_falls_back_to_rotations() {
 fn y2v_mirror_is_guarded_and_reported() {
     let (y, e, fitter) = fixture(&small_swatch());
     let m = Matrix3::from_diagonal(&Vector3::new(-1.0, 1.0, 1.0));
-    let (nodes, stats) = fitter.fit(&apply(&m, &Vector3::zeros(), &y.points)).unwrap();
+    let (nodes, stats) = fitter
+        .fit(&apply(&m, &Vector3::zeros(), &y.points))
+        .unwrap();
     assert!(nodes.iter().flatten().all(|x| x.is_finite()));
     let (inverted, min_det) = det_stats(&e.mesh, &nodes);
     eprintln!("mirror: {stats:?}");
