@@ -275,16 +275,24 @@ fn y2v_stretch_of_30_percent_inverts_no_tet() {
 }
 
 /// Timing of Y2V per frame (test profile; `cargo test --lib
-/// fit::y2v_tests::bench -- --ignored --nocapture`): the built-in 25k-point
-/// swatch and, when ../shared/data is there, the flame ribbing, each under
-/// the demo's 30% stretch.
+/// fit::y2v_tests::bench -- --ignored --nocapture`): the swatches of these
+/// tests and of tests/asset.rs, the built-in 25k-point swatch and, when
+/// ../shared/data is there, the flame ribbing, each under the demo's 30%
+/// stretch (median over 5 frames, repeated on the small inputs).
 #[test]
 #[ignore]
 fn bench_y2v_ms_per_frame() {
-    let mut inputs = vec![(
-        "built-in swatch 25k".to_string(),
-        crate::yarn::analytic::knit_swatch_with_points(25_000),
-    )];
+    let mut inputs = vec![
+        (
+            "tests/asset.rs swatch".to_string(),
+            knit_swatch(&small_swatch()),
+        ),
+        ("wide swatch".to_string(), knit_swatch(&wide_swatch())),
+        (
+            "built-in swatch 25k".to_string(),
+            crate::yarn::analytic::knit_swatch_with_points(25_000),
+        ),
+    ];
     let flame = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/yarns/yuksel_flame_ribbing_pattern.bcc");
     if flame.exists() {
@@ -299,17 +307,25 @@ fn bench_y2v_ms_per_frame() {
         let fitter = ShapeFitter::from_embedded(&y, &e, &ShapeFitParams::default()).unwrap();
         let prepare = t.elapsed().as_secs_f64() * 1e3;
         let frames = crate::pipeline::demo::demo_frames(&y, 5);
-        let mut ms: Vec<f64> = (0..frames.num_frames())
-            .map(|f| fitter.fit(frames.frame(f)).unwrap().1.ms)
+        let repeats = (100_000 / y.num_points()).clamp(1, 20);
+        let mut ms: Vec<f64> = (0..frames.num_frames() * repeats)
+            .map(|f| {
+                fitter
+                    .fit(frames.frame(f % frames.num_frames()))
+                    .unwrap()
+                    .1
+                    .ms
+            })
             .collect();
         ms.sort_by(f64::total_cmp);
         let (_, last) = fitter.fit(frames.frame(frames.num_frames() - 1)).unwrap();
         eprintln!(
-            "{name}: {} points, {} tets; prepare {prepare:.0} ms ({:?}); Y2V median {:.1} ms per frame; 30% frame {last:?}",
+            "{name}: {} points, {} tets; prepare {prepare:.1} ms ({:?}); Y2V median {:.2} ms per frame ({} fits); 30% frame {last:?}",
             y.num_points(),
             e.mesh.num_tets(),
             fitter.prepare,
-            ms[ms.len() / 2]
+            ms[ms.len() / 2],
+            ms.len()
         );
     }
 }
