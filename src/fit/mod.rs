@@ -3,3 +3,6 @@
 pub mod shapefit;
 
 pub use shapefit::{FitError, FitStats, ShapeFitParams, ShapeFitter};
+
+#[cfg(test)]
+mod y2v_tests;

@@ -4,11 +4,27 @@
 //! 1. Per yarn segment, a deformation gradient
 //!    `F^Y = [x1 - x0, n1, n2] [x̄1 - x̄0, n̄1, n̄2]^-1` (VH §5). The rest
 //!    normals n̄1, n̄2 are parallel-transported along each yarn (consistent
-//!    along the yarn, no flips). The deformed normals are the rest normals
-//!    *rotated* by the best-fit rotation (Kabsch) of the segment's
-//!    neighbourhood of up to 4 yarn vertices: they only rotate, so a stretch
-//!    across the yarn is not seen by F (it has no material there to see it),
-//!    while any rigid motion gives F = R exactly.
+//!    along the yarn, no flips). The deformed normals come from a *local
+//!    affine fit*: the map A minimising `sum_k w_k |A (X_k - X̄) - (x_k - x̄)|^2`
+//!    over the yarn vertices k (of any yarn) within a radius r of the segment
+//!    midpoint, with weights `w_k = (1 - d_k^2 / r^2)^2` and weighted centroids
+//!    X̄, x̄ (found with a uniform grid of cell h). Then `n_i = A n̂_i`: A is
+//!    linear in the deformed positions, so each normal is a fixed stencil
+//!    `n_i = sum_k c_ik (x_k - x0)` computed once at rest (coefficients in
+//!    f32), and the rest frame uses the same stencil applied to the rest pose,
+//!    `n̂_i = sum_k c_ik (X_k - X0)` (≈ n̄_i). Hence for any affine map
+//!    x -> A x + b of the yarns every segment gets `F^Y = A` to rounding,
+//!    whatever the stencil's precision, and with it a stretch *across* the
+//!    yarns (which a single yarn cannot see) reaches the mesh. r starts at
+//!    1.5 h (h the voxel size) and grows by 1.5x up to 5 h until the weighted
+//!    covariance of the neighbourhood spans 3D (smallest eigenvalue at least
+//!    1% of the largest, i.e. the thinnest extent at least 10% of the
+//!    widest). Where it never does (an isolated yarn, a straight strand) and
+//!    where the affine F^Y is not orientation preserving (det <= 0, a guard
+//!    against tangled yarn-level poses), the segment falls back to the rest
+//!    normals *rotated* by the best-fit rotation (Kabsch) of its up to 4
+//!    neighbouring vertices along the yarn. Both variants give F = R exactly
+//!    for any rigid motion.
 //! 2. Per tet, Eq. 5: F = exp(mean Ω) mean S over the yarn pieces in the tet,
 //!    weighted by piece length, where F^Y = R S (polar decomposition) and
 //!    R = exp(Ω). Tets without yarn take their voxel's average; voxels without
@@ -19,10 +35,18 @@
 //!    masses made dimensionless, `w_i = (m_i / M) (V / h^2)` (M total yarn
 //!    mass, V total mesh volume, h the voxel size), so that a position misfit
 //!    of d weighs like a deformation-gradient misfit of d/h whatever the units.
+//!    The weights (and so the scale of the mass term) are unchanged by the
+//!    affine fit of step 1: with exact F targets the position term only
+//!    fixes the translation (and anything F cannot see), so alpha matters
+//!    less than it did with rotation-only normals.
 //!    The matrix depends on the rest mesh only: its symbolic and numeric
 //!    Cholesky factorizations are computed once per mesh; every frame is
 //!    three triangular solves.
+//! 4. Per frame, the deformation gradient of every fitted tet is checked:
+//!    [`FitStats::inverted_tets`] counts those with det F <= 0 and
+//!    [`FitStats::min_det_f`] is the smallest det F.
 
+use std::collections::HashMap;
 use std::time::Instant;
 
 use faer::sparse::{SparseColMat, Triplet};
@@ -66,6 +90,14 @@ pub struct FitStats {
     pub max_error: f64,
     /// Time of this frame's fit (ms).
     pub ms: f64,
+    /// Fitted tets whose deformation gradient F (rest mesh to fitted nodes,
+    /// the D operator of Eq. 6) has det F <= 0: inverted or flattened. 0 for
+    /// a sound fit; the elasticity fit and the simulator cannot use a pose
+    /// with inverted tets.
+    pub inverted_tets: usize,
+    /// Smallest det F over the fitted tets (the smallest volume ratio; 1 at
+    /// rest, <= 0 when some tet is inverted). 0 for a mesh without tets.
+    pub min_det_f: f64,
 }
 
 /// Timings of the one-off preparation.
@@ -75,6 +107,14 @@ pub struct PrepareStats {
     pub symbolic_ms: f64,
     pub numeric_ms: f64,
     pub nonzeros: usize,
+    /// Yarn segments.
+    pub segments: usize,
+    /// Segments whose deformed normals come from the local affine fit (the
+    /// others, whose neighbourhood never spans 3D, only rotate theirs).
+    pub affine_segments: usize,
+    /// Stencil entries over all segments (12 bytes each, and about 6 flops
+    /// each per frame).
+    pub stencil_taps: usize,
 }
 
 /// Per-segment rest data.
@@ -89,6 +129,165 @@ struct RestSegment {
     rest_inv: Matrix3<f64>,
     n1: Vector3<f64>,
     n2: Vector3<f64>,
+    /// Range of this segment's affine stencil in `ShapeFitter::taps`; empty
+    /// when the neighbourhood does not span 3D (rotation-only normals).
+    taps: (usize, usize),
+    /// Inverse of [x̄1 - x̄0, n̂1, n̂2], n̂ the stencil applied to the rest pose.
+    affine_inv: Matrix3<f64>,
+}
+
+/// Radii of the local affine fit, in voxel sizes, tried in turn until the
+/// neighbourhood spans 3D.
+const STENCIL_RADII: [f64; 4] = [1.5, 2.25, 3.375, 5.0];
+/// A neighbourhood spans 3D when the smallest eigenvalue of its weighted
+/// covariance is at least this fraction of the largest.
+const MIN_SPREAD: f64 = 1e-2;
+
+/// Uniform grid over the rest yarn vertices, for radius queries (cell: the
+/// first stencil radius, so a first query visits at most 27 cells).
+struct PointGrid {
+    cell: f64,
+    /// Vertex indices sorted by (cell, index).
+    order: Vec<u32>,
+    /// Range of each occupied cell in `order`.
+    cells: HashMap<[i32; 3], (usize, usize)>,
+}
+
+impl PointGrid {
+    fn key(&self, p: &Vector3<f64>) -> [i32; 3] {
+        std::array::from_fn(|k| (p[k] / self.cell).floor() as i32)
+    }
+
+    fn new(points: &[Vec3], cell: f64) -> PointGrid {
+        let mut g = PointGrid {
+            cell,
+            order: Vec::new(),
+            cells: HashMap::new(),
+        };
+        let mut keyed: Vec<([i32; 3], u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (g.key(&v3(*p)), i as u32))
+            .collect();
+        keyed.sort_unstable();
+        let mut s = 0;
+        while s < keyed.len() {
+            let mut e = s + 1;
+            while e < keyed.len() && keyed[e].0 == keyed[s].0 {
+                e += 1;
+            }
+            g.cells.insert(keyed[s].0, (s, e));
+            s = e;
+        }
+        g.order = keyed.into_iter().map(|(_, i)| i).collect();
+        g
+    }
+
+    /// The vertices within distance `r` of `c`, sorted by index, into `out`.
+    fn within(&self, points: &[Vec3], c: &Vector3<f64>, r: f64, out: &mut Vec<u32>) {
+        out.clear();
+        let lo = self.key(&c.add_scalar(-r));
+        let hi = self.key(&c.add_scalar(r));
+        for i in lo[0]..=hi[0] {
+            for j in lo[1]..=hi[1] {
+                for k in lo[2]..=hi[2] {
+                    if let Some(&(s, e)) = self.cells.get(&[i, j, k]) {
+                        out.extend(
+                            self.order[s..e]
+                                .iter()
+                                .filter(|&&v| (v3(points[v as usize]) - c).norm_squared() < r * r),
+                        );
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+    }
+}
+
+/// A segment's stencil taps (vertex, coefficients of n1 and n2) and the
+/// inverse of its rest frame [x̄1 - x̄0, n̂1, n̂2].
+type Stencil = (Vec<(u32, [f32; 2])>, Matrix3<f64>);
+
+/// Local affine stencil of one segment: the coefficients of n1, n2 on
+/// (x_k - x0) and the inverse rest frame, or None when no radius of
+/// [`STENCIL_RADII`] gives a neighbourhood that spans 3D.
+fn affine_stencil(
+    points: &[Vec3],
+    grid: &PointGrid,
+    s: &RestSegment,
+    h: f64,
+    buf: &mut Vec<u32>,
+) -> Option<Stencil> {
+    let (x0, x1) = (v3(points[s.a]), v3(points[s.b]));
+    let mid = 0.5 * (x0 + x1);
+    for f in STENCIL_RADII {
+        let r = f * h;
+        grid.within(points, &mid, r, buf);
+        if buf.len() < 4 {
+            continue;
+        }
+        let w: Vec<f64> = buf
+            .iter()
+            .map(|&v| {
+                let q2 = (v3(points[v as usize]) - mid).norm_squared() / (r * r);
+                (1.0 - q2) * (1.0 - q2)
+            })
+            .collect();
+        let wsum: f64 = w.iter().sum();
+        if wsum <= 0.0 || wsum.is_nan() {
+            continue;
+        }
+        let centre = buf
+            .iter()
+            .zip(&w)
+            .map(|(&v, &wk)| (v3(points[v as usize]) - mid) * wk)
+            .sum::<Vector3<f64>>()
+            / wsum;
+        let mut cov = Matrix3::zeros();
+        for (&v, &wk) in buf.iter().zip(&w) {
+            let d = v3(points[v as usize]) - mid - centre;
+            cov += d * d.transpose() * wk;
+        }
+        let eig = cov.symmetric_eigen();
+        let (lmin, lmax) = (eig.eigenvalues.min(), eig.eigenvalues.max());
+        if lmax <= 0.0 || lmax.is_nan() || lmin < MIN_SPREAD * lmax {
+            continue;
+        }
+        let cinv = eig.eigenvectors
+            * Matrix3::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l))
+            * eig.eigenvectors.transpose();
+        let taps: Vec<(u32, [f32; 2])> = buf
+            .iter()
+            .zip(&w)
+            .map(|(&v, &wk)| {
+                let g = cinv * (v3(points[v as usize]) - mid - centre) * wk;
+                (v, [g.dot(&s.n1) as f32, g.dot(&s.n2) as f32])
+            })
+            .collect();
+        let (m1, m2) = apply_stencil(points, &taps, &x0);
+        if let Some(inv) = Matrix3::from_columns(&[x1 - x0, m1, m2]).try_inverse() {
+            if inv.iter().all(|x| x.is_finite()) {
+                return Some((taps, inv));
+            }
+        }
+    }
+    None
+}
+
+/// `sum_k c_ik (x_k - x0)` for i = 1, 2.
+fn apply_stencil(
+    x: &[Vec3],
+    taps: &[(u32, [f32; 2])],
+    x0: &Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let (mut m1, mut m2) = (Vector3::zeros(), Vector3::zeros());
+    for &(v, c) in taps {
+        let d = v3(x[v as usize]) - x0;
+        m1 += d * c[0] as f64;
+        m2 += d * c[1] as f64;
+    }
+    (m1, m2)
 }
 
 /// Y2V prepared for one mesh and embedding: factorized once, applied per frame.
@@ -98,6 +297,8 @@ pub struct ShapeFitter {
     /// Rest yarn vertex positions (m).
     rest: Vec<Vec3>,
     segments: Vec<RestSegment>,
+    /// Affine stencils of all segments (see `RestSegment::taps`).
+    taps: Vec<(u32, [f32; 2])>,
     /// Pieces grouped by tet: (segment, length).
     tet_pieces: Vec<Vec<(u32, f64)>>,
     /// For tets without pieces: the tets whose pieces stand in (its voxel, or neighbouring voxels).
@@ -174,7 +375,7 @@ fn kabsch(rest: &[Vector3<f64>], cur: &[Vector3<f64>]) -> Option<Matrix3<f64>> {
     let s = svd.singular_values;
     let mut sorted = [s[0], s[1], s[2]];
     sorted.sort_by(|a, b| b.total_cmp(a));
-    if !(sorted[0] > 0.0) || sorted[1] <= 1e-9 * sorted[0] {
+    if sorted[0] <= 0.0 || sorted[0].is_nan() || sorted[1] <= 1e-9 * sorted[0] {
         return None;
     }
     let (u, v_t) = (svd.u?, svd.v_t?);
@@ -238,7 +439,8 @@ impl ShapeFitter {
                 yarns.num_curves()
             )));
         }
-        let segments = rest_segments(yarns);
+        let mut segments = rest_segments(yarns);
+        let taps = attach_stencils(&yarns.points, &mut segments, grid.h);
         let mut tet_pieces = vec![Vec::new(); nt];
         for p in pieces {
             if p.tet as usize >= nt || p.segment as usize >= segments.len() {
@@ -268,9 +470,9 @@ impl ShapeFitter {
 
         // Position-term weights from the yarn vertex masses.
         let mut vertex_mass = vec![0.0; yarns.num_points()];
-        for c in 0..yarns.num_curves() {
+        for (c, &density) in linear_density.iter().enumerate() {
             for [a, b] in yarns.segments_of(c) {
-                let m = linear_density[c] * crate::geom::dist(yarns.points[a], yarns.points[b]);
+                let m = density * crate::geom::dist(yarns.points[a], yarns.points[b]);
                 vertex_mass[a] += 0.5 * m;
                 vertex_mass[b] += 0.5 * m;
             }
@@ -326,11 +528,15 @@ impl ShapeFitter {
         let factor =
             SparseCholesky::numeric(symbolic, a.as_ref()).map_err(FitError::NotPositiveDefinite)?;
         let numeric_ms = t_num.elapsed().as_secs_f64() * 1e3;
+        let num_segments = segments.len();
+        let affine_segments = segments.iter().filter(|s| s.taps.0 < s.taps.1).count();
+        let stencil_taps = taps.len();
         Ok(ShapeFitter {
             mesh: mesh.clone(),
             embedding: embedding.clone(),
             rest: yarns.points.clone(),
             segments,
+            taps,
             tet_pieces,
             tet_fallback,
             grads,
@@ -342,6 +548,9 @@ impl ShapeFitter {
                 symbolic_ms,
                 numeric_ms,
                 nonzeros: a.compute_nnz(),
+                segments: num_segments,
+                affine_segments,
+                stencil_taps,
             },
         })
     }
@@ -353,6 +562,15 @@ impl ShapeFitter {
             .par_iter()
             .map(|s| {
                 let e = v3(x[s.b]) - v3(x[s.a]);
+                if s.taps.0 < s.taps.1 {
+                    let (m1, m2) = apply_stencil(x, &self.taps[s.taps.0..s.taps.1], &v3(x[s.a]));
+                    let f = Matrix3::from_columns(&[e, m1, m2]) * s.affine_inv;
+                    let det = f.determinant();
+                    if det > 0.0 && det.is_finite() {
+                        let (rot, stretch) = polar(&f);
+                        return (log_rotation(&rot), stretch);
+                    }
+                }
                 let w = &s.window[..s.window_len];
                 let rest_pts: [Vector3<f64>; 4] =
                     std::array::from_fn(|k| v3(rest[w[k.min(w.len() - 1)]]));
@@ -483,14 +701,39 @@ impl ShapeFitter {
             max = max.max(d);
         }
         let rms = (sum2 / back.len().max(1) as f64).sqrt();
+        let (inverted_tets, min_det_f) = self.det_stats(&nodes);
         Ok((
             nodes,
             FitStats {
                 rms_error: rms,
                 max_error: max,
                 ms: start.elapsed().as_secs_f64() * 1e3,
+                inverted_tets,
+                min_det_f,
             },
         ))
+    }
+
+    /// (tets with det F <= 0, smallest det F) of fitted node positions.
+    fn det_stats(&self, nodes: &[Vec3]) -> (usize, f64) {
+        if self.mesh.num_tets() == 0 {
+            return (0, 0.0);
+        }
+        (0..self.mesh.num_tets())
+            .into_par_iter()
+            .map(|t| {
+                let ids = self.mesh.tets[t];
+                let mut f = Matrix3::zeros();
+                for a in 0..4 {
+                    f += v3(nodes[ids[a] as usize]) * self.grads[t][a].transpose();
+                }
+                let d = f.determinant();
+                (usize::from(d <= 0.0 || d.is_nan()), d)
+            })
+            .reduce(
+                || (0, f64::INFINITY),
+                |a, b| (a.0 + b.0, if b.1 < a.1 || b.1.is_nan() { b.1 } else { a.1 }),
+            )
     }
 
     /// Y2V of every frame, frames in parallel (results in frame order).
@@ -575,10 +818,34 @@ fn rest_segments(yarns: &Yarns) -> Vec<RestSegment> {
                 rest_inv,
                 n1,
                 n2,
+                taps: (0, 0),
+                affine_inv: Matrix3::identity(),
             });
         }
     }
     out
+}
+
+/// Builds every segment's affine stencil (in parallel, deterministic) and
+/// returns the concatenated taps; segments without one keep an empty range.
+fn attach_stencils(points: &[Vec3], segments: &mut [RestSegment], h: f64) -> Vec<(u32, [f32; 2])> {
+    if h <= 0.0 || h.is_nan() || segments.is_empty() {
+        return Vec::new();
+    }
+    let grid = PointGrid::new(points, STENCIL_RADII[0] * h);
+    let stencils: Vec<Option<Stencil>> = segments
+        .par_iter()
+        .map_init(Vec::new, |buf, s| affine_stencil(points, &grid, s, h, buf))
+        .collect();
+    let mut taps = Vec::with_capacity(stencils.iter().flatten().map(|s| s.0.len()).sum());
+    for (s, st) in segments.iter_mut().zip(stencils) {
+        if let Some((list, inv)) = st {
+            s.taps = (taps.len(), taps.len() + list.len());
+            s.affine_inv = inv;
+            taps.extend(list);
+        }
+    }
+    taps
 }
 
 /// For tets without yarn pieces: the tets of their voxel that have pieces, or
