@@ -4,6 +4,7 @@
 mod asset;
 mod bench;
 mod commands;
+mod fabric_test;
 pub mod exit;
 pub mod guard;
 mod pattern;
@@ -52,6 +53,9 @@ pub enum Command {
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
     Pattern(pattern::PatternArgs),
+    /// Fabric tests of Sperl 2022 §4 on a yarn swatch: stretch, hang.
+    #[command(subcommand)]
+    FabricTest(fabric_test::FabricTestKind),
     /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.
     Demo(DemoArgs),
     /// Print a shell completion script.
@@ -310,6 +314,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         },
         Command::Pattern(a) => pattern::pattern(&a),
         Command::Yls(a) => yls::yls(&a),
+        Command::FabricTest(k) => fabric_test::fabric_test(&k),
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {
             use clap::CommandFactory;

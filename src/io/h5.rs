@@ -1215,6 +1215,42 @@ struct FramesOut {
     times: Dataset,
     n: usize,
     count: usize,
+    /// `/frames/{elastic_energy, reaction_forces, external_forces}`, made
+    /// on the first [`FrameWriter::push_mechanics`].
+    mechanics: Option<MechanicsOut>,
+}
+
+struct MechanicsOut {
+    energy: Dataset,
+    reactions: Dataset,
+    external: Dataset,
+}
+
+impl MechanicsOut {
+    fn create(g: &hdf5::Group, n: usize) -> hdf5::Result<MechanicsOut> {
+        let vec_ds = |name: &str| -> hdf5::Result<Dataset> {
+            let ds = g
+                .new_dataset::<f64>()
+                .chunk([1, n.clamp(1, MAX_CHUNK_VERTICES), 3])
+                .shuffle()
+                .deflate(FRAME_DEFLATE_LEVEL)
+                .shape([Extent::from(0..), Extent::from(n.max(1)), Extent::from(3)])
+                .create(name)?;
+            write_str_attr(&ds, "units", "N")?;
+            Ok(ds)
+        };
+        let energy = g
+            .new_dataset::<f64>()
+            .chunk([TIMES_CHUNK])
+            .shape([Extent::from(0..)])
+            .create("elastic_energy")?;
+        write_str_attr(&energy, "units", "J")?;
+        Ok(MechanicsOut {
+            energy,
+            reactions: vec_ds("reaction_forces")?,
+            external: vec_ds("external_forces")?,
+        })
+    }
 }
 
 impl FramesOut {
@@ -1246,7 +1282,42 @@ impl FramesOut {
             times,
             n,
             count: 0,
+            mechanics: None,
         })
+    }
+
+    /// Mechanics of the last pushed frame (its index is `count - 1`).
+    fn push_mechanics(
+        &mut self,
+        file: &hdf5::File,
+        energy: f64,
+        reactions: &[Vec3],
+        external: &[Vec3],
+    ) -> hdf5::Result<()> {
+        let f = self.count - 1;
+        if self.mechanics.is_none() {
+            if f != 0 {
+                return Err(hdf5::Error::from(
+                    "mechanics must be written with every frame, starting at the first",
+                ));
+            }
+            self.mechanics = Some(MechanicsOut::create(&file.group("frames")?, self.n)?);
+        }
+        let m = self.mechanics.as_ref().expect("created above");
+        if m.energy.shape()[0] != f {
+            return Err(hdf5::Error::from("mechanics written twice or skipped for a frame"));
+        }
+        m.energy.resize([f + 1])?;
+        m.energy
+            .write_slice(ndarray::ArrayView1::from(&[energy][..]), ndarray::s![f..f + 1])?;
+        for (ds, v) in [(&m.reactions, reactions), (&m.external, external)] {
+            ds.resize([f + 1, self.n.max(1), 3])?;
+            if self.n > 0 {
+                let view = ndarray::ArrayView3::from_shape((1, self.n, 3), v.as_flattened())?;
+                ds.write_slice(view, ndarray::s![f..f + 1, .., ..])?;
+            }
+        }
+        Ok(())
     }
 
     fn push(&mut self, time: f64, points: &[Vec3]) -> hdf5::Result<()> {
@@ -1423,6 +1494,45 @@ impl FrameWriter {
             .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
         check_frame(out.n, out.count, time, points).map_err(|e| write_err(&path, e))?;
         out.push(time, points).map_err(|e| write_err(&path, e))
+    }
+
+    /// Stores the mechanics of the frame just pushed: the elastic energy (J)
+    /// and, per yarn vertex, the force the clamps/handles exert on it and the
+    /// external force (N; zero where none). Either with every frame from the
+    /// first or never (schemas/yarns-hdf5.md, `/frames/elastic_energy`,
+    /// `/frames/reaction_forces`, `/frames/external_forces`).
+    pub fn push_mechanics(
+        &mut self,
+        energy: f64,
+        reactions: &[Vec3],
+        external: &[Vec3],
+    ) -> Result<(), IoError> {
+        let path = self.path.clone();
+        let (Some(out), Some(file)) = (self.frames.as_mut(), self.file.as_ref()) else {
+            return Err(write_err(&path, std::io::Error::other("writer already finished")));
+        };
+        if out.count == 0 || reactions.len() != out.n || external.len() != out.n {
+            return Err(write_err(
+                &path,
+                invalid_input(format!(
+                    "mechanics of frame {}: {} reactions and {} external forces for {} vertices",
+                    out.count.saturating_sub(1),
+                    reactions.len(),
+                    external.len(),
+                    out.n
+                )),
+            ));
+        }
+        if !energy.is_finite()
+            || reactions.iter().chain(external).flatten().any(|v| !v.is_finite())
+        {
+            return Err(write_err(
+                &path,
+                invalid_input(format!("mechanics of frame {}: not finite", out.count - 1)),
+            ));
+        }
+        out.push_mechanics(file, energy, reactions, external)
+            .map_err(|e| write_err(&path, e))
     }
 
     /// Stores `text` (UTF-8: a scene file, a JSON parameter record) as the

@@ -3,6 +3,7 @@
 
 pub mod asset;
 pub mod demo;
+pub mod fabric_test;
 pub mod inspect;
 pub mod pattern;
 pub mod sim_scene;

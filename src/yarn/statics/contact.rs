@@ -46,6 +46,26 @@ pub struct ContactStats {
     pub contacts_per_vertex: f64,
     /// Smallest closest distance / (rA + rB) over the candidate pairs.
     pub min_distance_ratio: f64,
+    /// Fraction of vertices within [`NEAR_FACTOR`] x (rA + rB) of a segment
+    /// that is not their neighbour along the yarn (a relaxed knit's yarns
+    /// lie against each other; the loose generated rib has ~3%).
+    pub near_fraction: f64,
+}
+
+/// The "touching" tolerance of [`ContactStats::near_fraction`].
+pub const NEAR_FACTOR: f64 = 1.02;
+
+fn point_segment_distance(p: Vec3, a: Vec3, b: Vec3) -> f64 {
+    let ab = sub(b, a);
+    let l2 = dot(ab, ab);
+    let t = if l2 > 0.0 {
+        (dot(sub(p, a), ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let c = [a[0] + t * ab[0], a[1] + t * ab[1], a[2] + t * ab[2]];
+    let d = sub(p, c);
+    dot(d, d).sqrt()
 }
 
 fn points_of(q: &[f64], n: usize) -> Vec<Vec3> {
@@ -83,27 +103,30 @@ impl ContactTerm {
         let n = self.model.n_real;
         let x = points_of(q, n);
         let cs = &self.model.csegs;
-        let (active, min_ratio) = self
-            .set
-            .pairs
-            .iter()
-            .map(|p| {
-                let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
-                let d = crate::yarn::sim::contact::segment_distance(
-                    x[a.v[0] as usize],
-                    x[a.v[1] as usize],
-                    x[b.v[0] as usize],
-                    x[b.v[1] as usize],
-                );
-                d / (a.radius + b.radius)
-            })
-            .fold((0usize, f64::INFINITY), |(c, m), r| {
-                (c + usize::from(r < 1.0), m.min(r))
-            });
+        let mut near = vec![false; n];
+        let mut active = 0usize;
+        let mut min_ratio = f64::INFINITY;
+        for p in &self.set.pairs {
+            let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
+            let [a0, a1] = [a.v[0] as usize, a.v[1] as usize];
+            let [b0, b1] = [b.v[0] as usize, b.v[1] as usize];
+            let rsum = a.radius + b.radius;
+            let d = crate::yarn::sim::contact::segment_distance(x[a0], x[a1], x[b0], x[b1]);
+            active += usize::from(d < rsum);
+            min_ratio = min_ratio.min(d / rsum);
+            if d < NEAR_FACTOR * rsum {
+                for (v, (s0, s1)) in [(a0, (b0, b1)), (a1, (b0, b1)), (b0, (a0, a1)), (b1, (a0, a1))] {
+                    if v < n && point_segment_distance(x[v], x[s0], x[s1]) < NEAR_FACTOR * rsum {
+                        near[v] = true;
+                    }
+                }
+            }
+        }
         ContactStats {
             active_pairs: active,
             contacts_per_vertex: 2.0 * active as f64 / n.max(1) as f64,
             min_distance_ratio: min_ratio,
+            near_fraction: near.iter().filter(|&&b| b).count() as f64 / n.max(1) as f64,
         }
     }
 

@@ -13,7 +13,7 @@ pub mod external;
 pub mod solver;
 pub mod term;
 
-pub use contact::{ContactStats, ContactTerm};
+pub use contact::{ContactStats, ContactTerm, NEAR_FACTOR};
 pub use external::GravityTerm;
 pub use solver::{
     evaluate, reaction_forces, solve_static, StaticError, StaticParams, StaticStats, SymbolicCache,

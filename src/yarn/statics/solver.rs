@@ -43,6 +43,10 @@ pub struct StaticParams {
     pub armijo: f64,
     /// Most step halvings per iteration. Default 40.
     pub max_halvings: usize,
+    /// When a step would move some vertex farther than
+    /// `max_displacement`, shorten only those vertices' moves (when that is
+    /// still a descent direction) instead of the whole step. Default false.
+    pub clip_per_vertex: bool,
 }
 
 impl Default for StaticParams {
@@ -54,6 +58,7 @@ impl Default for StaticParams {
             max_displacement: f64::INFINITY,
             armijo: 1e-4,
             max_halvings: 40,
+            clip_per_vertex: false,
         }
     }
 }
@@ -72,6 +77,9 @@ pub struct StaticStats {
     pub energy: f64,
     pub energies: Vec<(String, f64)>,
     pub halvings: usize,
+    /// Iterations whose step the displacement cap (or a term's
+    /// `max_step`) shortened.
+    pub capped: usize,
     pub symbolic_factorizations: usize,
     pub numeric_factorizations: usize,
     /// Iterations that needed a diagonal shift to factor.
@@ -333,11 +341,29 @@ pub fn solve_static(
             alpha = alpha.min(t.max_step(q, &dq));
         }
         let n_vert = n / 3;
-        let max_move = (0..n_vert)
+        let moves: Vec<f64> = (0..n_vert)
             .map(|v| (dq[3 * v].powi(2) + dq[3 * v + 1].powi(2) + dq[3 * v + 2].powi(2)).sqrt())
-            .fold(0.0, f64::max);
+            .collect();
+        let max_move = moves.iter().copied().fold(0.0, f64::max);
         if max_move * alpha > params.max_displacement {
-            alpha = params.max_displacement / max_move;
+            let mut clipped = dq.clone();
+            if params.clip_per_vertex {
+                // Only the vertices that would move too far are shortened;
+                // kept when it is still a descent direction.
+                for (v, &m) in moves.iter().enumerate() {
+                    if m * alpha > params.max_displacement {
+                        let f = params.max_displacement / (m * alpha);
+                        clipped[3 * v..3 * v + 3].iter_mut().for_each(|d| *d *= f);
+                    }
+                }
+            }
+            let slope_c: f64 = grad.iter().zip(&clipped).map(|(g, d)| g * d).sum();
+            if params.clip_per_vertex && slope_c < 0.0 {
+                dq = clipped;
+            } else {
+                alpha = params.max_displacement / max_move;
+            }
+            stats.capped += 1;
         }
         let slope: f64 = grad.iter().zip(&dq).map(|(g, d)| g * d).sum();
         let mut accepted = false;

@@ -1,0 +1,188 @@
+//! `knitvox fabric-test stretch|hang`: Sperl 2022 §4 tests on a yarn swatch.
+
+use std::path::PathBuf;
+
+use clap::{Args, Subcommand};
+
+use super::ExitCode;
+use crate::pipeline::fabric_test::{
+    run, FabricTest, FabricTestJob, FabricTestReport, SwatchSource, TestFigures,
+};
+use crate::pipeline::pattern::PatternSource;
+use crate::yarn::fabric::{Direction, FabricParams, HangParams, RelaxParams, StretchParams};
+
+#[derive(Debug, Subcommand)]
+pub enum FabricTestKind {
+    /// Clamped uniaxial stretch, quasi-static: force (N) and orthogonal
+    /// compression per stretch step.
+    Stretch(StretchArgs),
+    /// Hung by the top edge under gravity: sag ratio and the speed left
+    /// after settling.
+    Hang(HangArgs),
+}
+
+/// The swatch and the outputs, common to every test.
+#[derive(Debug, Args)]
+pub struct SwatchArgs {
+    /// Yarn file to test (relaxed into contact first unless it carries a
+    /// rest shape, as `knitvox pattern` HDF5 output does).
+    #[arg(value_name = "YARNS", conflicts_with_all = ["pattern", "grid"])]
+    pub yarns: Option<PathBuf>,
+    /// Built-in pattern, laid out to --width x --length.
+    #[arg(long, value_name = "NAME", conflicts_with = "grid")]
+    pub pattern: Option<String>,
+    /// Stitch grid file (schemas/pattern-grid.md), laid out to --width x --length.
+    #[arg(long, value_name = "FILE")]
+    pub grid: Option<PathBuf>,
+    /// Swatch width across the test axis (m).
+    #[arg(long, value_name = "METRES", default_value_t = 0.06)]
+    pub width: f64,
+    /// Swatch length along the test axis (m).
+    #[arg(long, value_name = "METRES", default_value_t = 0.10)]
+    pub length: f64,
+    /// Rest-length scale of the relaxation into contact (Leaf 2018 §6.1).
+    #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
+    pub length_scale: f64,
+    /// Output folder: TEST.h5 (frames with energy and clamp forces) and, for
+    /// stretch, stretch.csv.
+    #[arg(short, long, value_name = "DIR")]
+    pub output: Option<PathBuf>,
+    /// Print the figures as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct StretchArgs {
+    #[command(flatten)]
+    pub swatch: SwatchArgs,
+    /// Stretch axis: weft (along the courses), warp (along the wales), bias.
+    #[arg(long, value_name = "weft|warp|bias", default_value = "weft")]
+    pub direction: Direction,
+    /// Largest stretch of the gauge section.
+    #[arg(long, value_name = "S", default_value_t = 0.5)]
+    pub max_stretch: f64,
+    /// Load steps.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub steps: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct HangArgs {
+    #[command(flatten)]
+    pub swatch: SwatchArgs,
+    /// Implicit-Euler time watched after settling (s).
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.2)]
+    pub watch: f64,
+}
+
+fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
+    let size = [s.width, s.length];
+    if !size.iter().all(|v| v.is_finite() && *v > 0.0 && *v <= 2.0) {
+        return Err(format!("--width and --length must be in (0, 2] m, got {} and {}", s.width, s.length));
+    }
+    let swatch = match (&s.yarns, &s.pattern, &s.grid) {
+        (Some(p), _, _) => SwatchSource::Yarns(p.clone()),
+        (None, Some(n), _) => SwatchSource::Pattern { source: PatternSource::Builtin(n.clone()), size },
+        (None, None, Some(g)) => SwatchSource::Pattern { source: PatternSource::GridFile(g.clone()), size },
+        (None, None, None) => return Err("give a yarn file, --pattern NAME or --grid FILE".into()),
+    };
+    Ok(FabricTestJob {
+        swatch,
+        test,
+        fabric: FabricParams::default(),
+        relax: RelaxParams {
+            length_scale: s.length_scale,
+            ..RelaxParams::default()
+        },
+        output_dir: s.output.clone(),
+    })
+}
+
+pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
+    let (swatch, test) = match kind {
+        FabricTestKind::Stretch(a) => (
+            &a.swatch,
+            FabricTest::Stretch(StretchParams {
+                direction: a.direction,
+                max_stretch: a.max_stretch,
+                steps: a.steps,
+                ..StretchParams::default()
+            }),
+        ),
+        FabricTestKind::Hang(a) => (
+            &a.swatch,
+            FabricTest::Hang(HangParams {
+                watch_time: a.watch,
+                ..HangParams::default()
+            }),
+        ),
+    };
+    let job = match job(swatch, test) {
+        Ok(j) => j,
+        Err(m) => {
+            eprintln!("error: {m}");
+            return Ok(ExitCode::Usage);
+        }
+    };
+    let report = match run(&job) {
+        Ok(r) => r,
+        Err(e) if e.is_usage() => {
+            eprintln!("error: {e}");
+            return Ok(ExitCode::Usage);
+        }
+        Err(e) => return Err(e.into()),
+    };
+    if swatch.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(ExitCode::Success)
+}
+
+fn print_report(r: &FabricTestReport) {
+    if let Some(x) = &r.relaxation {
+        println!(
+            "relaxed {} ({} vertices) into contact: rest length scale {}, {} Newton iterations, residual {:.1e} N, \
+             {:.0}% of vertices touching, min distance {:.3} x 2r, size {:.4} x {:.4} m, {:.1} s",
+            r.swatch,
+            r.vertices,
+            x.length_scale,
+            x.newton_iterations,
+            x.residual,
+            100.0 * x.contact.near_fraction,
+            x.min_distance_ratio_seen,
+            x.size_after[0],
+            x.size_after[1],
+            x.seconds
+        );
+    }
+    match &r.figures {
+        TestFigures::Stretch(s) => {
+            println!(
+                "stretch ({}), {:.4} m wide, gauge {:.4} m:",
+                s.direction.name(),
+                s.width_m,
+                s.gauge_m
+            );
+            println!("  stretch  force (N)  compression");
+            for p in &s.points {
+                println!("  {:7.3}  {:9.4}  {:11.3}", p.stretch, p.force_n, p.compression);
+            }
+            println!(
+                "  energy change over the hold {:+.2}%, min distance {:.3} x 2r, {:.1} s",
+                100.0 * s.hold_energy_change,
+                s.min_distance_ratio,
+                s.seconds
+            );
+        }
+        TestFigures::Hang(h) => println!(
+            "hang: sag ratio {:.4}, max speed {:.2e} m/s after settling, weight {:.4} N, clamp force {:.4} N, {:.1} s",
+            h.sag_ratio, h.max_speed_m_s, h.weight_n, h.clamp_force_n, h.seconds
+        ),
+    }
+    for w in &r.written {
+        println!("wrote {}", w.display());
+    }
+}

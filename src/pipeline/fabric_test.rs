@@ -1,0 +1,284 @@
+//! `knitvox fabric-test`: the physical tests of Sperl 2022 §4 on a yarn
+//! swatch (a built-in or grid pattern sized to the test, or a yarn file),
+//! relaxed into contact first unless the yarns carry a rest shape. Writes
+//! the curve as CSV and the equilibrium frames (positions, elastic energy,
+//! clamp reactions, external forces) as knitvox HDF5.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::geom::Yarns;
+use crate::io::{self, h5::FrameWriter, IoError};
+use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
+use crate::yarn::fabric::{
+    hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams,
+    HangParams, HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams,
+    StretchResult,
+};
+use crate::yarn::pattern::{build_tile, lay_out, Layout, PatternParams};
+
+/// Where the swatch comes from.
+#[derive(Debug, Clone)]
+pub enum SwatchSource {
+    /// A pattern laid out to `size` = [width across the test axis, length
+    /// along it] (m), after the relaxation's shrinkage estimate.
+    Pattern { source: PatternSource, size: [f64; 2] },
+    /// A yarn file (relaxed first when it carries no rest shape).
+    Yarns(PathBuf),
+}
+
+/// Which test.
+#[derive(Debug, Clone)]
+pub enum FabricTest {
+    Stretch(StretchParams),
+    Hang(HangParams),
+}
+
+impl FabricTest {
+    pub fn name(&self) -> &'static str {
+        match self {
+            FabricTest::Stretch(_) => "stretch",
+            FabricTest::Hang(_) => "hang",
+        }
+    }
+    /// Along which axis the swatch's `size[1]` (length) is laid out.
+    fn direction(&self) -> Direction {
+        match self {
+            FabricTest::Stretch(p) => p.direction,
+            FabricTest::Hang(_) => Direction::Warp,
+        }
+    }
+}
+
+/// Everything one run needs.
+#[derive(Debug, Clone)]
+pub struct FabricTestJob {
+    pub swatch: SwatchSource,
+    pub test: FabricTest,
+    pub fabric: FabricParams,
+    pub relax: RelaxParams,
+    /// Output folder for the CSV and the frames (none: figures only).
+    pub output_dir: Option<PathBuf>,
+}
+
+/// Errors, each naming its input.
+#[derive(Debug, thiserror::Error)]
+pub enum FabricTestError {
+    #[error("pattern: {0}")]
+    Pattern(#[from] PatternStageError),
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error("{what}: {source}")]
+    Fabric {
+        what: String,
+        #[source]
+        source: FabricError,
+    },
+    #[error("{}: {message}", path.display())]
+    Output { path: PathBuf, message: String },
+}
+
+impl FabricTestError {
+    /// Exit-code class; parameter errors (`FabricError::Setup`) are
+    /// usage errors, which the CLI checks with [`Self::is_usage`].
+    pub fn class(&self) -> io::ErrorClass {
+        match self {
+            FabricTestError::Io(e) => e.class(),
+            FabricTestError::Pattern(PatternStageError::Read { .. }) => io::ErrorClass::MissingInput,
+            FabricTestError::Output { .. } => io::ErrorClass::Output,
+            _ => io::ErrorClass::BadInput,
+        }
+    }
+}
+
+impl FabricTestError {
+    pub fn is_usage(&self) -> bool {
+        matches!(
+            self,
+            FabricTestError::Fabric {
+                source: FabricError::Setup(_),
+                ..
+            }
+        )
+    }
+}
+
+/// The test's outcome.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum TestFigures {
+    Stretch(StretchResult),
+    Hang(HangResult),
+}
+
+/// What a run did (`--json` prints it).
+#[derive(Debug, Clone, Serialize)]
+pub struct FabricTestReport {
+    pub test: &'static str,
+    pub swatch: String,
+    pub vertices: usize,
+    /// The relaxation into contact (none when the yarns carried a rest shape).
+    pub relaxation: Option<RelaxIntoContactStats>,
+    #[serde(flatten)]
+    pub figures: TestFigures,
+    pub written: Vec<PathBuf>,
+}
+
+fn fabric_err(what: &str) -> impl FnOnce(FabricError) -> FabricTestError + '_ {
+    move |source| FabricTestError::Fabric {
+        what: what.to_string(),
+        source,
+    }
+}
+
+/// Courses x wales of a pattern so that, shrunk by the relaxation's rest
+/// length scale, the swatch measures about `size` ([across, along] the
+/// test direction).
+fn layout_for(pitch: [f64; 2], repeat: [usize; 2], size: [f64; 2], dir: Direction, scale: f64) -> Layout {
+    let (along_x, along_y) = match dir {
+        Direction::Weft => (size[1], size[0]),
+        Direction::Warp => (size[0], size[1]),
+        Direction::Bias => {
+            let d = size[0].max(size[1]) * std::f64::consts::SQRT_2;
+            (d, d)
+        }
+    };
+    let count = |len: f64, p: f64, rep: usize| {
+        let n = (len / (p * scale)).round().max(1.0) as usize;
+        n.div_ceil(rep.max(1)) * rep.max(1)
+    };
+    Layout {
+        courses: count(along_y, pitch[1], repeat[1]),
+        wales: count(along_x, pitch[0], repeat[0]),
+        tube_radius: None,
+        helix: false,
+        separate_courses: false,
+    }
+}
+
+/// Loads or generates the swatch, relaxing it when it has no rest shape.
+pub fn swatch(
+    job: &FabricTestJob,
+) -> Result<(Yarns, String, Option<RelaxIntoContactStats>), FabricTestError> {
+    let (yarns, name) = match &job.swatch {
+        SwatchSource::Yarns(path) => {
+            let d = io::read_path(path, &Default::default())?;
+            (d.yarns, path.display().to_string())
+        }
+        SwatchSource::Pattern { source, size } => {
+            let pat = load_pattern(source)?;
+            let params = PatternParams::default();
+            let tile = build_tile(&pat, &params).map_err(PatternStageError::Pattern)?;
+            let layout = layout_for(tile.pitch, tile.repeat, *size, job.test.direction(), job.relax.length_scale);
+            let y = lay_out(&tile, &layout).map_err(PatternStageError::Pattern)?;
+            let name = match source {
+                PatternSource::Builtin(n) => n.clone(),
+                PatternSource::GridFile(p) => p.display().to_string(),
+            };
+            (y, format!("{name} {}x{}", layout.courses, layout.wales))
+        }
+    };
+    if yarns.rest.is_some() {
+        return Ok((yarns, name, None));
+    }
+    let (relaxed, stats) =
+        relax_into_contact(&yarns, &job.fabric, &job.relax).map_err(fabric_err("relaxation"))?;
+    Ok((relaxed, name, Some(stats)))
+}
+
+/// Runs the job: swatch, test, outputs.
+pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
+    match &job.test {
+        FabricTest::Stretch(p) => p.check(),
+        FabricTest::Hang(p) => p.check(),
+    }
+    .and_then(|_| job.relax.check())
+    .map_err(fabric_err("parameters"))?;
+    let (yarns, name, relaxation) = swatch(job)?;
+    let mut written = Vec::new();
+    let mut writer = match &job.output_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(|e| FabricTestError::Output {
+                path: dir.clone(),
+                message: e.to_string(),
+            })?;
+            let target = dir.join(format!("{}.h5", job.test.name()));
+            if let SwatchSource::Yarns(input) = &job.swatch {
+                let canon = |p: &Path| std::fs::canonicalize(p).ok();
+                if canon(input).is_some() && canon(input) == canon(&target) {
+                    return Err(FabricTestError::Output {
+                        path: target,
+                        message: "is the input yarn file; choose another output folder".into(),
+                    });
+                }
+            }
+            let mut w = FrameWriter::create(&target, &yarns)?;
+            w.add_text("fabric_parameters_json", &serde_json::to_string(&job.fabric).unwrap_or_default())?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut io_error: Option<IoError> = None;
+    let mut on_frame = |f: &RigFrame| -> Result<(), FabricError> {
+        if let Some(w) = writer.as_mut() {
+            let r = w
+                .push(f.parameter, f.points)
+                .and_then(|_| w.push_mechanics(f.energy, &f.reactions, &f.external));
+            if let Err(e) = r {
+                let msg = e.to_string();
+                io_error = Some(e);
+                return Err(FabricError::Setup(format!("writing frame {}: {msg}", f.index)));
+            }
+        }
+        Ok(())
+    };
+    let figures = match &job.test {
+        FabricTest::Stretch(p) => stretch_test(&yarns, &job.fabric, p, &mut on_frame)
+            .map(TestFigures::Stretch),
+        FabricTest::Hang(p) => {
+            hang_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Hang)
+        }
+    };
+    if let Some(e) = io_error {
+        return Err(e.into());
+    }
+    let figures = figures.map_err(fabric_err(job.test.name()))?;
+    if let (Some(dir), Some(w)) = (&job.output_dir, writer) {
+        written.push(w.finish()?);
+        if let TestFigures::Stretch(s) = &figures {
+            let csv = dir.join("stretch.csv");
+            write_csv(&csv, s)?;
+            written.push(csv);
+        }
+    }
+    Ok(FabricTestReport {
+        test: job.test.name(),
+        swatch: name,
+        vertices: yarns.num_points(),
+        relaxation,
+        figures,
+        written,
+    })
+}
+
+fn write_csv(path: &Path, s: &StretchResult) -> Result<(), FabricTestError> {
+    let mut text = String::from("stretch,force_n,compression,energy_j,newton_iterations,residual_n,contacts_per_vertex,min_distance_ratio\n");
+    for p in &s.points {
+        text.push_str(&format!(
+            "{},{},{},{},{},{},{},{}\n",
+            p.stretch,
+            p.force_n,
+            p.compression,
+            p.energy_j,
+            p.newton_iterations,
+            p.residual_n,
+            p.contacts_per_vertex,
+            p.min_distance_ratio
+        ));
+    }
+    io::atomic::write_bytes(path, text.as_bytes()).map_err(|e| FabricTestError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}

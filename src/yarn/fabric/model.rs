@@ -1,0 +1,359 @@
+//! A yarn-level swatch as the quasi-static solver sees it: discrete elastic
+//! rods (stretch, bend, twist; `yarn::rods`), Kaldor contact
+//! (`yarn::statics::ContactTerm`) and lumped masses, over one coordinate
+//! vector `q` (positions, then one twist per edge).
+
+use crate::geom::{RestShape, Vec3, Yarns};
+use crate::yarn::rods::{RodEnergy, RodError, RodParams, RodRest, RodTopology};
+use crate::yarn::sim::{YarnSimError, YarnSimParams};
+use crate::yarn::statics::{
+    evaluate, solve_static, ContactStats, ContactTerm, EnergyTerm, StaticError, StaticParams,
+    StaticStats, SymbolicCache,
+};
+
+/// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
+/// stockinette/rib, r = 1 mm).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FabricParams {
+    /// Rod material: E 5e5 Pa, G 2e5 Pa, bend/twist scale 1e-3.
+    pub rods: RodParams,
+    /// Kaldor contact stiffness k_contact (J/m^2). Default 60.
+    pub contact_stiffness: f64,
+    /// Yarn density (kg/m^3) when the yarns carry no linear density.
+    /// Default 120.
+    pub density: f64,
+    /// Newton controls (force tolerance 1e-5 N, 1e-5 of a fabric test's
+    /// ~1 N; per-vertex step clipping); the displacement cap defaults to a quarter of the
+    /// smallest yarn radius (set by [`Fabric::new`] when infinite).
+    pub solver: StaticParams,
+}
+
+impl Default for FabricParams {
+    fn default() -> Self {
+        let y = YarnSimParams::default();
+        FabricParams {
+            rods: RodParams::default(),
+            contact_stiffness: y.contact_stiffness,
+            density: y.density,
+            solver: StaticParams {
+                force_tolerance: 1e-5,
+                max_iterations: 400,
+                clip_per_vertex: true,
+                ..StaticParams::default()
+            },
+        }
+    }
+}
+
+/// Why a fabric computation failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FabricError {
+    #[error("rods: {0}")]
+    Rods(#[from] RodError),
+    #[error("contact: {0}")]
+    Contact(#[from] YarnSimError),
+    #[error("{stage}: {source}")]
+    Solve {
+        stage: String,
+        #[source]
+        source: StaticError,
+    },
+    #[error("{0}")]
+    Setup(String),
+    #[error("{0}")]
+    NoEquilibrium(String),
+}
+
+/// Rods + contact + masses of one yarn set, and its current coordinates.
+pub struct Fabric {
+    pub rods: RodEnergy,
+    pub contact: ContactTerm,
+    /// Lumped mass per vertex (kg).
+    pub mass: Vec<f64>,
+    /// Current coordinates: 3 per vertex (m), then one twist per edge (rad).
+    pub q: Vec<f64>,
+    /// Smallest yarn radius (m).
+    pub r_min: f64,
+    pub params: FabricParams,
+    cache: SymbolicCache,
+}
+
+impl Fabric {
+    /// The fabric of `yarns` at their positions, with their stored rest
+    /// shape when they carry one, else the positions as rest.
+    pub fn new(yarns: &Yarns, params: &FabricParams) -> Result<Fabric, FabricError> {
+        let topo = RodTopology::new(yarns)?;
+        let rest = match &yarns.rest {
+            Some(shape) => RodRest::from_shape(&topo, shape)?,
+            None => RodRest::from_positions(&topo, &yarns.points)?,
+        };
+        let q = topo.q_from_points(&yarns.points);
+        let rods = RodEnergy::new(topo, rest, &params.rods, &q)?;
+        let r_min = (0..yarns.num_points())
+            .map(|v| yarns.radius_at(v))
+            .fold(f64::INFINITY, f64::min);
+        let ysp = YarnSimParams {
+            contact_stiffness: params.contact_stiffness,
+            density: params.density,
+            ..YarnSimParams::default()
+        };
+        let mut p = params.clone();
+        if !p.solver.max_displacement.is_finite() {
+            p.solver.max_displacement = 0.25 * r_min;
+        }
+        let contact = ContactTerm::new(yarns, &ysp, p.solver.max_displacement)?;
+        let mass = lumped_masses(yarns, params.density);
+        Ok(Fabric {
+            rods,
+            contact,
+            mass,
+            q,
+            r_min,
+            params: p,
+            cache: SymbolicCache::default(),
+        })
+    }
+
+    pub fn num_vertices(&self) -> usize {
+        self.rods.topology().n_vertices
+    }
+
+    pub fn point(&self, v: usize) -> Vec3 {
+        [self.q[3 * v], self.q[3 * v + 1], self.q[3 * v + 2]]
+    }
+
+    pub fn points(&self) -> Vec<Vec3> {
+        (0..self.num_vertices()).map(|v| self.point(v)).collect()
+    }
+
+    /// The rest shape the rods use now (to store with the curves).
+    pub fn rest_shape(&self) -> RestShape {
+        self.rods.rest().to_shape(self.rods.topology())
+    }
+
+    /// A fixed-coordinate mask with nothing clamped except one twist per
+    /// curve (a free rod's constant twist is a null space, HYLC §5).
+    pub fn twist_gauge(&self) -> Vec<bool> {
+        let topo = self.rods.topology();
+        let mut fixed = vec![false; self.q.len()];
+        for c in &topo.curve_edges {
+            if !c.is_empty() {
+                fixed[topo.twist_dof(c.start)] = true;
+            }
+        }
+        fixed
+    }
+
+    /// Fixes the positions of `vertices` and the twists of the edges with
+    /// both ends among them.
+    pub fn clamp(&self, fixed: &mut [bool], vertices: &[bool]) {
+        let topo = self.rods.topology();
+        for (v, &c) in vertices.iter().enumerate() {
+            if c {
+                fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
+            }
+        }
+        for (e, [a, b]) in topo.edges.iter().enumerate() {
+            if vertices[*a] && vertices[*b] {
+                fixed[topo.twist_dof(e)] = true;
+            }
+        }
+    }
+
+    /// Newton equilibrium of rods + contact + `extra` terms with `fixed`
+    /// coordinates held.
+    pub fn solve(
+        &mut self,
+        extra: &mut [&mut dyn EnergyTerm],
+        fixed: &[bool],
+        stage: &str,
+    ) -> Result<StaticStats, FabricError> {
+        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut self.rods, &mut self.contact];
+        for t in extra.iter_mut() {
+            terms.push(&mut **t);
+        }
+        solve_static(
+            &mut terms,
+            &mut self.q,
+            fixed,
+            &self.params.solver,
+            &mut self.cache,
+        )
+        .map_err(|source| FabricError::Solve {
+            stage: stage.to_string(),
+            source,
+        })
+    }
+
+    /// `dE/dq` of rods + contact + `extra` at the current state.
+    pub fn gradient(&mut self, extra: &mut [&mut dyn EnergyTerm]) -> (f64, Vec<f64>) {
+        let q = self.q.clone();
+        self.contact.begin_iteration(&q);
+        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut self.rods, &mut self.contact];
+        for t in extra.iter_mut() {
+            terms.push(&mut **t);
+        }
+        let mut g = vec![0.0; q.len()];
+        let e = evaluate(&terms, &q, &mut g, None);
+        (e, g)
+    }
+
+    /// Largest `|dE/dq|` over the coordinates not `fixed` (N, or N m for
+    /// twists), rods + contact only.
+    pub fn static_residual(&mut self, fixed: &[bool]) -> f64 {
+        let (_, g) = self.gradient(&mut []);
+        g.iter()
+            .zip(fixed)
+            .filter(|(_, f)| !**f)
+            .map(|(g, _)| g.abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Elastic energy (rods + contact, J).
+    pub fn elastic_energy(&mut self) -> f64 {
+        self.gradient(&mut []).0
+    }
+
+    /// Proximal Newton rounds (implicit-Euler steps of `dt` from rest,
+    /// `extra` terms added) until the static residual of rods + contact +
+    /// `extra` is at most `tol` or `max_rounds` are spent. The inertia term
+    /// only regularizes null and buckling modes; it vanishes at the end.
+    pub fn settle(
+        &mut self,
+        extra: &mut [&mut dyn EnergyTerm],
+        fixed: &[bool],
+        settle: &Settle,
+        stage: &str,
+    ) -> Result<SettleStats, FabricError> {
+        let n = self.num_vertices();
+        let mut out = SettleStats {
+            residual: f64::INFINITY,
+            ..SettleStats::default()
+        };
+        for _ in 0..settle.max_rounds {
+            let target = self.q[..3 * n].to_vec();
+            let mut inertia = super::InertiaTerm::new(self.mass.clone(), target, settle.dt);
+            let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut inertia];
+            for t in extra.iter_mut() {
+                terms.push(&mut **t);
+            }
+            // A round that stalls (no convergence, or no descent left at
+            // rounding level) still moved toward equilibrium: the next round
+            // restarts from there; only non-finite values end the settle.
+            out.rounds += 1;
+            match self.solve(&mut terms, fixed, stage) {
+                Ok(st) => out.newton_iterations += st.iterations,
+                Err(FabricError::Solve {
+                    source: StaticError::NotConverged { iterations, .. },
+                    ..
+                }) => out.newton_iterations += iterations,
+                Err(FabricError::Solve {
+                    source: StaticError::LineSearch { iteration, .. },
+                    ..
+                }) => out.newton_iterations += iteration,
+                Err(e) => return Err(e),
+            }
+            out.min_distance_ratio = out
+                .min_distance_ratio
+                .min(self.contact_stats().min_distance_ratio);
+            let (_, g) = self.gradient(extra);
+            out.residual = g
+                .iter()
+                .zip(fixed)
+                .filter(|(_, f)| !**f)
+                .map(|(g, _)| g.abs())
+                .fold(0.0, f64::max);
+            if out.residual <= settle.tolerance {
+                out.converged = true;
+                break;
+            }
+        }
+        Ok(out)
+    }
+
+    pub fn contact_stats(&mut self) -> ContactStats {
+        let q = self.q.clone();
+        self.contact.begin_iteration(&q);
+        self.contact.stats(&q)
+    }
+}
+
+/// Controls of [`Fabric::settle`].
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Settle {
+    /// Proximal step (s). Default 0.05.
+    pub dt: f64,
+    /// Most rounds. Default 30.
+    pub max_rounds: usize,
+    /// Static force residual that ends it (N). Default 1e-5.
+    pub tolerance: f64,
+}
+
+impl Settle {
+    /// Fails unless `st` reached 10x the tolerance (a stalled equilibrium
+    /// is reported, never passed on as one).
+    pub fn require(&self, st: &SettleStats, stage: &str) -> Result<(), FabricError> {
+        if st.residual <= 10.0 * self.tolerance {
+            Ok(())
+        } else {
+            Err(FabricError::NoEquilibrium(format!(
+                "{stage}: no equilibrium after {} rounds ({} Newton iterations): largest force {:.3e} N (tolerance {:.1e} N)",
+                st.rounds, st.newton_iterations, st.residual, self.tolerance
+            )))
+        }
+    }
+}
+
+impl Default for Settle {
+    fn default() -> Self {
+        Settle {
+            dt: 0.05,
+            max_rounds: 30,
+            tolerance: 1e-5,
+        }
+    }
+}
+
+/// What [`Fabric::settle`] did.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SettleStats {
+    pub rounds: usize,
+    pub newton_iterations: usize,
+    /// Largest free static force at the end (N).
+    pub residual: f64,
+    pub converged: bool,
+    /// Smallest contact distance ratio after any round.
+    pub min_distance_ratio: f64,
+}
+
+impl Default for SettleStats {
+    fn default() -> Self {
+        SettleStats {
+            rounds: 0,
+            newton_iterations: 0,
+            residual: f64::INFINITY,
+            converged: false,
+            min_distance_ratio: f64::INFINITY,
+        }
+    }
+}
+
+/// Lumped vertex masses: half of each segment's mass to each end (kg).
+pub fn lumped_masses(yarns: &Yarns, density: f64) -> Vec<f64> {
+    let mut m = vec![0.0; yarns.num_points()];
+    for c in 0..yarns.num_curves() {
+        let mu = match &yarns.linear_density {
+            Some(ld) => ld[c],
+            None => {
+                let r = yarns.radius_at(yarns.curve_range(c).start);
+                density * std::f64::consts::PI * r * r
+            }
+        };
+        for [a, b] in yarns.segments_of(c) {
+            let l = crate::geom::dist(yarns.points[a], yarns.points[b]);
+            m[a] += 0.5 * mu * l;
+            m[b] += 0.5 * mu * l;
+        }
+    }
+    m
+}

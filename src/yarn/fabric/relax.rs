@@ -1,0 +1,164 @@
+//! Relaxation of a generated pattern into a rest state held by contact
+//! (Leaf 2018 §6.1, rest-length scaling): the rods' rest lengths shrink in
+//! a few stages to `length_scale` times the generated ones, and after each
+//! stage the swatch goes to equilibrium of rods + contact by proximal
+//! Newton solves (implicit-Euler steps of size `dt` repeated until the
+//! static force residual is small; the inertia term only regularizes the
+//! free swatch's rigid modes and the buckling of loops on the way, it
+//! vanishes at the end).
+//!
+//! The rest state handed on (Sperl 2022 §7.2, "a stable but slightly
+//! pre-tensed rest state"): the scaled rest lengths (the yarns stay a
+//! little stretched, held by contact) and the bending/twist rest shape of
+//! the relaxed curves, so the relaxed positions are an equilibrium of
+//! exactly the rest shape stored with them.
+
+use std::time::Instant;
+
+use super::model::{Fabric, FabricError, FabricParams, Settle};
+use crate::geom::Yarns;
+use crate::yarn::rods::RodRest;
+use crate::yarn::statics::ContactStats;
+
+/// Controls of [`relax_into_contact`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RelaxParams {
+    /// Final rest-length scale (dimensionless, Leaf §6.1). Default 0.9.
+    pub length_scale: f64,
+    /// Number of stages from 1 to `length_scale`. Default 3.
+    pub stages: usize,
+    /// Proximal (implicit-Euler) step (s). Default 0.05.
+    pub dt: f64,
+    /// Most proximal rounds per stage. Default 30.
+    pub max_rounds: usize,
+    /// Static force residual (N) that ends the last stage. Default 1e-5.
+    pub force_tolerance: f64,
+}
+
+impl Default for RelaxParams {
+    fn default() -> Self {
+        RelaxParams {
+            length_scale: 0.9,
+            stages: 3,
+            dt: 0.05,
+            max_rounds: 30,
+            force_tolerance: 1e-5,
+        }
+    }
+}
+
+/// What the relaxation did.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RelaxIntoContactStats {
+    pub length_scale: f64,
+    pub stages: usize,
+    /// Proximal rounds and Newton iterations over all stages.
+    pub rounds: usize,
+    pub newton_iterations: usize,
+    /// Largest free static force at the end (N).
+    pub residual: f64,
+    /// Contact at the end.
+    pub contact: ContactStats,
+    /// Smallest distance ratio seen after any round (no pull-through: > 0.75).
+    pub min_distance_ratio_seen: f64,
+    /// Bounding-box size before and after (m).
+    pub size_before: [f64; 3],
+    pub size_after: [f64; 3],
+    /// Elastic energy at the end (J).
+    pub energy: f64,
+    pub seconds: f64,
+}
+
+impl RelaxParams {
+    /// Checks every value's range before any work.
+    pub fn check(&self) -> Result<(), FabricError> {
+        let ok = self.length_scale.is_finite()
+            && self.length_scale > 0.5
+            && self.length_scale <= 1.0
+            && self.stages >= 1
+            && self.stages <= 100
+            && self.dt.is_finite()
+            && self.dt > 0.0
+            && self.max_rounds >= 1
+            && self.force_tolerance.is_finite()
+            && self.force_tolerance > 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(FabricError::Setup(format!(
+                "relaxation parameters out of range (length_scale in (0.5, 1], stages 1-100, dt > 0, rounds >= 1, tolerance > 0): {self:?}"
+            )))
+        }
+    }
+}
+
+/// Relaxes `yarns` into contact; returns them at the relaxed positions with
+/// the rest shape the simulator must use (`Yarns::rest`).
+pub fn relax_into_contact(
+    yarns: &Yarns,
+    fabric_params: &FabricParams,
+    params: &RelaxParams,
+) -> Result<(Yarns, RelaxIntoContactStats), FabricError> {
+    params.check()?;
+    let t0 = Instant::now();
+    let mut plain = yarns.clone();
+    plain.rest = None;
+    let mut fabric = Fabric::new(&plain, fabric_params)?;
+    let topo = fabric.rods.topology().clone();
+    let generated = RodRest::from_positions(&topo, &yarns.points)?;
+    let fixed = fabric.twist_gauge();
+    let (mut rounds, mut iterations) = (0, 0);
+    let mut min_seen = f64::INFINITY;
+    let mut residual = f64::INFINITY;
+    for stage in 1..=params.stages {
+        let s = 1.0 - (1.0 - params.length_scale) * stage as f64 / params.stages as f64;
+        let mut rest = generated.clone();
+        rest.scale_lengths(&vec![s; topo.num_edges()])?;
+        fabric.rods.set_rest(rest)?;
+        let last = stage == params.stages;
+        let tol = if last {
+            params.force_tolerance
+        } else {
+            10.0 * params.force_tolerance
+        };
+        let settle = Settle {
+            dt: params.dt,
+            max_rounds: params.max_rounds,
+            tolerance: tol,
+        };
+        let st = fabric.settle(&mut [], &fixed, &settle, &format!("relaxation stage {stage}"))?;
+        rounds += st.rounds;
+        iterations += st.newton_iterations;
+        min_seen = min_seen.min(st.min_distance_ratio);
+        residual = st.residual;
+        if last {
+            settle.require(&st, "relaxation")?;
+        }
+    }
+    // Bending and twist at rest in the relaxed shape; lengths stay scaled.
+    let relaxed_points = fabric.points();
+    let mut rest = RodRest::from_positions(&topo, &relaxed_points)?;
+    rest.l0 = fabric.rods.rest().l0.clone();
+    let mut out = yarns.with_points(&relaxed_points).map_err(|e| FabricError::Setup(e.to_string()))?;
+    out.rest = Some(rest.to_shape(&topo));
+    fabric.rods.set_rest(rest)?;
+    let contact = fabric.contact_stats();
+    let energy = fabric.elastic_energy();
+    let size = |y: &Yarns| y.bounds().map_or([0.0; 3], |b| b.size());
+    Ok((
+        out.clone(),
+        RelaxIntoContactStats {
+            length_scale: params.length_scale,
+            stages: params.stages,
+            rounds,
+            newton_iterations: iterations,
+            residual,
+            contact,
+            min_distance_ratio_seen: min_seen.min(contact.min_distance_ratio),
+            size_before: size(yarns),
+            size_after: size(&out),
+            energy,
+            seconds: t0.elapsed().as_secs_f64(),
+        },
+    ))
+}

@@ -1,0 +1,134 @@
+//! Study (ignored): relax a generated swatch into contact, then run the
+//! stretch and hang tests, printing every figure.
+//! `FS_PATTERN=rib1x1 FS_COURSES=6 FS_WALES=4 FS_SCALE=0.9 cargo test --test fabric_study -- --ignored --nocapture`
+
+use std::time::Instant;
+
+use knitvox::yarn::fabric::{
+    hang_test, relax_into_contact, stretch_test, Direction, FabricParams, HangParams,
+    RelaxParams, StretchParams,
+};
+use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
+
+fn env_f(name: &str, d: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(d)
+}
+
+#[test]
+#[ignore]
+fn relax_stretch_hang() {
+    let pattern = std::env::var("FS_PATTERN").unwrap_or("rib1x1".into());
+    let courses = env_f("FS_COURSES", 6.0) as usize;
+    let wales = env_f("FS_WALES", 4.0) as usize;
+    let tile = build_tile(&builtin(&pattern).unwrap(), &PatternParams::default()).unwrap();
+    let y = lay_out(
+        &tile,
+        &Layout {
+            courses,
+            wales,
+            tube_radius: None,
+            helix: false,
+            separate_courses: false,
+        },
+    )
+    .unwrap();
+    let mut fp = FabricParams::default();
+    fp.rods.bend_scale = env_f("FS_GAMMA", fp.rods.bend_scale);
+    let rp = RelaxParams {
+        length_scale: env_f("FS_SCALE", 0.9),
+        stages: env_f("FS_STAGES", 3.0) as usize,
+        dt: env_f("FS_DT", 0.05),
+        ..RelaxParams::default()
+    };
+    let t0 = Instant::now();
+    let (relaxed, rs) = relax_into_contact(&y, &fp, &rp).unwrap();
+    println!(
+        "{pattern} {courses}x{wales}: {} vertices; relax {:?}",
+        y.num_points(),
+        rs
+    );
+    println!("relax {:.1} s", t0.elapsed().as_secs_f64());
+    if env_f("FS_STRETCH", 1.0) > 0.0 {
+        let dir: Direction = std::env::var("FS_DIR").unwrap_or("weft".into()).parse().unwrap();
+        let sp = StretchParams {
+            direction: dir,
+            steps: env_f("FS_STEPS", 5.0) as usize,
+            clamp_depth: env_f("FS_CLAMP", 8e-3),
+            ..StretchParams::default()
+        };
+        let r = stretch_test(&relaxed, &fp, &sp, &mut |_| Ok(())).unwrap();
+        println!(
+            "stretch {}: width {:.4} length {:.4} gauge {:.4}, hold {:.4}, min ratio {:.3}, {:.1} s",
+            dir.name(),
+            r.width_m,
+            r.length_m,
+            r.gauge_m,
+            r.hold_energy_change,
+            r.min_distance_ratio,
+            r.seconds
+        );
+        for p in &r.points {
+            println!("  {:?}", p);
+        }
+    }
+    if env_f("FS_HANG", 1.0) > 0.0 {
+        let h = hang_test(&relaxed, &fp, &HangParams::default(), &mut |_| Ok(())).unwrap();
+        println!("hang {:?}", h);
+    }
+}
+
+/// Diagnostic (ignored): one stretch step's Newton history on a cached
+/// relaxed swatch. `FS_STEP=0.02 FS_CAP=0.25`.
+#[test]
+#[ignore]
+fn stretch_step_diagnostic() {
+    use knitvox::yarn::fabric::{Fabric, Rig};
+    let pattern = std::env::var("FS_PATTERN").unwrap_or("rib1x1".into());
+    let courses = env_f("FS_COURSES", 6.0) as usize;
+    let wales = env_f("FS_WALES", 4.0) as usize;
+    let cache = format!("/tmp/relaxed_{pattern}_{courses}x{wales}.h5");
+    let fp = FabricParams::default();
+    let relaxed = match knitvox::io::read_path(std::path::Path::new(&cache), &Default::default()) {
+        Ok(d) => d.yarns,
+        Err(_) => {
+            let tile = build_tile(&builtin(&pattern).unwrap(), &PatternParams::default()).unwrap();
+            let y = lay_out(&tile, &Layout { courses, wales, tube_radius: None, helix: false, separate_courses: false }).unwrap();
+            let (r, _) = relax_into_contact(&y, &fp, &RelaxParams::default()).unwrap();
+            knitvox::io::write_path(std::path::Path::new(&cache), &r, None, &Default::default()).unwrap();
+            r
+        }
+    };
+    assert!(relaxed.rest.is_some());
+    let mut fp2 = fp.clone();
+    fp2.solver.max_displacement = env_f("FS_CAP", 0.25) * 1e-3;
+    fp2.solver.max_iterations = env_f("FS_ITERS", 300.0) as usize;
+    let mut fabric = Fabric::new(&relaxed, &fp2).unwrap();
+    let free = fabric.twist_gauge();
+    println!("static residual at rest {:.3e}", fabric.static_residual(&free));
+    let rig = Rig::new(&relaxed.points, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], 8e-3);
+    let clamped = rig.any_clamped();
+    let mut fixed = vec![false; fabric.q.len()];
+    fabric.clamp(&mut fixed, &clamped);
+    let du = env_f("FS_STEP", 0.02) * rig.gauge();
+    let s0 = rig.s_min + rig.clamp_depth;
+    let s1 = rig.s_max - rig.clamp_depth;
+    let affine = env_f("FS_AFFINE", 1.0) > 0.0;
+    for v in 0..fabric.num_vertices() {
+        if rig.low[v] { continue; }
+        let frac = if rig.high[v] { 1.0 } else if affine { ((fabric.q[3 * v] - s0) / (s1 - s0)).clamp(0.0, 1.0) } else { 0.0 };
+        fabric.q[3 * v] += frac * du;
+    }
+    let t = Instant::now();
+    let r = fabric.solve(&mut [], &fixed, "diag");
+    match r {
+        Ok(st) => {
+            let h = &st.residual_history;
+            println!("converged in {} its, capped {}, halvings {}, regularized {}, {:.1} s", st.iterations, st.capped, st.halvings, st.regularized, t.elapsed().as_secs_f64());
+            for (k, v) in h.iter().enumerate().step_by(10) { println!("  it {k}: {v:.3e}"); }
+        }
+        Err(e) => println!("failed: {e} after {:.1} s", t.elapsed().as_secs_f64()),
+    }
+}
