@@ -56,6 +56,7 @@ fn relax_stretch_hang() {
         let sp = StretchParams {
             direction: dir,
             steps: env_f("FS_STEPS", 5.0) as usize,
+            max_stretch: env_f("FS_MAX", 0.5),
             clamp_depth: env_f("FS_CLAMP", 8e-3),
             ..StretchParams::default()
         };
