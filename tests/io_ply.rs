@@ -157,6 +157,54 @@ fn writer_layout_is_the_documented_one() {
     assert_eq!(edges, vec![0, 1, 2, 3, 3, 4, 4, 2]);
 }
 
+/// The writer declares the unit and up axis in header comments, and the
+/// reader takes them as declared by the file (not assumed).
+#[test]
+fn units_and_up_axis_comments_round_trip() {
+    use knitvox::geom::{Units, UpAxis};
+    use knitvox::io::Provenance;
+    let mut y = Yarns::new();
+    y.push_curve(&[[0.01, 0.02, 0.03], [0.5, -0.25, 0.125]], false, 0.001);
+    y.push_curve(&[[0.0; 3], [0.1, 0.0, 0.0], [0.0, 0.2, 0.0]], true, 0.002);
+    let (units, up) = (Units::CENTIMETRES, UpAxis::Z);
+    let mut file = y.clone();
+    file.internal_to_file(units, up);
+    let bytes = ply::encode_in(&file, units, up).unwrap();
+    let text = String::from_utf8_lossy(&bytes);
+    assert!(text.contains("\ncomment knitvox units cm\n"), "{text}");
+    assert!(text.contains("\ncomment knitvox up_axis z\n"), "{text}");
+
+    // Read back without overrides: declared by the file, back in metres, +Y up.
+    let ropts = opts();
+    assert_eq!((ropts.units, ropts.up_axis), (None, None));
+    let d = io::decode(Format::Ply, &bytes, &ropts, &io::NoResources).unwrap();
+    assert_eq!(d.units, Some(Units::CENTIMETRES));
+    assert_eq!(d.up_axis, Some(UpAxis::Z));
+    let back = io::finish(Format::Ply, d, &ropts).unwrap();
+    assert_eq!(back.units, (Units::CENTIMETRES, Provenance::File));
+    assert_eq!(back.up_axis, (UpAxis::Z, Provenance::File));
+    assert!(back.yarns.same_topology(&y));
+    for (a, b) in back.yarns.points.iter().zip(&y.points) {
+        for k in 0..3 {
+            // float32 in the file.
+            assert!((a[k] - b[k]).abs() <= 1e-7, "{a:?} vs {b:?}");
+        }
+    }
+    assert!((back.yarns.radius[1] - 0.002).abs() < 1e-9);
+
+    // Without the comments (plain `encode`) the frame is assumed, as before.
+    let plain = ply::encode(&y).unwrap();
+    let d = io::decode(Format::Ply, &plain, &ropts, &io::NoResources).unwrap();
+    let back = io::finish(Format::Ply, d, &ropts).unwrap();
+    assert_eq!(back.units.1, Provenance::Assumed);
+    assert_eq!(back.up_axis.1, Provenance::Assumed);
+
+    // A malformed declaration is an error, not a silent assumption.
+    let bad = String::from_utf8_lossy(&bytes).replace("units cm", "units furlong");
+    let e = io::decode(Format::Ply, bad.as_bytes(), &ropts, &io::NoResources).unwrap_err();
+    assert!(e.message.contains("furlong"), "{e}");
+}
+
 #[test]
 fn empty_set_round_trips() {
     let bytes = ply::encode(&Yarns::new()).unwrap();

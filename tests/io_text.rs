@@ -155,6 +155,118 @@ l 4 5 6 4
     assert_eq!(d.yarns.num_points(), 3);
 }
 
+/// A smooth helix of `n` points (distinct, finite).
+fn helix(n: usize, phase: f64) -> Vec<Vec3> {
+    (0..n)
+        .map(|i| {
+            let t = i as f64 * 0.01 + phase;
+            [t.cos() * 0.05, t * 1.0e-3, t.sin() * 0.05]
+        })
+        .collect()
+}
+
+/// Long curves are written as several `l` lines of at most 2,001 indices that
+/// continue each other (Blender's importer truncates lines at 262,144
+/// characters), and read back as the same curves.
+#[test]
+fn obj_long_curves_split_into_continued_lines_and_join_back() {
+    let mut y = Yarns::new();
+    y.push_curve(&helix(10_000, 0.0), false, 1e-3);
+    y.push_curve(&helix(10_000, 100.0), true, 1e-3);
+    // Edge cases at the line limit: the closing index alone on the last line,
+    // a closed curve that just fits one line, a short curve.
+    y.push_curve(&helix(2_001, 200.0), true, 1e-3);
+    y.push_curve(&helix(2_000, 300.0), true, 1e-3);
+    y.push_curve(&helix(2_002, 400.0), false, 1e-3);
+    y.push_curve(&helix(3, 500.0), false, 1e-3);
+    let bytes = obj::encode(&y, Units::METRES, UpAxis::Y).unwrap();
+    let text = std::str::from_utf8(&bytes).unwrap();
+    let l_lines: Vec<Vec<usize>> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("l "))
+        .map(|l| l.split(' ').map(|t| t.parse().unwrap()).collect())
+        .collect();
+    let longest = l_lines.iter().map(Vec::len).max().unwrap();
+    assert!(
+        longest <= obj::MAX_LINE_INDICES,
+        "{longest} indices on one line"
+    );
+    assert_eq!(obj::MAX_LINE_INDICES, 2001);
+    assert!(l_lines.iter().all(|l| l.len() >= 2));
+    // 10,000 open: 5 lines; 10,001 closed: 5; 2,002 closed: 2; 2,001: 1; 2,002 open: 2; 1.
+    assert_eq!(l_lines.len(), 5 + 5 + 2 + 1 + 2 + 1);
+    for w in l_lines.windows(2) {
+        // Every line of a continued curve starts where the line before ended.
+        if w[1][0] != w[1][1] - 1 {
+            assert_eq!(w[1][0], *w[0].last().unwrap());
+        }
+    }
+    let max_chars = text.lines().map(str::len).max().unwrap();
+    assert!(max_chars < 262_144, "{max_chars}");
+
+    let d = obj::decode(&bytes, &opts()).unwrap();
+    assert_eq!(d.yarns.num_curves(), y.num_curves());
+    assert_eq!(d.yarns.offsets, y.offsets);
+    assert_eq!(d.yarns.closed, y.closed);
+    assert_eq!(d.yarns.points, y.points);
+    assert!(
+        d.notes
+            .iter()
+            .any(|n| n.contains("continue the element before")),
+        "{:?}",
+        d.notes
+    );
+
+    // The same through the io layer's frames (cm, Z up).
+    let wopts = WriteOptions {
+        units: Units::CENTIMETRES,
+        up_axis: UpAxis::Z,
+        first_frame: 1,
+    };
+    let bytes = io::encode(Format::Obj, &y, &wopts).unwrap();
+    let ropts = ReadOptions {
+        units: Some(Units::CENTIMETRES),
+        up_axis: Some(UpAxis::Z),
+        ..opts()
+    };
+    let d = io::decode(Format::Obj, &bytes, &ropts, &io::NoResources).unwrap();
+    let back = io::finish(Format::Obj, d, &ropts).unwrap();
+    assert!(back.yarns.same_topology(&y));
+    for (a, b) in back.yarns.points.iter().zip(&y.points) {
+        assert!(dist(*a, *b) <= 1e-12, "{a:?} vs {b:?}");
+    }
+}
+
+/// Only a line that starts with the last index of the open polyline just
+/// before it (same object and group) continues it; polylines that merely
+/// share a vertex stay separate curves, as before.
+#[test]
+fn obj_polylines_sharing_an_index_are_not_joined() {
+    let v = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nv 4 0 0\nv 5 0 0\n";
+    let count = |body: &str| {
+        let d = obj::decode(format!("{v}{body}").as_bytes(), &opts()).unwrap();
+        (d.yarns.num_curves(), d.yarns.closed.clone())
+    };
+    // Same end vertex, but the second does not start with it.
+    assert_eq!(count("l 1 2 3\nl 4 5 3\n"), (2, vec![false, false]));
+    // Same start vertex.
+    assert_eq!(count("l 3 2 1\nl 3 4 5\n"), (2, vec![false, false]));
+    // Not consecutive: another element in between.
+    assert_eq!(count("l 1 2 3\nl 5 6\nl 3 4\n"), (3, vec![false; 3]));
+    // A new group or object in between.
+    assert_eq!(count("l 1 2 3\ng b\nl 3 4 5\n"), (2, vec![false, false]));
+    assert_eq!(count("l 1 2 3\no b\nl 3 4 5\n"), (2, vec![false, false]));
+    // A closed loop is never continued.
+    assert_eq!(count("l 1 2 3 1\nl 1 4 5\n"), (2, vec![true, false]));
+    // A two-index segment is chained only with segments, as before.
+    assert_eq!(count("l 1 2\nl 2 3 4\n"), (2, vec![false, false]));
+    // The continued form itself joins, and closes when it comes back.
+    assert_eq!(count("l 1 2 3\nl 3 4 5\n"), (1, vec![false]));
+    assert_eq!(count("l 1 2 3\nl 3 4\nl 4 5 1\n"), (1, vec![true]));
+    let d = obj::decode(format!("{v}l 1 2 3\nl 3 4\nl 4 5 1\n").as_bytes(), &opts()).unwrap();
+    assert_eq!(d.yarns.curve(0).len(), 5);
+}
+
 /// Random finite coordinates spanning many magnitudes (and both signs).
 fn coord() -> impl Strategy<Value = f64> {
     prop_oneof![

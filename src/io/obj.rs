@@ -16,7 +16,14 @@
 //!     shared vertices into polylines (a chain that comes back to its start is
 //!     closed), like PLY edges. A vertex shared by more than two segments is a
 //!     branch and an error. Elements with three or more indices are taken as
-//!     written and never joined to others.
+//!     written and not chained with segments.
+//!   * Continued elements: an `l` whose first index is the last index of the
+//!     `l` statement just before it, in the same object and group (no `o` or
+//!     `g` between them), continues that element when the earlier one is an
+//!     open polyline of three or more indices (not a segment, not closed).
+//!     The two are one curve; if the joined element ends on its first index it
+//!     is closed. knitvox writes long curves this way (see below). Elements
+//!     that merely share a vertex in any other way stay separate curves.
 //! * A line ending with `\` continues on the next line (Houdini wraps long
 //!   `l` elements this way); `#` starts a comment.
 //! * Faces (`f`), points (`p`), free-form curves (`cstype`, `curv`, ...),
@@ -31,7 +38,11 @@
 //! A comment header (`# knitvox <version>`, the unit and up axis of the
 //! coordinates, counts), `o yarns`, one `v` line per point with the shortest
 //! decimal form that reads back to the same `f64`, and one `l` per curve;
-//! closed curves repeat their first index at the end.
+//! closed curves repeat their first index at the end. A curve with more than
+//! [`MAX_LINE_INDICES`] indices is written as several `l` lines of at most
+//! that many indices, each starting with the last index of the line before
+//! (continued elements, above), because Blender's OBJ importer stops reading
+//! a line at 262,144 characters and drops the rest of the curve.
 
 use std::fmt::Write as _;
 
@@ -60,6 +71,11 @@ pub(crate) struct Piece {
 }
 
 const NONE: usize = usize::MAX;
+
+/// The most vertex indices the writer puts on one `l` line (a longer curve
+/// continues on the next line, which repeats the last index). 2,001 indices
+/// of up to 20 digits stay far below Blender's 262,144-character line limit.
+pub const MAX_LINE_INDICES: usize = 2001;
 
 /// Builds curves from line elements over `points`: open and closed pieces
 /// become one curve each, segments are chained through shared vertices.
@@ -226,6 +242,9 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     let mut unknown: Vec<String> = Vec::new();
     let mut unknown_count = 0usize;
     let mut header: Option<String> = None;
+    // Whether the next `l` may continue the last piece (no `o`/`g` since it).
+    let mut may_continue = false;
+    let mut continued = 0usize;
     if let Some(Ok((_, first))) = text_lines(data).next() {
         if let Some(c) = first.trim().strip_prefix('#') {
             header = Some(c.trim().to_string());
@@ -324,6 +343,30 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                         format!("a line element needs at least 2 vertex indices, this one has {n}"),
                     ));
                 }
+                // A continuation of the previous open polyline: drop the
+                // repeated joint index and extend that piece.
+                if may_continue {
+                    if let Some(prev) = pieces.last_mut() {
+                        if prev.kind == PieceKind::Open
+                            && prev.end == start
+                            && indices[start - 1] == indices[start]
+                        {
+                            indices.remove(start);
+                            let first = indices[prev.start];
+                            if indices.last() == Some(&first) {
+                                indices.pop();
+                                prev.kind = PieceKind::Closed;
+                            }
+                            prev.end = indices.len();
+                            continued += 1;
+                            if max_forward > points.len() {
+                                forward_check.push((pieces.len() - 1, max_forward));
+                            }
+                            continue;
+                        }
+                    }
+                }
+                may_continue = true;
                 let kind = if indices[start] == indices[indices.len() - 1] {
                     indices.pop(); // the repeated first index of a closed loop
                     PieceKind::Closed
@@ -345,8 +388,9 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             }
             "f" | "fo" => faces += 1,
             "p" => point_elems += 1,
-            "vn" | "vt" | "vp" | "g" | "o" | "s" | "usemtl" | "mtllib" | "lod" | "maplib"
-            | "usemap" | "shadow_obj" | "trace_obj" | "bevel" | "c_interp" | "d_interp" => {}
+            "g" | "o" => may_continue = false,
+            "vn" | "vt" | "vp" | "s" | "usemtl" | "mtllib" | "lod" | "maplib" | "usemap"
+            | "shadow_obj" | "trace_obj" | "bevel" | "c_interp" | "d_interp" => {}
             "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
             | "hole" | "scrv" | "sp" | "end" | "con" | "ctech" | "stech" => freeform += 1,
             other => {
@@ -384,8 +428,13 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     notes.push(format!(
         "{} vertices, {} line elements",
         points.len(),
-        pieces.len()
+        pieces.len() + continued
     ));
+    if continued > 0 {
+        notes.push(format!(
+            "{continued} line elements continue the element before them (joined into one curve)"
+        ));
+    }
     let mut used = vec![false; points.len()];
     indices.iter().for_each(|&v| used[v] = true);
     let unused = used.iter().filter(|u| !**u).count();
@@ -451,6 +500,10 @@ pub fn encode(yarns: &Yarns, units: Units, up: UpAxis) -> Result<Vec<u8>, Format
     );
     let _ = writeln!(
         s,
+        "# a curve longer than {MAX_LINE_INDICES} indices continues on the next `l`, which starts with the last index"
+    );
+    let _ = writeln!(
+        s,
         "# units: {} ({} m per unit), up axis: +{}",
         units, units.metres_per_unit, up
     );
@@ -468,12 +521,20 @@ pub fn encode(yarns: &Yarns, units: Units, up: UpAxis) -> Result<Vec<u8>, Format
     }
     for c in 0..n {
         let r = yarns.curve_range(c);
+        // 1-based indices of the element; a closed curve repeats its first.
+        let closing = yarns.closed[c].then_some(r.start + 1);
         s.push('l');
-        for i in r.clone() {
-            push_index(&mut s, i + 1);
-        }
-        if yarns.closed[c] {
-            push_index(&mut s, r.start + 1);
+        let (mut on_line, mut last) = (0usize, 0usize);
+        for i in (r.start + 1..r.end + 1).chain(closing) {
+            if on_line == MAX_LINE_INDICES {
+                // A new line that starts with the last index written continues the curve.
+                s.push_str("\nl");
+                push_index(&mut s, last);
+                on_line = 1;
+            }
+            push_index(&mut s, i);
+            on_line += 1;
+            last = i;
         }
         s.push('\n');
     }
