@@ -415,7 +415,7 @@ pub fn encode(format: Format, yarns: &Yarns, opts: &WriteOptions) -> Result<Vec<
     match format {
         Format::Bcc => bcc::encode(&y, up),
         Format::Obj => obj::encode(&y, units, up),
-        Format::Ply => ply::encode(&y),
+        Format::Ply => ply::encode_in(&y, units, up),
         Format::Gltf => gltf::encode(&y, false),
         Format::Glb => gltf::encode(&y, true),
         Format::Poly | Format::Pyp | Format::Hdf5 => Err(FormatError::whole_file(format!(
