@@ -136,6 +136,13 @@ fn embed_shapefit_export_cli() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = knitvox(&["inspect", "--json", p(&asset)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Nothing to export yet: an error naming the asset, not an empty folder.
+    let empty = dir.path().join("empty");
+    let o = knitvox(&["export", p(&asset), "-o", p(&empty)]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(e.contains("no steps") && e.contains("swatch.vtkhdf"), "{e}");
+    assert!(!empty.exists() || std::fs::read_dir(&empty).unwrap().next().is_none());
     let o = knitvox(&[
         "shapefit",
         p(&asset),

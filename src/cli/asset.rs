@@ -213,6 +213,12 @@ pub fn shapefit(a: &ShapefitArgs) -> anyhow::Result<ExitCode> {
 pub fn export(a: &ExportArgs) -> anyhow::Result<ExitCode> {
     check_asset_ext(&a.asset)?;
     let asset = vtkhdf::read_asset(&a.asset)?;
+    if asset.steps.num_steps() == 0 {
+        return Err(anyhow::Error::new(io::IoError::Unsupported {
+            path: a.asset.clone(),
+            message: "the asset has no steps to export: fill it with `knitvox shapefit` or `knitvox simulate` first".into(),
+        }));
+    }
     let steps = select(&a.frames_spec, asset.steps.num_steps(), "step", &a.asset)?;
     let format = Format::from_path(Path::new(&format!("x.{}", a.format))).unwrap_or(Format::Ply);
     let name = a.name.clone().unwrap_or_else(|| {
