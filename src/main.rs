@@ -17,7 +17,8 @@ fn main() -> std::process::ExitCode {
     #[cfg(unix)]
     // SAFETY: installing an async-signal-safe handler before any thread starts.
     unsafe {
-        let handler = knitvox::io::atomic::remove_temporaries_on_signal as extern "C" fn(libc::c_int);
+        let handler =
+            knitvox::io::atomic::remove_temporaries_on_signal as extern "C" fn(libc::c_int);
         libc::signal(libc::SIGINT, handler as libc::sighandler_t);
         libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
     }

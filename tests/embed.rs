@@ -463,7 +463,14 @@ fn guards_give_the_right_errors() {
     )
     .unwrap_err();
     assert!(
-        matches!(err, EmbedError::TooManyVoxels { limit: 10, estimate: 11, .. }),
+        matches!(
+            err,
+            EmbedError::TooManyVoxels {
+                limit: 10,
+                estimate: 11,
+                ..
+            }
+        ),
         "{err}"
     );
     // Two tiny yarns ten kilometres apart at a micrometre voxel: grid too wide.
@@ -666,7 +673,11 @@ fn dense_garment_bound_counts_real_voxels() {
     let pts: Vec<[f64; 3]> = (0..n)
         .map(|i| {
             let t = i as f64;
-            [0.02 + 0.019 * (t * 0.37).sin(), 0.02 + 0.019 * (t * 0.11).cos(), 0.02 + 0.019 * (t * 0.05).sin()]
+            [
+                0.02 + 0.019 * (t * 0.37).sin(),
+                0.02 + 0.019 * (t * 0.11).cos(),
+                0.02 + 0.019 * (t * 0.05).sin(),
+            ]
         })
         .collect();
     let y = yarns_of(&[(pts, false)]);

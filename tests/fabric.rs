@@ -57,7 +57,10 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     let mut with_rest = Fabric::new(&relaxed, &fp).unwrap();
     let gauge = with_rest.twist_gauge();
     let r_with = with_rest.static_residual(&gauge);
-    assert!(r_with <= 1e-4, "relaxed state off equilibrium by {r_with} N");
+    assert!(
+        r_with <= 1e-4,
+        "relaxed state off equilibrium by {r_with} N"
+    );
 
     // Stretch: the swatch pulls the moving clamp back, more at 10% than at
     // 5%, narrows in the middle, and the two clamps' forces balance.
@@ -69,10 +72,20 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         ..StretchParams::default()
     };
     let mut balance = Vec::new();
-    let rig = Rig::new(&relaxed.points, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], sp.clamp_depth);
+    let rig = Rig::new(
+        &relaxed.points,
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        sp.clamp_depth,
+    );
     let r = stretch_test(&relaxed, &fp, &sp, &mut |f| {
         let sum = |mask: &[bool]| -> f64 {
-            f.reactions.iter().zip(mask).filter(|(_, m)| **m).map(|(r, _)| r[0]).sum()
+            f.reactions
+                .iter()
+                .zip(mask)
+                .filter(|(_, m)| **m)
+                .map(|(r, _)| r[0])
+                .sum()
         };
         balance.push((sum(&rig.low), sum(&rig.high)));
         Ok(())
@@ -81,10 +94,17 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     let p = &r.points;
     assert_eq!(p.len(), 3);
     assert!(p[2].force_n > p[1].force_n && p[1].force_n > 0.0, "{p:?}");
-    assert!(p[2].energy_j > p[1].energy_j && p[1].energy_j > p[0].energy_j, "{p:?}");
+    assert!(
+        p[2].energy_j > p[1].energy_j && p[1].energy_j > p[0].energy_j,
+        "{p:?}"
+    );
     assert!(p[2].compression > 0.0, "{p:?}");
     assert!(r.min_distance_ratio > 0.75);
-    assert!(r.hold_energy_change.abs() < 0.05, "{}", r.hold_energy_change);
+    assert!(
+        r.hold_energy_change.abs() < 0.05,
+        "{}",
+        r.hold_energy_change
+    );
     let (low, high) = balance[2];
     assert!(
         (low + high).abs() <= 0.02 * high.abs() + 1e-4,
@@ -110,7 +130,10 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         output_dir: Some(dir.path().join("out")),
     };
     let report = run(&job).unwrap();
-    assert!(report.relaxation.is_none(), "a file with a rest shape is not relaxed again");
+    assert!(
+        report.relaxation.is_none(),
+        "a file with a rest shape is not relaxed again"
+    );
     let TestFigures::Stretch(s) = &report.figures else {
         panic!("not a stretch report")
     };
@@ -124,7 +147,11 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         .filter(|&v| rig.high[v])
         .map(|v| reactions[3 * (relaxed.num_points() + v)])
         .sum();
-    assert!((fx - s.points[1].force_n).abs() <= 1e-9 * fx.abs().max(1e-12), "{fx} vs {}", s.points[1].force_n);
+    assert!(
+        (fx - s.points[1].force_n).abs() <= 1e-9 * fx.abs().max(1e-12),
+        "{fx} vs {}",
+        s.points[1].force_n
+    );
     let csv = std::fs::read_to_string(dir.path().join("out/stretch.csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "{csv}");
 }
@@ -133,12 +160,27 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
 fn fabric_test_command_prints_the_stretch_curve_as_json() {
     let out = std::process::Command::new(common::knitvox_bin())
         .args([
-            "fabric-test", "stretch", "--pattern", "rib1x1", "--width", "0.02", "--length", "0.035",
-            "--max-stretch", "0.05", "--steps", "1", "--json",
+            "fabric-test",
+            "stretch",
+            "--pattern",
+            "rib1x1",
+            "--width",
+            "0.02",
+            "--length",
+            "0.035",
+            "--max-stretch",
+            "0.05",
+            "--steps",
+            "1",
+            "--json",
         ])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["test"], "stretch");
     assert_eq!(v["direction"], "weft");
@@ -146,11 +188,27 @@ fn fabric_test_command_prints_the_stretch_curve_as_json() {
     let pts = v["points"].as_array().unwrap();
     assert_eq!(pts.len(), 2);
     assert!(pts[1]["force_n"].as_f64().unwrap() > 0.0, "{}", v);
-    assert!(v["relaxation"]["contact"]["near_fraction"].as_f64().unwrap() > 0.0);
+    assert!(
+        v["relaxation"]["contact"]["near_fraction"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
     // A bad parameter is a usage error naming it.
     let bad = std::process::Command::new(common::knitvox_bin())
-        .args(["fabric-test", "stretch", "--pattern", "rib1x1", "--max-stretch=5"])
+        .args([
+            "fabric-test",
+            "stretch",
+            "--pattern",
+            "rib1x1",
+            "--max-stretch=5",
+        ])
         .output()
         .unwrap();
-    assert_eq!(bad.status.code(), Some(2), "{}", String::from_utf8_lossy(&bad.stderr));
+    assert_eq!(
+        bad.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
 }

@@ -5,8 +5,8 @@
 use std::time::Instant;
 
 use knitvox::yarn::fabric::{
-    hang_test, relax_into_contact, stretch_test, Direction, FabricParams, HangParams,
-    RelaxParams, StretchParams,
+    hang_test, relax_into_contact, stretch_test, Direction, FabricParams, HangParams, RelaxParams,
+    StretchParams,
 };
 use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
 
@@ -52,7 +52,10 @@ fn relax_stretch_hang() {
     );
     println!("relax {:.1} s", t0.elapsed().as_secs_f64());
     if env_f("FS_STRETCH", 1.0) > 0.0 {
-        let dir: Direction = std::env::var("FS_DIR").unwrap_or("weft".into()).parse().unwrap();
+        let dir: Direction = std::env::var("FS_DIR")
+            .unwrap_or("weft".into())
+            .parse()
+            .unwrap();
         let sp = StretchParams {
             direction: dir,
             steps: env_f("FS_STEPS", 5.0) as usize,
@@ -96,9 +99,20 @@ fn stretch_step_diagnostic() {
         Ok(d) => d.yarns,
         Err(_) => {
             let tile = build_tile(&builtin(&pattern).unwrap(), &PatternParams::default()).unwrap();
-            let y = lay_out(&tile, &Layout { courses, wales, tube_radius: None, helix: false, separate_courses: false }).unwrap();
+            let y = lay_out(
+                &tile,
+                &Layout {
+                    courses,
+                    wales,
+                    tube_radius: None,
+                    helix: false,
+                    separate_courses: false,
+                },
+            )
+            .unwrap();
             let (r, _) = relax_into_contact(&y, &fp, &RelaxParams::default()).unwrap();
-            knitvox::io::write_path(std::path::Path::new(&cache), &r, None, &Default::default()).unwrap();
+            knitvox::io::write_path(std::path::Path::new(&cache), &r, None, &Default::default())
+                .unwrap();
             r
         }
     };
@@ -108,7 +122,10 @@ fn stretch_step_diagnostic() {
     fp2.solver.max_iterations = env_f("FS_ITERS", 300.0) as usize;
     let mut fabric = Fabric::new(&relaxed, &fp2).unwrap();
     let free = fabric.twist_gauge();
-    println!("static residual at rest {:.3e}", fabric.static_residual(&free));
+    println!(
+        "static residual at rest {:.3e}",
+        fabric.static_residual(&free)
+    );
     let rig = Rig::new(&relaxed.points, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], 8e-3);
     let clamped = rig.any_clamped();
     let mut fixed = vec![false; fabric.q.len()];
@@ -118,8 +135,16 @@ fn stretch_step_diagnostic() {
     let s1 = rig.s_max - rig.clamp_depth;
     let affine = env_f("FS_AFFINE", 1.0) > 0.0;
     for v in 0..fabric.num_vertices() {
-        if rig.low[v] { continue; }
-        let frac = if rig.high[v] { 1.0 } else if affine { ((fabric.q[3 * v] - s0) / (s1 - s0)).clamp(0.0, 1.0) } else { 0.0 };
+        if rig.low[v] {
+            continue;
+        }
+        let frac = if rig.high[v] {
+            1.0
+        } else if affine {
+            ((fabric.q[3 * v] - s0) / (s1 - s0)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         fabric.q[3 * v] += frac * du;
     }
     let t = Instant::now();
@@ -127,8 +152,17 @@ fn stretch_step_diagnostic() {
     match r {
         Ok(st) => {
             let h = &st.residual_history;
-            println!("converged in {} its, capped {}, halvings {}, regularized {}, {:.1} s", st.iterations, st.capped, st.halvings, st.regularized, t.elapsed().as_secs_f64());
-            for (k, v) in h.iter().enumerate().step_by(10) { println!("  it {k}: {v:.3e}"); }
+            println!(
+                "converged in {} its, capped {}, halvings {}, regularized {}, {:.1} s",
+                st.iterations,
+                st.capped,
+                st.halvings,
+                st.regularized,
+                t.elapsed().as_secs_f64()
+            );
+            for (k, v) in h.iter().enumerate().step_by(10) {
+                println!("  it {k}: {v:.3e}");
+            }
         }
         Err(e) => println!("failed: {e} after {:.1} s", t.elapsed().as_secs_f64()),
     }

@@ -87,9 +87,15 @@ fn gltf_uris_stay_in_the_folder() {
 
     // Control: a URI inside the folder is read (the test can fail).
     std::fs::write(input.join("a.gltf"), gltf_with_uri("ok.bin")).unwrap();
-    let (o, _) = knitvox_in(&input, &["convert", "a.gltf", "ok.obj"], Duration::from_secs(20));
+    let (o, _) = knitvox_in(
+        &input,
+        &["convert", "a.gltf", "ok.obj"],
+        Duration::from_secs(20),
+    );
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(std::fs::read_to_string(input.join("ok.obj")).unwrap().contains("1.25"));
+    assert!(std::fs::read_to_string(input.join("ok.obj"))
+        .unwrap()
+        .contains("1.25"));
 
     let abs = secret.to_str().unwrap().to_string();
     let abs_encoded = abs.replace('/', "%2F");
@@ -114,7 +120,10 @@ fn gltf_uris_stay_in_the_folder() {
         let (o, t) = knitvox_in(&input, &["convert", &name, &out], Duration::from_secs(20));
         let e = stderr(&o);
         assert_eq!(o.status.code(), Some(65), "{uri}: {e}");
-        assert!(e.contains(&name) && e.contains("/buffers/0/uri") && e.contains(why), "{uri}: {e}");
+        assert!(
+            e.contains(&name) && e.contains("/buffers/0/uri") && e.contains(why),
+            "{uri}: {e}"
+        );
         assert!(t < Duration::from_secs(10), "{uri}: took {t:?}");
         assert!(!input.join(&out).exists(), "{uri}: output written");
     }
@@ -139,13 +148,23 @@ fn gltf_buffer_reads_at_most_byte_length() {
     assert_eq!(o.status.code(), Some(65), "{e}");
     assert!(e.contains("20 bytes") && e.contains("48"), "{e}");
     // Declares more than the memory budget: refused before reading.
-    let big = gltf_with_uri("short.bin").replace("\"byteLength\":48,\"uri\"", "\"byteLength\":1000000000000,\"uri\"");
+    let big = gltf_with_uri("short.bin").replace(
+        "\"byteLength\":48,\"uri\"",
+        "\"byteLength\":1000000000000,\"uri\"",
+    );
     assert!(big.contains("1000000000000"), "{big}");
     std::fs::write(root.join("b.gltf"), big).unwrap();
-    let (o, _) = knitvox_in(&root, &["inspect", "--max-memory", "1G", "b.gltf"], Duration::from_secs(20));
+    let (o, _) = knitvox_in(
+        &root,
+        &["inspect", "--max-memory", "1G", "b.gltf"],
+        Duration::from_secs(20),
+    );
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(65), "{e}");
-    assert!(e.contains("b.gltf") && e.contains("/buffers/0/byteLength") && e.contains("1073741824"), "{e}");
+    assert!(
+        e.contains("b.gltf") && e.contains("/buffers/0/byteLength") && e.contains("1073741824"),
+        "{e}"
+    );
     std::fs::remove_dir_all(&root).unwrap();
 }
 
@@ -170,7 +189,11 @@ fn python(dir: &Path, script: &str) {
 fn yarns_h5(dir: &Path) {
     std::fs::write(dir.join("ok.bin"), mark_bytes()).unwrap();
     std::fs::write(dir.join("src.gltf"), gltf_with_uri("ok.bin")).unwrap();
-    let (o, _) = knitvox_in(dir, &["convert", "src.gltf", "base.h5"], Duration::from_secs(20));
+    let (o, _) = knitvox_in(
+        dir,
+        &["convert", "src.gltf", "base.h5"],
+        Duration::from_secs(20),
+    );
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
@@ -216,7 +239,10 @@ with h5py.File("virt.h5", "a") as f:
         let e = stderr(&o);
         assert_eq!(o.status.code(), Some(65), "{file}: {e}");
         assert!(!dir.join("out.obj").exists());
-        assert!(e.contains(file) && e.contains("/yarns/points") && e.contains(why), "{file}: {e}");
+        assert!(
+            e.contains(file) && e.contains("/yarns/points") && e.contains(why),
+            "{file}: {e}"
+        );
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -258,7 +284,10 @@ with h5py.File("bomb.h5", "a") as f:
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(65), "{e}");
     assert!(
-        e.contains("bomb.h5") && e.contains("/yarns/points") && e.contains("4320000000 bytes") && e.contains("1073741824"),
+        e.contains("bomb.h5")
+            && e.contains("/yarns/points")
+            && e.contains("4320000000 bytes")
+            && e.contains("1073741824"),
         "{e}"
     );
     eprintln!("bomb of {size} bytes refused in {t:?}");
@@ -272,21 +301,60 @@ fn overflowing_counts_are_usage_errors() {
     std::fs::write(dir.join("s.toml"), "[simulation]\n").unwrap();
     for (args, want) in [
         (
-            &["export", "a.vtkhdf", "--frames", "9223372036854775807", "-o", "d"][..],
+            &[
+                "export",
+                "a.vtkhdf",
+                "--frames",
+                "9223372036854775807",
+                "-o",
+                "d",
+            ][..],
             "9223372036854775807",
         ),
         (
-            &["export", "a.vtkhdf", "--frames=-9223372036854775808-9223372036854775807", "-o", "d"],
+            &[
+                "export",
+                "a.vtkhdf",
+                "--frames=-9223372036854775808-9223372036854775807",
+                "-o",
+                "d",
+            ],
             "1000000000",
         ),
-        (&["convert", "a.obj", "b.obj", "--first-frame", "9223372036854775807"], "first-frame"),
-        (&["embed", "a.obj", "-o", "a.vtkhdf", "--max-memory", "12Q"], "max-memory"),
         (
-            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-1000000", "--dt", "1e-6", "-o", "o.vtkhdf"],
+            &[
+                "convert",
+                "a.obj",
+                "b.obj",
+                "--first-frame",
+                "9223372036854775807",
+            ],
+            "first-frame",
+        ),
+        (
+            &["embed", "a.obj", "-o", "a.vtkhdf", "--max-memory", "12Q"],
+            "max-memory",
+        ),
+        (
+            &[
+                "simulate",
+                "a.vtkhdf",
+                "--scene",
+                "s.toml",
+                "--frames",
+                "1-1000000",
+                "--dt",
+                "1e-6",
+                "-o",
+                "o.vtkhdf",
+            ],
             "more than the limit of 10000000",
         ),
         (
-            &["simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-2", "--fps", "1e-300", "-o", "o.vtkhdf"],
+            &[
+                "simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-2", "--fps", "1e-300",
+                "-o", "o.vtkhdf",
+            ],
             "more than the limit of 10000000",
         ),
     ] {
@@ -312,16 +380,37 @@ fn outputs_never_overwrite_inputs() {
         &["convert", "a.obj", "alias.obj"],
         &["convert", "a.obj", "sub/../a.obj"],
         &["embed", "a.obj", "-o", "./alias.obj"],
-        &["pattern", "--grid", "a.obj", "--courses", "2", "--wales", "2", "-o", "a.obj"],
+        &[
+            "pattern",
+            "--grid",
+            "a.obj",
+            "--courses",
+            "2",
+            "--wales",
+            "2",
+            "-o",
+            "a.obj",
+        ],
     ] {
         let (o, _) = knitvox_in(&dir, args, Duration::from_secs(20));
         let e = stderr(&o);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
-        assert!(e.contains("never overwrites an input") && e.contains("a.obj"), "{args:?}: {e}");
-        assert_eq!(std::fs::read_to_string(dir.join("a.obj")).unwrap(), obj, "{args:?}");
+        assert!(
+            e.contains("never overwrites an input") && e.contains("a.obj"),
+            "{args:?}: {e}"
+        );
+        assert_eq!(
+            std::fs::read_to_string(dir.join("a.obj")).unwrap(),
+            obj,
+            "{args:?}"
+        );
     }
     // Control: another name converts.
-    let (o, _) = knitvox_in(&dir, &["convert", "a.obj", "b.obj"], Duration::from_secs(20));
+    let (o, _) = knitvox_in(
+        &dir,
+        &["convert", "a.obj", "b.obj"],
+        Duration::from_secs(20),
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     for name in ["../x", "a/b", ".."] {
         let (o, _) = knitvox_in(
@@ -365,9 +454,15 @@ fn sigterm_mid_write_leaves_no_temporary() {
     let t0 = Instant::now();
     while temps(&dir).is_empty() {
         if let Some(s) = child.try_wait().unwrap() {
-            panic!("yls ended early ({s}): {:?}", child.wait_with_output().unwrap().stderr);
+            panic!(
+                "yls ended early ({s}): {:?}",
+                child.wait_with_output().unwrap().stderr
+            );
         }
-        assert!(t0.elapsed() < Duration::from_secs(60), "no temporary file appeared");
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "no temporary file appeared"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
@@ -376,7 +471,10 @@ fn sigterm_mid_write_leaves_no_temporary() {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
-        assert!(t1.elapsed() < Duration::from_secs(10), "SIGTERM did not end the run");
+        assert!(
+            t1.elapsed() < Duration::from_secs(10),
+            "SIGTERM did not end the run"
+        );
         std::thread::sleep(Duration::from_millis(20));
     };
     use std::os::unix::process::ExitStatusExt;
@@ -389,7 +487,11 @@ fn sigterm_mid_write_leaves_no_temporary() {
 #[test]
 fn scene_counts_are_bounded_and_name_the_key() {
     let dir = scratch("scenes");
-    std::fs::write(dir.join("it.toml"), "[simulation]\nmax_iterations = 4000000000\n").unwrap();
+    std::fs::write(
+        dir.join("it.toml"),
+        "[simulation]\nmax_iterations = 4000000000\n",
+    )
+    .unwrap();
     std::fs::write(
         dir.join("folds.toml"),
         "name = \"f\"\nduration = 1.0\nframe_rate = 60\n[swatch]\npattern = \"rib1x1\"\ncourses = 4\nwales = 4\n\
@@ -404,11 +506,16 @@ fn scene_counts_are_bounded_and_name_the_key() {
     .unwrap();
     for (args, words) in [
         (
-            &["simulate", "a.vtkhdf", "--scene", "it.toml", "--frames", "1-2", "-o", "o.vtkhdf"][..],
+            &[
+                "simulate", "a.vtkhdf", "--scene", "it.toml", "--frames", "1-2", "-o", "o.vtkhdf",
+            ][..],
             &["it.toml", "max_iterations", "10000"][..],
         ),
         (&["yls", "folds.toml", "-o", "o.h5"], &["folds", "10000"]),
-        (&["yls", "frames.toml", "-o", "o.h5"], &["frames.toml", "duration", "1000000"]),
+        (
+            &["yls", "frames.toml", "-o", "o.h5"],
+            &["frames.toml", "duration", "1000000"],
+        ),
     ] {
         let (o, t) = knitvox_in(&dir, args, Duration::from_secs(20));
         let e = stderr(&o);

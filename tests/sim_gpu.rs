@@ -841,7 +841,10 @@ fn gpu_elastic_rhs_takes_new_materials_in_place() {
         .collect();
     let (cpu_old, ..) = cpu_rhs(&old, &x);
     let (cpu_new, ..) = cpu_rhs(&new, &x);
-    assert!(rel_diff(&cpu_old, &cpu_new) > 0.1, "the two materials differ");
+    assert!(
+        rel_diff(&cpu_old, &cpu_new) > 0.1,
+        "the two materials differ"
+    );
     assert!(gpu_rhs.update_materials(&new).unwrap());
     let mut out = vec![[f64::NAN; 3]; mesh.num_nodes()];
     gpu_rhs.evaluate(&x, &mut out).unwrap();

@@ -546,7 +546,10 @@ fn failing_yarns_out_leaves_no_outputs() {
     ]);
     assert_ne!(code, 0, "{err}");
     assert!(!out.exists(), "a fresh asset was left: {err}");
-    assert!(!dir.path().join("ys/s.0001.ply").exists(), "a partial sequence was left");
+    assert!(
+        !dir.path().join("ys/s.0001.ply").exists(),
+        "a partial sequence was left"
+    );
     // Output == input.
     let before = std::fs::read(&asset_path).unwrap();
     let (code, _, err) = run(&[

@@ -79,12 +79,21 @@ pub struct HangArgs {
 fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
     let size = [s.width, s.length];
     if !size.iter().all(|v| v.is_finite() && *v > 0.0 && *v <= 2.0) {
-        return Err(format!("--width and --length must be in (0, 2] m, got {} and {}", s.width, s.length));
+        return Err(format!(
+            "--width and --length must be in (0, 2] m, got {} and {}",
+            s.width, s.length
+        ));
     }
     let swatch = match (&s.yarns, &s.pattern, &s.grid) {
         (Some(p), _, _) => SwatchSource::Yarns(p.clone()),
-        (None, Some(n), _) => SwatchSource::Pattern { source: PatternSource::Builtin(n.clone()), size },
-        (None, None, Some(g)) => SwatchSource::Pattern { source: PatternSource::GridFile(g.clone()), size },
+        (None, Some(n), _) => SwatchSource::Pattern {
+            source: PatternSource::Builtin(n.clone()),
+            size,
+        },
+        (None, None, Some(g)) => SwatchSource::Pattern {
+            source: PatternSource::GridFile(g.clone()),
+            size,
+        },
         (None, None, None) => return Err("give a yarn file, --pattern NAME or --grid FILE".into()),
     };
     Ok(FabricTestJob {

@@ -26,14 +26,20 @@ pub fn parse_bytes(s: &str) -> Result<u64, String> {
         "m" | "mb" | "mib" => 20,
         "g" | "gb" | "gib" => 30,
         "t" | "tb" | "tib" => 40,
-        _ => return Err(format!("'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G")),
+        _ => {
+            return Err(format!(
+                "'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G"
+            ))
+        }
     };
-    let v: f64 = num
-        .parse()
-        .map_err(|_| format!("'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G"))?;
+    let v: f64 = num.parse().map_err(|_| {
+        format!("'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G")
+    })?;
     let bytes = v * (1u64 << shift) as f64;
     if !(bytes >= 1.0 && bytes < u64::MAX as f64) {
-        return Err(format!("'{s}': the budget must be at least 1 byte and below 2^64"));
+        return Err(format!(
+            "'{s}': the budget must be at least 1 byte and below 2^64"
+        ));
     }
     Ok(bytes as u64)
 }
@@ -76,7 +82,10 @@ fn io_paths(cli: &Cli) -> (Vec<&Path>, Vec<&Path>) {
             (ins, outs)
         }
         Command::Yls(a) => (vec![p(&a.scene)], vec![p(&a.output)]),
-        Command::Pattern(a) => (a.grid.iter().map(|g| g.as_path()).collect(), vec![p(&a.output)]),
+        Command::Pattern(a) => (
+            a.grid.iter().map(|g| g.as_path()).collect(),
+            vec![p(&a.output)],
+        ),
         _ => (Vec::new(), Vec::new()),
     }
 }
@@ -93,7 +102,10 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
         }
     }
     let canon = |p: &Path| {
-        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let dir = p
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
         std::fs::canonicalize(dir)
             .ok()
             .zip(p.file_name().map(|n| n.to_os_string()))

@@ -4,8 +4,8 @@
 mod asset;
 mod bench;
 mod commands;
-mod fabric_test;
 pub mod exit;
+mod fabric_test;
 pub mod guard;
 mod pattern;
 mod simulate;

@@ -166,7 +166,10 @@ mod tests {
         }
         assert_eq!(FrameSpec::all(3).frames(), vec![0, 1, 2]);
         let e = "9223372036854775807".parse::<FrameSpec>().unwrap_err();
-        assert!(e.contains("9223372036854775807") && e.contains("1000000000"), "{e}");
+        assert!(
+            e.contains("9223372036854775807") && e.contains("1000000000"),
+            "{e}"
+        );
         assert_eq!(f("999999999-1000000000"), vec![999_999_999, 1_000_000_000]);
     }
 }

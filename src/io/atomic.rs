@@ -13,7 +13,8 @@ use super::IoError;
 /// table of leaked C strings so the signal handler needs no allocation or
 /// lock (async-signal-safe: atomic loads and `unlink`).
 const MAX_TEMPS: usize = 64;
-static TEMPS: [AtomicPtr<libc::c_char>; MAX_TEMPS] = [const { AtomicPtr::new(std::ptr::null_mut()) }; MAX_TEMPS];
+static TEMPS: [AtomicPtr<libc::c_char>; MAX_TEMPS] =
+    [const { AtomicPtr::new(std::ptr::null_mut()) }; MAX_TEMPS];
 
 /// A temporary path registered for removal on SIGINT/SIGTERM; unregistered
 /// (and its C string freed) when dropped.
@@ -32,7 +33,12 @@ impl TempGuard {
             let raw = c.into_raw();
             for (i, slot) in TEMPS.iter().enumerate() {
                 if slot
-                    .compare_exchange(std::ptr::null_mut(), raw, Ordering::AcqRel, Ordering::Acquire)
+                    .compare_exchange(
+                        std::ptr::null_mut(),
+                        raw,
+                        Ordering::AcqRel,
+                        Ordering::Acquire,
+                    )
                     .is_ok()
                 {
                     return TempGuard(Some(i));

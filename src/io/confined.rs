@@ -46,11 +46,15 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
     // A scheme (`file:`, `http:`, a Windows drive `C:`) comes before any '/'.
     let head = uri.split(['/', '?', '#']).next().unwrap_or("");
     if head.contains(':') {
-        return Err(format!("refusing URI '{uri}': only relative paths are followed (it has a scheme)"));
+        return Err(format!(
+            "refusing URI '{uri}': only relative paths are followed (it has a scheme)"
+        ));
     }
     let bytes = percent_decode_bytes(uri);
     if bytes.contains(&0) {
-        return Err(format!("refusing URI '{uri}': it holds a NUL byte once decoded"));
+        return Err(format!(
+            "refusing URI '{uri}': it holds a NUL byte once decoded"
+        ));
     }
     #[cfg(unix)]
     let path = {
@@ -64,7 +68,9 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
     }
     if path.is_absolute()
         || path.has_root()
-        || path.components().any(|c| matches!(c, Component::Prefix(_) | Component::RootDir))
+        || path
+            .components()
+            .any(|c| matches!(c, Component::Prefix(_) | Component::RootDir))
         || bytes.starts_with(b"\\")
     {
         return Err(format!(
@@ -183,8 +189,18 @@ mod tests {
         assert_eq!(percent_decode_bytes("100%"), b"100%");
         assert_eq!(percent_decode_bytes("%zz"), b"%zz");
         assert_eq!(percent_decode_bytes("x%2"), b"x%2");
-        assert_eq!(relative_path("a%20b.bin").unwrap(), PathBuf::from("a b.bin"));
-        for bad in ["%2Fetc%2Fpasswd", "/etc/passwd", "file:///etc/passwd", "C:x", "a%00b", ""] {
+        assert_eq!(
+            relative_path("a%20b.bin").unwrap(),
+            PathBuf::from("a b.bin")
+        );
+        for bad in [
+            "%2Fetc%2Fpasswd",
+            "/etc/passwd",
+            "file:///etc/passwd",
+            "C:x",
+            "a%00b",
+            "",
+        ] {
             assert!(relative_path(bad).is_err(), "{bad}");
         }
     }

@@ -931,9 +931,9 @@ impl<'a> Reader<'a> {
         })?;
         if self.buffers[b].is_none() {
             let path = format!("/buffers/{b}");
-            let data: Cow<'a, [u8]> =
-                match &buf.uri {
-                    None => match self.bin {
+            let data: Cow<'a, [u8]> = match &buf.uri {
+                None => {
+                    match self.bin {
                         Some(bin) if b == 0 => Cow::Borrowed(bin),
                         Some(_) => return Err(at(
                             path,
@@ -945,29 +945,30 @@ impl<'a> Reader<'a> {
                                 "buffer has no uri and the file has no GLB BIN chunk",
                             ))
                         }
-                    },
-                    Some(uri) if uri.starts_with("data:") => {
-                        Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?)
                     }
-                    Some(uri) => {
-                        let declared = buf.byte_length.0;
-                        if declared > self.opts.max_memory {
-                            return Err(at(
+                }
+                Some(uri) if uri.starts_with("data:") => {
+                    Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?)
+                }
+                Some(uri) => {
+                    let declared = buf.byte_length.0;
+                    if declared > self.opts.max_memory {
+                        return Err(at(
                                 format!("{path}/byteLength"),
                                 format!(
                                     "external buffer declares {declared} bytes, more than the memory budget of {} bytes (--max-memory)",
                                     self.opts.max_memory
                                 ),
                             ));
-                        }
-                        Cow::Owned(self.res.load(uri, declared).map_err(|e| {
-                            at(
-                                format!("{path}/uri"),
-                                format!("cannot load external buffer '{uri}': {e}"),
-                            )
-                        })?)
                     }
-                };
+                    Cow::Owned(self.res.load(uri, declared).map_err(|e| {
+                        at(
+                            format!("{path}/uri"),
+                            format!("cannot load external buffer '{uri}': {e}"),
+                        )
+                    })?)
+                }
+            };
             let declared = buf.byte_length.0;
             if (data.len() as u64) < declared {
                 return Err(at(

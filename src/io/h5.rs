@@ -1305,11 +1305,15 @@ impl FramesOut {
         }
         let m = self.mechanics.as_ref().expect("created above");
         if m.energy.shape()[0] != f {
-            return Err(hdf5::Error::from("mechanics written twice or skipped for a frame"));
+            return Err(hdf5::Error::from(
+                "mechanics written twice or skipped for a frame",
+            ));
         }
         m.energy.resize([f + 1])?;
-        m.energy
-            .write_slice(ndarray::ArrayView1::from(&[energy][..]), ndarray::s![f..f + 1])?;
+        m.energy.write_slice(
+            ndarray::ArrayView1::from(&[energy][..]),
+            ndarray::s![f..f + 1],
+        )?;
         for (ds, v) in [(&m.reactions, reactions), (&m.external, external)] {
             ds.resize([f + 1, self.n.max(1), 3])?;
             if self.n > 0 {
@@ -1509,7 +1513,10 @@ impl FrameWriter {
     ) -> Result<(), IoError> {
         let path = self.path.clone();
         let (Some(out), Some(file)) = (self.frames.as_mut(), self.file.as_ref()) else {
-            return Err(write_err(&path, std::io::Error::other("writer already finished")));
+            return Err(write_err(
+                &path,
+                std::io::Error::other("writer already finished"),
+            ));
         };
         if out.count == 0 || reactions.len() != out.n || external.len() != out.n {
             return Err(write_err(
@@ -1524,7 +1531,11 @@ impl FrameWriter {
             ));
         }
         if !energy.is_finite()
-            || reactions.iter().chain(external).flatten().any(|v| !v.is_finite())
+            || reactions
+                .iter()
+                .chain(external)
+                .flatten()
+                .any(|v| !v.is_finite())
         {
             return Err(write_err(
                 &path,

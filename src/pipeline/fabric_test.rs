@@ -12,9 +12,8 @@ use crate::geom::Yarns;
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
 use crate::yarn::fabric::{
-    hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams,
-    HangParams, HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams,
-    StretchResult,
+    hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams, HangParams,
+    HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams, StretchResult,
 };
 use crate::yarn::pattern::{build_tile, lay_out, Layout, PatternParams};
 
@@ -23,7 +22,10 @@ use crate::yarn::pattern::{build_tile, lay_out, Layout, PatternParams};
 pub enum SwatchSource {
     /// A pattern laid out to `size` = [width across the test axis, length
     /// along it] (m), after the relaxation's shrinkage estimate.
-    Pattern { source: PatternSource, size: [f64; 2] },
+    Pattern {
+        source: PatternSource,
+        size: [f64; 2],
+    },
     /// A yarn file (relaxed first when it carries no rest shape).
     Yarns(PathBuf),
 }
@@ -85,7 +87,9 @@ impl FabricTestError {
     pub fn class(&self) -> io::ErrorClass {
         match self {
             FabricTestError::Io(e) => e.class(),
-            FabricTestError::Pattern(PatternStageError::Read { .. }) => io::ErrorClass::MissingInput,
+            FabricTestError::Pattern(PatternStageError::Read { .. }) => {
+                io::ErrorClass::MissingInput
+            }
             FabricTestError::Output { .. } => io::ErrorClass::Output,
             _ => io::ErrorClass::BadInput,
         }
@@ -135,7 +139,13 @@ fn fabric_err(what: &str) -> impl FnOnce(FabricError) -> FabricTestError + '_ {
 /// Courses x wales of a pattern so that, shrunk by the relaxation's rest
 /// length scale, the swatch measures about `size` ([across, along] the
 /// test direction).
-fn layout_for(pitch: [f64; 2], repeat: [usize; 2], size: [f64; 2], dir: Direction, scale: f64) -> Layout {
+fn layout_for(
+    pitch: [f64; 2],
+    repeat: [usize; 2],
+    size: [f64; 2],
+    dir: Direction,
+    scale: f64,
+) -> Layout {
     let (along_x, along_y) = match dir {
         Direction::Weft => (size[1], size[0]),
         Direction::Warp => (size[0], size[1]),
@@ -170,7 +180,13 @@ pub fn swatch(
             let pat = load_pattern(source)?;
             let params = PatternParams::default();
             let tile = build_tile(&pat, &params).map_err(PatternStageError::Pattern)?;
-            let layout = layout_for(tile.pitch, tile.repeat, *size, job.test.direction(), job.relax.length_scale);
+            let layout = layout_for(
+                tile.pitch,
+                tile.repeat,
+                *size,
+                job.test.direction(),
+                job.relax.length_scale,
+            );
             let y = lay_out(&tile, &layout).map_err(PatternStageError::Pattern)?;
             let name = match source {
                 PatternSource::Builtin(n) => n.clone(),
@@ -214,7 +230,10 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
                 }
             }
             let mut w = FrameWriter::create(&target, &yarns)?;
-            w.add_text("fabric_parameters_json", &serde_json::to_string(&job.fabric).unwrap_or_default())?;
+            w.add_text(
+                "fabric_parameters_json",
+                &serde_json::to_string(&job.fabric).unwrap_or_default(),
+            )?;
             Some(w)
         }
         None => None,
@@ -228,14 +247,18 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
             if let Err(e) = r {
                 let msg = e.to_string();
                 io_error = Some(e);
-                return Err(FabricError::Setup(format!("writing frame {}: {msg}", f.index)));
+                return Err(FabricError::Setup(format!(
+                    "writing frame {}: {msg}",
+                    f.index
+                )));
             }
         }
         Ok(())
     };
     let figures = match &job.test {
-        FabricTest::Stretch(p) => stretch_test(&yarns, &job.fabric, p, &mut on_frame)
-            .map(TestFigures::Stretch),
+        FabricTest::Stretch(p) => {
+            stretch_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Stretch)
+        }
         FabricTest::Hang(p) => {
             hang_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Hang)
         }

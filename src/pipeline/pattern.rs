@@ -264,7 +264,10 @@ mod tests {
         // One yarn knitted back and forth, with the model's linear density.
         assert_eq!(r.curves, 1);
         let ld = y.linear_density.as_ref().unwrap()[0];
-        assert!((ld - 120.0 * std::f64::consts::PI * 1e-6).abs() < 1e-12, "{ld}");
+        assert!(
+            (ld - 120.0 * std::f64::consts::PI * 1e-6).abs() < 1e-12,
+            "{ld}"
+        );
         assert_eq!(r.vertices, y.num_points());
         assert!(!r.relaxed);
         assert!(r.min_distance_ratio >= 0.95, "{}", r.min_distance_ratio);

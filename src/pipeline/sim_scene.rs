@@ -412,7 +412,10 @@ impl Scene {
             ));
         }
         if !(s.dt.0.is_finite() && s.dt.0 > 0.0) {
-            return Err(format!("simulation.dt: must be > 0 and finite (got {})", s.dt.0));
+            return Err(format!(
+                "simulation.dt: must be > 0 and finite (got {})",
+                s.dt.0
+            ));
         }
         if !finite(&self.garment.rotate_deg)
             || !finite(&self.garment.translate)

@@ -208,7 +208,9 @@ impl ElasticRhs for CpuElasticRhs {
     }
 
     fn update_materials(&mut self, model: &ElasticModel) -> Result<bool, SimError> {
-        if model.rest().len() != self.model.rest().len() || model.num_nodes() != self.model.num_nodes() {
+        if model.rest().len() != self.model.rest().len()
+            || model.num_nodes() != self.model.num_nodes()
+        {
             return Ok(false);
         }
         *self = CpuElasticRhs::new(model);

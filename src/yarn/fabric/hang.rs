@@ -89,7 +89,12 @@ pub fn hang_test(
     params.check()?;
     let t0 = Instant::now();
     let mut fabric = Fabric::new(yarns, fabric_params)?;
-    let rig = Rig::new(&yarns.points, [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], params.clamp_depth);
+    let rig = Rig::new(
+        &yarns.points,
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        params.clamp_depth,
+    );
     let mut fixed = vec![false; fabric.q.len()];
     fabric.clamp(&mut fixed, &rig.high);
     let n = fabric.num_vertices();
@@ -97,7 +102,11 @@ pub fn hang_test(
         mass: fabric.mass.clone(),
         g: [0.0, -params.gravity, 0.0],
     };
-    let external: Vec<_> = fabric.mass.iter().map(|m| [0.0, -m * params.gravity, 0.0]).collect();
+    let external: Vec<_> = fabric
+        .mass
+        .iter()
+        .map(|m| [0.0, -m * params.gravity, 0.0])
+        .collect();
     let y_low0 = rig.s_min;
     let height = rig.s_max - rig.s_min;
     let st = {
@@ -113,7 +122,14 @@ pub fn hang_test(
     };
     let (i, t, e, reactions) = frame(&mut fabric, &mut gravity, 0, 0.0);
     let x = fabric.points();
-    on_frame(&RigFrame { index: i, parameter: t, points: &x, energy: e, reactions: reactions.clone(), external: external.clone() })?;
+    on_frame(&RigFrame {
+        index: i,
+        parameter: t,
+        points: &x,
+        energy: e,
+        reactions: reactions.clone(),
+        external: external.clone(),
+    })?;
     let clamp_force_n: f64 = reactions.iter().map(|f| f[1]).sum::<f64>().abs();
     let steps = (params.watch_time / params.dt).round() as usize;
     let mut prev = fabric.q[..3 * n].to_vec();
@@ -128,14 +144,24 @@ pub fn hang_test(
         }
         max_speed = (0..n)
             .map(|v| {
-                let d: f64 = (0..3).map(|c| (fabric.q[3 * v + c] - cur[3 * v + c]).powi(2)).sum();
+                let d: f64 = (0..3)
+                    .map(|c| (fabric.q[3 * v + c] - cur[3 * v + c]).powi(2))
+                    .sum();
                 d.sqrt() / params.dt
             })
             .fold(0.0, f64::max);
         prev = cur;
-        let (i, t, e, reactions) = frame(&mut fabric, &mut gravity, k + 1, (k + 1) as f64 * params.dt);
+        let (i, t, e, reactions) =
+            frame(&mut fabric, &mut gravity, k + 1, (k + 1) as f64 * params.dt);
         let x = fabric.points();
-        on_frame(&RigFrame { index: i, parameter: t, points: &x, energy: e, reactions, external: external.clone() })?;
+        on_frame(&RigFrame {
+            index: i,
+            parameter: t,
+            points: &x,
+            energy: e,
+            reactions,
+            external: external.clone(),
+        })?;
     }
     let x = fabric.points();
     let y_low = x.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);

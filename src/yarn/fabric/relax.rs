@@ -126,7 +126,12 @@ pub fn relax_into_contact(
             max_rounds: params.max_rounds,
             tolerance: tol,
         };
-        let st = fabric.settle(&mut [], &fixed, &settle, &format!("relaxation stage {stage}"))?;
+        let st = fabric.settle(
+            &mut [],
+            &fixed,
+            &settle,
+            &format!("relaxation stage {stage}"),
+        )?;
         rounds += st.rounds;
         iterations += st.newton_iterations;
         min_seen = min_seen.min(st.min_distance_ratio);
@@ -139,7 +144,9 @@ pub fn relax_into_contact(
     let relaxed_points = fabric.points();
     let mut rest = RodRest::from_positions(&topo, &relaxed_points)?;
     rest.l0 = fabric.rods.rest().l0.clone();
-    let mut out = yarns.with_points(&relaxed_points).map_err(|e| FabricError::Setup(e.to_string()))?;
+    let mut out = yarns
+        .with_points(&relaxed_points)
+        .map_err(|e| FabricError::Setup(e.to_string()))?;
     out.rest = Some(rest.to_shape(&topo));
     fabric.rods.set_rest(rest)?;
     let contact = fabric.contact_stats();

@@ -102,6 +102,10 @@ impl Rig {
     }
 
     pub fn any_clamped(&self) -> Vec<bool> {
-        self.low.iter().zip(&self.high).map(|(a, b)| *a || *b).collect()
+        self.low
+            .iter()
+            .zip(&self.high)
+            .map(|(a, b)| *a || *b)
+            .collect()
     }
 }

@@ -171,7 +171,9 @@ pub fn stretch_test(
             .sum();
         let x = fabric.points();
         let cst = fabric.contact_stats();
-        min_ratio = min_ratio.min(st.min_distance_ratio).min(cst.min_distance_ratio);
+        min_ratio = min_ratio
+            .min(st.min_distance_ratio)
+            .min(cst.min_distance_ratio);
         points.push(StretchPoint {
             stretch,
             force_n: force,

@@ -30,8 +30,16 @@ impl RodRest {
         let rest = RodRest {
             l0: shape.lengths.clone(),
             d1: shape.directors.clone(),
-            kappa_bar: topo.hinges.iter().map(|h| shape.curvature[h.vertices[1]]).collect(),
-            m_bar: topo.hinges.iter().map(|h| shape.twist[h.vertices[1]]).collect(),
+            kappa_bar: topo
+                .hinges
+                .iter()
+                .map(|h| shape.curvature[h.vertices[1]])
+                .collect(),
+            m_bar: topo
+                .hinges
+                .iter()
+                .map(|h| shape.twist[h.vertices[1]])
+                .collect(),
         };
         rest.check(topo)?;
         Ok(rest)
@@ -56,7 +64,11 @@ mod tests {
         let ring: Vec<[f64; 3]> = (0..9)
             .map(|i| {
                 let t = i as f64 * std::f64::consts::TAU / 9.0;
-                [0.05 + 0.01 * t.cos(), 0.012 * t.sin(), 0.003 * (2.0 * t).sin()]
+                [
+                    0.05 + 0.01 * t.cos(),
+                    0.012 * t.sin(),
+                    0.003 * (2.0 * t).sin(),
+                ]
             })
             .collect();
         y.push_curve(&ring, true, 1e-3);

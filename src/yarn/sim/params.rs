@@ -220,10 +220,35 @@ mod tests {
     fn infinite_and_inconsistent_values_are_refused() {
         assert!(YarnSimParams::default().validate().is_ok());
         let cases = [
-            (YarnSimParams { cfl: f64::INFINITY, ..Default::default() }, "cfl"),
-            (YarnSimParams { density: f64::INFINITY, ..Default::default() }, "density"),
-            (YarnSimParams { max_dt: f64::NAN, ..Default::default() }, "max_dt"),
-            (YarnSimParams { min_dt: 1e-3, max_dt: 1e-4, ..Default::default() }, "min_dt"),
+            (
+                YarnSimParams {
+                    cfl: f64::INFINITY,
+                    ..Default::default()
+                },
+                "cfl",
+            ),
+            (
+                YarnSimParams {
+                    density: f64::INFINITY,
+                    ..Default::default()
+                },
+                "density",
+            ),
+            (
+                YarnSimParams {
+                    max_dt: f64::NAN,
+                    ..Default::default()
+                },
+                "max_dt",
+            ),
+            (
+                YarnSimParams {
+                    min_dt: 1e-3,
+                    max_dt: 1e-4,
+                    ..Default::default()
+                },
+                "min_dt",
+            ),
         ];
         for (p, key) in cases {
             match p.validate() {

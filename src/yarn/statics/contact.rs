@@ -115,7 +115,12 @@ impl ContactTerm {
             active += usize::from(d < rsum);
             min_ratio = min_ratio.min(d / rsum);
             if d < NEAR_FACTOR * rsum {
-                for (v, (s0, s1)) in [(a0, (b0, b1)), (a1, (b0, b1)), (b0, (a0, a1)), (b1, (a0, a1))] {
+                for (v, (s0, s1)) in [
+                    (a0, (b0, b1)),
+                    (a1, (b0, b1)),
+                    (b0, (a0, a1)),
+                    (b1, (a0, a1)),
+                ] {
                     if v < n && point_segment_distance(x[v], x[s0], x[s1]) < NEAR_FACTOR * rsum {
                         near[v] = true;
                     }
