@@ -8,7 +8,6 @@ use std::time::Instant;
 use super::model::{Fabric, FabricError, FabricParams, Settle};
 use super::rig::Rig;
 use super::stretch::{vertex_forces, RigFrame};
-use super::InertiaTerm;
 use crate::geom::Yarns;
 use crate::yarn::statics::{EnergyTerm, GravityTerm};
 
@@ -135,13 +134,11 @@ pub fn hang_test(
     let mut prev = fabric.q[..3 * n].to_vec();
     let mut max_speed: f64 = 0.0;
     for k in 0..steps {
-        let cur = fabric.q[..3 * n].to_vec();
-        let target: Vec<f64> = cur.iter().zip(&prev).map(|(c, p)| 2.0 * c - p).collect();
-        let mut inertia = InertiaTerm::new(fabric.mass.clone(), target, params.dt);
-        {
-            let mut extra: [&mut dyn EnergyTerm; 2] = [&mut inertia, &mut gravity];
-            fabric.solve(&mut extra, &fixed, &format!("hanging, step {k}"))?;
-        }
+        let cur = {
+            let mut extra: [&mut dyn EnergyTerm; 1] = [&mut gravity];
+            let stage = format!("hanging, step {k}");
+            fabric.implicit_euler_step(&prev, params.dt, &mut extra, &fixed, &stage)?
+        };
         max_speed = (0..n)
             .map(|v| {
                 let d: f64 = (0..3)

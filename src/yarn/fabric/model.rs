@@ -201,12 +201,40 @@ impl Fabric {
     /// Largest `|dE/dq|` over the coordinates not `fixed` (N, or N m for
     /// twists), rods + contact only.
     pub fn static_residual(&mut self, fixed: &[bool]) -> f64 {
-        let (_, g) = self.gradient(&mut []);
+        self.residual_with(&mut [], fixed)
+    }
+
+    /// Largest free `|dE/dq|` of rods + contact + `extra`.
+    fn residual_with(&mut self, extra: &mut [&mut dyn EnergyTerm], fixed: &[bool]) -> f64 {
+        let (_, g) = self.gradient(extra);
         g.iter()
             .zip(fixed)
             .filter(|(_, f)| !**f)
             .map(|(g, _)| g.abs())
             .fold(0.0, f64::max)
+    }
+
+    /// One implicit-Euler step of size `dt` (Gast et al. 2015: the inertia
+    /// term plus rods + contact + `extra`), from positions `prev` one step
+    /// ago to the current ones; returns the positions before the step (the
+    /// next call's `prev`).
+    pub fn implicit_euler_step(
+        &mut self,
+        prev: &[f64],
+        dt: f64,
+        extra: &mut [&mut dyn EnergyTerm],
+        fixed: &[bool],
+        stage: &str,
+    ) -> Result<Vec<f64>, FabricError> {
+        let cur = self.q[..3 * self.num_vertices()].to_vec();
+        let target: Vec<f64> = cur.iter().zip(prev).map(|(c, p)| 2.0 * c - p).collect();
+        let mut inertia = super::InertiaTerm::new(self.mass.clone(), target, dt);
+        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut inertia];
+        for t in extra.iter_mut() {
+            terms.push(&mut **t);
+        }
+        self.solve(&mut terms, fixed, stage)?;
+        Ok(cur)
     }
 
     /// Elastic energy (rods + contact, J).
@@ -256,13 +284,7 @@ impl Fabric {
             out.min_distance_ratio = out
                 .min_distance_ratio
                 .min(self.contact_stats().min_distance_ratio);
-            let (_, g) = self.gradient(extra);
-            out.residual = g
-                .iter()
-                .zip(fixed)
-                .filter(|(_, f)| !**f)
-                .map(|(g, _)| g.abs())
-                .fold(0.0, f64::max);
+            out.residual = self.residual_with(extra, fixed);
             if out.residual <= settle.tolerance {
                 out.converged = true;
                 break;

@@ -8,9 +8,7 @@ use std::time::Instant;
 
 use super::model::{Fabric, FabricError, FabricParams, Settle};
 use super::rig::{along, Direction, Rig};
-use super::InertiaTerm;
 use crate::geom::{Vec3, Yarns};
-use crate::yarn::statics::EnergyTerm;
 
 /// Controls of [`stretch_test`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -238,12 +236,7 @@ fn hold(fabric: &mut Fabric, fixed: &[bool], params: &StretchParams) -> Result<f
     let dt = params.settle.dt;
     let mut prev = fabric.q[..3 * n].to_vec();
     for k in 0..params.hold_steps {
-        let cur = fabric.q[..3 * n].to_vec();
-        let target: Vec<f64> = cur.iter().zip(&prev).map(|(c, p)| 2.0 * c - p).collect();
-        let mut inertia = InertiaTerm::new(fabric.mass.clone(), target, dt);
-        let mut extra: [&mut dyn EnergyTerm; 1] = [&mut inertia];
-        fabric.solve(&mut extra, fixed, &format!("hold step {k}"))?;
-        prev = cur;
+        prev = fabric.implicit_euler_step(&prev, dt, &mut [], fixed, &format!("hold step {k}"))?;
     }
     let e1 = fabric.elastic_energy();
     Ok(if e0 > 0.0 { (e1 - e0) / e0 } else { 0.0 })
