@@ -93,8 +93,13 @@ fn stretch_step_diagnostic() {
     let pattern = std::env::var("FS_PATTERN").unwrap_or("rib1x1".into());
     let courses = env_f("FS_COURSES", 6.0) as usize;
     let wales = env_f("FS_WALES", 4.0) as usize;
-    let cache = format!("/tmp/relaxed_{pattern}_{courses}x{wales}.h5");
-    let fp = FabricParams::default();
+    let mut fp = FabricParams::default();
+    fp.rods.bend_scale = env_f("FS_GAMMA", fp.rods.bend_scale);
+    let scale = env_f("FS_SCALE", 0.9);
+    let cache = format!(
+        "/tmp/relaxed_{pattern}_{courses}x{wales}_g{}_s{scale}.h5",
+        fp.rods.bend_scale
+    );
     let relaxed = match knitvox::io::read_path(std::path::Path::new(&cache), &Default::default()) {
         Ok(d) => d.yarns,
         Err(_) => {
@@ -110,7 +115,12 @@ fn stretch_step_diagnostic() {
                 },
             )
             .unwrap();
-            let (r, _) = relax_into_contact(&y, &fp, &RelaxParams::default()).unwrap();
+            let rp = RelaxParams {
+                length_scale: scale,
+                ..RelaxParams::default()
+            };
+            let (r, rs) = relax_into_contact(&y, &fp, &rp).unwrap();
+            println!("relaxed: {rs:?}");
             knitvox::io::write_path(std::path::Path::new(&cache), &r, None, &Default::default())
                 .unwrap();
             r
@@ -118,7 +128,7 @@ fn stretch_step_diagnostic() {
     };
     assert!(relaxed.rest.is_some());
     let mut fp2 = fp.clone();
-    fp2.solver.max_displacement = env_f("FS_CAP", 0.25) * 1e-3;
+    fp2.solver.max_displacement = env_f("FS_CAP", f64::INFINITY) * 1e-3;
     fp2.solver.max_iterations = env_f("FS_ITERS", 300.0) as usize;
     let mut fabric = Fabric::new(&relaxed, &fp2).unwrap();
     let free = fabric.twist_gauge();
@@ -153,13 +163,21 @@ fn stretch_step_diagnostic() {
         Ok(st) => {
             let h = &st.residual_history;
             println!(
-                "converged in {} its, capped {}, halvings {}, regularized {}, {:.1} s",
+                "converged in {} its, capped {}, halvings {}, regularized {}, {:.1} s \
+                 (assembly {:.0} ms, factor {:.0} ms, solve {:.0} ms, line search {:.0} ms; \
+                 symbolic {})",
                 st.iterations,
                 st.capped,
                 st.halvings,
                 st.regularized,
-                t.elapsed().as_secs_f64()
+                t.elapsed().as_secs_f64(),
+                st.assembly_ms,
+                st.factor_ms,
+                st.solve_ms,
+                st.line_search_ms,
+                st.symbolic_factorizations
             );
+            println!("contacts: {:?}", fabric.contact_stats());
             for (k, v) in h.iter().enumerate().step_by(10) {
                 println!("  it {k}: {v:.3e}");
             }

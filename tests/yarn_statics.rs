@@ -266,3 +266,86 @@ fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
     // They separated from the initial 0.8.
     assert!(st.min_distance_ratio > 0.8, "{st:?}");
 }
+
+#[test]
+fn yarn_pulled_through_another_stops_on_it_with_large_steps_allowed() {
+    use knitvox::yarn::sim::YarnSimParams;
+    use knitvox::yarn::statics::ContactTerm;
+    // B's middle starts 3 r above A (no contact); its clamped ends are 4 r
+    // below A,
+    // so its unconstrained equilibrium lies on the far side of A. Steps of
+    // up to 10 r per vertex are allowed: only the contact's own move limits
+    // (0.45 of each candidate pair's distance) keep B from jumping through.
+    let y = crossing(3.0 * R);
+    let params = RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    };
+    let topo = RodTopology::new(&y).unwrap();
+    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
+    let mut q = topo.q_from_points(&y.points);
+    let mut fixed = vec![false; q.len()];
+    for v in [0, 1, 39, 40, 41, 42, 80, 81] {
+        fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
+    }
+    for e in [0, 39, 40, 79] {
+        fixed[topo.twist_dof(e)] = true;
+    }
+    // A smooth arch: the ends down by 7 r, the middle in place.
+    for v in 41..82 {
+        let z = q[3 * v + 2] / 0.01;
+        q[3 * v + 1] -= 7.0 * R * z * z;
+    }
+    let mut rods = RodEnergy::new(topo, rest, &params, &q).unwrap();
+    let mut contact = ContactTerm::new(&y, &YarnSimParams::default(), 10.0 * R).unwrap();
+    let sp = StaticParams {
+        force_tolerance: 1e-8,
+        max_displacement: 10.0 * R,
+        clip_per_vertex: true,
+        ..StaticParams::default()
+    };
+    let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
+    let stats = solve_static(
+        &mut terms,
+        &mut q,
+        &fixed,
+        &sp,
+        &mut SymbolicCache::default(),
+    )
+    .unwrap();
+    assert!(stats.converged, "{stats:?}");
+    // B's middle (vertex 61) rests on A's middle (vertex 20), not below it.
+    let gap = q[3 * 61 + 1] - q[3 * 20 + 1];
+    assert!(gap > 1.5 * R, "B is {gap} m above A");
+    let st = contact.stats(&q);
+    assert!(
+        st.active_pairs > 0 && st.min_distance_ratio > 0.75,
+        "{st:?}"
+    );
+}
+
+#[test]
+fn contact_limits_the_moves_of_nearby_vertices_only() {
+    use knitvox::yarn::sim::YarnSimParams;
+    use knitvox::yarn::statics::ContactTerm;
+    // Yarns crossing 3 r apart (centre distance): A's and B's middle
+    // vertices may move at most 0.45 of the pair distance, 1.35 r; far
+    // vertices are not limited by the crossing.
+    let y = crossing(3.0 * R);
+    let contact = ContactTerm::new(&y, &YarnSimParams::default(), 2.0 * R).unwrap();
+    let q: Vec<f64> = y.points.iter().flatten().copied().collect();
+    let mut caps = vec![1.0; y.num_points()];
+    contact.limit_vertex_moves(&q, &mut caps);
+    for v in [20, 61] {
+        assert!(
+            (caps[v] - 0.45 * 3.0 * R).abs() < 1e-12,
+            "vertex {v}: cap {}",
+            caps[v]
+        );
+    }
+    // Far from the crossing only the yarn's own distant segments (beyond
+    // the excluded neighbours, 4-4.5 mm along it) limit a vertex.
+    for v in [0, 40, 41, 81] {
+        assert!(caps[v] >= 1.75 * R, "vertex {v}: cap {}", caps[v]);
+    }
+}

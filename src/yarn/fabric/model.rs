@@ -12,10 +12,14 @@ use crate::yarn::statics::{
 };
 
 /// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
-/// stockinette/rib, r = 1 mm).
+/// stockinette/rib, r = 1 mm, except the bending scale).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FabricParams {
-    /// Rod material: E 5e5 Pa, G 2e5 Pa, bend/twist scale 1e-3.
+    /// Rod material: E 5e5 Pa, G 2e5 Pa (HYLC Table 1) and bend/twist scale
+    /// 1, not HYLC's 1e-3: bending `E pi r^4 / 4` = 3.9e-7 N m^2 is Sperl
+    /// 2022 §7.3.2's base rod stiffness `k_s R^2 / 4` and the order of real
+    /// knitting yarns' bending rigidity; with 1e-3 a 6 cm rib stretched 30%
+    /// pulls back with ~2e-4 N where fabrics need 0.1-5 N (Sperl §4.3).
     pub rods: RodParams,
     /// Kaldor contact stiffness k_contact (J/m^2). Default 60.
     pub contact_stiffness: f64,
@@ -23,8 +27,9 @@ pub struct FabricParams {
     /// Default 120.
     pub density: f64,
     /// Newton controls (force tolerance 1e-5 N, 1e-5 of a fabric test's
-    /// ~1 N; per-vertex step clipping); the displacement cap defaults to a quarter of the
-    /// smallest yarn radius (set by [`Fabric::new`] when infinite).
+    /// ~1 N; per-vertex step clipping); the displacement cap defaults to
+    /// [`MAX_MOVE_RADII`] smallest yarn radii (set by [`Fabric::new`] when
+    /// infinite), lowered near contacts.
     pub solver: StaticParams,
 }
 
@@ -32,7 +37,10 @@ impl Default for FabricParams {
     fn default() -> Self {
         let y = YarnSimParams::default();
         FabricParams {
-            rods: RodParams::default(),
+            rods: RodParams {
+                bend_scale: 1.0,
+                ..RodParams::default()
+            },
             contact_stiffness: y.contact_stiffness,
             density: y.density,
             solver: StaticParams {
@@ -64,6 +72,12 @@ pub enum FabricError {
     NoEquilibrium(String),
 }
 
+/// Default largest move of a vertex in one Newton iteration, in smallest
+/// yarn radii: also the contact skin, so pairs farther than the radii plus
+/// two of it cannot meet within an iteration. Nearer pairs bound their own
+/// vertices' moves (`ContactTerm::limit_vertex_moves`).
+pub const MAX_MOVE_RADII: f64 = 2.0;
+
 /// Rods + contact + masses of one yarn set, and its current coordinates.
 pub struct Fabric {
     pub rods: RodEnergy,
@@ -88,6 +102,7 @@ impl Fabric {
             None => RodRest::from_positions(&topo, &yarns.points)?,
         };
         let q = topo.q_from_points(&yarns.points);
+        let topo_vertices = topo.n_vertices;
         let rods = RodEnergy::new(topo, rest, &params.rods, &q)?;
         let r_min = (0..yarns.num_points())
             .map(|v| yarns.radius_at(v))
@@ -99,9 +114,11 @@ impl Fabric {
         };
         let mut p = params.clone();
         if !p.solver.max_displacement.is_finite() {
-            p.solver.max_displacement = 0.25 * r_min;
+            p.solver.max_displacement = MAX_MOVE_RADII * r_min;
         }
-        let contact = ContactTerm::new(yarns, &ysp, p.solver.max_displacement)?;
+        p.solver.position_points = Some(topo_vertices);
+        let mut contact = ContactTerm::new(yarns, &ysp, p.solver.max_displacement)?;
+        contact.set_rest_lengths(&rods.topology().edges, &rods.rest().l0)?;
         let mass = lumped_masses(yarns, params.density);
         Ok(Fabric {
             rods,
@@ -112,6 +129,15 @@ impl Fabric {
             params: p,
             cache: SymbolicCache::default(),
         })
+    }
+
+    /// Replaces the rest state of the rods and, with its lengths, the
+    /// arclength the contact integrates over.
+    pub fn set_rest(&mut self, rest: RodRest) -> Result<(), FabricError> {
+        self.contact
+            .set_rest_lengths(&self.rods.topology().edges, &rest.l0)?;
+        self.rods.set_rest(rest)?;
+        Ok(())
     }
 
     pub fn num_vertices(&self) -> usize {

@@ -305,6 +305,22 @@ impl RodEnergy {
         Ok(())
     }
 
+    /// First material director of every edge at `q` (the frames must have
+    /// been updated to `q`): the reference director turned by the edge's
+    /// twist angle about its tangent. A rest state whose `d1` are these
+    /// directors and whose curvatures and twists are kept describes the same
+    /// energy at `q` with zero twist angles (how a relaxed state is stored).
+    pub fn material_directors(&self, q: &[f64]) -> Vec<Vec3> {
+        (0..self.topo.num_edges())
+            .map(|e| {
+                let (t, u) = (self.state.t[e], self.state.u[e]);
+                let th = q[self.topo.twist_dof(e)];
+                let v = crate::geom::vec3::cross(t, u);
+                [0, 1, 2].map(|c| th.cos() * u[c] + th.sin() * v[c])
+            })
+            .collect()
+    }
+
     pub fn params(&self) -> &RodParams {
         &self.params
     }

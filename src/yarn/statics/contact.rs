@@ -52,6 +52,10 @@ pub struct ContactStats {
     pub near_fraction: f64,
 }
 
+/// Fraction of a candidate pair's distance each of its vertices may move in
+/// one solver iteration.
+const MOVE_FRACTION: f64 = 0.45;
+
 /// The "touching" tolerance of [`ContactStats::near_fraction`].
 pub const NEAR_FACTOR: f64 = 1.02;
 
@@ -96,6 +100,43 @@ impl ContactTerm {
             model,
             set,
         })
+    }
+
+    /// Integrates over the given rest lengths (m) of the yarn segments
+    /// `edges` (vertex pairs, in the yarns' segment order) instead of the
+    /// lengths the term was built with, so the contact energy follows the
+    /// rods' rest state (Leaf Eq. 9 integrates over rest arclength).
+    pub fn set_rest_lengths(
+        &mut self,
+        edges: &[[usize; 2]],
+        lengths: &[f64],
+    ) -> Result<(), YarnSimError> {
+        let bad = |message: String| YarnSimError::Param {
+            name: "rest lengths",
+            message,
+        };
+        if edges.len() != lengths.len() {
+            return Err(bad(format!(
+                "{} lengths for {} segments",
+                lengths.len(),
+                edges.len()
+            )));
+        }
+        for c in self.model.csegs.iter_mut().filter(|c| c.real) {
+            let s = c.base as usize;
+            let same = edges
+                .get(s)
+                .is_some_and(|e| e[0] == c.v[0] as usize && e[1] == c.v[1] as usize);
+            if !same || !(lengths[s] > 0.0 && lengths[s].is_finite()) {
+                return Err(bad(format!(
+                    "segment {s} does not match the contact segment {:?} or has length {}",
+                    c.v,
+                    lengths.get(s).copied().unwrap_or(f64::NAN)
+                )));
+            }
+            c.l0 = lengths[s];
+        }
+        Ok(())
     }
 
     /// Active pairs, contacts per vertex and the minimum distance ratio at `q`.
@@ -244,5 +285,27 @@ impl EnergyTerm for ContactTerm {
     fn begin_iteration(&mut self, q: &[f64]) {
         let x = points_of(q, self.model.n_real);
         self.set.build(&self.model, &x);
+    }
+
+    /// Each vertex of a candidate pair moves less than 0.45 of the pair's
+    /// distance, so the two segments stay more than 0.1 of it apart along
+    /// the whole step (distance is 1-Lipschitz in the vertex moves): no yarn
+    /// passes through another. Pairs outside the candidate set are farther
+    /// than the radii plus two skins, which the solver's global cap (at most
+    /// the skin) keeps out of contact.
+    fn limit_vertex_moves(&self, q: &[f64], caps: &mut [f64]) {
+        let n = self.model.n_real.min(caps.len());
+        let x = points_of(q, self.model.n_real);
+        let cs = &self.model.csegs;
+        for p in &self.set.pairs {
+            let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
+            let ids = [a.v[0], a.v[1], b.v[0], b.v[1]].map(|v| v as usize);
+            let d = crate::yarn::sim::contact::segment_distance(
+                x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]],
+            );
+            for v in ids.into_iter().filter(|&v| v < n) {
+                caps[v] = caps[v].min(MOVE_FRACTION * d);
+            }
+        }
     }
 }

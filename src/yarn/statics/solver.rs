@@ -37,8 +37,14 @@ pub struct StaticParams {
     /// Most Newton iterations. Default 200.
     pub max_iterations: usize,
     /// Largest displacement of one vertex in one iteration (m). Default
-    /// infinity; contact problems set about half a yarn radius.
+    /// infinity. Terms may lower it per vertex
+    /// ([`EnergyTerm::limit_vertex_moves`]: contact keeps every yarn from
+    /// passing through another).
     pub max_displacement: f64,
+    /// How many leading 3-vectors of `q` are positions (m) that the
+    /// displacement caps apply to; the rest (twists, rad) are not capped.
+    /// Default `None`: all of `q` is positions.
+    pub position_points: Option<usize>,
     /// Armijo constant. Default 1e-4.
     pub armijo: f64,
     /// Most step halvings per iteration. Default 40.
@@ -56,6 +62,7 @@ impl Default for StaticParams {
             relative_tolerance: 1e-9,
             max_iterations: 200,
             max_displacement: f64::INFINITY,
+            position_points: None,
             armijo: 1e-4,
             max_halvings: 40,
             clip_per_vertex: false,
@@ -340,29 +347,12 @@ pub fn solve_static(
         for t in terms.iter() {
             alpha = alpha.min(t.max_step(q, &dq));
         }
-        let n_vert = n / 3;
-        let moves: Vec<f64> = (0..n_vert)
-            .map(|v| (dq[3 * v].powi(2) + dq[3 * v + 1].powi(2) + dq[3 * v + 2].powi(2)).sqrt())
-            .collect();
-        let max_move = moves.iter().copied().fold(0.0, f64::max);
-        if max_move * alpha > params.max_displacement {
-            let mut clipped = dq.clone();
-            if params.clip_per_vertex {
-                // Only the vertices that would move too far are shortened;
-                // kept when it is still a descent direction.
-                for (v, &m) in moves.iter().enumerate() {
-                    if m * alpha > params.max_displacement {
-                        let f = params.max_displacement / (m * alpha);
-                        clipped[3 * v..3 * v + 3].iter_mut().for_each(|d| *d *= f);
-                    }
-                }
-            }
-            let slope_c: f64 = grad.iter().zip(&clipped).map(|(g, d)| g * d).sum();
-            if params.clip_per_vertex && slope_c < 0.0 {
-                dq = clipped;
-            } else {
-                alpha = params.max_displacement / max_move;
-            }
+        let n_vert = params.position_points.unwrap_or(n / 3).min(n / 3);
+        let mut caps = vec![params.max_displacement; n_vert];
+        for t in terms.iter() {
+            t.limit_vertex_moves(q, &mut caps);
+        }
+        if clip_moves(&mut dq, &mut alpha, &grad, &caps, params.clip_per_vertex) {
             stats.capped += 1;
         }
         let slope: f64 = grad.iter().zip(&dq).map(|(g, d)| g * d).sum();
@@ -408,4 +398,43 @@ pub fn solve_static(
         })
         .collect();
     Ok(stats)
+}
+
+/// Applies the per-vertex displacement caps to the step `alpha dq`: with
+/// `per_vertex`, only the vertices that would move too far are shortened
+/// (kept when that is still a descent direction); otherwise, or when it is
+/// not, `alpha` shrinks until every vertex is within its cap. Returns
+/// whether the step was shortened.
+fn clip_moves(
+    dq: &mut [f64],
+    alpha: &mut f64,
+    grad: &[f64],
+    caps: &[f64],
+    per_vertex: bool,
+) -> bool {
+    let moves: Vec<f64> = (0..caps.len())
+        .map(|v| (dq[3 * v].powi(2) + dq[3 * v + 1].powi(2) + dq[3 * v + 2].powi(2)).sqrt())
+        .collect();
+    let over = |v: usize| moves[v] * *alpha > caps[v];
+    if !(0..caps.len()).any(over) {
+        return false;
+    }
+    if per_vertex {
+        let mut clipped = dq.to_vec();
+        for v in (0..caps.len()).filter(|&v| over(v)) {
+            let f = caps[v] / (moves[v] * *alpha);
+            clipped[3 * v..3 * v + 3].iter_mut().for_each(|d| *d *= f);
+        }
+        let slope: f64 = grad.iter().zip(&clipped).map(|(g, d)| g * d).sum();
+        if slope < 0.0 {
+            dq.copy_from_slice(&clipped);
+            return true;
+        }
+    }
+    let limit = (0..caps.len())
+        .filter(|&v| moves[v] > 0.0)
+        .map(|v| caps[v] / moves[v])
+        .fold(f64::INFINITY, f64::min);
+    *alpha = alpha.min(limit);
+    true
 }

@@ -84,6 +84,11 @@ pub trait EnergyTerm: Send + Sync {
         1.0
     }
 
+    /// Lowers `caps[v]`, the largest displacement (m) vertex `v` may make in
+    /// one iteration, where this term needs it (contact: no yarn may pass
+    /// through another within a step). Default: no bound.
+    fn limit_vertex_moves(&self, _q: &[f64], _caps: &mut [f64]) {}
+
     /// Called once a step has been accepted with the new iterate.
     fn accept(&mut self, _q: &[f64]) {}
 }
