@@ -185,3 +185,128 @@ fn stretch_step_diagnostic() {
         Err(e) => println!("failed: {e} after {:.1} s", t.elapsed().as_secs_f64()),
     }
 }
+
+/// The issue's fabric checks (ignored, ~minutes): stockinette and 1x1 rib,
+/// weft and warp, the default 6 cm x 10 cm swatch relaxed with the
+/// defaults, stretched to 50% in 5% steps; hung by the top edge.
+/// `cargo test --test fabric_study fabric_checks -- --ignored --nocapture`
+/// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset).
+#[test]
+#[ignore]
+fn fabric_checks() {
+    use knitvox::pipeline::fabric_test::{
+        run, FabricTest, FabricTestJob, SwatchSource, TestFigures,
+    };
+    use knitvox::pipeline::pattern::PatternSource;
+    let list = |name: &str, d: &str| -> Vec<String> {
+        std::env::var(name)
+            .unwrap_or(d.into())
+            .split(',')
+            .map(String::from)
+            .collect()
+    };
+    let mut failures = Vec::new();
+    for pattern in list("FC_PATTERNS", "stockinette,rib1x1") {
+        let job = |test: FabricTest| FabricTestJob {
+            swatch: SwatchSource::Pattern {
+                source: PatternSource::Builtin(pattern.clone()),
+                size: [0.06, 0.10],
+            },
+            test,
+            fabric: FabricParams::default(),
+            relax: RelaxParams::default(),
+            output_dir: None,
+        };
+        for dir in list("FC_DIRS", "weft,warp") {
+            let sp = StretchParams {
+                direction: dir.parse().unwrap(),
+                max_stretch: 0.5,
+                steps: 10,
+                ..StretchParams::default()
+            };
+            let t = Instant::now();
+            let rep = run(&job(FabricTest::Stretch(sp))).unwrap();
+            let TestFigures::Stretch(r) = &rep.figures else {
+                panic!()
+            };
+            let relax = rep.relaxation.as_ref().unwrap();
+            let at = |s: f64| {
+                r.points
+                    .iter()
+                    .find(|p| (p.stretch - s).abs() < 1e-9)
+                    .unwrap()
+            };
+            let (p10, p30, p40) = (at(0.1), at(0.3), at(0.4));
+            let stiffening = (p40.force_n / 0.4) / (p10.force_n / 0.1);
+            let iters: usize = r.points.iter().map(|p| p.newton_iterations).sum();
+            println!(
+                "{} {dir}: {} vertices, {:.1} x {:.1} mm; relax near {:.3} cpv {:.2} min {:.3}, {} its; \
+                 force 10/30/50% {:.3}/{:.3}/{:.3} N, stiffening {:.2}, compression@30 {:.3}, \
+                 hold {:+.4}, min ratio {:.3}, {} Newton its, {:.1} s",
+                rep.swatch,
+                r.vertices,
+                1e3 * r.width_m,
+                1e3 * r.length_m,
+                relax.contact.near_fraction,
+                relax.contact.contacts_per_vertex,
+                relax.min_distance_ratio_seen,
+                relax.newton_iterations,
+                p10.force_n,
+                p30.force_n,
+                at(0.5).force_n,
+                stiffening,
+                p30.compression,
+                r.hold_energy_change,
+                r.min_distance_ratio,
+                iters,
+                t.elapsed().as_secs_f64()
+            );
+            let mut check = |ok: bool, what: String| {
+                if !ok {
+                    failures.push(format!("{pattern} {dir}: {what}"));
+                }
+            };
+            check(
+                (0.1..=5.0).contains(&p30.force_n),
+                format!("force at 30% {} N", p30.force_n),
+            );
+            check(stiffening >= 2.0, format!("stiffening {stiffening}"));
+            check(
+                (0.05..=0.6).contains(&p30.compression),
+                format!("compression at 30% {}", p30.compression),
+            );
+            check(
+                r.hold_energy_change > -0.05,
+                format!("hold {}", r.hold_energy_change),
+            );
+            check(
+                relax.contact.near_fraction >= 0.15,
+                format!("near fraction {}", relax.contact.near_fraction),
+            );
+            check(
+                r.min_distance_ratio >= 0.75 && relax.min_distance_ratio_seen >= 0.75,
+                format!("min ratio {}", r.min_distance_ratio),
+            );
+        }
+        if std::env::var("FC_HANG").map_or(true, |v| v != "0") {
+            let t = Instant::now();
+            let rep = run(&job(FabricTest::Hang(HangParams::default()))).unwrap();
+            let TestFigures::Hang(h) = &rep.figures else {
+                panic!()
+            };
+            println!(
+                "{} hang: sag {:.4}, max speed {:.2e} m/s, {:.1} x {:.1} mm, {:.1} s",
+                rep.swatch,
+                h.sag_ratio,
+                h.max_speed_m_s,
+                1e3 * h.width_m,
+                1e3 * h.height_m,
+                t.elapsed().as_secs_f64()
+            );
+            if !(h.sag_ratio < 0.1 && h.max_speed_m_s < 1e-3) {
+                failures.push(format!("{pattern} hang: {h:?}"));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
