@@ -388,7 +388,7 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
             separate_courses: false,
         },
         params: PatternParams::default(),
-        relax: false,
+        relax: None,
     };
     // About 32 vertices per stitch for the knits; one correction from the
     // first swatch's count.

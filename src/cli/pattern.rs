@@ -7,6 +7,7 @@ use clap::Args;
 use super::{exit_code_for, ExitCode};
 use crate::io::{self, WriteOptions};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
+use crate::yarn::fabric::RelaxParams;
 use crate::yarn::pattern::{Layout, PatternError, PatternParams, BUILTIN_NAMES};
 
 #[derive(Debug, Args)]
@@ -46,10 +47,15 @@ pub struct PatternArgs {
     /// Vertex spacing along the yarn, in yarn radii.
     #[arg(long, value_name = "R", default_value_t = 1.25)]
     pub spacing: f64,
-    /// Skip the yarn-level relaxation (it is not wired in yet: the curves are
-    /// always the unrelaxed, interpenetration-free starting state).
+    /// Skip the relaxation into contact: write the loose generated curves,
+    /// without a rest shape.
     #[arg(long)]
     pub no_relax: bool,
+    /// Rest-length scale of the relaxation into contact (Leaf 2018 §6.1):
+    /// the yarns' rest lengths shrink to this fraction, pulling the loops
+    /// onto each other.
+    #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
+    pub length_scale: f64,
     /// Output yarn file (bcc, obj, ply, gltf, glb, h5).
     #[arg(long, short, value_name = "FILE")]
     pub output: PathBuf,
@@ -102,8 +108,20 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
             separate_courses: a.separate_courses,
         },
         params,
-        relax: !a.no_relax,
+        relax: (!a.no_relax).then(|| RelaxParams {
+            length_scale: a.length_scale,
+            ..RelaxParams::default()
+        }),
     };
+    if let Some(rp) = &job.relax {
+        if !(rp.length_scale > 0.5 && rp.length_scale <= 1.0) {
+            eprintln!(
+                "error: --length-scale {} is out of range (0.5, 1]",
+                rp.length_scale
+            );
+            return Ok(ExitCode::Usage);
+        }
+    }
     // Library errors are reported here: their exit codes depend on the kind
     // (an unknown name is a usage error, a bad grid bad input).
     let (yarns, mut report) = match generate(&job) {
@@ -122,6 +140,14 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
         }
     };
     report.written = written;
+    let format = io::Format::from_path(&a.output);
+    if yarns.rest.is_some() && !format.is_some_and(|f| f.holds_rest_shape()) {
+        eprintln!(
+            "warning: {} keeps the relaxed positions but not their rest shape (rest lengths, \
+             curvatures): a simulation from it starts from positions alone; write .h5 to keep it",
+            a.output.display()
+        );
+    }
     if report.min_distance_ratio < 0.95 {
         eprintln!(
             "warning: yarns come as close as {:.3} x 2r (shape parameters or tube radius too tight)",
@@ -150,6 +176,23 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
             report.min_distance_ratio,
             if report.relaxed { "relaxed" } else { "not relaxed" },
         );
+        if let Some(x) = &report.relaxation {
+            println!(
+                "relaxed into contact (rest lengths x {}): {:.4} x {:.4} m (generated {:.4} x {:.4}), \
+                 {:.2} contacts per vertex, {:.0}% of vertices touching, min distance {:.3} x 2r, \
+                 {} Newton iterations, {:.1} s",
+                x.length_scale,
+                x.size_after[0],
+                x.size_after[1],
+                x.size_before[0],
+                x.size_before[1],
+                x.contact.contacts_per_vertex,
+                100.0 * x.contact.near_fraction,
+                x.contact.min_distance_ratio,
+                x.newton_iterations,
+                x.seconds
+            );
+        }
         for p in &report.written {
             println!("{}", p.display());
         }

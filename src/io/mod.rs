@@ -124,6 +124,13 @@ impl Format {
         matches!(self, Format::Hdf5)
     }
 
+    /// Whether a file of this format stores the yarns' rest shape (rest
+    /// lengths, curvatures, twists and directors); the others keep only
+    /// the positions.
+    pub fn holds_rest_shape(self) -> bool {
+        matches!(self, Format::Hdf5)
+    }
+
     /// Formats whose files carry no length unit (the reader takes `--units`).
     pub fn is_unitless(self) -> bool {
         matches!(self, Format::Bcc | Format::Obj | Format::Poly | Format::Ply)

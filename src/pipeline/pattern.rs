@@ -1,18 +1,20 @@
 //! The `knitvox pattern` stage: a named or grid pattern -> periodic tile ->
-//! (relaxation) -> flat swatch or tube -> clearance check and report.
+//! flat swatch or tube -> relaxation into contact (quasi-static, rest
+//! lengths scaled, `yarn::fabric::relax_into_contact`) -> clearance check
+//! and report. The relaxed yarns carry the rest shape the simulators use.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
 use crate::geom::Yarns;
+use crate::yarn::fabric::{
+    relax_into_contact, FabricError, FabricParams, RelaxIntoContactStats, RelaxParams,
+};
 use crate::yarn::pattern::{
     self, build_tile, lay_out, min_segment_distance, Layout, Pattern, PatternError, PatternParams,
-    PatternTile,
 };
-use crate::yarn::sim::{
-    relax as relax_free, relax_periodic, RelaxOptions, RelaxStats, YarnSimParams,
-};
+use crate::yarn::sim::YarnSimParams;
 
 /// Where the pattern comes from.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,8 +31,9 @@ pub struct PatternJob {
     pub source: PatternSource,
     pub layout: Layout,
     pub params: PatternParams,
-    /// Run the yarn-level relaxation (currently a no-op, see `relax_stage`).
-    pub relax: bool,
+    /// Relax the swatch into contact with these controls (none: the
+    /// generated, loose curves without a rest shape).
+    pub relax: Option<RelaxParams>,
 }
 
 /// Why the stage failed. The CLI maps `UnknownPattern` to a usage error,
@@ -55,9 +58,9 @@ pub enum PatternStageError {
     UnknownPattern(PatternError),
     #[error("{0}")]
     Pattern(PatternError),
-    /// The yarn-level relaxation diverged or was given bad parameters.
+    /// The relaxation found no equilibrium or was given bad parameters.
     #[error("relaxation: {0}")]
-    Relax(crate::yarn::sim::YarnSimError),
+    Relax(FabricError),
 }
 
 /// What was generated (lengths in metres).
@@ -95,11 +98,12 @@ pub struct PatternReport {
     /// interpenetration), searched up to 4r; see `yarn::pattern::distance`.
     pub min_distance_ratio: f64,
     pub min_distance: f64,
-    /// Whether the yarn-level relaxation ran.
+    /// Whether the relaxation into contact ran.
     pub relaxed: bool,
-    /// Its statistics (steps, residuals, mean and largest segment strain,
-    /// minimum distance ratio during the relaxation).
-    pub relaxation: Option<RelaxReport>,
+    /// Its statistics: rest length scale, Newton iterations, residual (N),
+    /// contacts at the end (contacts per vertex, fraction of vertices
+    /// touching, minimum distance ratio), size before and after (m).
+    pub relaxation: Option<RelaxIntoContactStats>,
     /// Periodic tile figures.
     pub tile_curves: usize,
     pub tile_vertices: usize,
@@ -144,13 +148,22 @@ fn grid_error(path: &Path, e: PatternError) -> PatternStageError {
 pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStageError> {
     let pat = load_pattern(&job.source)?;
     let tile = build_tile(&pat, &job.params).map_err(PatternStageError::Pattern)?;
-    let (mut yarns, relaxation) = relax_stage(&tile, &job.layout, job.relax)?;
+    let mut yarns = lay_out(&tile, &job.layout).map_err(PatternStageError::Pattern)?;
     let r = job.params.yarn_radius;
     // One density source: the yarn model's density times the cross-section,
     // written with the curves so that `yls`, `embed` and `simulate` weigh
     // the same yarn (kg/m).
     let linear_density = YarnSimParams::default().density * std::f64::consts::PI * r * r;
     yarns.linear_density = Some(vec![linear_density; yarns.num_curves()]);
+    let relaxation = match &job.relax {
+        Some(rp) => {
+            let (relaxed, stats) = relax_into_contact(&yarns, &FabricParams::default(), rp)
+                .map_err(PatternStageError::Relax)?;
+            yarns = relaxed;
+            Some(stats)
+        }
+        None => None,
+    };
     let md = min_segment_distance(&yarns, std::f64::consts::PI * r, 4.0 * r);
     let stitches = (tile.repeat[0] * tile.repeat[1]).max(1) as f64;
     // Woven: a crossing holds one weft and one warp interval.
@@ -188,60 +201,6 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
     Ok((yarns, report))
 }
 
-/// Most steps of the periodic relaxation of one tile (explicit, Leaf §3;
-/// a tile is a few hundred vertices).
-pub const TILE_RELAX_STEPS: u64 = 20_000;
-/// Most steps of the short non-periodic relaxation of the laid-out swatch
-/// (it only settles the open edges and the tiling seams).
-pub const SWATCH_RELAX_STEPS: u64 = 1_500;
-
-/// Statistics of the relaxation stage.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct RelaxReport {
-    pub tile: RelaxStats,
-    pub swatch: RelaxStats,
-}
-
-/// The relaxation stage (issue 3): periodic relaxation of one tile (Leaf
-/// §5, fixed lattice), tiling into the layout, then a short non-periodic
-/// relaxation of the swatch. Returns the laid-out yarns and the statistics
-/// when a relaxation ran.
-fn relax_stage(
-    tile: &PatternTile,
-    layout: &Layout,
-    relax: bool,
-) -> Result<(Yarns, Option<RelaxReport>), PatternStageError> {
-    if !relax {
-        let yarns = lay_out(tile, layout).map_err(PatternStageError::Pattern)?;
-        return Ok((yarns, None));
-    }
-    let params = YarnSimParams::default();
-    let relax_err = PatternStageError::Relax;
-    let tile_opts = RelaxOptions {
-        max_steps: TILE_RELAX_STEPS,
-        ..RelaxOptions::default()
-    };
-    let (relaxed, tile_stats) =
-        relax_periodic(&tile.tile, &params, &tile_opts).map_err(relax_err)?;
-    let relaxed_tile = PatternTile {
-        tile: relaxed,
-        ..tile.clone()
-    };
-    let swatch = lay_out(&relaxed_tile, layout).map_err(PatternStageError::Pattern)?;
-    let swatch_opts = RelaxOptions {
-        max_steps: SWATCH_RELAX_STEPS,
-        ..RelaxOptions::default()
-    };
-    let (swatch, swatch_stats) = relax_free(&swatch, &params, &swatch_opts).map_err(relax_err)?;
-    Ok((
-        swatch,
-        Some(RelaxReport {
-            tile: tile_stats,
-            swatch: swatch_stats,
-        }),
-    ))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -258,7 +217,7 @@ mod tests {
                 separate_courses: false,
             },
             params: PatternParams::default(),
-            relax: false,
+            relax: None,
         };
         let (y, r) = generate(&job).unwrap();
         // One yarn knitted back and forth, with the model's linear density.

@@ -15,6 +15,7 @@ use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStage
 use crate::pipeline::simulate::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
 use crate::sim::collide::{MeshCollider, MeshTopology};
+use crate::yarn::fabric::RelaxParams;
 use crate::yarn::pattern::{Layout, PatternParams};
 use crate::yarn::poses::{PoseDriver, PoseError};
 use crate::yarn::sim::{
@@ -118,7 +119,7 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
             separate_courses: false,
         },
         params,
-        relax: s.relax.unwrap_or(true),
+        relax: s.relax.unwrap_or(true).then(RelaxParams::default),
     };
     let t = Instant::now();
     let (mut yarns, _) = generate(&job).map_err(|source| YlsError::Pattern {
@@ -128,6 +129,9 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
     let relax_ms = t.elapsed().as_secs_f64() * 1e3;
     if s.tube_radius.is_none() {
         yarns.map_points(lay_flat);
+        if let Some(rest) = yarns.rest.as_mut() {
+            rest.transform(1.0, lay_flat);
+        }
     }
     Ok((yarns, relax_ms))
 }

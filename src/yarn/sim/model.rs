@@ -120,6 +120,9 @@ struct Topo {
     succ: Vec<Option<(u32, [i32; 2])>>,
     pred: Vec<Option<(u32, [i32; 2])>>,
     shifts: Vec<[i32; 2]>,
+    /// Per vertex: rest curvature magnitude `|kb|` from a stored rest shape
+    /// (none: from the rest positions).
+    rest_curvature: Option<Vec<f64>>,
 }
 
 fn add2(a: [i32; 2], b: [i32; 2]) -> [i32; 2] {
@@ -145,6 +148,7 @@ impl Model {
             succ: Vec::new(),
             pred: Vec::new(),
             shifts: vec![[0, 0]],
+            rest_curvature: None,
         };
         for c in 0..y.num_curves() {
             let r = y.curve_range(c);
@@ -183,6 +187,30 @@ impl Model {
                 ]);
             }
         }
+        // A stored rest shape (a relaxed swatch's scaled lengths and
+        // curvatures) is the rest state; the positions are only the start.
+        let from_rest;
+        let length_scale = match (&y.rest, length_scale) {
+            (Some(rest), None) => {
+                rest.validate(t.base.len(), n)?;
+                t.rest_curvature = Some(
+                    rest.curvature
+                        .iter()
+                        .map(|k| 0.5 * (k[0].hypot(k[1]) + k[2].hypot(k[3])))
+                        .collect(),
+                );
+                from_rest = t
+                    .base
+                    .iter()
+                    .zip(&rest.lengths)
+                    .map(|(&[a, b], &l0)| {
+                        l0 / norm(sub(y.points[b.0 as usize], y.points[a.0 as usize]))
+                    })
+                    .collect::<Vec<f64>>();
+                Some(from_rest.as_slice())
+            }
+            (_, given) => given,
+        };
         finish(t, params, length_scale)
     }
 
@@ -208,6 +236,7 @@ impl Model {
             succ: Vec::new(),
             pred: Vec::new(),
             shifts: Vec::new(),
+            rest_curvature: None,
         };
         for i in -1..=1 {
             for j in -1..=1 {
@@ -426,7 +455,10 @@ fn finish(
         let (pa, pb, pc) = (pos(a), pos(b), pos(c));
         let e0 = sub(pb, pa);
         let e1 = sub(pc, pb);
-        let kappa0 = discrete_curvature(e0, e1);
+        let kappa0 = match &t.rest_curvature {
+            Some(k) => k[b.0 as usize],
+            None => discrete_curvature(e0, e1),
+        };
         // Rest lengths of the two segments, with any local scaling.
         let scale_of = |start: VRef| -> f64 {
             let key = (start.0, [0, 0]);
@@ -542,4 +574,43 @@ pub(crate) fn discrete_curvature(e0: Vec3, e1: Vec3) -> f64 {
     ];
     let d = e0[0] * e1[0] + e0[1] * e1[1] + e0[2] * e1[2];
     2.0 * norm(c) / (norm(e0) * norm(e1) + d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::yarn::rods::{RodRest, RodTopology};
+
+    /// A stored rest shape is the explicit model's rest state: its lengths
+    /// and curvature magnitudes, not the positions'.
+    #[test]
+    fn stored_rest_shape_sets_rest_lengths_and_curvatures() {
+        let rest_pts: Vec<Vec3> = (0..9)
+            .map(|i| {
+                let a = 0.3 * i as f64;
+                [0.01 * a.cos(), 0.01 * a.sin(), 0.001 * i as f64]
+            })
+            .collect();
+        let mut y = Yarns::new();
+        y.push_curve(&rest_pts, false, 1e-3);
+        let topo = RodTopology::new(&y).unwrap();
+        let mut rest = RodRest::from_positions(&topo, &rest_pts).unwrap();
+        rest.l0.iter_mut().for_each(|l| *l *= 0.8);
+        // Start from a straightened, longer copy of the curve.
+        let mut moved = y.clone();
+        moved.points = (0..9).map(|i| [0.004 * i as f64, 0.0, 0.0]).collect();
+        moved.rest = Some(rest.to_shape(&topo));
+        let p = YarnSimParams::default();
+        let m = Model::from_yarns(&moved, &p, None).unwrap();
+        for (s, seg) in m.segs.iter().enumerate() {
+            assert!((seg.l0 - rest.l0[s]).abs() < 1e-15, "segment {s}");
+        }
+        let plain = Model::from_yarns(&y, &p, None).unwrap();
+        assert_eq!(m.hinges.len(), plain.hinges.len());
+        for (h, (a, b)) in m.hinges.iter().zip(&plain.hinges).enumerate() {
+            // Same curvature as the rest curve (not the straight start).
+            assert!(a.kappa0 > 0.1, "hinge {h}: {}", a.kappa0);
+            assert!((a.kappa0 - b.kappa0).abs() < 1e-9, "hinge {h}");
+        }
+    }
 }
