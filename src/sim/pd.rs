@@ -73,6 +73,14 @@
 //! a step inside a collider); pinned nodes are never projected. Velocities
 //! are then the finite differences of the final positions.
 //!
+//! Coulomb friction (`super::contact`): a contact with a coefficient
+//! replaces `P(x_i)` by a target that also holds the node's place on the
+//! surface since the start of the step (static friction) or pulls it back
+//! by at most `μ` times the projection depth (kinetic), i.e. tangential
+//! constraint forces bounded by `μ` times the normal one, evaluated with the
+//! PD iterations like the projections, so it acts inside the implicit step
+//! (the final projection uses the same targets).
+//!
 //! # Backends
 //! The local step and the elastic right-hand side run through an
 //! [`ElasticRhs`] (default [`CpuElasticRhs`]), the Jacobi iterations through
@@ -115,7 +123,7 @@ use rayon::prelude::*;
 use super::anderson::Anderson;
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
 use super::cholesky::SparseCholesky;
-use super::contact::{NoContact, NodeProjector};
+use super::contact::{friction_target, NoContact, NodeProjector};
 use super::cpu::CpuElasticRhs;
 use super::csr::CsrMatrix;
 use super::dd::{DdParams, DdSolver, DdStats, Interiors};
@@ -340,6 +348,8 @@ pub struct StepStats {
     pub contacts: usize,
     /// Free nodes moved onto their projection after the last iteration.
     pub projected: usize,
+    /// Largest distance (m) one of them moved.
+    pub max_projection: f64,
     /// Anderson-accelerated iterates rejected because they did not lower
     /// `Φ` (each cost one more local step; [`PdParams::anderson_window`]).
     pub accelerations_rejected: u32,
@@ -1054,11 +1064,11 @@ impl PdSolver {
             let eval = self.elastic.evaluate(&xk, &mut out)?;
             local_ms += tl.elapsed().as_secs_f64() * 1e3;
             clamped_tets = clamped_tets.max(eval.clamped_tets);
-            // Contact projections at the current iterate (local step).
+            // Contact targets at the current iterate (local step).
             let proj: Vec<Option<Vec3>> = free_nodes
                 .par_iter()
                 .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
-                .map(|&i| contacts.project(i, xk[i]))
+                .map(|&i| contact_target(contacts, i, xk[i], x[i]))
                 .collect();
             let active: Vec<bool> = proj.iter().map(|q| q.is_some()).collect();
             let mut contact_energy = 0.0;
@@ -1165,12 +1175,15 @@ impl PdSolver {
             }
         };
 
-        // Hard guarantee: no free node ends the step inside a collider.
+        // Hard guarantee: no free node ends the step inside a collider (and
+        // a sticking node keeps its place on the surface: no creep).
         let fixes: Vec<(usize, Vec3)> = free_nodes
             .par_iter()
-            .filter_map(|&i| contacts.project(i, xk[i]).map(|q| (i, q)))
+            .filter_map(|&i| contact_target(contacts, i, xk[i], x[i]).map(|q| (i, q)))
             .collect();
+        let mut max_projection = 0.0f64;
         for &(i, q) in &fixes {
+            max_projection = max_projection.max(norm(std::array::from_fn(|k| q[k] - xk[i][k])));
             xk[i] = q;
         }
 
@@ -1256,12 +1269,22 @@ impl PdSolver {
             global_residual,
             contacts: contacts_active,
             projected: fixes.len(),
+            max_projection,
             accelerations_rejected,
             local_ms,
             global_ms,
             ms: t0.elapsed().as_secs_f64() * 1e3,
         })
     }
+}
+
+/// The constraint target of free node `i` at `p` that started the step at
+/// `start`: its contact's projection with Coulomb friction
+/// ([`friction_target`]), None when admissible.
+fn contact_target(contacts: &dyn NodeProjector, i: usize, p: Vec3, start: Vec3) -> Option<Vec3> {
+    contacts
+        .contact(i, p)
+        .map(|c| friction_target(&c, p, start))
 }
 
 /// A box of `n[0] x n[1] x n[2]` voxels of edge `h` (m) at the origin (y up),
