@@ -213,10 +213,13 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         );
         if let Some(d) = r.min_distance_m {
             println!(
-                "  max penetration {:.3e} m (body: {}), min distance to a collider {:.3e} m",
+                "  max penetration {:.3e} m (body: {}; yarn vertices: {}; tolerance {:.1e} m), min distance to a collider {:.3e} m",
                 r.max_penetration_m,
                 r.max_penetration_body_m
                     .map_or("-".to_string(), |p| format!("{p:.3e} m")),
+                r.max_penetration_yarns_m
+                    .map_or("-".to_string(), |p| format!("{p:.3e} m")),
+                r.penetration_tolerance_m,
                 d
             );
         }

@@ -78,6 +78,14 @@ impl SimulateError {
     }
 }
 
+/// Penetration tolerance (m) of the written frames: 1 mm, the default
+/// collider thickness. Free tet nodes end every step outside the colliders
+/// (the solver projects them), but the yarn vertices are interpolated inside
+/// the tets (V2Y) and cut corners where the body is concave or curved within
+/// a voxel; a shot whose tet nodes or yarn vertices sit deeper than this
+/// gets a warning in its notes (the figures are in the report).
+pub const PENETRATION_TOLERANCE_M: f64 = 1e-3;
+
 /// Default pre-roll (s) of a scene with a character when the scene gives
 /// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
 pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
@@ -290,6 +298,13 @@ pub struct SimulateReport {
     /// Smallest signed distance (m) of a free node to a collider over the
     /// output frames (None without colliders).
     pub min_distance_m: Option<f64>,
+    /// Largest penetration depth (m) of a yarn vertex (V2Y of the nodes,
+    /// pinned or free) into any collider over the output frames (None
+    /// without colliders).
+    pub max_penetration_yarns_m: Option<f64>,
+    /// The tolerance (m) the tet-node and yarn-vertex penetrations are held
+    /// to ([`PENETRATION_TOLERANCE_M`]; beyond it: a warning in `notes`).
+    pub penetration_tolerance_m: f64,
     /// Largest penetration depth (m) of a pinned node into the body over
     /// the output frames (pins ride on the skin, so they can dip in where
     /// the skin folds).
@@ -727,6 +742,7 @@ pub fn simulate(
     let mut recorded: Vec<(i64, Vec<Vec3>)> = Vec::with_capacity(frames.len());
     let mut max_pen = 0.0f64;
     let mut max_pen_body: Option<f64> = None;
+    let mut max_pen_yarns: Option<f64> = None;
     let mut min_dist: Option<f64> = None;
     let mut step_ms = Vec::with_capacity(total_steps);
     let mut iters_sum = 0u64;
@@ -771,6 +787,11 @@ pub fn simulate(
     };
 
     let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
+        if !set.colliders.is_empty() {
+            let yarns = asset.embedding.v2y(&asset.mesh, x);
+            let pen = set.max_penetration(&yarns);
+            max_pen_yarns = Some(max_pen_yarns.map_or(pen, |m| m.max(pen)));
+        }
         for (i, p) in x.iter().enumerate() {
             if is_pinned[i] {
                 if let Some(bs) = body_set {
@@ -871,6 +892,17 @@ pub fn simulate(
     let ms_per_step_median = median(step_ms.clone());
     let pinned_body = body_pins.nodes.len();
     let pinned_scripted = pinned.len() - pinned_body;
+    for (what, pen) in [
+        ("tet nodes", Some(max_pen)),
+        ("yarn vertices", max_pen_yarns),
+    ] {
+        if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
+            notes.push(format!(
+                "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
+                 {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
+            ));
+        }
+    }
     let mut report = SimulateReport {
         asset: asset_path.to_path_buf(),
         output: req.output.clone(),
@@ -896,6 +928,8 @@ pub fn simulate(
         residual_max,
         max_penetration_m: max_pen.max(0.0),
         max_penetration_body_m: max_pen_body,
+        max_penetration_yarns_m: max_pen_yarns,
+        penetration_tolerance_m: PENETRATION_TOLERANCE_M,
         min_distance_m: min_dist,
         max_penetration_pinned_m: pen_pinned,
         max_contact_correction_m: correction_max,

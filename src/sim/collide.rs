@@ -705,6 +705,16 @@ impl ColliderSet {
         self.min_signed_distance(p)
             .map_or(0.0, |(_, d)| (-d).max(0.0))
     }
+
+    /// The largest [`Self::penetration`] (m) of `points` (e.g. the yarn
+    /// vertices embedded in the tets), 0 for none.
+    pub fn max_penetration(&self, points: &[Vec3]) -> f64 {
+        use rayon::prelude::*;
+        points
+            .par_iter()
+            .map(|p| self.penetration(*p))
+            .reduce(|| 0.0, f64::max)
+    }
 }
 
 impl ColliderSet {
