@@ -714,3 +714,106 @@ thickness = 0.0
     assert_eq!(warned.len(), 1, "{:?}", r.notes);
     assert!(warned[0].contains("tolerance of 0.001 m"), "{}", warned[0]);
 }
+
+/// Node positions of every written frame of a flat swatch held by its
+/// left edge, bending under gravity (4 frames, `solver`), and the report.
+fn hang(
+    dir: &Path,
+    asset_path: &Path,
+    solver: &str,
+) -> (Vec<Vec3>, knitvox::pipeline::simulate::SimulateReport) {
+    let asset = vtkhdf::read_asset(asset_path).unwrap();
+    let lo = asset
+        .mesh
+        .nodes
+        .iter()
+        .map(|p| p[0])
+        .fold(f64::INFINITY, f64::min);
+    let scene = Scene::parse(
+        &format!(
+            r#"
+[simulation]
+solver = "{solver}"
+[garment]
+rotate_deg = [-90, 0, 0]
+[[pin]]
+name = "left"
+box_min = [-1.0, -1.0, -1.0]
+box_max = [{}, 1.0, 1.0]
+"#,
+            lo + 1e-4
+        ),
+        Path::new("scene.toml"),
+    )
+    .unwrap();
+    let r = simulate(
+        &asset,
+        asset_path,
+        &scene,
+        &request(dir, (1..=4).collect(), None),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let out = vtkhdf::read_asset(&dir.join("out.vtkhdf")).unwrap();
+    (out.steps.positions, r)
+}
+
+#[test]
+fn dd_solver_takes_its_partition_from_the_asset_domains() {
+    // Issue 13 item 12. `embed` writes domain 0 everywhere: the DD solver
+    // bisects (one domain for this small swatch). An asset whose
+    // CellData/domain names three slabs along x gets exactly those three
+    // domains, and its shot matches the direct solver's.
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let (direct, rd) = hang(dir.path(), &asset_path, "direct");
+    assert_eq!((rd.dd_domains, rd.dd_partition), (None, None));
+    let (_, rb) = hang(dir.path(), &asset_path, "dd");
+    assert_eq!(rb.dd_partition, Some("bisection"));
+    assert_eq!(rb.dd_domains, Some(1));
+
+    let mut asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let xs: Vec<f64> = (0..asset.mesh.num_tets())
+        .map(|t| {
+            let tet = asset.mesh.tets[t];
+            tet.iter()
+                .map(|&a| asset.mesh.nodes[a as usize][0])
+                .sum::<f64>()
+                / 4.0
+        })
+        .collect();
+    let (lo, hi) = xs
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    // Ids 7, -3, 40: any int32 values name the domains.
+    asset.domain = xs
+        .iter()
+        .map(|x| [7, -3, 40][(((x - lo) / (hi - lo) * 3.0) as usize).min(2)])
+        .collect();
+    let slabs = dir.path().join("slabs.vtkhdf");
+    vtkhdf::write_asset(&slabs, &asset).unwrap();
+    let (dd, rs) = hang(dir.path(), &slabs, "dd");
+    assert_eq!(rs.dd_partition, Some("asset"));
+    assert_eq!(rs.dd_domains, Some(3));
+    let size = hi - lo;
+    let err = direct
+        .iter()
+        .zip(&dd)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
+        .fold(0.0, f64::max);
+    let n = asset.mesh.num_nodes();
+    let sag = direct[..n]
+        .iter()
+        .zip(&direct[3 * n..])
+        .map(|(a, b)| a[1] - b[1])
+        .fold(0.0, f64::max);
+    eprintln!(
+        "dd with the asset's 3 domains vs direct: {:.3e} of the swatch ({size:.3e} m); sag {sag:.3e} m",
+        err / size
+    );
+    assert!(sag > 5e-5, "the swatch hardly moved ({sag} m)");
+    // DdParams::default().tolerance, relative to the swatch size.
+    assert!(err < 1e-4 * size, "dd off by {err} m");
+}

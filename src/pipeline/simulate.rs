@@ -282,6 +282,11 @@ pub struct SimulateReport {
     pub pinned_scripted: usize,
     pub pinned_body: usize,
     pub solver: String,
+    /// Domains of the domain-decomposed solver (None for "direct").
+    pub dd_domains: Option<usize>,
+    /// Where they come from: "asset" (its `CellData/domain`, when it names
+    /// two or more domains) or "bisection" (recursive coordinate bisection).
+    pub dd_partition: Option<&'static str>,
     pub backend: String,
     pub ms_per_step_median: f64,
     pub ms_total: f64,
@@ -683,16 +688,26 @@ pub fn simulate(
         global: global_solver(sim.solver),
         ..PdParams::default()
     };
-    let mut solver = PdSolver::new(
+    let stored = stored_domains(&asset.domain);
+    let mut solver = PdSolver::new_partitioned(
         &asset.mesh,
         &asset.node_mass,
         &asset.gamma_s,
         &asset.gamma_v,
         &pinned,
         params,
+        stored.as_deref(),
     )
     .map_err(|e| invalid(asset_path, e.to_string()))?;
     let backend = attach_backend(&mut solver, sim.backend)?;
+    let dd_domains = solver.dd_stats().map(|d| d.domains);
+    let dd_partition = dd_domains.map(|_| {
+        if stored.is_some() {
+            "asset"
+        } else {
+            "bisection"
+        }
+    });
 
     // Static colliders.
     let mut statics = Vec::new();
@@ -920,6 +935,8 @@ pub fn simulate(
         pinned_scripted,
         pinned_body,
         solver: solver_name.into(),
+        dd_domains,
+        dd_partition,
         backend: backend.into(),
         ms_per_step_median,
         ms_total: 0.0,
@@ -1022,6 +1039,18 @@ fn write_yarns(
         }
     }
     Ok(written)
+}
+
+/// The asset's per-tet domain ids as the domain-decomposed solver's
+/// partition when they name two or more domains (equal ids form a domain;
+/// the bit pattern keeps distinct i32 ids distinct). A single id, which is
+/// what `embed` writes, leaves the partition to the solver's bisection.
+fn stored_domains(domain: &[i32]) -> Option<Vec<u32>> {
+    let first = *domain.first()?;
+    domain
+        .iter()
+        .any(|&d| d != first)
+        .then(|| domain.iter().map(|&d| d as u32).collect())
 }
 
 /// Median (NaN for none).

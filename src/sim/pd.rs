@@ -554,7 +554,31 @@ impl PdSolver {
         pinned: &[usize],
         params: PdParams,
     ) -> Result<PdSolver, SimError> {
+        Self::new_partitioned(mesh, node_mass, gamma_s, gamma_v, pinned, params, None)
+    }
+
+    /// [`Self::new`] with per-tet domain ids for the domain-decomposed
+    /// solver ([`Self::set_tet_domains`]; `None`: automatic bisection), so
+    /// that its precomputation runs once, with the given partition.
+    pub fn new_partitioned(
+        mesh: &TetMesh,
+        node_mass: &[f64],
+        gamma_s: &[f64],
+        gamma_v: &[f64],
+        pinned: &[usize],
+        params: PdParams,
+        tet_domains: Option<&[u32]>,
+    ) -> Result<PdSolver, SimError> {
         params.validate()?;
+        if let Some(ids) = tet_domains {
+            if ids.len() != mesh.num_tets() {
+                return Err(SimError::Inconsistent(format!(
+                    "{} domain ids for {} tets",
+                    ids.len(),
+                    mesh.num_tets()
+                )));
+            }
+        }
         let model = ElasticModel::new(mesh, gamma_s, gamma_v)?;
         let n = mesh.num_nodes();
         if node_mass.len() != n {
@@ -601,7 +625,7 @@ impl PdSolver {
             dd: None,
             jacobi: None,
             elastic,
-            tet_domains: None,
+            tet_domains: tet_domains.map(<[u32]>::to_vec),
             k_fp: Vec::new(),
             energy_floor,
             last: None,
