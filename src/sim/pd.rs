@@ -1306,9 +1306,15 @@ impl PdSolver {
 /// `start`: its contact's projection with Coulomb friction
 /// ([`friction_target`]), None when admissible.
 fn contact_target(contacts: &dyn NodeProjector, i: usize, p: Vec3, start: Vec3) -> Option<Vec3> {
-    contacts
-        .contact(i, p)
-        .map(|c| friction_target(&c, p, start))
+    let c = contacts.contact(i, p)?;
+    let t = friction_target(&c, p, start);
+    if t == c.target {
+        return Some(t);
+    }
+    // The friction moves the target along the contact's tangent plane, which
+    // can enter a concave collider (a crease, a second collider) or its
+    // thickness band: project it again, so the end-of-step guarantee holds.
+    Some(contacts.project(i, t).unwrap_or(t))
 }
 
 /// A box of `n[0] x n[1] x n[2]` voxels of edge `h` (m) at the origin (y up),
@@ -1434,4 +1440,37 @@ pub fn bench_slab_thick(
         domains: dd.domains,
         reduced_size: dd.reduced_size,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::collide::{Collider, ColliderSet, Shape};
+
+    #[test]
+    fn friction_target_in_a_concave_corner_stays_admissible() {
+        // Floor y = 0 and wall x = 0 (1 mm thickness each); a node in the
+        // corner's band that slid 2.5 mm toward the wall: the kinetic
+        // friction pulls its target back along the mixed contact normal,
+        // which by itself would leave it 0.5 mm above the floor, inside the
+        // band.
+        let plane = |normal: Vec3| Collider {
+            shape: Shape::Plane {
+                point: [0.0; 3],
+                normal,
+            },
+            thickness: 1e-3,
+        };
+        let set = ColliderSet {
+            colliders: vec![plane([0.0, 1.0, 0.0]), plane([1.0, 0.0, 0.0])],
+            friction: 1.0,
+        };
+        let (p, start) = ([5e-4, -2e-4, 0.0], [3e-3, 1e-3, 0.0]);
+        let c = set.contact(0, p).unwrap();
+        let raw = friction_target(&c, p, start);
+        assert!(raw[1] < 0.9e-3, "the case must leave the band: {raw:?}");
+        let t = contact_target(&set, 0, p, start).unwrap();
+        assert!(set.project(0, t).is_none(), "{t:?} is not admissible");
+        assert!(t[0] > c.target[0], "friction pulled it back: {t:?}");
+    }
 }
