@@ -185,6 +185,7 @@ fn plane_and_sphere_projection_exact() {
                 thickness: 0.001,
             },
         ],
+        friction: 0.0,
     };
     let q = set.project(0, [0.2, -0.3, 0.1]).unwrap();
     assert_eq!(q, [0.2, 0.001, 0.1]);
@@ -194,4 +195,43 @@ fn plane_and_sphere_projection_exact() {
     assert!((set.penetration([0.0, -0.25, 0.0]) - 0.25).abs() < 1e-15);
     let (which, d) = set.min_signed_distance([0.0, 1.0, 0.0]).unwrap();
     assert_eq!((which, d), (1, -0.5));
+}
+
+#[test]
+fn moving_mesh_reports_the_surface_motion_of_a_contact() {
+    // The cube moved 0.1 m along +x and 0.02 m up over the step: a node just
+    // inside its top face sees that displacement; without the previous pose
+    // (or for a node outside) the surface rests.
+    let now = cube();
+    let before: Vec<Vec3> = now
+        .positions()
+        .iter()
+        .map(|p| [p[0] - 0.1, p[1] - 0.02, p[2]])
+        .collect();
+    let moving = Collider {
+        shape: Shape::Mesh(Box::new(now.clone().with_previous(&before).unwrap())),
+        thickness: 0.0,
+    };
+    let (q, u) = moving.project_moving([0.3, 0.9, 0.2]).unwrap();
+    assert!(dist(q, [0.3, 1.0, 0.2]) < 1e-12, "{q:?}");
+    assert!(dist(u, [0.1, 0.02, 0.0]) < 1e-12, "{u:?}");
+    assert_eq!(moving.project_moving([0.3, 1.5, 0.2]), None);
+    let still = Collider {
+        shape: Shape::Mesh(Box::new(now.clone())),
+        thickness: 0.0,
+    };
+    assert_eq!(still.project_moving([0.3, 0.9, 0.2]).unwrap().1, [0.0; 3]);
+    // The set hands the motion and its friction to the time loop.
+    let set = ColliderSet {
+        colliders: vec![moving],
+        friction: 0.4,
+    };
+    let c = set.contact(7, [0.3, 0.9, 0.2]).unwrap();
+    assert!(dist(c.surface_motion, [0.1, 0.02, 0.0]) < 1e-12);
+    assert_eq!(c.friction, 0.4);
+    // Bad previous poses are refused, not stored.
+    assert!(now.clone().with_previous(&before[..3]).is_err());
+    let mut nan = before.clone();
+    nan[2][1] = f64::NAN;
+    assert!(now.with_previous(&nan).is_err());
 }

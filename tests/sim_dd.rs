@@ -268,6 +268,24 @@ fn dd_step_equals_the_direct_step_to_its_tolerance() {
     let (x, _) = run(&mut s, &mesh.nodes, steps, &pins);
     assert!(max_diff(&x, &xd) / size < 1e-7);
     assert!(s.set_tet_domains(Some(&ids[1..])).is_err());
+    // The same ids given at construction: one precomputation, same partition.
+    let (_, mass) = box_mesh(n, H, RHO);
+    let nt = mesh.num_tets();
+    let pinned: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let g = vec![1e4; nt];
+    let params = PdParams {
+        global: dd(1e-7, 60),
+        ..base
+    };
+    let mut p =
+        PdSolver::new_partitioned(&mesh, &mass, &g, &g, &pinned, params, Some(&ids)).unwrap();
+    assert_eq!(p.dd_stats().unwrap().domains, 3);
+    let (xp, _) = run(&mut p, &mesh.nodes, steps, &pins);
+    assert!(max_diff(&xp, &x) / size < 1e-12);
+    let short = PdSolver::new_partitioned(&mesh, &mass, &g, &g, &pinned, params, Some(&ids[1..]));
+    assert!(short.is_err());
 }
 
 /// Wraps the CPU backend and counts calls: a stand-in for the GPU backend.

@@ -1,10 +1,13 @@
 //! The direct PD global step and the implicit-Euler time loop (VH §7.1,
 //! Eq. 25-28) on small Kuhn-split voxel blocks.
 
+mod common;
+
+use common::{slide_on_incline, SLOPE_DEG};
 use knitvox::embed::tetrahedralize;
 use knitvox::geom::{TetMesh, Vec3, VoxelGrid};
 use knitvox::sim::energy::ElasticModel;
-use knitvox::sim::pd::{PdParams, PdSolver};
+use knitvox::sim::pd::{GlobalSolver, PdParams, PdSolver};
 use knitvox::sim::SimError;
 use nalgebra::{DMatrix, DVector};
 
@@ -597,5 +600,39 @@ fn pd_iteration_study() {
             "iterations {k}, Anderson window {aa}: max |x - x_ref| over 30 steps {worst:.3e} m = {:.3e} of max displacement {disp:.3e} m",
             worst / disp
         );
+    }
+}
+
+#[test]
+fn friction_holds_a_block_on_a_slope_below_its_angle_and_not_above() {
+    // Issue 13 item 10: with friction 0.5 > tan 20° the block stays put
+    // (within 1 mm over 1 s); with 0.2 it slides with the Coulomb
+    // acceleration g (sin θ - μ cos θ) = 1.51 m/s², i.e. 0.75 m in 1 s
+    // (frictionless 1.68 m).
+    let th = SLOPE_DEG.to_radians();
+    let steps = 150;
+    let t = steps as f64 / 150.0;
+    for global in [
+        GlobalSolver::Direct,
+        GlobalSolver::DomainDecomposed(Default::default()),
+    ] {
+        let (held, held_along, _) = slide_on_incline(0.5, global, steps, &|_| {});
+        let (_, slid, _) = slide_on_incline(0.2, global, steps, &|_| {});
+        let (_, free, _) = slide_on_incline(0.0, global, steps, &|_| {});
+        let expect = |mu: f64| 0.5 * 9.81 * (th.sin() - mu * th.cos()) * t * t;
+        eprintln!(
+            "{}: friction 0.5: largest node displacement {held:.3e} m (mean downhill {held_along:.3e} m); \
+             0.2: slid {slid:.4} m (Coulomb {:.4} m); 0: {free:.4} m ({:.4} m)",
+            global.name(),
+            expect(0.2),
+            expect(0.0)
+        );
+        assert!(held < 1e-3, "friction 0.5 let the block move {held} m");
+        assert!(
+            slid > 0.8 * expect(0.2) && slid < 1.1 * expect(0.2),
+            "friction 0.2: slid {slid} m, Coulomb says {} m",
+            expect(0.2)
+        );
+        assert!(free > slid + 0.5, "frictionless {free} m vs {slid} m");
     }
 }

@@ -211,12 +211,18 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             "  {:.2} ms per step (median), {:.1} PD iterations per step (max {}), residual <= {:.3e} N, total {:.0} ms",
             r.ms_per_step_median, r.pd_iterations_mean, r.pd_iterations_max, r.residual_max, r.ms_total
         );
+        if let (Some(d), Some(from)) = (r.dd_domains, r.dd_partition) {
+            println!("  {d} domains ({from})");
+        }
         if let Some(d) = r.min_distance_m {
             println!(
-                "  max penetration {:.3e} m (body: {}), min distance to a collider {:.3e} m",
+                "  max penetration {:.3e} m (body: {}; yarn vertices: {}; tolerance {:.1e} m), min distance to a collider {:.3e} m",
                 r.max_penetration_m,
                 r.max_penetration_body_m
                     .map_or("-".to_string(), |p| format!("{p:.3e} m")),
+                r.max_penetration_yarns_m
+                    .map_or("-".to_string(), |p| format!("{p:.3e} m")),
+                r.penetration_tolerance_m,
                 d
             );
         }

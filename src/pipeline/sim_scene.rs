@@ -164,9 +164,10 @@ pub struct SimulationSection {
     /// Anderson acceleration window of the PD iterations, 0 for plain PD.
     /// Default 5 (sim::pd).
     pub anderson_window: usize,
-    /// Fraction (0..1) of a contacting node's tangential velocity removed
-    /// at each contact (velocity-level friction against colliders). Default
-    /// 0.5: a swatch dropped on a sphere stays on it instead of sliding off.
+    /// Coulomb friction coefficient (0..1, static = kinetic) of contacts
+    /// with every collider, relative to the collider's motion
+    /// (sim::contact). Default 0.5: a swatch dropped on a sphere stays on
+    /// it instead of sliding off.
     pub friction: f64,
     /// Relative PD convergence tolerance (sim::pd). Default 1e-6.
     pub tolerance: f64,

@@ -78,61 +78,33 @@ impl SimulateError {
     }
 }
 
+/// Penetration tolerance (m) of the written frames: 1 mm, the default
+/// collider thickness. Free tet nodes end every step outside the colliders
+/// (the solver projects them), but the yarn vertices are interpolated inside
+/// the tets (V2Y) and cut corners where the body is concave or curved within
+/// a voxel; a shot whose tet nodes or yarn vertices sit deeper than this
+/// gets a warning in its notes (the figures are in the report).
+pub const PENETRATION_TOLERANCE_M: f64 = 1e-3;
+
 /// Default pre-roll (s) of a scene with a character when the scene gives
 /// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
 pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
 
-/// One PD time step with contacts: the solver's step, then every free node
-/// that is not admissible is projected onto the colliders and its velocity
-/// set to the projected displacement over the step (inelastic contact),
-/// less `friction` (0..1) of its part tangential to the contact
-/// (velocity-level friction, relative to a resting collider). Returns the step's statistics and the largest contact
-/// correction (m): how far the unconstrained step moved a node into the
-/// thickness band or the collider.
-///
-/// Contacts are PD projection constraints inside the iterations
-/// ([`PdSolver::step_with_contacts`], VH §8.5), which also projects nodes
-/// still inside at the end of the step. A node this function still finds
-/// inside (none, normally) is projected here and loses `friction` of its
-/// tangential velocity; returns the largest such correction (m).
+/// One PD time step with contacts: [`PdSolver::step_with_contacts`], whose
+/// PD iterations carry the contacts as projection constraints with Coulomb
+/// friction (VH §8.5; `sim::contact`, the coefficient is the collider
+/// set's) and which moves every free node still not admissible at the end
+/// onto its target. Returns the step's statistics and the largest such
+/// final correction (m).
 pub fn pd_step(
     solver: &mut PdSolver,
     x: &mut [Vec3],
     v: &mut [Vec3],
     pinned_positions: &[Vec3],
     contacts: &dyn NodeProjector,
-    is_pinned: &[bool],
-    friction: f64,
 ) -> Result<(StepStats, f64), SimError> {
-    let before = x.to_vec();
     let stats = solver.step_with_contacts(x, v, pinned_positions, contacts)?;
-    let dt = solver.params().dt;
-    let mut correction = 0.0f64;
-    for (i, p) in x.iter_mut().enumerate() {
-        if is_pinned.get(i).copied().unwrap_or(false) {
-            continue;
-        }
-        if let Some(q) = contacts.project(i, *p) {
-            correction = correction.max(
-                ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt(),
-            );
-            let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-            let dn = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            *p = q;
-            let mut u: Vec3 = std::array::from_fn(|k| (q[k] - before[i][k]) / dt);
-            if dn > 0.0 && friction > 0.0 {
-                // Remove `friction` of the velocity tangential to the
-                // contact (the projection direction is the normal).
-                let n = [d[0] / dn, d[1] / dn, d[2] / dn];
-                let un = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
-                for k in 0..3 {
-                    let t = u[k] - un * n[k];
-                    u[k] -= friction * t;
-                }
-            }
-            v[i] = u;
-        }
-    }
+    let correction = stats.max_projection;
     Ok((stats, correction))
 }
 
@@ -310,6 +282,11 @@ pub struct SimulateReport {
     pub pinned_scripted: usize,
     pub pinned_body: usize,
     pub solver: String,
+    /// Domains of the domain-decomposed solver (None for "direct").
+    pub dd_domains: Option<usize>,
+    /// Where they come from: "asset" (its `CellData/domain`, when it names
+    /// two or more domains) or "bisection" (recursive coordinate bisection).
+    pub dd_partition: Option<&'static str>,
     pub backend: String,
     pub ms_per_step_median: f64,
     pub ms_total: f64,
@@ -326,13 +303,20 @@ pub struct SimulateReport {
     /// Smallest signed distance (m) of a free node to a collider over the
     /// output frames (None without colliders).
     pub min_distance_m: Option<f64>,
+    /// Largest penetration depth (m) of a yarn vertex (V2Y of the nodes,
+    /// pinned or free) into any collider over the output frames (None
+    /// without colliders).
+    pub max_penetration_yarns_m: Option<f64>,
+    /// The tolerance (m) the tet-node and yarn-vertex penetrations are held
+    /// to ([`PENETRATION_TOLERANCE_M`]; beyond it: a warning in `notes`).
+    pub penetration_tolerance_m: f64,
     /// Largest penetration depth (m) of a pinned node into the body over
     /// the output frames (pins ride on the skin, so they can dip in where
     /// the skin folds).
     pub max_penetration_pinned_m: Option<f64>,
-    /// Largest contact correction of a step (m): how far the PD step (which
-    /// does not see the colliders yet) moved a free node into a collider's
-    /// thickness band, before the projection put it back.
+    /// Largest contact correction of a step (m): how far the end-of-step
+    /// projection moved a free node still inside a collider's thickness band
+    /// after the PD iterations onto its contact target.
     pub max_contact_correction_m: f64,
     pub character: Option<CharacterReport>,
     pub notes: Vec<String>,
@@ -704,16 +688,26 @@ pub fn simulate(
         global: global_solver(sim.solver),
         ..PdParams::default()
     };
-    let mut solver = PdSolver::new(
+    let stored = stored_domains(&asset.domain);
+    let mut solver = PdSolver::new_partitioned(
         &asset.mesh,
         &asset.node_mass,
         &asset.gamma_s,
         &asset.gamma_v,
         &pinned,
         params,
+        stored.as_deref(),
     )
     .map_err(|e| invalid(asset_path, e.to_string()))?;
     let backend = attach_backend(&mut solver, sim.backend)?;
+    let dd_domains = solver.dd_stats().map(|d| d.domains);
+    let dd_partition = dd_domains.map(|_| {
+        if stored.is_some() {
+            "asset"
+        } else {
+            "bisection"
+        }
+    });
 
     // Static colliders.
     let mut statics = Vec::new();
@@ -763,6 +757,7 @@ pub fn simulate(
     let mut recorded: Vec<(i64, Vec<Vec3>)> = Vec::with_capacity(frames.len());
     let mut max_pen = 0.0f64;
     let mut max_pen_body: Option<f64> = None;
+    let mut max_pen_yarns: Option<f64> = None;
     let mut min_dist: Option<f64> = None;
     let mut step_ms = Vec::with_capacity(total_steps);
     let mut iters_sum = 0u64;
@@ -773,24 +768,33 @@ pub fn simulate(
     let mut next_frame = 0usize;
     let mut pin_pos = Vec::with_capacity(pinned.len());
 
-    // Colliders (and the body alone) posed at shot time t.
-    let pose = |t: f64| -> Result<Posed, SimulateError> {
+    // Colliders (and the body alone) posed at shot time t; `previous`: the
+    // body's vertices at the start of the step, for friction against its
+    // motion.
+    let pose = |t: f64, previous: Option<&[Vec3]>| -> Result<Posed, SimulateError> {
         let mut set = ColliderSet {
             colliders: statics.clone(),
+            friction: sim.friction,
         };
         let mut body_set = None;
         let mut verts = None;
         if let Some(b) = &body {
             let pts = b.positions(t);
             if b.collide {
-                let m = MeshCollider::new(&b.topology, &pts)
-                    .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
+                let bad = |m| invalid(&scene.character_path().unwrap_or_default(), m);
+                let mut m = MeshCollider::new(&b.topology, &pts).map_err(bad)?;
+                if let Some(prev) = previous {
+                    m = m.with_previous(prev).map_err(bad)?;
+                }
                 let c = Collider {
                     shape: Shape::Mesh(Box::new(m)),
                     thickness: b.thickness,
                 };
                 set.colliders.push(c.clone());
-                body_set = Some(ColliderSet { colliders: vec![c] });
+                body_set = Some(ColliderSet {
+                    colliders: vec![c],
+                    ..ColliderSet::default()
+                });
             }
             verts = Some(pts);
         }
@@ -798,6 +802,11 @@ pub fn simulate(
     };
 
     let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
+        if !set.colliders.is_empty() {
+            let yarns = asset.embedding.v2y(&asset.mesh, x);
+            let pen = set.max_penetration(&yarns);
+            max_pen_yarns = Some(max_pen_yarns.map_or(pen, |m| m.max(pen)));
+        }
         for (i, p) in x.iter().enumerate() {
             if is_pinned[i] {
                 if let Some(bs) = body_set {
@@ -820,7 +829,7 @@ pub fn simulate(
     let t0 = -(preroll_steps as f64) * dt;
     // Initial state: project the free nodes out of the colliders at t0.
     {
-        let (set, _, _) = pose(t0)?;
+        let (set, _, _) = pose(t0, None)?;
         for (i, p) in x.iter_mut().enumerate() {
             if !is_pinned[i] {
                 if let Some(q) = set.project(i, *p) {
@@ -836,15 +845,16 @@ pub fn simulate(
         (k % steps_per_frame == 0).then(|| first + (k / steps_per_frame) as i64)
     };
     if record(0) == Some(first) {
-        let (set, _, body_set) = pose(0.0)?;
+        let (set, _, body_set) = pose(0.0, None)?;
         measure(&x, &set, &body_set);
         recorded.push((first, x.clone()));
         next_frame = 1;
         progress(1, frames.len());
     }
+    let mut body_before = body.as_ref().map(|b| b.positions(t0));
     for s in 1..=total_steps {
         let t = t0 + s as f64 * dt;
-        let (set, verts, body_set) = pose(t)?;
+        let (set, verts, body_set) = pose(t, body_before.as_deref())?;
         pin_pos.clear();
         for h in &handles {
             h.positions(t, &mut pin_pos);
@@ -861,21 +871,15 @@ pub fn simulate(
         }
         let frame_of_step =
             first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
-        let (st, correction) = pd_step(
-            &mut solver,
-            &mut x,
-            &mut v,
-            &pin_pos,
-            &set,
-            &is_pinned,
-            sim.friction,
-        )
-        .map_err(|source| SimulateError::Diverged {
-            path: asset_path.to_path_buf(),
-            frame: frame_of_step,
-            time: t,
-            source,
-        })?;
+        let (st, correction) =
+            pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set).map_err(|source| {
+                SimulateError::Diverged {
+                    path: asset_path.to_path_buf(),
+                    frame: frame_of_step,
+                    time: t,
+                    source,
+                }
+            })?;
         step_ms.push(st.ms);
         iters_sum += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);
@@ -889,6 +893,7 @@ pub fn simulate(
                 progress(next_frame, frames.len());
             }
         }
+        body_before = verts;
     }
 
     // Outputs: the asset's time series and the yarn frames.
@@ -902,6 +907,17 @@ pub fn simulate(
     let ms_per_step_median = median(step_ms.clone());
     let pinned_body = body_pins.nodes.len();
     let pinned_scripted = pinned.len() - pinned_body;
+    for (what, pen) in [
+        ("tet nodes", Some(max_pen)),
+        ("yarn vertices", max_pen_yarns),
+    ] {
+        if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
+            notes.push(format!(
+                "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
+                 {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
+            ));
+        }
+    }
     let mut report = SimulateReport {
         asset: asset_path.to_path_buf(),
         output: req.output.clone(),
@@ -919,6 +935,8 @@ pub fn simulate(
         pinned_scripted,
         pinned_body,
         solver: solver_name.into(),
+        dd_domains,
+        dd_partition,
         backend: backend.into(),
         ms_per_step_median,
         ms_total: 0.0,
@@ -927,6 +945,8 @@ pub fn simulate(
         residual_max,
         max_penetration_m: max_pen.max(0.0),
         max_penetration_body_m: max_pen_body,
+        max_penetration_yarns_m: max_pen_yarns,
+        penetration_tolerance_m: PENETRATION_TOLERANCE_M,
         min_distance_m: min_dist,
         max_penetration_pinned_m: pen_pinned,
         max_contact_correction_m: correction_max,
@@ -1019,6 +1039,18 @@ fn write_yarns(
         }
     }
     Ok(written)
+}
+
+/// The asset's per-tet domain ids as the domain-decomposed solver's
+/// partition when they name two or more domains (equal ids form a domain;
+/// the bit pattern keeps distinct i32 ids distinct). A single id, which is
+/// what `embed` writes, leaves the partition to the solver's bisection.
+fn stored_domains(domain: &[i32]) -> Option<Vec<u32>> {
+    let first = *domain.first()?;
+    domain
+        .iter()
+        .any(|&d| d != first)
+        .then(|| domain.iter().map(|&d| d as u32).collect())
 }
 
 /// Median (NaN for none).

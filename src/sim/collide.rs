@@ -15,6 +15,11 @@
 //! * Admissible: signed distance >= thickness (m). Projection moves a node
 //!   along the outward direction at the closest feature to distance
 //!   `thickness`.
+//! * Friction ([`ColliderSet::friction`], the rule in `sim::contact`) acts
+//!   on the motion relative to the surface: a mesh given its vertex
+//!   positions at the start of the step ([`MeshCollider::with_previous`])
+//!   reports how the closest surface point moved over the step; planes and
+//!   spheres rest.
 //!
 //! Pure math: no files, no printing.
 
@@ -23,7 +28,7 @@
 // Small fixed-size loops over x, y, z read better indexed.
 #![allow(clippy::needless_range_loop)]
 
-use super::contact::NodeProjector;
+use super::contact::{Contact, NodeProjector};
 use crate::geom::vec3::{add, cross, dot, norm, scale, sub};
 use crate::geom::Vec3;
 
@@ -98,6 +103,21 @@ pub fn closest_point_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (Vec3, F
     let v = vb / denom;
     let w = vc / denom;
     (add(a, add(scale(ab, v), scale(ac, w))), Feature::Face)
+}
+
+/// Barycentric weights of `p` (a point of the triangle's plane) in `(a, b,
+/// c)`; a third each for a degenerate triangle.
+fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f64; 3] {
+    let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
+    let (d00, d01, d11) = (dot(ab, ab), dot(ab, ac), dot(ac, ac));
+    let (d20, d21) = (dot(ap, ab), dot(ap, ac));
+    let den = d00 * d11 - d01 * d01;
+    if !(den > 0.0) || !den.is_finite() {
+        return [1.0 / 3.0; 3];
+    }
+    let v = (d11 * d20 - d01 * d21) / den;
+    let w = (d00 * d21 - d01 * d20) / den;
+    [1.0 - v - w, v, w]
 }
 
 fn closest_on_segment(p: Vec3, a: Vec3, b: Vec3) -> Vec3 {
@@ -281,6 +301,9 @@ pub struct MeshCollider {
     nodes: Vec<BvhNode>,
     /// Triangle indices in BVH leaf order.
     order: Vec<u32>,
+    /// Vertex positions at the start of the time step (m), for the surface
+    /// motion friction acts against; None: the mesh rests.
+    previous: Option<Vec<Vec3>>,
 }
 
 /// Result of a closest-point query on a mesh.
@@ -369,7 +392,47 @@ impl MeshCollider {
             vertex_normals,
             nodes,
             order,
+            previous: None,
         })
+    }
+
+    /// The same pose with the vertex positions (m) of the start of the time
+    /// step, so that [`Self::surface_motion`] sees how the surface moved.
+    /// Errors when the counts differ or a position is not finite.
+    pub fn with_previous(mut self, previous: &[Vec3]) -> Result<MeshCollider, String> {
+        if previous.len() != self.positions.len() {
+            return Err(format!(
+                "{} previous positions for a mesh of {} vertices",
+                previous.len(),
+                self.positions.len()
+            ));
+        }
+        if let Some(i) = previous
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(format!("previous vertex {i} is not finite"));
+        }
+        self.previous = Some(previous.to_vec());
+        Ok(self)
+    }
+
+    /// Displacement (m) over the time step of the surface point `hit` (the
+    /// same barycentric point of its triangle at the previous pose); zero
+    /// without a previous pose.
+    pub fn surface_motion(&self, hit: &MeshHit) -> Vec3 {
+        let Some(prev) = &self.previous else {
+            return [0.0; 3];
+        };
+        let tri = self.triangles[hit.triangle];
+        let [a, b, c] = tri.map(|i| self.positions[i as usize]);
+        let w = barycentric(hit.point, a, b, c);
+        let mut u = [0.0; 3];
+        for (k, &i) in tri.iter().enumerate() {
+            let d = sub(self.positions[i as usize], prev[i as usize]);
+            u = add(u, scale(d, w[k]));
+        }
+        u
     }
 
     /// The posed vertex positions (m).
@@ -544,13 +607,20 @@ impl Collider {
     /// Signed distance of `p` to the surface (m) and the outward direction;
     /// None for an empty mesh or a degenerate plane normal.
     pub fn distance(&self, p: Vec3) -> Option<Distance> {
+        self.probe(p, false).map(|(d, _)| d)
+    }
+
+    /// [`Self::distance`] and, when `motion` is set, the displacement (m) of
+    /// the closest surface point over the time step.
+    fn probe(&self, p: Vec3, motion: bool) -> Option<(Distance, Vec3)> {
+        let still = |d: Distance| (d, [0.0; 3]);
         match &self.shape {
             Shape::Plane { point, normal } => {
                 let n = normalized(*normal)?;
-                Some(Distance {
+                Some(still(Distance {
                     signed: dot(sub(p, *point), n),
                     outward: n,
-                })
+                }))
             }
             Shape::Sphere { center, radius } => {
                 let d = sub(p, *center);
@@ -560,14 +630,23 @@ impl Collider {
                 } else {
                     [0.0, 1.0, 0.0]
                 };
-                Some(Distance {
+                Some(still(Distance {
                     signed: l - radius,
                     outward,
-                })
+                }))
             }
-            Shape::Mesh(m) => m.closest(p).map(|h| Distance {
-                signed: h.signed_distance,
-                outward: h.outward,
+            Shape::Mesh(m) => m.closest(p).map(|h| {
+                // Only contacts need the motion.
+                let u = if motion && h.signed_distance < self.thickness {
+                    m.surface_motion(&h)
+                } else {
+                    [0.0; 3]
+                };
+                let d = Distance {
+                    signed: h.signed_distance,
+                    outward: h.outward,
+                };
+                (d, u)
             }),
         }
     }
@@ -575,14 +654,20 @@ impl Collider {
     /// The closest admissible position to `p` (distance >= thickness), or
     /// None when `p` is admissible.
     pub fn project(&self, p: Vec3) -> Option<Vec3> {
-        let d = self.distance(p)?;
+        self.project_moving(p).map(|(q, _)| q)
+    }
+
+    /// [`Self::project`] and the displacement (m) of the surface there over
+    /// the time step.
+    pub fn project_moving(&self, p: Vec3) -> Option<(Vec3, Vec3)> {
+        let (d, u) = self.probe(p, true)?;
         if d.signed >= self.thickness || !d.signed.is_finite() {
             return None;
         }
         // Onto the surface first, then out by the thickness: exact for a
         // plane through the origin (fewer roundings than one combined step).
         let on = add(p, scale(d.outward, -d.signed));
-        Some(add(on, scale(d.outward, self.thickness)))
+        Some((add(on, scale(d.outward, self.thickness)), u))
     }
 }
 
@@ -590,6 +675,9 @@ impl Collider {
 #[derive(Debug, Clone, Default)]
 pub struct ColliderSet {
     pub colliders: Vec<Collider>,
+    /// Coulomb friction coefficient (static = kinetic, >= 0) of contacts
+    /// with any of the colliders (`sim::contact`). Default 0.
+    pub friction: f64,
 }
 
 /// Passes over the colliders in [`ColliderSet::project`]: a node pushed out
@@ -617,26 +705,51 @@ impl ColliderSet {
         self.min_signed_distance(p)
             .map_or(0.0, |(_, d)| (-d).max(0.0))
     }
+
+    /// The largest [`Self::penetration`] (m) of `points` (e.g. the yarn
+    /// vertices embedded in the tets), 0 for none.
+    pub fn max_penetration(&self, points: &[Vec3]) -> f64 {
+        use rayon::prelude::*;
+        points
+            .par_iter()
+            .map(|p| self.penetration(*p))
+            .reduce(|| 0.0, f64::max)
+    }
 }
 
-impl NodeProjector for ColliderSet {
-    fn project(&self, _node: usize, p: Vec3) -> Option<Vec3> {
+impl ColliderSet {
+    /// The closest admissible position of `p` over the projection passes
+    /// and the surface motion of the last collider that moved it.
+    fn resolve(&self, p: Vec3) -> Option<(Vec3, Vec3)> {
         let mut q = p;
-        let mut moved = false;
+        let mut motion = None;
         for _ in 0..PROJECTION_PASSES {
             let mut any = false;
             for c in &self.colliders {
-                if let Some(r) = c.project(q) {
+                if let Some((r, u)) = c.project_moving(q) {
                     q = r;
+                    motion = Some(u);
                     any = true;
                 }
             }
-            moved |= any;
             if !any {
                 break;
             }
         }
-        moved.then_some(q)
+        motion.map(|u| (q, u))
+    }
+}
+
+impl NodeProjector for ColliderSet {
+    fn project(&self, _node: usize, p: Vec3) -> Option<Vec3> {
+        self.resolve(p).map(|(q, _)| q)
+    }
+    fn contact(&self, _node: usize, p: Vec3) -> Option<Contact> {
+        self.resolve(p).map(|(target, surface_motion)| Contact {
+            target,
+            surface_motion,
+            friction: self.friction,
+        })
     }
 }
 

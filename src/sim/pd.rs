@@ -73,6 +73,14 @@
 //! a step inside a collider); pinned nodes are never projected. Velocities
 //! are then the finite differences of the final positions.
 //!
+//! Coulomb friction (`super::contact`): a contact with a coefficient
+//! replaces `P(x_i)` by a target that also holds the node's place on the
+//! surface since the start of the step (static friction) or pulls it back
+//! by at most `μ` times the projection depth (kinetic), i.e. tangential
+//! constraint forces bounded by `μ` times the normal one, evaluated with the
+//! PD iterations like the projections, so it acts inside the implicit step
+//! (the final projection uses the same targets).
+//!
 //! # Backends
 //! The local step and the elastic right-hand side run through an
 //! [`ElasticRhs`] (default [`CpuElasticRhs`]), the Jacobi iterations through
@@ -115,7 +123,7 @@ use rayon::prelude::*;
 use super::anderson::Anderson;
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
 use super::cholesky::SparseCholesky;
-use super::contact::{NoContact, NodeProjector};
+use super::contact::{friction_target, NoContact, NodeProjector};
 use super::cpu::CpuElasticRhs;
 use super::csr::CsrMatrix;
 use super::dd::{DdParams, DdSolver, DdStats, Interiors};
@@ -340,6 +348,8 @@ pub struct StepStats {
     pub contacts: usize,
     /// Free nodes moved onto their projection after the last iteration.
     pub projected: usize,
+    /// Largest distance (m) one of them moved.
+    pub max_projection: f64,
     /// Anderson-accelerated iterates rejected because they did not lower
     /// `Φ` (each cost one more local step; [`PdParams::anderson_window`]).
     pub accelerations_rejected: u32,
@@ -544,7 +554,31 @@ impl PdSolver {
         pinned: &[usize],
         params: PdParams,
     ) -> Result<PdSolver, SimError> {
+        Self::new_partitioned(mesh, node_mass, gamma_s, gamma_v, pinned, params, None)
+    }
+
+    /// [`Self::new`] with per-tet domain ids for the domain-decomposed
+    /// solver ([`Self::set_tet_domains`]; `None`: automatic bisection), so
+    /// that its precomputation runs once, with the given partition.
+    pub fn new_partitioned(
+        mesh: &TetMesh,
+        node_mass: &[f64],
+        gamma_s: &[f64],
+        gamma_v: &[f64],
+        pinned: &[usize],
+        params: PdParams,
+        tet_domains: Option<&[u32]>,
+    ) -> Result<PdSolver, SimError> {
         params.validate()?;
+        if let Some(ids) = tet_domains {
+            if ids.len() != mesh.num_tets() {
+                return Err(SimError::Inconsistent(format!(
+                    "{} domain ids for {} tets",
+                    ids.len(),
+                    mesh.num_tets()
+                )));
+            }
+        }
         let model = ElasticModel::new(mesh, gamma_s, gamma_v)?;
         let n = mesh.num_nodes();
         if node_mass.len() != n {
@@ -591,7 +625,7 @@ impl PdSolver {
             dd: None,
             jacobi: None,
             elastic,
-            tet_domains: None,
+            tet_domains: tet_domains.map(<[u32]>::to_vec),
             k_fp: Vec::new(),
             energy_floor,
             last: None,
@@ -1054,11 +1088,11 @@ impl PdSolver {
             let eval = self.elastic.evaluate(&xk, &mut out)?;
             local_ms += tl.elapsed().as_secs_f64() * 1e3;
             clamped_tets = clamped_tets.max(eval.clamped_tets);
-            // Contact projections at the current iterate (local step).
+            // Contact targets at the current iterate (local step).
             let proj: Vec<Option<Vec3>> = free_nodes
                 .par_iter()
                 .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
-                .map(|&i| contacts.project(i, xk[i]))
+                .map(|&i| contact_target(contacts, i, xk[i], x[i]))
                 .collect();
             let active: Vec<bool> = proj.iter().map(|q| q.is_some()).collect();
             let mut contact_energy = 0.0;
@@ -1165,12 +1199,15 @@ impl PdSolver {
             }
         };
 
-        // Hard guarantee: no free node ends the step inside a collider.
+        // Hard guarantee: no free node ends the step inside a collider (and
+        // a sticking node keeps its place on the surface: no creep).
         let fixes: Vec<(usize, Vec3)> = free_nodes
             .par_iter()
-            .filter_map(|&i| contacts.project(i, xk[i]).map(|q| (i, q)))
+            .filter_map(|&i| contact_target(contacts, i, xk[i], x[i]).map(|q| (i, q)))
             .collect();
+        let mut max_projection = 0.0f64;
         for &(i, q) in &fixes {
+            max_projection = max_projection.max(norm(std::array::from_fn(|k| q[k] - xk[i][k])));
             xk[i] = q;
         }
 
@@ -1256,12 +1293,28 @@ impl PdSolver {
             global_residual,
             contacts: contacts_active,
             projected: fixes.len(),
+            max_projection,
             accelerations_rejected,
             local_ms,
             global_ms,
             ms: t0.elapsed().as_secs_f64() * 1e3,
         })
     }
+}
+
+/// The constraint target of free node `i` at `p` that started the step at
+/// `start`: its contact's projection with Coulomb friction
+/// ([`friction_target`]), None when admissible.
+fn contact_target(contacts: &dyn NodeProjector, i: usize, p: Vec3, start: Vec3) -> Option<Vec3> {
+    let c = contacts.contact(i, p)?;
+    let t = friction_target(&c, p, start);
+    if t == c.target {
+        return Some(t);
+    }
+    // The friction moves the target along the contact's tangent plane, which
+    // can enter a concave collider (a crease, a second collider) or its
+    // thickness band: project it again, so the end-of-step guarantee holds.
+    Some(contacts.project(i, t).unwrap_or(t))
 }
 
 /// A box of `n[0] x n[1] x n[2]` voxels of edge `h` (m) at the origin (y up),
@@ -1387,4 +1440,37 @@ pub fn bench_slab_thick(
         domains: dd.domains,
         reduced_size: dd.reduced_size,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::collide::{Collider, ColliderSet, Shape};
+
+    #[test]
+    fn friction_target_in_a_concave_corner_stays_admissible() {
+        // Floor y = 0 and wall x = 0 (1 mm thickness each); a node in the
+        // corner's band that slid 2.5 mm toward the wall: the kinetic
+        // friction pulls its target back along the mixed contact normal,
+        // which by itself would leave it 0.5 mm above the floor, inside the
+        // band.
+        let plane = |normal: Vec3| Collider {
+            shape: Shape::Plane {
+                point: [0.0; 3],
+                normal,
+            },
+            thickness: 1e-3,
+        };
+        let set = ColliderSet {
+            colliders: vec![plane([0.0, 1.0, 0.0]), plane([1.0, 0.0, 0.0])],
+            friction: 1.0,
+        };
+        let (p, start) = ([5e-4, -2e-4, 0.0], [3e-3, 1e-3, 0.0]);
+        let c = set.contact(0, p).unwrap();
+        let raw = friction_target(&c, p, start);
+        assert!(raw[1] < 0.9e-3, "the case must leave the band: {raw:?}");
+        let t = contact_target(&set, 0, p, start).unwrap();
+        assert!(set.project(0, t).is_none(), "{t:?} is not admissible");
+        assert!(t[0] > c.target[0], "friction pulled it back: {t:?}");
+    }
 }

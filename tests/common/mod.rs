@@ -43,3 +43,80 @@ pub fn require_tool(available: bool, what: &str) -> bool {
 pub fn knitvox_bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_knitvox"))
 }
+
+/// Slope of the friction scene of [`slide_on_incline`] (degrees): tan 20° =
+/// 0.364.
+pub const SLOPE_DEG: f64 = 20.0;
+
+/// Issue 13 item 10's scene: a 3 x 2 x 3 cm block (1 cm Kuhn voxels, 200
+/// kg/m³, 1e4 Pa) placed at rest on a plane through the origin tilted
+/// [`SLOPE_DEG`] about z (downhill: +x), Coulomb coefficient `mu`, `steps`
+/// steps of 1/150 s under gravity; `attach` may swap the solver's backend.
+/// Returns the largest node displacement (m), the mass-weighted mean
+/// displacement downhill (m) and the final positions.
+pub fn slide_on_incline(
+    mu: f64,
+    global: knitvox::sim::pd::GlobalSolver,
+    steps: usize,
+    attach: &dyn Fn(&mut knitvox::sim::pd::PdSolver),
+) -> (f64, f64, Vec<knitvox::geom::Vec3>) {
+    use knitvox::geom::Vec3;
+    use knitvox::sim::collide::{Collider, ColliderSet, Shape};
+    use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+    let (mesh, mass) = box_mesh([3, 2, 3], 0.01, 200.0);
+    let nt = mesh.num_tets();
+    let th = SLOPE_DEG.to_radians();
+    let (c, s) = (th.cos(), th.sin());
+    let normal = [s, c, 0.0];
+    let thickness = 1e-3;
+    // Rotate by -θ about z (the bottom face y = 0 then lies in the plane),
+    // then lift by the thickness along the normal: touching, at rest.
+    let x0: Vec<Vec3> = mesh
+        .nodes
+        .iter()
+        .map(|p| {
+            let r = [p[0] * c + p[1] * s, -p[0] * s + p[1] * c, p[2]];
+            std::array::from_fn(|k| r[k] + thickness * normal[k])
+        })
+        .collect();
+    let params = PdParams {
+        global,
+        ..Default::default()
+    };
+    let mut solver =
+        PdSolver::new(&mesh, &mass, &vec![1e4; nt], &vec![1e4; nt], &[], params).unwrap();
+    attach(&mut solver);
+    let plane = ColliderSet {
+        colliders: vec![Collider {
+            shape: Shape::Plane {
+                point: [0.0; 3],
+                normal,
+            },
+            thickness,
+        }],
+        friction: mu,
+    };
+    let (mut x, mut v) = (x0.clone(), vec![[0.0; 3]; x0.len()]);
+    for _ in 0..steps {
+        solver
+            .step_with_contacts(&mut x, &mut v, &[], &plane)
+            .unwrap();
+    }
+    let d: Vec<Vec3> = x
+        .iter()
+        .zip(&x0)
+        .map(|(a, b)| std::array::from_fn(|k| a[k] - b[k]))
+        .collect();
+    let largest = d
+        .iter()
+        .map(|u| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt())
+        .fold(0.0, f64::max);
+    let total: f64 = mass.iter().sum();
+    let along = d
+        .iter()
+        .zip(&mass)
+        .map(|(u, m)| m * (u[0] * c - u[1] * s))
+        .sum::<f64>()
+        / total;
+    (largest, along, x)
+}
