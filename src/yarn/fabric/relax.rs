@@ -127,6 +127,7 @@ pub fn relax_into_contact(
             10.0 * params.force_tolerance
         };
         let settle = Settle {
+            direct_first: false,
             dt: params.dt,
             max_rounds: params.max_rounds,
             tolerance: tol,
