@@ -201,3 +201,24 @@ fn inspect_foreign_and_busy_hdf5() {
     assert_eq!(o.status.code(), Some(75), "{}", stderr(&o));
     assert!(stderr(&o).contains("h5clear"), "{}", stderr(&o));
 }
+
+/// Issue 13 item 6: a missing input's OS error is printed once (library
+/// errors embed their cause and also return it as `source()`), and the code
+/// is 66.
+#[test]
+fn missing_input_prints_its_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.bcc");
+    for args in [
+        vec!["inspect", p(&missing)],
+        vec!["convert", p(&missing), "out.ply"],
+        vec!["embed", p(&missing), "-o", "out.vtkhdf"],
+    ] {
+        let o = knitvox(&args);
+        assert_eq!(o.status.code(), Some(66), "{args:?}: {}", stderr(&o));
+        let err = stderr(&o);
+        let cause = std::io::Error::from_raw_os_error(2).to_string(); // ENOENT
+        assert_eq!(err.matches(&cause).count(), 1, "{args:?}: {err}");
+        assert!(err.contains("nope.bcc"), "{err}");
+    }
+}

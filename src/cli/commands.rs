@@ -2,7 +2,7 @@
 
 use anyhow::Context;
 
-use super::{exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
+use super::{error_message, exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
 use crate::io;
 use crate::pipeline::{demo, inspect::summarize};
 
@@ -24,9 +24,9 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
                 if code == ExitCode::Success {
                     code = exit_code_for(&e);
                 }
-                eprintln!("error: {e:#}");
+                eprintln!("error: {}", error_message(&e));
                 if a.json {
-                    json.push(serde_json::json!({ "path": path.display().to_string(), "error": format!("{e:#}") }));
+                    json.push(serde_json::json!({ "path": path.display().to_string(), "error": error_message(&e) }));
                 }
             }
         }

@@ -28,6 +28,25 @@ impl ExitCode {
     }
 }
 
+/// The one-line message of an error and its causes, each cause printed
+/// once: library errors both embed their source in their own message and
+/// return it from `source()` (so `{e:#}` would print it twice), and a cause
+/// whose text the message already holds adds nothing.
+pub fn error_message(err: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in err.chain() {
+        let part = cause.to_string();
+        if part.is_empty() || text.contains(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
 /// The exit code for an error: looks through the error chain for a library
 /// error that knows its class.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
@@ -66,4 +85,26 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         }
     }
     ExitCode::Internal
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_cause_is_printed_once() {
+        let os = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let os_text = os.to_string();
+        let e = anyhow::Error::new(IoError::Read {
+            path: "x.bcc".into(),
+            source: os,
+        })
+        .context("converting x.bcc to y.ply");
+        let m = error_message(&e);
+        assert_eq!(m.matches(&os_text).count(), 1, "{m}");
+        assert!(
+            m.starts_with("converting x.bcc to y.ply: x.bcc: cannot read"),
+            "{m}"
+        );
+    }
 }

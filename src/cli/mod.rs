@@ -18,7 +18,7 @@ use clap::{Args, Parser, Subcommand};
 use crate::geom::{Units, UpAxis};
 use crate::io::{ReadOptions, WriteOptions, DEFAULT_RADIUS_M};
 
-pub use exit::{exit_code_for, ExitCode};
+pub use exit::{error_message, exit_code_for, ExitCode};
 
 /// knitvox: yarn-level knitwear to homogenized tetrahedral simulation, for render farms.
 #[derive(Debug, Parser)]
