@@ -6,6 +6,7 @@
 //! writers convert back out to the target format's convention.
 
 mod asset;
+mod excerpt;
 mod frame_spec;
 mod mesh;
 mod rest;
@@ -14,6 +15,7 @@ pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
 pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use rest::RestShape;

@@ -253,7 +253,8 @@ pub struct NoResources;
 impl Resources for NoResources {
     fn load(&self, uri: &str, _declared: u64) -> Result<Vec<u8>, String> {
         Err(format!(
-            "external resource '{uri}' cannot be loaded when parsing from bytes alone"
+            "external resource '{}' cannot be loaded when parsing from bytes alone",
+            crate::geom::excerpt(uri)
         ))
     }
 }
