@@ -14,6 +14,9 @@ pub enum ExitCode {
     BadInput = 65,
     /// An input file is missing or unreadable.
     MissingInput = 66,
+    /// The requested backend cannot run here: `--backend gpu` and no usable
+    /// GPU adapter (EX_UNAVAILABLE). Retry on a GPU node or with `--backend cpu`.
+    Unavailable = 69,
     /// Internal error (a bug): please report it.
     Internal = 70,
     /// Output failure: could not write (disk full, permissions, missing folder).
@@ -67,6 +70,10 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
             return of_class(e.class());
         }
         if let Some(e) = cause.downcast_ref::<crate::pipeline::simulate::SimulateError>() {
+            // The inputs are fine; this machine cannot run the backend.
+            if matches!(e, crate::pipeline::simulate::SimulateError::Unavailable(_)) {
+                return ExitCode::Unavailable;
+            }
             return of_class(e.class());
         }
         if let Some(e) = cause.downcast_ref::<crate::pipeline::pattern::PatternStageError>() {
