@@ -383,7 +383,12 @@ pub(crate) fn toml_error_line(e: &toml::de::Error, text: &str) -> String {
             .rposition(|&b| b == b'\n')
             .map_or(0, |i| i + 1)
         + 1;
-    format!("line {line}, column {column}: {message}")
+    // The one input line, cut, names the key for syntax errors.
+    let source = text.lines().nth(line - 1).unwrap_or("");
+    format!(
+        "line {line}, column {column}: {message} (in '{}')",
+        crate::geom::excerpt(source.trim())
+    )
 }
 
 fn finite(v: &[f64]) -> bool {
