@@ -2,7 +2,7 @@
 //! documented exit codes (see `knitvox::cli::exit`).
 
 use clap::Parser;
-use knitvox::cli::{self, exit_code_for, Cli, ExitCode};
+use knitvox::cli::{self, error_message, exit_code_for, Cli, ExitCode};
 
 fn main() -> std::process::ExitCode {
     // Like other Unix tools, end quietly when the reader of our output goes away
@@ -38,7 +38,7 @@ fn main() -> std::process::ExitCode {
     let code = match outcome {
         Ok(Ok(code)) => code,
         Ok(Err(e)) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             exit_code_for(&e)
         }
         Err(_) => {

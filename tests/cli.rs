@@ -201,3 +201,294 @@ fn inspect_foreign_and_busy_hdf5() {
     assert_eq!(o.status.code(), Some(75), "{}", stderr(&o));
     assert!(stderr(&o).contains("h5clear"), "{}", stderr(&o));
 }
+
+/// Issue 13 item 6: a missing input's OS error is printed once (library
+/// errors embed their cause and also return it as `source()`), and the code
+/// is 66.
+#[test]
+fn missing_input_prints_its_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.bcc");
+    for args in [
+        vec!["inspect", p(&missing)],
+        vec!["convert", p(&missing), "out.ply"],
+        vec!["embed", p(&missing), "-o", "out.vtkhdf"],
+    ] {
+        let o = knitvox(&args);
+        assert_eq!(o.status.code(), Some(66), "{args:?}: {}", stderr(&o));
+        let err = stderr(&o);
+        let cause = std::io::Error::from_raw_os_error(2).to_string(); // ENOENT
+        assert_eq!(err.matches(&cause).count(), 1, "{args:?}: {err}");
+        assert!(err.contains("nope.bcc"), "{err}");
+    }
+}
+
+/// Four parallel polylines 30 units long: a garment of 30 cm read in cm, or
+/// of 30 m when the unitless OBJ is read as metres (the assumed unit).
+fn wide_obj(dir: &Path) -> std::path::PathBuf {
+    let mut text = String::new();
+    for c in 0..4 {
+        for i in 0..31 {
+            text += &format!("v {i} {} 0\n", c as f64 * 0.5);
+        }
+        let ids: Vec<String> = (1..=31).map(|i| (c * 31 + i).to_string()).collect();
+        text += &format!("l {}\n", ids.join(" "));
+    }
+    let path = dir.join("wide.obj");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn json_of(o: &Output) -> serde_json::Value {
+    serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stdout)))
+}
+
+/// Issue 13 item 6: option values checked after clap (ranges, names inside
+/// files, frame numbers) are usage errors (exit 2) that name the option.
+#[test]
+fn bad_option_values_are_usage_errors_naming_the_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = wide_obj(dir.path());
+    let asset = dir.path().join("a.vtkhdf");
+    let o = knitvox(&["embed", p(&obj), "-o", p(&asset), "--units", "cm"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames = dir.path().join("f.####.obj");
+    let o = knitvox(&["convert", p(&obj), p(&frames), "--units", "cm"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let fox = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/Fox.glb");
+    let out = dir.path().join("o.vtkhdf");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["embed", p(&obj), "-o", p(&out), "--voxel-size", "nan"],
+            "--voxel-size",
+        ),
+        (
+            vec!["embed", p(&obj), "-o", p(&out), "--max-voxels", "0"],
+            "--max-voxels",
+        ),
+        (
+            vec!["embed", p(&obj), "-o", p(&out), "--density", "inf"],
+            "--density",
+        ),
+        (
+            vec!["inspect", p(&obj), "--spline-samples", "0"],
+            "--spline-samples",
+        ),
+        (vec!["inspect", p(&obj), "--radius", "nan"], "--radius"),
+        (
+            vec![
+                "shapefit",
+                p(&asset),
+                p(&frames),
+                "-o",
+                p(&out),
+                "--alpha",
+                "0",
+            ],
+            "--alpha",
+        ),
+        (
+            vec![
+                "shapefit",
+                p(&asset),
+                p(&frames),
+                "-o",
+                p(&out),
+                "--frames",
+                "5",
+            ],
+            "--frames 5",
+        ),
+        (
+            vec![
+                "simulate",
+                p(&asset),
+                "--character",
+                fox,
+                "--animation",
+                "Dance",
+                "--frames",
+                "1-2",
+                "-o",
+                p(&out),
+            ],
+            "--animation 'Dance'",
+        ),
+        (
+            vec![
+                "simulate",
+                p(&asset),
+                "--character",
+                fox,
+                "--fit-joint",
+                "b_Wing",
+                "--frames",
+                "1-2",
+                "-o",
+                p(&out),
+            ],
+            "--fit-joint 'b_Wing'",
+        ),
+    ];
+    for (args, option) in cases {
+        let o = knitvox(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(option), "{args:?}: {e}");
+    }
+    // The names are right: the same run gets past the check.
+    assert!(!out.exists());
+}
+
+/// Issue 13 item 6: `--backend gpu` without a GPU adapter is its own class,
+/// exit 69 (EX_UNAVAILABLE), not bad input (65). The Vulkan loader is
+/// pointed at no driver, so no adapter exists on any machine.
+#[test]
+fn no_gpu_adapter_exits_69() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = wide_obj(dir.path());
+    let asset = dir.path().join("a.vtkhdf");
+    let o = knitvox(&["embed", p(&obj), "-o", p(&asset), "--units", "cm"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let scene = dir.path().join("s.toml");
+    std::fs::write(&scene, "[simulation]\nfps = 24\n").unwrap();
+    let out = dir.path().join("o.vtkhdf");
+    let o = Command::new(common::knitvox_bin())
+        .args([
+            "simulate",
+            p(&asset),
+            "--scene",
+            p(&scene),
+            "--frames",
+            "1-1",
+        ])
+        .args(["--backend", "gpu", "-o", p(&out)])
+        .env("VK_ICD_FILENAMES", "/nonexistent")
+        .env("VK_DRIVER_FILES", "/nonexistent")
+        .output()
+        .unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(69), "{e}");
+    assert!(e.contains("--backend gpu") && e.contains("no GPU"), "{e}");
+    assert!(!out.exists());
+}
+
+/// Issue 13 item 7: a garment 30 m across read with an assumed unit warns
+/// (stderr, and `warnings` in --json) in convert, embed and simulate, with
+/// the unit that would make it clothing; declared units do not warn.
+#[test]
+fn implausible_size_with_an_assumed_unit_warns() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = wide_obj(dir.path());
+    let ply = dir.path().join("w.ply");
+    let o = knitvox(&["convert", p(&obj), p(&ply), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let w = json_of(&o)["warnings"].as_array().unwrap().clone();
+    assert_eq!(w.len(), 1, "{w:?}");
+    let w = w[0].as_str().unwrap();
+    assert!(
+        w.contains("30.0") && w.contains("--units cm") && w.contains("assumed"),
+        "{w}"
+    );
+    assert!(stderr(&o).contains("warning:") && stderr(&o).contains("--units cm"));
+    // Given units (and axis): no assumption, no warning, even at 30 m.
+    for extra in [&["--units", "cm"][..], &["--units", "m", "--up-axis", "y"]] {
+        let mut args = vec!["convert", p(&obj), p(&ply), "--json"];
+        args.extend(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert_eq!(json_of(&o)["warnings"], serde_json::json!([]), "{extra:?}");
+        assert!(!stderr(&o).contains("warning"), "{}", stderr(&o));
+    }
+    let asset = dir.path().join("a.vtkhdf");
+    let o = knitvox(&["embed", p(&obj), "-o", p(&asset), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let w = json_of(&o)["warnings"].clone();
+    assert!(w[0].as_str().unwrap().contains("--units cm"), "{w}");
+    let scene = dir.path().join("s.toml");
+    std::fs::write(&scene, "[simulation]\nfps = 24\n").unwrap();
+    let out = dir.path().join("o.vtkhdf");
+    let o = knitvox(&[
+        "simulate",
+        p(&asset),
+        "--scene",
+        p(&scene),
+        "--frames",
+        "1-1",
+        "--backend",
+        "cpu",
+        "-o",
+        p(&out),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let w = json_of(&o)["warnings"].clone();
+    assert!(
+        w[0].as_str().unwrap().contains("implausible for clothing"),
+        "{w}"
+    );
+}
+
+/// Issue 13 item 9: `inspect CHAR.glb` reports joints, skins, animations
+/// with durations, the bind-pose box and a --character-scale that makes the
+/// body 1.7 m tall (Fox.glb: about 79 units high -> 0.022).
+#[test]
+fn inspect_character_reports_rig_and_scale() {
+    let fox = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/Fox.glb");
+    let o = knitvox(&["inspect", fox, "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v = &json_of(&o)[0];
+    assert_eq!(v["format"], "gltf character");
+    assert_eq!(v["joints"].as_array().unwrap().len(), 24);
+    assert_eq!(v["skins"].as_array().unwrap().len(), 1);
+    let names: Vec<&str> = v["animations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["Survey", "Walk", "Run"]);
+    for a in v["animations"].as_array().unwrap() {
+        assert!(a["duration_s"].as_f64().unwrap() > 0.1, "{a}");
+    }
+    let height = v["height"].as_f64().unwrap();
+    assert!((70.0..90.0).contains(&height), "{height}");
+    let scale = v["suggested_character_scale"].as_f64().unwrap();
+    assert!((scale * height - 1.7).abs() < 0.05, "{scale} x {height}");
+    assert!(v["bind_bbox_min"][1].as_f64().unwrap() < v["bind_bbox_max"][1].as_f64().unwrap());
+    let o = knitvox(&["inspect", fox]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    for want in [
+        "b_Spine02_03",
+        "Walk (0.7",
+        "--character-scale 0.022",
+        "bind bbox",
+    ] {
+        assert!(text.contains(want), "{want}: {text}");
+    }
+}
+
+/// Issue 13 item 9: completion scripts and --help offer the values of
+/// --backend, --solver and --format.
+#[test]
+fn completion_offers_backend_solver_and_format_values() {
+    let o = knitvox(&["completions", "bash"]);
+    let s = String::from_utf8_lossy(&o.stdout);
+    for values in ["cpu gpu auto", "direct dd", "ply bcc obj gltf glb h5"] {
+        assert!(s.contains(values), "bash completion lacks '{values}'");
+    }
+    let o = knitvox(&["completions", "fish"]);
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        s.contains("-l backend") && s.contains("cpu\\t"),
+        "fish: backend"
+    );
+    let help = String::from_utf8_lossy(&knitvox(&["simulate", "--help"]).stdout).into_owned();
+    for v in ["cpu", "gpu", "auto", "direct", "dd"] {
+        assert!(
+            help.contains(&format!("- {v}:")),
+            "simulate --help lacks {v}"
+        );
+    }
+}

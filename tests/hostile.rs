@@ -528,3 +528,55 @@ fn scene_counts_are_bounded_and_name_the_key() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 13 item 6: an error quotes at most a short piece of one line of the
+/// input (a 5,000-character token, a multi-line TOML error, a long URI), so
+/// the message is one line that a farm log and a failed-job file can hold.
+#[test]
+fn messages_quote_at_most_one_short_line_of_the_input() {
+    let dir = scratch("excerpt");
+    let long = "q".repeat(5000);
+    let files = [
+        ("a.obj", format!("v 0 0 0\nv 1 0 0\nl 1 2 {long}\n")),
+        ("b.poly", format!("POINTS\n1: 0 0 {long}\n")),
+        (
+            "c.ply",
+            format!("ply\nformat ascii 1.0\nelement {long} 1\nproperty float x\nend_header\n1\n"),
+        ),
+        ("d.gltf", gltf_with_uri(&format!("{long}.bin"))),
+        (
+            "e.gltf",
+            gltf_with_uri("x.bin").replace("\"2.0\"", &format!("\"{long}\"")),
+        ),
+    ];
+    let mut runs: Vec<(Vec<String>, i32)> = Vec::new();
+    for (name, text) in &files {
+        std::fs::write(dir.join(name), text).unwrap();
+        runs.push((vec!["inspect".into(), name.to_string()], 65));
+    }
+    std::fs::write(dir.join("a.vtkhdf"), b"").unwrap();
+    for (name, text) in [
+        ("s1.toml", "[simulation]\ndt = \"abc\nfps = 3\n".to_string()),
+        ("s2.toml", format!("[simulation]\nfps = \"{long}\"\n")),
+    ] {
+        std::fs::write(dir.join(name), text).unwrap();
+        runs.push((
+            [
+                "simulate", "a.vtkhdf", "--scene", name, "--frames", "1-2", "-o", "o.vtkhdf",
+            ]
+            .map(String::from)
+            .to_vec(),
+            65,
+        ));
+    }
+    for (args, code) in &runs {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (o, _) = knitvox_in(&dir, &args, Duration::from_secs(10));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(*code), "{args:?}: {e}");
+        assert_eq!(e.trim_end().lines().count(), 1, "{:?}: {e}", &args[..2]);
+        assert!(!e.contains(&"q".repeat(100)), "{:?}: {e}", &args[..2]);
+        assert!(e.len() < 800, "{:?}: {} bytes: {e}", &args[..2], e.len());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

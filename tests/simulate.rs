@@ -437,7 +437,7 @@ fn cli_exit_codes() {
         66
     );
     // GPU backend: runs where wgpu finds an adapter (lavapipe included),
-    // else a clear message and exit 65.
+    // else a clear message and exit 69 (unavailable, not bad input).
     let have_gpu = knitvox::sim::gpu::GpuContext::new().is_ok();
     let (code, _, err) = run(&[
         "simulate",
@@ -456,10 +456,10 @@ fn cli_exit_codes() {
         // (no node near the body without --fit-joint), not for the GPU.
         assert!(!err.contains("GPU"), "{err}");
     } else {
-        assert_eq!(code, 65, "{err}");
+        assert_eq!(code, 69, "{err}");
         assert!(err.contains("no usable GPU"), "{err}");
     }
-    // Unknown animation: 65 naming it.
+    // Unknown --animation: a usage error (2) naming it and the file's.
     let (code, _, err) = run(&[
         "simulate",
         a,
@@ -472,7 +472,7 @@ fn cli_exit_codes() {
         "-o",
         o,
     ]);
-    assert_eq!(code, 65, "{err}");
+    assert_eq!(code, 2, "{err}");
     assert!(err.contains("Dance") && err.contains("Walk"), "{err}");
     // Garment nowhere near the (unscaled, 80 m) fox: no pins, 65 with advice.
     let (code, _, err) = run(&["simulate", a, "--character", fox, "--frames", "1", "-o", o]);

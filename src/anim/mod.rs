@@ -22,6 +22,7 @@
 //! with a note): knitvox only needs the body surface for collisions.
 
 pub mod pins;
+pub mod summary;
 
 use std::fmt;
 

@@ -25,13 +25,13 @@ pub struct EmbedArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Voxel edge length in metres [default: about 0.5 mesh nodes per yarn vertex, VH §4].
-    #[arg(long, value_name = "METRES")]
+    #[arg(long, value_name = "METRES", value_parser = super::guard::parse_positive)]
     pub voxel_size: Option<f64>,
     /// Refuse embeddings with more voxels than this.
-    #[arg(long, default_value_t = EmbedParams::default().max_voxels)]
+    #[arg(long, default_value_t = EmbedParams::default().max_voxels, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_voxels: u64,
     /// Yarn material density (kg/m^3) for yarns without a linear density.
-    #[arg(long, default_value_t = EmbedParams::default().material_density)]
+    #[arg(long, default_value_t = EmbedParams::default().material_density, value_parser = super::guard::parse_positive)]
     pub density: f64,
     #[command(flatten)]
     pub read: ReadArgs,
@@ -53,7 +53,7 @@ pub struct ShapefitArgs {
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Weight of the position term of VH Eq. 6.
-    #[arg(long, default_value_t = ShapeFitParams::default().alpha)]
+    #[arg(long, default_value_t = ShapeFitParams::default().alpha, value_parser = super::guard::parse_positive)]
     pub alpha: f64,
     #[command(flatten)]
     pub read: ReadArgs,
@@ -105,7 +105,9 @@ fn check_asset_ext(path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Resolves a spec against `n` available frames: 0-based indices, all in range.
+/// Resolves `--frames` against `n` available frames: 0-based indices, all
+/// in range. One out of range is a usage error (exit 2) naming the option:
+/// the file is fine, the option asks for what it does not hold.
 fn select(
     spec: &Option<FrameSpec>,
     n: usize,
@@ -117,13 +119,13 @@ fn select(
         .into_iter()
         .map(|f| {
             usize::try_from(f).ok().filter(|&i| i < n).ok_or_else(|| {
-                anyhow::Error::new(io::IoError::Unsupported {
-                    path: path.to_path_buf(),
-                    message: format!(
-                        "{what} {f} does not exist: there are {n} (0..{})",
-                        n.saturating_sub(1)
-                    ),
-                })
+                super::guard::UsageError(format!(
+                    "--frames {}: {what} {f} does not exist: {} has {n} {what}s (0..{})",
+                    spec.as_ref().map_or(String::new(), |s| s.to_string()),
+                    path.display(),
+                    n.saturating_sub(1)
+                ))
+                .into()
             })
         })
         .collect()
@@ -139,12 +141,18 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
     };
     let (asset, stats) =
         stages::build_asset(&a.yarns, &a.read.options(), &params, &command_line())?;
+    let warnings = super::warn_all(
+        stages::size_warning(&asset)
+            .map(|w| format!("{}: {w}", a.yarns.display()))
+            .into_iter()
+            .collect(),
+    );
     vtkhdf::write_asset(&a.output, &asset)?;
     if a.json {
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats })
+                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "warnings": warnings })
             )?
         );
     } else {

@@ -2,7 +2,7 @@
 
 use anyhow::Context;
 
-use super::{exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
+use super::{error_message, exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
 use crate::io;
 use crate::pipeline::{demo, inspect::summarize};
 
@@ -24,9 +24,9 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
                 if code == ExitCode::Success {
                     code = exit_code_for(&e);
                 }
-                eprintln!("error: {e:#}");
+                eprintln!("error: {}", error_message(&e));
                 if a.json {
-                    json.push(serde_json::json!({ "path": path.display().to_string(), "error": format!("{e:#}") }));
+                    json.push(serde_json::json!({ "path": path.display().to_string(), "error": error_message(&e) }));
                 }
             }
         }
@@ -59,6 +59,9 @@ fn inspect_one(
             obj.insert("format".into(), "vtkhdf".into());
         }
         return Ok((v, text));
+    }
+    if let Some(c) = character(path) {
+        return Ok(character_report(path, &c));
     }
     if let Some(datasets) = foreign_hdf5(path) {
         let _ = writeln!(
@@ -93,6 +96,76 @@ fn inspect_one(
     Ok((serde_json::to_value(&r).unwrap_or_default(), r.to_text()))
 }
 
+/// The summary of a glTF that is a character (triangle meshes with a skin
+/// or animations); None for anything else, yarn glTFs included.
+fn character(path: &std::path::Path) -> Option<crate::anim::summary::CharacterSummary> {
+    let glb_or_gltf = matches!(
+        io::Format::from_path(path),
+        Some(io::Format::Gltf | io::Format::Glb)
+    );
+    if !glb_or_gltf || io::sequence::is_pattern(path) {
+        return None;
+    }
+    let ch = io::gltf_skin::read_character(path).ok()?;
+    let animated = !ch.skins.is_empty() || !ch.animations.is_empty();
+    (!ch.meshes.is_empty() && animated).then(|| crate::anim::summary::summarize(&ch))
+}
+
+/// JSON and text of a character (names cut like any quoted input).
+fn character_report(
+    path: &std::path::Path,
+    c: &crate::anim::summary::CharacterSummary,
+) -> (serde_json::Value, String) {
+    use crate::geom::excerpt;
+    let mut v = serde_json::to_value(c).unwrap_or_default();
+    if let Some(o) = v.as_object_mut() {
+        o.insert("path".into(), path.display().to_string().into());
+        o.insert("format".into(), "gltf character".into());
+    }
+    let names = |n: &[String]| n.iter().map(|s| excerpt(s)).collect::<Vec<_>>().join(", ");
+    let anims: Vec<String> = c
+        .animations
+        .iter()
+        .map(|a| format!("{} ({:.3} s)", excerpt(&a.name), a.duration_s))
+        .collect();
+    let fmt3 = |p: Option<[f64; 3]>| {
+        p.map_or("-".into(), |p| {
+            format!("[{:.4}, {:.4}, {:.4}]", p[0], p[1], p[2])
+        })
+    };
+    let skins: Vec<String> = c.skins.iter().map(|s| s.joints.len().to_string()).collect();
+    let text = format!(
+        "{}\n  format        glTF character (skinned/animated triangle meshes)\n  \
+         nodes         {}; {} meshes, {} vertices, {} triangles\n  \
+         skins         {} (joints per skin: {})\n  joints        {}\n  \
+         animations    {}\n  bind bbox     {} .. {} (file units; glTF: m, +Y up)\n  \
+         height        {:.4} (bind pose, along +Y)\n  \
+         suggested     --character-scale {} (a body {} m tall; 1 when already {}-{} m)\n",
+        path.display(),
+        c.nodes,
+        c.meshes,
+        c.vertices,
+        c.triangles,
+        c.skins.len(),
+        skins.join(", "),
+        names(&c.joints),
+        if anims.is_empty() {
+            "none".into()
+        } else {
+            anims.join(", ")
+        },
+        fmt3(c.bind_bbox_min),
+        fmt3(c.bind_bbox_max),
+        c.height,
+        c.suggested_character_scale
+            .map_or("-".into(), |s| s.to_string()),
+        crate::anim::summary::TARGET_HEIGHT_M,
+        crate::anim::summary::PLAUSIBLE_HEIGHT_M.0,
+        crate::anim::summary::PLAUSIBLE_HEIGHT_M.1,
+    );
+    (v, text)
+}
+
 fn is_asset(path: &std::path::Path) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
@@ -113,18 +186,23 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
     let d = io::read_path(&a.input, &a.read.options())?;
     let out_format = io::format_of(&a.output)?;
     let frames = d.frames.as_ref();
+    let mut warnings = Vec::new();
     if let Some(f) = frames {
         if !out_format.holds_frames() && !io::sequence::is_pattern(&a.output) {
-            eprintln!(
-                "warning: {} holds {} frames but {} keeps only the first frame's curves; \
+            warnings.push(format!(
+                "{} holds {} frames but {} keeps only the first frame's curves; \
                  write name.####.{} or .h5 to keep every frame",
                 a.input.display(),
                 f.num_frames(),
                 a.output.display(),
                 out_format.extensions()[0]
-            );
+            ));
         }
     }
+    if let Some(w) = d.size_warning() {
+        warnings.push(format!("{}: {w}", a.input.display()));
+    }
+    let warnings = super::warn_all(warnings);
     if d.yarns.rest.is_some() && out_format != io::Format::Hdf5 {
         eprintln!(
             "note: {} carries a rest shape (rest lengths, curvatures, material frames) that {} \
@@ -146,6 +224,7 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
                 "points": d.yarns.num_points(),
                 "frames": frames.map_or(0, |f| f.num_frames()),
                 "written": files,
+                "warnings": warnings,
             })
         );
     } else {

@@ -14,6 +14,9 @@ pub enum ExitCode {
     BadInput = 65,
     /// An input file is missing or unreadable.
     MissingInput = 66,
+    /// The requested backend cannot run here: `--backend gpu` and no usable
+    /// GPU adapter (EX_UNAVAILABLE). Retry on a GPU node or with `--backend cpu`.
+    Unavailable = 69,
     /// Internal error (a bug): please report it.
     Internal = 70,
     /// Output failure: could not write (disk full, permissions, missing folder).
@@ -26,6 +29,25 @@ impl ExitCode {
     pub fn code(self) -> u8 {
         self as u8
     }
+}
+
+/// The one-line message of an error and its causes, each cause printed
+/// once: library errors both embed their source in their own message and
+/// return it from `source()` (so `{e:#}` would print it twice), and a cause
+/// whose text the message already holds adds nothing.
+pub fn error_message(err: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in err.chain() {
+        let part = cause.to_string();
+        if part.is_empty() || text.contains(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
 }
 
 /// The exit code for an error: looks through the error chain for a library
@@ -48,6 +70,10 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
             return of_class(e.class());
         }
         if let Some(e) = cause.downcast_ref::<crate::pipeline::simulate::SimulateError>() {
+            // The inputs are fine; this machine cannot run the backend.
+            if matches!(e, crate::pipeline::simulate::SimulateError::Unavailable(_)) {
+                return ExitCode::Unavailable;
+            }
             return of_class(e.class());
         }
         if let Some(e) = cause.downcast_ref::<crate::pipeline::pattern::PatternStageError>() {
@@ -66,4 +92,26 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         }
     }
     ExitCode::Internal
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_cause_is_printed_once() {
+        let os = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let os_text = os.to_string();
+        let e = anyhow::Error::new(IoError::Read {
+            path: "x.bcc".into(),
+            source: os,
+        })
+        .context("converting x.bcc to y.ply");
+        let m = error_message(&e);
+        assert_eq!(m.matches(&os_text).count(), 1, "{m}");
+        assert!(
+            m.starts_with("converting x.bcc to y.ply: x.bcc: cannot read"),
+            "{m}"
+        );
+    }
 }

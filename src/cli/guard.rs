@@ -44,6 +44,41 @@ pub fn parse_bytes(s: &str) -> Result<u64, String> {
     Ok(bytes as u64)
 }
 
+/// A finite number > 0 (lengths, densities, weights), checked by clap so a
+/// bad value is a usage error naming the option.
+pub fn parse_positive(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!(
+            "'{}': expected a finite number > 0",
+            crate::geom::excerpt(s)
+        )),
+    }
+}
+
+/// A finite number >= 0.
+pub fn parse_non_negative(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!(
+            "'{}': expected a finite number >= 0",
+            crate::geom::excerpt(s)
+        )),
+    }
+}
+
+/// BCC spline samples per span: 1 to `io::bcc::MAX_SPLINE_SAMPLES`.
+pub fn parse_spline_samples(s: &str) -> Result<usize, String> {
+    let max = crate::io::bcc::MAX_SPLINE_SAMPLES;
+    match s.trim().parse::<usize>() {
+        Ok(v) if (1..=max).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "'{}': expected an integer from 1 to {max}",
+            crate::geom::excerpt(s)
+        )),
+    }
+}
+
 /// The memory budget when `--max-memory` is not given: a quarter of the
 /// physical memory (`MemTotal` of /proc/meminfo), else the library default.
 pub fn default_max_memory() -> u64 {

@@ -18,7 +18,7 @@ use clap::{Args, Parser, Subcommand};
 use crate::geom::{Units, UpAxis};
 use crate::io::{ReadOptions, WriteOptions, DEFAULT_RADIUS_M};
 
-pub use exit::{exit_code_for, ExitCode};
+pub use exit::{error_message, exit_code_for, ExitCode};
 
 /// knitvox: yarn-level knitwear to homogenized tetrahedral simulation, for render farms.
 #[derive(Debug, Parser)]
@@ -80,10 +80,10 @@ pub struct ReadArgs {
     #[arg(long, value_name = "NxM", default_value = "1x1", value_parser = parse_tile)]
     pub tile: [usize; 2],
     /// Polyline samples per span of BCC spline curves (C0, BS); 1 keeps the C0 control points.
-    #[arg(long, value_name = "K")]
+    #[arg(long, value_name = "K", value_parser = guard::parse_spline_samples)]
     pub spline_samples: Option<usize>,
     /// Yarn radius in metres for files without one (or for all, with --override-radius).
-    #[arg(long, value_name = "METRES", default_value_t = DEFAULT_RADIUS_M)]
+    #[arg(long, value_name = "METRES", default_value_t = DEFAULT_RADIUS_M, value_parser = guard::parse_positive)]
     pub radius: f64,
     /// Use --radius even where the file gives radii.
     #[arg(long)]
@@ -214,7 +214,7 @@ pub struct BenchEmbedArgs {
     #[arg(long, default_value_t = 50_000)]
     pub points: usize,
     /// Voxel size (m) [default: the embedding's default rule].
-    #[arg(long)]
+    #[arg(long, value_parser = guard::parse_positive)]
     pub voxel_size: Option<f64>,
     /// Frames to shape-fit (an analytic stretch of the rest yarns).
     #[arg(long, default_value_t = 8)]
@@ -240,17 +240,17 @@ pub struct BenchSimArgs {
     /// Time step (s), a number or a fraction.
     #[arg(long, default_value = "1/150", value_parser = crate::pipeline::sim_scene::parse_seconds)]
     pub dt: f64,
-    /// Backend: cpu, gpu or auto.
-    #[arg(long, value_name = "cpu|gpu|auto", default_value = "auto")]
+    /// Backend.
+    #[arg(long, value_enum, default_value = "auto")]
     pub backend: crate::pipeline::sim_scene::BackendChoice,
-    /// Global solver: direct or dd.
-    #[arg(long, value_name = "direct|dd", default_value = "direct")]
+    /// Global solver.
+    #[arg(long, value_enum, default_value = "direct")]
     pub solver: crate::pipeline::sim_scene::SolverChoice,
     /// Most PD iterations per step [default: the simulator's default].
     #[arg(long)]
     pub pd_iterations: Option<u32>,
     /// Relative residual of the domain-decomposed solver's Jacobi iterations [default: its default].
-    #[arg(long)]
+    #[arg(long, value_parser = guard::parse_positive)]
     pub dd_tolerance: Option<f64>,
     /// Interiors of the domain-decomposed solver: exact (every interior mode, the default) or modes (VH Eq. 32's 20 lowest per domain).
     #[arg(long, value_parser = ["exact", "modes"])]
@@ -327,6 +327,15 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::Success)
         }
     }
+}
+
+/// Prints warnings on stderr (`warning: ...`) and returns them for a
+/// `--json` report's `warnings` array.
+pub(crate) fn warn_all(warnings: Vec<String>) -> Vec<String> {
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    warnings
 }
 
 /// Runs `job` with a frames progress bar on stderr (`label {bar} pos/len

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::{exit_code_for, ExitCode};
+use super::{error_message, exit_code_for, ExitCode};
 use crate::io::{self, WriteOptions};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
 use crate::yarn::fabric::RelaxParams;
@@ -135,7 +135,7 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
         Ok(w) => w,
         Err(e) => {
             let e = anyhow::Error::new(e);
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             return Ok(exit_code_for(&e));
         }
     };

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use super::guard::{parse_non_negative, parse_positive};
 use super::ExitCode;
 use crate::anim::pins::DEFAULT_PIN_DISTANCE;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
@@ -27,17 +28,33 @@ fn parse_vec3(s: &str) -> Result<Vec3, String> {
     }
 }
 
-fn parse_positive(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("'{s}': expected a finite number > 0")),
+// The choices are clap value enums here, in the CLI layer, so that --help
+// and shell completion list them; the pipeline keeps its own FromStr for
+// scene files.
+impl clap::ValueEnum for BackendChoice {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[BackendChoice::Cpu, BackendChoice::Gpu, BackendChoice::Auto]
+    }
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        let help = match self {
+            BackendChoice::Cpu => "the CPU (f64)",
+            BackendChoice::Gpu => "a wgpu adapter (f32); exit 69 without one",
+            BackendChoice::Auto => "a hardware GPU when there is one, else the CPU",
+        };
+        Some(clap::builder::PossibleValue::new(self.name()).help(help))
     }
 }
 
-fn parse_non_negative(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        _ => Err(format!("'{s}': expected a finite number >= 0")),
+impl clap::ValueEnum for SolverChoice {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[SolverChoice::Direct, SolverChoice::Dd]
+    }
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        let help = match self {
+            SolverChoice::Direct => "sparse Cholesky of the global matrix",
+            SolverChoice::Dd => "domain-decomposed subspace + Chebyshev-Jacobi",
+        };
+        Some(clap::builder::PossibleValue::new(self.name()).help(help))
     }
 }
 
@@ -83,11 +100,11 @@ pub struct SimulateArgs {
     /// Pre-roll (s) blending the character from bind pose into the first frame [default: 0.2 with a character].
     #[arg(long, value_name = "SECONDS", value_parser = parse_non_negative)]
     pub preroll: Option<f64>,
-    /// Backend: cpu, gpu or auto [default: the scene's, else auto].
-    #[arg(long, value_name = "cpu|gpu|auto")]
+    /// Backend [default: the scene's, else auto].
+    #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
-    /// Global solver: direct or dd (domain-decomposed) [default: the scene's, else direct].
-    #[arg(long, value_name = "direct|dd")]
+    /// Global solver [default: the scene's, else direct].
+    #[arg(long, value_enum)]
     pub solver: Option<SolverChoice>,
     /// Output asset (.vtkhdf): a copy of ASSET with the simulated frames as its time series.
     #[arg(short, long)]
@@ -167,7 +184,16 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     check_asset_ext(&a.output)?;
     let scene = scene_of(a)?;
     check_step_count(a, &scene)?;
+    check_character_names(a)?;
     let asset = vtkhdf::read_asset(&a.asset)?;
+    // The asset records how its yarns were read: an assumed unit and an
+    // implausible size are worth a warning before a long shot.
+    let warnings = super::warn_all(
+        crate::pipeline::asset::size_warning(&asset)
+            .map(|w| format!("{}: {w} (when embedding its yarns)", a.asset.display()))
+            .into_iter()
+            .collect(),
+    );
     let req = ShotRequest {
         frames: a.frames.frames(),
         output: a.output.clone(),
@@ -187,7 +213,11 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     );
     let r = result?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        let mut v = serde_json::to_value(&r)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("warnings".into(), warnings.into());
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
             "{}: {} frames ({}-{}, {} fps), {} steps of {:.5} s ({} per frame, {} pre-roll), {} nodes, {} tets, {} pinned ({} to the body); {} / {}",
@@ -243,6 +273,50 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::Success)
+}
+
+/// `--animation` and `--fit-joint` name things inside `--character`: a name
+/// the file lacks is a usage error (exit 2) naming the option, found before
+/// the asset is read. (The same keys in a scene file stay bad input.)
+fn check_character_names(a: &SimulateArgs) -> anyhow::Result<()> {
+    use crate::geom::excerpt;
+    let Some(path) = &a.character else {
+        return Ok(());
+    };
+    if a.animation.is_none() && a.fit_joint.is_none() {
+        return Ok(());
+    }
+    let ch = crate::io::gltf_skin::read_character(path)?;
+    let usage = |m: String| Err(super::guard::UsageError(m).into());
+    if let Some(name) = &a.animation {
+        if ch.animation_index(name).is_none() {
+            let names: Vec<String> = ch.animation_names().iter().map(|n| excerpt(n)).collect();
+            return usage(format!(
+                "--animation '{}': {} has no such animation (it has: {})",
+                excerpt(name),
+                path.display(),
+                if names.is_empty() {
+                    "none".into()
+                } else {
+                    names.join(", ")
+                }
+            ));
+        }
+    }
+    if let Some(joint) = &a.fit_joint {
+        if !ch
+            .skeleton
+            .iter()
+            .any(|n| n.name.as_deref() == Some(joint.as_str()))
+        {
+            return usage(format!(
+                "--fit-joint '{}': {} has no node of that name (`knitvox inspect` lists its joints)",
+                excerpt(joint),
+                path.display()
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// `--frames` (with `--dt`, `--fps`, `--preroll` or the scene's values) asking

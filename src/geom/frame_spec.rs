@@ -73,23 +73,25 @@ impl FromStr for FrameSpec {
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let mut items = Vec::new();
         let mut total: u64 = 0;
+        let spec = super::excerpt(s);
         for raw in s.split(',') {
             let item = raw.trim();
+            let shown_item = super::excerpt(item);
             if item.is_empty() {
-                return Err(format!("frame spec '{s}': empty item"));
+                return Err(format!("frame spec '{spec}': empty item"));
             }
             let (range, step) = match item.split_once(['x', 'X', ':']) {
                 Some((r, st)) => (
                     r,
                     st.trim()
                         .parse::<i64>()
-                        .map_err(|_| format!("frame spec '{s}': bad step in '{item}'"))?,
+                        .map_err(|_| format!("frame spec '{spec}': bad step in '{shown_item}'"))?,
                 ),
                 None => (item, 1),
             };
             if step < 1 {
                 return Err(format!(
-                    "frame spec '{s}': step must be at least 1 in '{item}'"
+                    "frame spec '{spec}': step must be at least 1 in '{shown_item}'"
                 ));
             }
             // A leading '-' is a negative frame number, not a range separator.
@@ -103,28 +105,33 @@ impl FromStr for FrameSpec {
                 None => (range, range),
             };
             let parse = |t: &str| {
-                t.trim()
-                    .parse::<i64>()
-                    .map_err(|_| format!("frame spec '{s}': '{t}' is not a frame number"))
+                t.trim().parse::<i64>().map_err(|_| {
+                    format!(
+                        "frame spec '{spec}': '{}' is not a frame number",
+                        super::excerpt(t)
+                    )
+                })
             };
             let (a, b) = (parse(a)?, parse(b)?);
             for f in [a, b] {
-                check_frame_number(&format!("frame spec '{s}': frame"), f)?;
+                check_frame_number(&format!("frame spec '{spec}': frame"), f)?;
             }
             if step > 2 * MAX_FRAME_NUMBER {
                 return Err(format!(
-                    "frame spec '{s}': step {step} is larger than the limit of {}",
+                    "frame spec '{spec}': step {step} is larger than the limit of {}",
                     2 * MAX_FRAME_NUMBER
                 ));
             }
             if b < a {
-                return Err(format!("frame spec '{s}': range '{item}' runs backwards"));
+                return Err(format!(
+                    "frame spec '{spec}': range '{shown_item}' runs backwards"
+                ));
             }
             // |a|, |b| <= 1e9 and step <= 2e9: no overflow.
             total = total.saturating_add(((b - a) / step + 1) as u64);
             if total > MAX_SPEC_FRAMES {
                 return Err(format!(
-                    "frame spec '{s}' selects more than {MAX_SPEC_FRAMES} frames"
+                    "frame spec '{spec}' selects more than {MAX_SPEC_FRAMES} frames"
                 ));
             }
             items.push((a, b, step));

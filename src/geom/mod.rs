@@ -6,19 +6,23 @@
 //! writers convert back out to the target format's convention.
 
 mod asset;
+mod excerpt;
 mod frame_spec;
 mod mesh;
+mod plausible;
 mod rest;
 mod units;
 pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
 pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
+pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::RestShape;
 pub use units::{Units, UpAxis};
-pub use yarns::{dist, Bounds, GeomError, YarnFrames, Yarns};
+pub use yarns::{bounds_of, dist, Bounds, GeomError, YarnFrames, Yarns};
 
 /// A 3D point or vector in metres.
 pub type Vec3 = [f64; 3];

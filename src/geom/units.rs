@@ -61,7 +61,7 @@ impl FromStr for Units {
                 .parse::<f64>()
                 .ok()
                 .and_then(Units::from_scale)
-                .ok_or_else(|| format!("unknown unit '{s}': expected mm, cm, m or a positive number of metres per unit")),
+                .ok_or_else(|| format!("unknown unit '{}': expected mm, cm, m or a positive number of metres per unit", super::excerpt(s))),
         }
     }
 }
@@ -117,7 +117,10 @@ impl FromStr for UpAxis {
         match s.trim().to_ascii_lowercase().as_str() {
             "y" | "+y" => Ok(UpAxis::Y),
             "z" | "+z" => Ok(UpAxis::Z),
-            _ => Err(format!("unknown up axis '{s}': expected y or z")),
+            _ => Err(format!(
+                "unknown up axis '{}': expected y or z",
+                super::excerpt(s)
+            )),
         }
     }
 }

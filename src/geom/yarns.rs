@@ -428,7 +428,8 @@ pub fn dist(a: Vec3, b: Vec3) -> f64 {
     norm(sub(a, b))
 }
 
-fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
+/// The bounding box of `points` (None when empty).
+pub fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
     let first = *points.first()?;
     let mut b = Bounds {
         min: first,

@@ -104,7 +104,7 @@ pub fn parse_finite(token: &str, line: usize, what: &str) -> Result<f64, FormatE
         )),
         Err(_) => Err(FormatError::at_line(
             line,
-            format!("{what}: '{token}' is not a number"),
+            format!("{what}: '{}' is not a number", crate::geom::excerpt(token)),
         )),
     }
 }

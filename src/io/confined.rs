@@ -41,19 +41,25 @@ pub fn percent_decode_bytes(s: &str) -> Vec<u8> {
     out
 }
 
+/// A path built from a URI, cut for messages like the URI itself.
+fn shown_path(p: &Path) -> String {
+    crate::geom::excerpt(&p.display().to_string())
+}
+
 /// The relative path a URI names, or why it may not be followed.
 pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
+    let shown = crate::geom::excerpt(uri);
     // A scheme (`file:`, `http:`, a Windows drive `C:`) comes before any '/'.
     let head = uri.split(['/', '?', '#']).next().unwrap_or("");
     if head.contains(':') {
         return Err(format!(
-            "refusing URI '{uri}': only relative paths are followed (it has a scheme)"
+            "refusing URI '{shown}': only relative paths are followed (it has a scheme)"
         ));
     }
     let bytes = percent_decode_bytes(uri);
     if bytes.contains(&0) {
         return Err(format!(
-            "refusing URI '{uri}': it holds a NUL byte once decoded"
+            "refusing URI '{shown}': it holds a NUL byte once decoded"
         ));
     }
     #[cfg(unix)]
@@ -64,7 +70,7 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
     #[cfg(not(unix))]
     let path = PathBuf::from(OsString::from(String::from_utf8_lossy(&bytes).into_owned()));
     if path.as_os_str().is_empty() {
-        return Err(format!("refusing URI '{uri}': empty path"));
+        return Err(format!("refusing URI '{shown}': empty path"));
     }
     if path.is_absolute()
         || path.has_root()
@@ -74,8 +80,8 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
         || bytes.starts_with(b"\\")
     {
         return Err(format!(
-            "refusing URI '{uri}': it names the absolute path '{}'; only paths inside the file's folder are followed",
-            path.display()
+            "refusing URI '{shown}': it names the absolute path '{}'; only paths inside the file's folder are followed",
+            crate::geom::excerpt(&path.display().to_string())
         ));
     }
     Ok(path)
@@ -90,6 +96,7 @@ pub fn read_confined(
     max_bytes: u64,
 ) -> Result<Vec<u8>, ConfinedError> {
     let rel = relative_path(uri)?;
+    let shown = crate::geom::excerpt(uri);
     let base_dir = if dir.as_os_str().is_empty() {
         Path::new(".")
     } else {
@@ -99,27 +106,27 @@ pub fn read_confined(
         .map_err(|e| format!("cannot resolve the folder '{}': {e}", base_dir.display()))?;
     let joined = base.join(&rel);
     let target = std::fs::canonicalize(&joined)
-        .map_err(|e| format!("cannot read '{}': {e}", joined.display()))?;
+        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&joined)))?;
     if !target.starts_with(&base) {
         return Err(format!(
-            "refusing URI '{uri}': it resolves to '{}', outside the file's folder '{}'",
-            target.display(),
+            "refusing URI '{shown}': it resolves to '{}', outside the file's folder '{}'",
+            shown_path(&target),
             base.display()
         ));
     }
     let meta = std::fs::metadata(&target)
-        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
     if !meta.is_file() {
         return Err(format!(
-            "refusing URI '{uri}': '{}' is not a regular file ({})",
-            target.display(),
+            "refusing URI '{shown}': '{}' is not a regular file ({})",
+            shown_path(&target),
             kind_of(&meta)
         ));
     }
     if meta.len() < min_bytes {
         return Err(format!(
             "'{}' holds {} bytes, fewer than the {min_bytes} declared",
-            target.display(),
+            shown_path(&target),
             meta.len()
         ));
     }
@@ -133,25 +140,25 @@ pub fn read_confined(
     }
     let file = opts
         .open(&target)
-        .map_err(|e| format!("cannot open '{}': {e}", target.display()))?;
+        .map_err(|e| format!("cannot open '{}': {e}", shown_path(&target)))?;
     let meta = file
         .metadata()
-        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
     if !meta.is_file() {
         return Err(format!(
-            "refusing URI '{uri}': '{}' is not a regular file ({})",
-            target.display(),
+            "refusing URI '{shown}': '{}' is not a regular file ({})",
+            shown_path(&target),
             kind_of(&meta)
         ));
     }
     let mut data = Vec::new();
     file.take(max_bytes)
         .read_to_end(&mut data)
-        .map_err(|e| format!("cannot read '{}': {e}", target.display()))?;
+        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
     if (data.len() as u64) < min_bytes {
         return Err(format!(
             "'{}' holds {} bytes, fewer than the {min_bytes} declared",
-            target.display(),
+            shown_path(&target),
             data.len()
         ));
     }

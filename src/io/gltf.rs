@@ -249,7 +249,10 @@ pub(crate) fn check_root(root: &gltf::json::Root) -> Result<(), FormatError> {
     if !version.starts_with("2.") {
         return Err(at(
             "/asset/version",
-            format!("glTF version '{version}': only glTF 2.x is supported"),
+            format!(
+                "glTF version '{}': only glTF 2.x is supported",
+                crate::geom::excerpt(version)
+            ),
         ));
     }
     for (i, ext) in root.extensions_required.iter().enumerate() {
@@ -712,8 +715,8 @@ impl<'a> Reader<'a> {
             0,
             format!(
                 "glTF {}{}: {} curves from {lines} LINES, {loops} LINE_LOOP, {strips} LINE_STRIP primitives",
-                self.root.asset.version,
-                self.root.asset.generator.as_deref().map(|g| format!(" by '{g}'")).unwrap_or_default(),
+                crate::geom::excerpt(&self.root.asset.version),
+                self.root.asset.generator.as_deref().map(|g| format!(" by '{}'", crate::geom::excerpt(g))).unwrap_or_default(),
                 yarns.num_curves()
             ),
         );
@@ -964,7 +967,10 @@ impl<'a> Reader<'a> {
                     Cow::Owned(self.res.load(uri, declared).map_err(|e| {
                         at(
                             format!("{path}/uri"),
-                            format!("cannot load external buffer '{uri}': {e}"),
+                            format!(
+                                "cannot load external buffer '{}': {e}",
+                                crate::geom::excerpt(uri)
+                            ),
                         )
                     })?)
                 }

@@ -341,7 +341,7 @@ pub(crate) fn check_storage(ds: &Dataset, loc: &str) -> Result<(), FormatError> 
             format!(
                 "stores its data in {} external file(s) ('{}'...); knitvox reads only data stored in the file",
                 external.len(),
-                first.name
+                crate::geom::excerpt(&first.name)
             ),
         ));
     }
@@ -671,7 +671,10 @@ fn check_format_attrs(root: &Group) -> Result<Vec<String>, FormatError> {
         if kind != FORMAT_NAME {
             return Err(FormatError::at_path(
                 attr_loc("", "knitvox_format"),
-                format!("this is a knitvox '{kind}' file, not a '{FORMAT_NAME}' file"),
+                format!(
+                    "this is a knitvox '{}' file, not a '{FORMAT_NAME}' file",
+                    crate::geom::excerpt(&kind)
+                ),
             ));
         }
     }

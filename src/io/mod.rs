@@ -247,6 +247,33 @@ pub struct YarnData {
     pub notes: Vec<String>,
 }
 
+impl YarnData {
+    /// What the read assumed instead of reading it from the file or an
+    /// option: `unit m`, `up axis +y`.
+    pub fn assumed(&self) -> Vec<String> {
+        assumed_names(self.units, self.up_axis)
+    }
+
+    /// A warning when the yarns' size is implausible for clothing and the
+    /// unit or up axis was assumed ([`crate::geom::garment_size_warning`]).
+    pub fn size_warning(&self) -> Option<String> {
+        let b = self.yarns.bounds()?;
+        crate::geom::garment_size_warning(&b, self.units.0, &self.assumed())
+    }
+}
+
+/// The names of the assumed ones of a read's unit and up axis.
+pub fn assumed_names(units: (Units, Provenance), up_axis: (UpAxis, Provenance)) -> Vec<String> {
+    let mut out = Vec::new();
+    if units.1 == Provenance::Assumed {
+        out.push(format!("unit {}", units.0));
+    }
+    if up_axis.1 == Provenance::Assumed {
+        out.push(format!("up axis {}", up_axis.0));
+    }
+    out
+}
+
 /// Loads resources a file refers to by URI (glTF external buffers).
 pub trait Resources {
     /// The bytes of `uri`: exactly `declared` bytes (a resource holding fewer
@@ -260,7 +287,8 @@ pub struct NoResources;
 impl Resources for NoResources {
     fn load(&self, uri: &str, _declared: u64) -> Result<Vec<u8>, String> {
         Err(format!(
-            "external resource '{uri}' cannot be loaded when parsing from bytes alone"
+            "external resource '{}' cannot be loaded when parsing from bytes alone",
+            crate::geom::excerpt(uri)
         ))
     }
 }

@@ -268,7 +268,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                     if t.parse::<f64>().is_err() {
                         return Err(FormatError::at_line(
                             ln,
-                            format!("vertex: '{t}' after the coordinates is not a number"),
+                            format!(
+                                "vertex: '{}' after the coordinates is not a number",
+                                crate::geom::excerpt(t)
+                            ),
                         ));
                     }
                 }
@@ -291,7 +294,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
                     let i: i64 = vpart.parse().map_err(|_| {
                         FormatError::at_line(
                             ln,
-                            format!("line element: '{t}' is not a vertex index"),
+                            format!(
+                                "line element: '{}' is not a vertex index",
+                                crate::geom::excerpt(t)
+                            ),
                         )
                     })?;
                     let v = if i > 0 {

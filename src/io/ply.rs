@@ -323,13 +323,9 @@ struct Header {
     lines: usize,
 }
 
-/// A line for error messages: at most 60 characters.
+/// A piece of a line for error messages (see `geom::excerpt`).
 fn clip(s: &str) -> String {
-    let mut out: String = s.chars().take(60).collect();
-    if out.len() < s.len() {
-        out.push('…');
-    }
-    out
+    crate::geom::excerpt(s)
 }
 
 /// The next line of `data` from `pos`: (line without `\r\n`, start of the next line).
@@ -438,9 +434,9 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
                     )
                 })?;
                 if (name == "vertex" || name == "edge") && elements.iter().any(|e| e.name == name) {
-                    return Err(FormatError::at_line(line_no, format!("second '{name}' element")));
+                    return Err(FormatError::at_line(line_no, format!("second '{}' element", clip(name))));
                 }
-                elements.push(Element { name: name.to_string(), count, props: Vec::new(), line: line_no });
+                elements.push(Element { name: clip(name), count, props: Vec::new(), line: line_no });
             }
             "property" => {
                 let Some(el) = elements.last_mut() else {
@@ -484,7 +480,7 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
                         ))
                     }
                 };
-                el.props.push(Property { name: name.to_string(), kind, line: line_no });
+                el.props.push(Property { name: clip(name), kind, line: line_no });
             }
             "end_header" => break,
             other => {

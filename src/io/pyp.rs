@@ -182,7 +182,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
     let n: u64 = t[3].parse().map_err(|_| {
         FormatError::at_line(
             pl,
-            format!("vertex count '{}' is not a non-negative integer", t[3]),
+            format!(
+                "vertex count '{}' is not a non-negative integer",
+                crate::geom::excerpt(t[3])
+            ),
         )
     })?;
     if n == 0 {
@@ -262,7 +265,10 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
             let v: u64 = t[k].parse().map_err(|_| {
                 FormatError::at_line(
                     ln,
-                    format!("edge vertex '{}' is not a non-negative integer", t[k]),
+                    format!(
+                        "edge vertex '{}' is not a non-negative integer",
+                        crate::geom::excerpt(t[k])
+                    ),
                 )
             })?;
             if v >= n as u64 {
@@ -279,7 +285,13 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
         let mut d = [0i64; 2];
         for k in 0..2 {
             d[k] = t[k + 2].parse().map_err(|_| {
-                FormatError::at_line(ln, format!("edge offset '{}' is not an integer", t[k + 2]))
+                FormatError::at_line(
+                    ln,
+                    format!(
+                        "edge offset '{}' is not an integer",
+                        crate::geom::excerpt(t[k + 2])
+                    ),
+                )
             })?;
         }
         let (v0, v1) = (vs[0], vs[1]);

@@ -644,7 +644,10 @@ impl Layout {
             Some(k) => {
                 return Err(FormatError::at_path(
                     h5::attr_loc(KV, "knitvox_format"),
-                    format!("this is a knitvox '{k}' file, not an '{FORMAT_NAME}' file"),
+                    format!(
+                        "this is a knitvox '{}' file, not an '{FORMAT_NAME}' file",
+                        crate::geom::excerpt(&k)
+                    ),
                 ))
             }
             None => {
@@ -680,7 +683,10 @@ impl Layout {
             Some(k) => {
                 return Err(FormatError::at_path(
                     h5::attr_loc(VTK, "Type"),
-                    format!("VTK type '{k}', expected 'UnstructuredGrid'"),
+                    format!(
+                        "VTK type '{}', expected 'UnstructuredGrid'",
+                        crate::geom::excerpt(&k)
+                    ),
                 ))
             }
             None => {

@@ -273,3 +273,27 @@ pub fn export(
     }
     Ok(written)
 }
+
+/// The size warning of an asset (see [`crate::geom::garment_size_warning`]):
+/// its rest yarns against what the embedding's read assumed, as recorded in
+/// `parameters.read` by [`build_asset`]. None for assets without that record.
+pub fn size_warning(asset: &Asset) -> Option<String> {
+    let read = asset.parameters.get("read")?;
+    let is_assumed = |key: &str| read.get(key).and_then(|v| v.as_str()) == Some("assumed");
+    let mut assumed = Vec::new();
+    let units = read
+        .get("units")
+        .and_then(|v| v.as_f64())
+        .and_then(crate::geom::Units::from_scale)?;
+    if is_assumed("units_source") {
+        assumed.push(format!("unit {units}"));
+    }
+    if is_assumed("up_axis_source") {
+        let axis = read
+            .get("up_axis")
+            .and_then(|v| serde_json::from_value::<crate::geom::UpAxis>(v.clone()).ok());
+        assumed.push(axis.map_or("up axis".into(), |a| format!("up axis {a}")));
+    }
+    let b = asset.rest_yarns.bounds()?;
+    crate::geom::garment_size_warning(&b, units, &assumed)
+}

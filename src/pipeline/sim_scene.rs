@@ -52,7 +52,10 @@ impl std::str::FromStr for SolverChoice {
         match s {
             "direct" => Ok(SolverChoice::Direct),
             "dd" => Ok(SolverChoice::Dd),
-            _ => Err(format!("'{s}': expected direct or dd")),
+            _ => Err(format!(
+                "'{}': expected direct or dd",
+                crate::geom::excerpt(s)
+            )),
         }
     }
 }
@@ -64,7 +67,10 @@ impl std::str::FromStr for BackendChoice {
             "cpu" => Ok(BackendChoice::Cpu),
             "gpu" => Ok(BackendChoice::Gpu),
             "auto" => Ok(BackendChoice::Auto),
-            _ => Err(format!("'{s}': expected cpu, gpu or auto")),
+            _ => Err(format!(
+                "'{}': expected cpu, gpu or auto",
+                crate::geom::excerpt(s)
+            )),
         }
     }
 }
@@ -90,27 +96,28 @@ impl BackendChoice {
 
 /// Parses a time step: seconds as a number or a fraction `1/150`.
 pub fn parse_seconds(s: &str) -> Result<f64, String> {
+    let shown = crate::geom::excerpt(s);
     let v = match s.split_once('/') {
         Some((a, b)) => {
             let a: f64 = a
                 .trim()
                 .parse()
-                .map_err(|_| format!("'{s}': bad numerator"))?;
+                .map_err(|_| format!("'{shown}': bad numerator"))?;
             let b: f64 = b
                 .trim()
                 .parse()
-                .map_err(|_| format!("'{s}': bad denominator"))?;
+                .map_err(|_| format!("'{shown}': bad denominator"))?;
             a / b
         }
         None => s
             .trim()
             .parse()
-            .map_err(|_| format!("'{s}': expected seconds, e.g. 0.0066 or 1/150"))?,
+            .map_err(|_| format!("'{shown}': expected seconds, e.g. 0.0066 or 1/150"))?,
     };
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(format!("'{s}': must be a finite time > 0 s"))
+        Err(format!("'{shown}': must be a finite time > 0 s"))
     }
 }
 
@@ -347,6 +354,44 @@ pub struct SceneError {
     pub message: String,
 }
 
+/// A TOML error as one line, `line L, column C: message`: toml's own text
+/// quotes the input line under a caret over several lines, and serde's
+/// messages quote whole values.
+pub(crate) fn toml_error_line(e: &toml::de::Error, text: &str) -> String {
+    // Quoted values (odd pieces between '"') are cut like any input excerpt.
+    let quoted_cut: Vec<String> = e
+        .message()
+        .trim()
+        .split('"')
+        .enumerate()
+        .map(|(i, piece)| {
+            if i % 2 == 1 {
+                crate::geom::excerpt(piece)
+            } else {
+                piece.to_string()
+            }
+        })
+        .collect();
+    let message = crate::geom::excerpt_chars(&quoted_cut.join("\""), 200);
+    let Some(at) = e.span().map(|s| s.start.min(text.len())) else {
+        return message;
+    };
+    let before = text.as_bytes()[..at].to_vec();
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let column = at
+        - before
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |i| i + 1)
+        + 1;
+    // The one input line, cut, names the key for syntax errors.
+    let source = text.lines().nth(line - 1).unwrap_or("");
+    format!(
+        "line {line}, column {column}: {message} (in '{}')",
+        crate::geom::excerpt(source.trim())
+    )
+}
+
 fn finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
@@ -357,7 +402,7 @@ impl Scene {
     pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
         let mut scene: Scene = toml::from_str(text).map_err(|e| SceneError {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
+            message: toml_error_line(&e, text),
         })?;
         scene.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         scene.validate().map_err(|message| SceneError {

@@ -123,10 +123,8 @@ impl YlsScene {
             file: file.to_path_buf(),
             message,
         };
-        let mut scene: YlsScene = toml::from_str(text).map_err(|e| {
-            // toml's message names the key and shows line and column.
-            err(e.to_string().trim_end().to_string())
-        })?;
+        let mut scene: YlsScene =
+            toml::from_str(text).map_err(|e| err(super::sim_scene::toml_error_line(&e, text)))?;
         let positive = |key: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
