@@ -242,11 +242,44 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
+fn print_demo_fabric(f: &crate::pipeline::fabric_test::FabricTestReport) {
+    use crate::pipeline::fabric_test::TestFigures;
+    let TestFigures::Stretch(s) = &f.figures else {
+        return;
+    };
+    if let Some(x) = &f.relaxation {
+        println!(
+            "fabric: relaxed a {} ({} vertices) into contact: {:.0}% of vertices touching, {:.2} contacts per vertex",
+            f.swatch,
+            f.vertices,
+            100.0 * x.contact.near_fraction,
+            x.contact.contacts_per_vertex
+        );
+    }
+    println!(
+        "stretch test along the courses ({:.1} mm wide, clamps {:.1} mm apart):",
+        1e3 * s.width_m,
+        1e3 * s.gauge_m
+    );
+    for p in s.points.iter().filter(|p| p.stretch > 0.0) {
+        println!(
+            "  {:>3.0}%: {:.3} N, compression {:.3}",
+            100.0 * p.stretch,
+            p.force_n,
+            p.compression
+        );
+    }
+    for p in &f.written {
+        println!("  {}", p.display());
+    }
+}
+
 pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     let r = demo::run(&a.out, &super::asset::command_line()).map_err(|e| match e {
         demo::DemoError::Stage(s) => anyhow::Error::new(s),
         demo::DemoError::Shot(s) => anyhow::Error::new(s),
         demo::DemoError::YarnLevel(s) => anyhow::Error::new(s),
+        demo::DemoError::Fabric(s) => anyhow::Error::new(s),
     })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
@@ -305,6 +338,7 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             y.ms_per_frame_median,
             y.min_distance_ratio
         );
+        print_demo_fabric(&r.fabric);
     }
     Ok(ExitCode::Success)
 }

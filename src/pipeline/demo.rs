@@ -34,6 +34,9 @@ pub struct DemoReport {
     /// The yarn-level stage: a generated 1x1 rib swatch stretched 30% by
     /// the yarn simulator (examples/scenes/yls-demo-rib-stretch.toml).
     pub yls: super::yls::YlsReport,
+    /// The fabric stretch test (Sperl 2022 §4) of a small 1x1 rib relaxed
+    /// into contact: clamp force and compression at 10% to 50%.
+    pub fabric: super::fabric_test::FabricTestReport,
 }
 
 /// The demo scenes and character, compiled in so the demo runs from any
@@ -142,7 +145,9 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
         &out_dir.join("yls-rib-stretch.h5"),
         &mut |_, _| {},
     )?;
+    let fabric = fabric_stretch(out_dir)?;
     Ok(DemoReport {
+        fabric,
         drape,
         fox,
         yls,
@@ -157,6 +162,27 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
     })
 }
 
+/// Relaxes a 3 cm x 4 cm 1x1 rib into contact and stretches it along the
+/// courses to 50% in 10% steps (CSV and frames under `fabric-stretch/`).
+fn fabric_stretch(out_dir: &Path) -> Result<super::fabric_test::FabricTestReport, DemoError> {
+    use super::fabric_test::{run, FabricTest, FabricTestJob, SwatchSource};
+    let job = FabricTestJob {
+        swatch: SwatchSource::Pattern {
+            source: super::pattern::PatternSource::Builtin("rib1x1".into()),
+            size: [0.03, 0.04],
+        },
+        test: FabricTest::Stretch(crate::yarn::fabric::StretchParams {
+            max_stretch: 0.5,
+            steps: 5,
+            ..Default::default()
+        }),
+        fabric: Default::default(),
+        relax: Default::default(),
+        output_dir: Some(out_dir.join("fabric-stretch")),
+    };
+    Ok(run(&job)?)
+}
+
 /// Errors of the demo: a stage's or a shot's.
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
@@ -166,6 +192,8 @@ pub enum DemoError {
     Shot(#[from] SimulateError),
     #[error(transparent)]
     YarnLevel(#[from] super::yls::YlsError),
+    #[error(transparent)]
+    Fabric(#[from] super::fabric_test::FabricTestError),
 }
 
 impl From<IoError> for DemoError {
