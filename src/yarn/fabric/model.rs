@@ -38,7 +38,7 @@ impl Default for FabricParams {
         let y = YarnSimParams::default();
         FabricParams {
             rods: RodParams {
-                bend_scale: 1.0,
+                bend_scale: y.bend_scale,
                 ..RodParams::default()
             },
             contact_stiffness: y.contact_stiffness,
