@@ -1593,20 +1593,7 @@ impl FrameWriter {
             .tmp
             .take()
             .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
-        std::fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(|e| write_err(&path, e))?;
-        tmp.persist(&path).map_err(|e| write_err(&path, e.error))?;
-        if let Some(dir) = path.parent() {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            if let Ok(d) = std::fs::File::open(dir) {
-                let _ = d.sync_all();
-            }
-        }
+        super::atomic::finish_temp(tmp, self._registered, &path)?;
         Ok(path)
     }
 }

@@ -250,6 +250,13 @@ pub fn run(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<YlsReport, YlsError> {
     let t0 = Instant::now();
+    // The scene's own files are inputs too (exit 2 if `out` is one of them).
+    let inputs: Vec<&Path> = [Some(file), scene.swatch.file.as_deref()]
+        .into_iter()
+        .chain([scene.swatch.grid.as_deref()])
+        .flatten()
+        .collect();
+    io::overwrite::refuse_inputs(&[out], &inputs)?;
     let (rest, relax_ms) = scene_swatch(scene, file)?;
     let params = scene_params(scene, file)?;
     let sim_err = |source| YlsError::Sim {
