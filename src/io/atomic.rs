@@ -6,7 +6,7 @@ use std::cell::RefCell;
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicPtr, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicUsize, Ordering};
 
 use tempfile::TempPath;
 
@@ -15,9 +15,19 @@ use super::IoError;
 /// Temporary files in flight, for [`remove_temporaries_on_signal`]: a fixed
 /// table of leaked C strings so the signal handler needs no allocation or
 /// lock (async-signal-safe: atomic loads and `unlink`).
-const MAX_TEMPS: usize = 64;
+/// Room for every frame of a staged sequence (see [`all_or_nothing`]):
+/// 512 KiB of zeroed static memory, touched only as far as it is used.
+const MAX_TEMPS: usize = 1 << 16;
 static TEMPS: [AtomicPtr<libc::c_char>; MAX_TEMPS] =
     [const { AtomicPtr::new(std::ptr::null_mut()) }; MAX_TEMPS];
+/// Where [`TempGuard::register`] starts looking for a free slot, so that
+/// registering many files stays linear.
+static NEXT_SLOT: AtomicUsize = AtomicUsize::new(0);
+
+/// Set while [`commit`] renames several files into place: a signal then
+/// waits in [`PENDING_SIGNAL`] so that the outputs are all or nothing.
+static COMMITTING: AtomicBool = AtomicBool::new(false);
+static PENDING_SIGNAL: AtomicI32 = AtomicI32::new(0);
 
 /// A temporary path registered for removal on SIGINT/SIGTERM; unregistered
 /// (and its C string freed) when dropped.
@@ -34,8 +44,9 @@ impl TempGuard {
                 return TempGuard(None);
             };
             let raw = c.into_raw();
-            for (i, slot) in TEMPS.iter().enumerate() {
-                if slot
+            let start = NEXT_SLOT.load(Ordering::Relaxed);
+            for i in (start..MAX_TEMPS).chain(0..start) {
+                if TEMPS[i]
                     .compare_exchange(
                         std::ptr::null_mut(),
                         raw,
@@ -44,6 +55,7 @@ impl TempGuard {
                     )
                     .is_ok()
                 {
+                    NEXT_SLOT.store((i + 1) % MAX_TEMPS, Ordering::Relaxed);
                     return TempGuard(Some(i));
                 }
             }
@@ -72,6 +84,12 @@ impl Drop for TempGuard {
 /// Async-signal-safe: atomic loads, `unlink`, `signal`, `raise`.
 #[cfg(unix)]
 pub extern "C" fn remove_temporaries_on_signal(sig: libc::c_int) {
+    // Mid-commit the temporaries are becoming the outputs: finish first
+    // (see `commit`), which calls back here.
+    if COMMITTING.load(Ordering::Acquire) {
+        PENDING_SIGNAL.store(sig, Ordering::Release);
+        return;
+    }
     for slot in &TEMPS {
         let p = slot.load(Ordering::Acquire);
         if !p.is_null() {
@@ -214,37 +232,52 @@ pub fn all_or_nothing<T, E: From<IoError>>(job: impl FnOnce() -> Result<T, E>) -
 }
 
 /// Renames every staged file onto its target. One file needs no undo (a
-/// rename is atomic); with several, each replaced file is first moved aside
-/// so that a failed rename can restore them all.
+/// rename is atomic); several are renamed with SIGINT/SIGTERM held back
+/// (the handler would remove the rest), each replaced file first moved
+/// aside so that a failed rename can restore them all.
 fn commit(staged: Vec<Staged>) -> Result<(), IoError> {
     let dirs: Vec<PathBuf> = staged.iter().map(|s| dir_of(&s.target)).collect();
-    if staged.len() <= 1 {
-        for s in staged {
+    let result = if staged.len() <= 1 {
+        staged.into_iter().try_for_each(|s| {
             s.tmp
                 .persist(&s.target)
-                .map_err(|e| write_err(&s.target, e.error))?;
-        }
+                .map_err(|e| write_err(&s.target, e.error))
+        })
     } else {
-        let mut placed: Vec<(PathBuf, Option<TempPath>)> = Vec::with_capacity(staged.len());
-        for s in staged {
-            match place(s) {
-                Ok(p) => placed.push(p),
-                Err(e) => {
-                    for (target, old) in placed.into_iter().rev() {
-                        restore(&target, old);
-                    }
-                    return Err(e);
-                }
-            }
+        COMMITTING.store(true, Ordering::Release);
+        let r = place_all(staged);
+        COMMITTING.store(false, Ordering::Release);
+        #[cfg(unix)]
+        match PENDING_SIGNAL.swap(0, Ordering::AcqRel) {
+            0 => {}
+            sig => remove_temporaries_on_signal(sig),
         }
-        // Dropping the moved-aside files removes them.
-    }
+        r
+    };
     // fsync the folders so the renames themselves are durable.
     for d in dirs {
         if let Ok(f) = File::open(&d) {
             let _ = f.sync_all();
         }
     }
+    result
+}
+
+/// [`place`]s every file, or none: a failure restores the earlier ones.
+fn place_all(staged: Vec<Staged>) -> Result<(), IoError> {
+    let mut placed: Vec<(PathBuf, Option<TempPath>)> = Vec::with_capacity(staged.len());
+    for s in staged {
+        match place(s) {
+            Ok(p) => placed.push(p),
+            Err(e) => {
+                for (target, old) in placed.into_iter().rev() {
+                    restore(&target, old);
+                }
+                return Err(e);
+            }
+        }
+    }
+    // Dropping `placed` removes the files moved aside.
     Ok(())
 }
 

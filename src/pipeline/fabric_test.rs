@@ -104,7 +104,7 @@ impl FabricTestError {
                 source: FabricError::Setup(_),
                 ..
             }
-        )
+        ) || self.class() == io::ErrorClass::Usage
     }
 }
 
