@@ -637,6 +637,43 @@ fn vtkhdf_bomb_is_refused_under_the_budget() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn vtkhdf_arrays_together_stay_under_the_budget() {
+    let dir = scratch("vtktotal");
+    // 20M nodes: the rest nodes alone (480 MB) fit a 600 MB budget, the
+    // nodes' arrays together (640 MB) do not.
+    let n: usize = 20_000_000;
+    let path = small_asset(&dir, "big.vtkhdf");
+    let f = hdf5::File::open_rw(&path).unwrap();
+    h5_bomb_dataset(&f, "knitvox", "rest_nodes", n, 100_000);
+    h5_bomb_dataset(&f, "VTKHDF", "Points", n, 0);
+    {
+        let vtk = f.group("VTKHDF").unwrap();
+        vtk.unlink("NumberOfPoints").unwrap();
+        vtk.new_dataset_builder()
+            .with_data(&[n as i64])
+            .create("NumberOfPoints")
+            .unwrap();
+    }
+    f.close().unwrap();
+    let (o, t) = knitvox_in(
+        &dir,
+        &["inspect", "--max-memory", "600M", "big.vtkhdf"],
+        Duration::from_secs(20),
+    );
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(
+        e.contains("big.vtkhdf")
+            && e.contains("20000000 nodes")
+            && e.contains("memory budget of 629145600 bytes"),
+        "{e}"
+    );
+    eprintln!("20M-node asset refused in {t:?}");
+    assert!(t < Duration::from_secs(5), "took {t:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Runs `args` in `dir` and asserts a usage error (exit 2) naming the
 /// output and `input`, with `input` byte-identical afterwards.
 fn assert_refused_overwrite(dir: &Path, args: &[&str], input: &str) {
