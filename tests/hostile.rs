@@ -580,3 +580,355 @@ fn messages_quote_at_most_one_short_line_of_the_input() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A small swatch asset (4 x 4 loops, 2.5 mm voxels) at `dir/name`, made
+/// through the library (no steps).
+fn small_asset(dir: &Path, name: &str) -> PathBuf {
+    use knitvox::io::{vtkhdf, ReadOptions, WriteOptions};
+    use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+    let yarns = knit_swatch(&SwatchParams {
+        courses: 4,
+        wales: 4,
+        with_ring: false,
+        points_per_loop: 12,
+        ..SwatchParams::default()
+    });
+    let bcc = dir.join("swatch.bcc");
+    knitvox::io::write_path(&bcc, &yarns, None, &WriteOptions::default()).unwrap();
+    let read = ReadOptions {
+        radius: yarns.radius[0],
+        ..ReadOptions::default()
+    };
+    let params = knitvox::embed::EmbedParams {
+        voxel_size: Some(2.5e-3),
+        ..Default::default()
+    };
+    let (asset, _) = knitvox::pipeline::asset::build_asset(&bcc, &read, &params, "test").unwrap();
+    let path = dir.join(name);
+    vtkhdf::write_asset(&path, &asset).unwrap();
+    path
+}
+
+/// Replaces `group/name` of `file` by an (rows x 3) f64 dataset, gzip in
+/// chunks of 2^20 rows, with only its first `written` rows stored
+/// (pseudo-random, so they do not compress away).
+fn h5_bomb_dataset(file: &hdf5::File, group: &str, name: &str, rows: usize, written: usize) {
+    let g = file.group(group).unwrap();
+    g.unlink(name).unwrap();
+    let ds = g
+        .new_dataset::<f64>()
+        .shape((rows, 3))
+        .chunk((1 << 20, 3))
+        .deflate(6)
+        .create(name)
+        .unwrap();
+    if written > 0 {
+        let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+        let v: Vec<f64> = (0..written * 3)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 11) as f64 / (1u64 << 53) as f64
+            })
+            .collect();
+        let a = ndarray::Array2::from_shape_vec((written, 3), v).unwrap();
+        ds.write_slice(&a, ndarray::s![0..written, ..]).unwrap();
+    }
+}
+
+#[test]
+fn vtkhdf_bomb_is_refused_under_the_budget() {
+    let dir = scratch("vtkbomb");
+    let n: usize = 180_000_000;
+    for (file, written) in [("bomb.vtkhdf", 200_000), ("empty.vtkhdf", 0)] {
+        let path = small_asset(&dir, file);
+        // 180M nodes declared (4.32 GB of f64 each for the rest nodes and
+        // the points); bomb.vtkhdf stores ~4 MB of them, enough for the
+        // gzip ratio to make the claim plausible, so only the budget
+        // refuses it; empty.vtkhdf stores nothing.
+        let f = hdf5::File::open_rw(&path).unwrap();
+        h5_bomb_dataset(&f, "knitvox", "rest_nodes", n, written);
+        h5_bomb_dataset(&f, "VTKHDF", "Points", n, 0);
+        {
+            let vtk = f.group("VTKHDF").unwrap();
+            vtk.unlink("NumberOfPoints").unwrap();
+            vtk.new_dataset_builder()
+                .with_data(&[n as i64])
+                .create("NumberOfPoints")
+                .unwrap();
+        }
+        // Every handle is dropped: closing really releases the file's lock.
+        f.close().unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size < 6 << 20, "{file} is {size} bytes");
+        for cmd in [&["inspect", file][..], &["export", file, "-o", "out"]] {
+            let args: Vec<&str> = [cmd, &["--max-memory", "1G"]].concat();
+            let (o, t) = knitvox_in(&dir, &args, Duration::from_secs(20));
+            let e = stderr(&o);
+            assert_eq!(o.status.code(), Some(65), "{args:?}: {e}");
+            assert!(
+                e.contains(file)
+                    && e.contains("/knitvox/rest_nodes")
+                    && e.contains("4320000000 bytes"),
+                "{args:?}: {e}"
+            );
+            if written > 0 {
+                assert!(e.contains("memory budget of 1073741824 bytes"), "{e}");
+            } else {
+                assert!(e.contains("stores only 0 bytes"), "{e}");
+            }
+            eprintln!("{file} ({size} bytes): {:?} refused in {t:?}", cmd[0]);
+            assert!(t < Duration::from_secs(5), "took {t:?}");
+            assert!(
+                !dir.join("out").exists()
+                    || std::fs::read_dir(dir.join("out")).unwrap().count() == 0
+            );
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn vtkhdf_arrays_together_stay_under_the_budget() {
+    let dir = scratch("vtktotal");
+    // 20M nodes: the rest nodes alone (480 MB) fit a 600 MB budget, the
+    // nodes' arrays together (640 MB) do not.
+    let n: usize = 20_000_000;
+    let path = small_asset(&dir, "big.vtkhdf");
+    let f = hdf5::File::open_rw(&path).unwrap();
+    h5_bomb_dataset(&f, "knitvox", "rest_nodes", n, 100_000);
+    h5_bomb_dataset(&f, "VTKHDF", "Points", n, 0);
+    {
+        let vtk = f.group("VTKHDF").unwrap();
+        vtk.unlink("NumberOfPoints").unwrap();
+        vtk.new_dataset_builder()
+            .with_data(&[n as i64])
+            .create("NumberOfPoints")
+            .unwrap();
+    }
+    f.close().unwrap();
+    let (o, t) = knitvox_in(
+        &dir,
+        &["inspect", "--max-memory", "600M", "big.vtkhdf"],
+        Duration::from_secs(20),
+    );
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(
+        e.contains("big.vtkhdf")
+            && e.contains("20000000 nodes")
+            && e.contains("memory budget of 629145600 bytes"),
+        "{e}"
+    );
+    eprintln!("20M-node asset refused in {t:?}");
+    assert!(t < Duration::from_secs(5), "took {t:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs `args` in `dir` and asserts a usage error (exit 2) naming the
+/// output and `input`, with `input` byte-identical afterwards.
+fn assert_refused_overwrite(dir: &Path, args: &[&str], input: &str) {
+    let before = std::fs::read(dir.join(input)).unwrap();
+    let (o, _) = knitvox_in(dir, args, Duration::from_secs(30));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+    assert!(
+        e.contains("never overwrites an input") && e.contains(input),
+        "{args:?}: {e}"
+    );
+    assert_eq!(std::fs::read(dir.join(input)).unwrap(), before, "{args:?}");
+}
+
+#[test]
+fn inputs_named_by_scenes_sequences_and_links_are_never_outputs() {
+    let dir = scratch("overwrite2");
+    let obj = "v 0 0 0\nv 0.01 0 0\nv 0.02 0.01 0\nl 1 2 3\n";
+    std::fs::write(dir.join("a.obj"), obj).unwrap();
+    std::fs::hard_link(dir.join("a.obj"), dir.join("hard.obj")).unwrap();
+    std::fs::write(dir.join("s.0001.obj"), obj).unwrap();
+    // Hard link; an output sequence that would write the input frame; an
+    // output frame of an input sequence.
+    assert_refused_overwrite(&dir, &["convert", "a.obj", "hard.obj"], "a.obj");
+    assert_refused_overwrite(&dir, &["convert", "s.0001.obj", "s.####.obj"], "s.0001.obj");
+    assert_refused_overwrite(&dir, &["convert", "s.####.obj", "s.0001.obj"], "s.0001.obj");
+    // simulate: the character the scene names is an input.
+    small_asset(&dir, "a.vtkhdf");
+    let fox = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
+    std::fs::copy(fox, dir.join("char.0001.glb")).unwrap();
+    std::fs::write(
+        dir.join("shot.toml"),
+        "[character]\nfile = \"char.0001.glb\"\n",
+    )
+    .unwrap();
+    assert_refused_overwrite(
+        &dir,
+        &[
+            "simulate",
+            "a.vtkhdf",
+            "--scene",
+            "shot.toml",
+            "--frames",
+            "1",
+            "-o",
+            "o.vtkhdf",
+            "--yarns-out",
+            "char.####.glb",
+        ],
+        "char.0001.glb",
+    );
+    assert!(!dir.join("o.vtkhdf").exists());
+    // yls: the swatch file the scene names.
+    knitvox::io::write_path(
+        &dir.join("sw.h5"),
+        &knitvox::io::read_path(&dir.join("a.obj"), &Default::default())
+            .unwrap()
+            .yarns,
+        None,
+        &Default::default(),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("y.toml"),
+        "name = \"y\"\nduration = 0.1\nframe_rate = 30\n[swatch]\nfile = \"sw.h5\"\n\
+         [pose]\nkind = \"biaxial\"\namount = 0.1\n",
+    )
+    .unwrap();
+    assert_refused_overwrite(&dir, &["yls", "y.toml", "-o", "./sw.h5"], "sw.h5");
+    // fabric-test: the output folder's stretch.h5 is the input.
+    std::fs::copy(dir.join("sw.h5"), dir.join("stretch.h5")).unwrap();
+    assert_refused_overwrite(
+        &dir,
+        &["fabric-test", "stretch", "stretch.h5", "-o", "."],
+        "stretch.h5",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Files in `dir` (not recursive) whose names show a temporary of
+/// io::atomic: `.NAME.XXXX.tmp` or a moved-aside `.NAME.XXXX.old`.
+fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .map(|r| {
+            r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .filter(|n| n.ends_with(".tmp") || n.ends_with(".old"))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn simulate_with_a_failing_yarns_out_leaves_every_output_as_it_was() {
+    let dir = scratch("allornothing");
+    small_asset(&dir, "a.vtkhdf");
+    std::fs::write(dir.join("s.toml"), "[simulation]\n").unwrap();
+    // Outputs of an earlier run, and a folder where frame 2 would go: every
+    // file writes, the rename of frame 2 fails.
+    std::fs::write(dir.join("o.vtkhdf"), b"earlier asset").unwrap();
+    std::fs::create_dir_all(dir.join("y/f.0002.ply")).unwrap();
+    std::fs::write(dir.join("y/f.0001.ply"), b"earlier frame").unwrap();
+    let args = [
+        "simulate",
+        "a.vtkhdf",
+        "--scene",
+        "s.toml",
+        "--frames",
+        "1-3",
+        "-o",
+        "o.vtkhdf",
+        "--yarns-out",
+        "y/f.####.ply",
+    ];
+    let (o, _) = knitvox_in(&dir, &args, Duration::from_secs(60));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(74), "{e}");
+    assert!(e.contains("f.0002.ply"), "{e}");
+    assert_eq!(
+        std::fs::read(dir.join("o.vtkhdf")).unwrap(),
+        b"earlier asset"
+    );
+    assert_eq!(
+        std::fs::read(dir.join("y/f.0001.ply")).unwrap(),
+        b"earlier frame"
+    );
+    assert!(!dir.join("y/f.0003.ply").exists());
+    assert!(leftovers(&dir).is_empty() && leftovers(&dir.join("y")).is_empty());
+    // Control: without the obstacle every output is replaced.
+    std::fs::remove_dir(dir.join("y/f.0002.ply")).unwrap();
+    let (o, _) = knitvox_in(&dir, &args, Duration::from_secs(60));
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_ne!(
+        std::fs::read(dir.join("o.vtkhdf")).unwrap(),
+        b"earlier asset"
+    );
+    assert!(dir.join("y/f.0003.ply").is_file());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sigterm_while_simulate_writes_leaves_nothing() {
+    let dir = scratch("sigterm-sim");
+    small_asset(&dir, "a.vtkhdf");
+    std::fs::write(dir.join("s.toml"), "[simulation]\n").unwrap();
+    // One step per frame, many frames: the write phase (one staged file
+    // per frame) lasts long enough to be interrupted.
+    let mut child = Command::new(common::knitvox_bin())
+        .args([
+            "simulate",
+            "a.vtkhdf",
+            "--scene",
+            "s.toml",
+            "--frames",
+            "1-4000",
+            "--fps",
+            "1000",
+            "--dt",
+            "0.001",
+            "-o",
+            "o.vtkhdf",
+            "--yarns-out",
+            "y/f.####.ply",
+        ])
+        .current_dir(&dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let y = dir.join("y");
+    let t0 = Instant::now();
+    // More temporaries than the signal handler's first versions could hold.
+    while leftovers(&y).len() < 300 {
+        if let Some(s) = child.try_wait().unwrap() {
+            panic!(
+                "simulate ended early ({s}): {:?}",
+                child.wait_with_output().unwrap().stderr
+            );
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "no temporary file appeared"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let seen = leftovers(&y).len();
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let status = child.wait().unwrap();
+    eprintln!("SIGTERM with {seen} temporaries in flight");
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(status.signal(), Some(libc::SIGTERM), "{status}");
+    for d in [&dir, &y] {
+        let left = leftovers(d);
+        assert!(
+            left.is_empty(),
+            "{} left, e.g. {:?}",
+            left.len(),
+            left.first()
+        );
+    }
+    let finals: Vec<_> = std::fs::read_dir(&y).unwrap().collect();
+    assert!(
+        finals.is_empty() && !dir.join("o.vtkhdf").exists(),
+        "{finals:?}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -58,6 +58,7 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         ErrorClass::MissingInput => ExitCode::MissingInput,
         ErrorClass::Output => ExitCode::Output,
         ErrorClass::Transient => ExitCode::Transient,
+        ErrorClass::Usage => ExitCode::Usage,
     };
     for cause in err.chain() {
         if cause.downcast_ref::<super::guard::UsageError>().is_some() {

@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use super::{Cli, Command};
+use crate::io::overwrite;
 
 /// A usage error found before running the command (exit 2).
 #[derive(Debug, thiserror::Error)]
@@ -125,50 +126,19 @@ fn io_paths(cli: &Cli) -> (Vec<&Path>, Vec<&Path>) {
     }
 }
 
-/// Whether `a` and `b` name the same file: the same inode when both exist
-/// (symlinks, `./`, hard links), else the same canonical folder and name
-/// (two `name.####.ext` patterns).
-pub fn same_file(a: &Path, b: &Path) -> bool {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
-            return x.dev() == y.dev() && x.ino() == y.ino();
-        }
-    }
-    let canon = |p: &Path| {
-        let dir = p
-            .parent()
-            .filter(|d| !d.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        std::fs::canonicalize(dir)
-            .ok()
-            .zip(p.file_name().map(|n| n.to_os_string()))
-    };
-    match (canon(a), canon(b)) {
-        (Some(x), Some(y)) => x == y,
-        _ => false,
-    }
-}
-
 /// Refuses (exit 2) an output that is one of the inputs, two outputs that
 /// are one file, and an `export --name` that is not a plain file name.
-pub fn check(cli: &Cli) -> Result<(), UsageError> {
+pub fn check(cli: &Cli) -> anyhow::Result<()> {
     let (inputs, outputs) = io_paths(cli);
+    overwrite::refuse_inputs(&outputs, &inputs)?;
     for (i, o) in outputs.iter().enumerate() {
-        if let Some(inp) = inputs.iter().find(|inp| same_file(inp, o)) {
-            return Err(UsageError(format!(
-                "output '{}' is the input '{}': knitvox never overwrites an input; choose another output path",
-                o.display(),
-                inp.display()
-            )));
-        }
-        if let Some(other) = outputs[..i].iter().find(|p| same_file(p, o)) {
+        if let Some(other) = outputs[..i].iter().find(|p| overwrite::same_file(p, o)) {
             return Err(UsageError(format!(
                 "outputs '{}' and '{}' are the same file",
                 other.display(),
                 o.display()
-            )));
+            ))
+            .into());
         }
     }
     if let Command::Export(a) = &cli.command {

@@ -86,6 +86,9 @@ pub enum ErrorClass {
     Output,
     /// Temporary: e.g. another process is still writing the file. Retry later.
     Transient,
+    /// The command line asks for something knitvox refuses (an output that
+    /// is an input): a usage error.
+    Usage,
 }
 
 /// An error of the path-level io API; every variant names the file.
@@ -125,6 +128,10 @@ pub enum IoError {
     },
     #[error("{path}: {message} (transient: retry later)", path = path.display())]
     Busy { path: PathBuf, message: String },
+    /// An output path that is, or resolves to, an input (see `io::overwrite`).
+    #[error("output '{}' is the input '{}': knitvox never overwrites an input; choose another output path",
+        output.display(), input.display())]
+    OutputIsInput { output: PathBuf, input: PathBuf },
 }
 
 impl IoError {
@@ -148,6 +155,7 @@ impl IoError {
             },
             IoError::Write { .. } => ErrorClass::Output,
             IoError::Busy { .. } => ErrorClass::Transient,
+            IoError::OutputIsInput { .. } => ErrorClass::Usage,
         }
     }
 }

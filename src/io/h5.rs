@@ -1472,13 +1472,17 @@ impl FrameWriter {
         let name = path
             .file_name()
             .ok_or_else(|| write_err(path, invalid_input("output path has no file name".into())))?;
-        let tmp = tempfile::Builder::new()
-            .prefix(&format!(".{}.", name.to_string_lossy()))
-            .suffix(".tmp")
-            .tempfile_in(&dir)
-            .map_err(|e| write_err(path, e))?
-            .into_temp_path();
-        let registered = super::atomic::TempGuard::register(&tmp);
+        // Created and registered with signals held: no unregistered window.
+        let (tmp, registered) = super::atomic::hold_signals(|| {
+            let tmp = tempfile::Builder::new()
+                .prefix(&format!(".{}.", name.to_string_lossy()))
+                .suffix(".tmp")
+                .tempfile_in(&dir)?
+                .into_temp_path();
+            let registered = super::atomic::TempGuard::register(&tmp);
+            Ok::<_, std::io::Error>((tmp, registered))
+        })
+        .map_err(|e| write_err(path, e))?;
         let file = create_h5(&tmp).map_err(|e| write_err(path, e))?;
         write_yarns(&file, yarns).map_err(|e| write_err(path, e))?;
         let frames =
@@ -1596,20 +1600,7 @@ impl FrameWriter {
             .tmp
             .take()
             .ok_or_else(|| write_err(&path, std::io::Error::other("writer already finished")))?;
-        std::fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(|e| write_err(&path, e))?;
-        tmp.persist(&path).map_err(|e| write_err(&path, e.error))?;
-        if let Some(dir) = path.parent() {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            if let Ok(d) = std::fs::File::open(dir) {
-                let _ = d.sync_all();
-            }
-        }
+        super::atomic::finish_temp(tmp, self._registered, &path)?;
         Ok(path)
     }
 }

@@ -14,6 +14,7 @@ pub mod gltf;
 pub mod gltf_skin;
 pub mod h5;
 pub mod obj;
+pub mod overwrite;
 pub mod ply;
 pub mod poly;
 pub mod pyp;

@@ -142,6 +142,17 @@ pub fn write_sequence(
     opts: &WriteOptions,
 ) -> Result<Vec<PathBuf>, IoError> {
     let pattern = Pattern::parse(path).expect("is_pattern checked");
+    // Every frame or none under its final name (issue 13 item 4).
+    atomic::all_or_nothing(|| write_frames(&pattern, format, yarns, frames, opts))
+}
+
+fn write_frames(
+    pattern: &Pattern,
+    format: Format,
+    yarns: &Yarns,
+    frames: Option<&YarnFrames>,
+    opts: &WriteOptions,
+) -> Result<Vec<PathBuf>, IoError> {
     let count = frames.map_or(1, |f| f.num_frames());
     let mut written = Vec::with_capacity(count);
     for i in 0..count {

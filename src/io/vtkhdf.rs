@@ -865,8 +865,37 @@ fn parse_json<T: serde::de::DeserializeOwned>(kv: &Group, name: &str) -> Result<
     serde_json::from_slice(&bytes).map_err(|e| ds.err(format!("invalid JSON: {e}")))
 }
 
+/// Refuses an asset whose arrays together would exceed the memory budget
+/// (each dataset is also checked alone when read): per node the rest
+/// position and mass (32 bytes), per tet its ids, offset, type, moduli,
+/// domain and voxel (48 bytes as read), per stored position 24 bytes.
+fn check_budget(l: &Layout, positions: bool) -> Result<(), FormatError> {
+    let stored = if positions {
+        l.s.saturating_mul(l.n)
+    } else {
+        0
+    };
+    // The largest datasets alone first: that error names the dataset.
+    l.rest_nodes.guard_storage(l.n.saturating_mul(3))?;
+    l.connectivity.guard_storage(l.t.saturating_mul(4))?;
+    l.points.guard_storage(stored.saturating_mul(3))?;
+    let bytes = (l.n as u64)
+        .saturating_mul(32)
+        .saturating_add((l.t as u64).saturating_mul(48))
+        .saturating_add((stored as u64).saturating_mul(24));
+    let budget = super::max_memory();
+    if bytes > budget {
+        return Err(FormatError::whole_file(format!(
+            "the asset declares {} nodes, {} tets and {} steps: about {bytes} bytes in memory, more than the memory budget of {budget} bytes (--max-memory)",
+            l.n, l.t, l.s
+        )));
+    }
+    Ok(())
+}
+
 /// Reads everything; the per-step positions only when `positions` is set.
 fn read_contents(l: &Layout, positions: bool) -> Result<Asset, FormatError> {
+    check_budget(l, positions)?;
     let (n, t, s) = (l.n, l.t, l.s);
 
     let nodes = read_floats(&l.rest_nodes, &[n, 3], "N x 3")?;

@@ -259,19 +259,23 @@ pub fn export(
             opts,
         )?);
     }
-    let mut written = Vec::with_capacity(steps.len());
-    for (i, &s) in steps.iter().enumerate() {
-        let y = asset
-            .rest_yarns
-            .with_points(frames.frame(i))
-            .map_err(|e| StageError::Invalid {
-                path: out_dir.to_path_buf(),
-                message: e.to_string(),
-            })?;
-        let path = out_dir.join(format!("{name}.{s:04}.{ext}"));
-        written.extend(io::write_path(&path, &y, None, opts)?);
-    }
-    Ok(written)
+    // Every step or none under its final name (issue 13 item 4).
+    io::atomic::all_or_nothing(|| {
+        let mut written = Vec::with_capacity(steps.len());
+        for (i, &s) in steps.iter().enumerate() {
+            let y =
+                asset
+                    .rest_yarns
+                    .with_points(frames.frame(i))
+                    .map_err(|e| StageError::Invalid {
+                        path: out_dir.to_path_buf(),
+                        message: e.to_string(),
+                    })?;
+            let path = out_dir.join(format!("{name}.{s:04}.{ext}"));
+            written.extend(io::write_path(&path, &y, None, opts)?);
+        }
+        Ok(written)
+    })
 }
 
 /// The size warning of an asset (see [`crate::geom::garment_size_warning`]):

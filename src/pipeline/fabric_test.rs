@@ -104,7 +104,7 @@ impl FabricTestError {
                 source: FabricError::Setup(_),
                 ..
             }
-        )
+        ) || self.class() == io::ErrorClass::Usage
     }
 }
 
@@ -211,6 +211,7 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     }
     .and_then(|_| job.relax.check())
     .map_err(fabric_err("parameters"))?;
+    refuse_input_overwrite(job)?;
     let (yarns, name, relaxation) = swatch(job)?;
     let mut written = Vec::new();
     let mut writer = match &job.output_dir {
@@ -220,15 +221,6 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
                 message: e.to_string(),
             })?;
             let target = dir.join(format!("{}.h5", job.test.name()));
-            if let SwatchSource::Yarns(input) = &job.swatch {
-                let canon = |p: &Path| std::fs::canonicalize(p).ok();
-                if canon(input).is_some() && canon(input) == canon(&target) {
-                    return Err(FabricTestError::Output {
-                        path: target,
-                        message: "is the input yarn file; choose another output folder".into(),
-                    });
-                }
-            }
             let mut w = FrameWriter::create(&target, &yarns)?;
             w.add_text(
                 "fabric_parameters_json",
@@ -268,12 +260,16 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     }
     let figures = figures.map_err(fabric_err(job.test.name()))?;
     if let (Some(dir), Some(w)) = (&job.output_dir, writer) {
-        written.push(w.finish()?);
-        if let TestFigures::Stretch(s) = &figures {
-            let csv = dir.join("stretch.csv");
-            write_csv(&csv, s)?;
-            written.push(csv);
-        }
+        // Both files or neither (issue 13 item 4).
+        io::atomic::all_or_nothing(|| {
+            written.push(w.finish()?);
+            if let TestFigures::Stretch(s) = &figures {
+                let csv = dir.join("stretch.csv");
+                write_csv(&csv, s)?;
+                written.push(csv);
+            }
+            Ok::<_, FabricTestError>(())
+        })?;
     }
     Ok(FabricTestReport {
         test: job.test.name(),
@@ -283,6 +279,25 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
         figures,
         written,
     })
+}
+
+/// Refuses an output folder whose files would replace the input yarn or
+/// grid file (exit 2), before any work.
+fn refuse_input_overwrite(job: &FabricTestJob) -> Result<(), FabricTestError> {
+    let Some(dir) = &job.output_dir else {
+        return Ok(());
+    };
+    let input = match &job.swatch {
+        SwatchSource::Yarns(p) => p,
+        SwatchSource::Pattern {
+            source: PatternSource::GridFile(p),
+            ..
+        } => p,
+        SwatchSource::Pattern { .. } => return Ok(()),
+    };
+    let h5 = dir.join(format!("{}.h5", job.test.name()));
+    let csv = dir.join("stretch.csv");
+    Ok(io::overwrite::refuse_inputs(&[&h5, &csv], &[input])?)
 }
 
 fn write_csv(path: &Path, s: &StretchResult) -> Result<(), FabricTestError> {

@@ -397,6 +397,22 @@ fn preflight(req: &ShotRequest) -> Result<(), SimulateError> {
     Ok(())
 }
 
+/// Refuses (exit 2) an output that would replace the asset or the
+/// character the scene names (the command line's own files are checked by
+/// the CLI; the scene's are known only here).
+fn refuse_input_overwrite(
+    asset_path: &Path,
+    scene: &Scene,
+    req: &ShotRequest,
+) -> Result<(), SimulateError> {
+    let character = scene.character_path();
+    let mut inputs = vec![asset_path];
+    inputs.extend(character.as_deref());
+    let mut outputs = vec![req.output.as_path()];
+    outputs.extend(req.yarns_out.as_deref());
+    Ok(io::overwrite::refuse_inputs(&outputs, &inputs)?)
+}
+
 /// Rotation (degrees about x, then y, then z).
 fn euler_deg(r: Vec3) -> Rotation3<f64> {
     let [a, b, c] = r.map(f64::to_radians);
@@ -454,6 +470,7 @@ pub fn simulate(
 ) -> Result<SimulateReport, SimulateError> {
     let t_total = Instant::now();
     preflight(req)?;
+    refuse_input_overwrite(asset_path, scene, req)?;
     let (_, solver_name) = resolve_backend(scene.simulation.backend, scene.simulation.solver)?;
     let mut frames = req.frames.clone();
     frames.sort_unstable();
@@ -974,19 +991,16 @@ pub fn simulate(
             sha256: super::asset::sha256_file(&p)?,
         });
     }
-    // All or nothing (issue 13 item 4): the yarn frames (the output more
-    // likely to fail: format, sequence names) are written first and removed
-    // again if the asset cannot be written, so a failing command leaves no
-    // fresh output under a final name.
-    if let Some(y) = &req.yarns_out {
-        report.yarn_files = write_yarns(&out, &recorded, y, &req.write)?;
-    }
-    if let Err(e) = io::vtkhdf::write_asset(&req.output, &out) {
-        for f in &report.yarn_files {
-            let _ = std::fs::remove_file(f);
-        }
-        return Err(e.into());
-    }
+    // All or nothing (issue 13 item 4): the yarn frames and the asset stay
+    // temporary files until every one is written, then all get their names.
+    report.yarn_files = io::atomic::all_or_nothing(|| {
+        let files = match &req.yarns_out {
+            Some(y) => write_yarns(&out, &recorded, y, &req.write)?,
+            None => Vec::new(),
+        };
+        io::vtkhdf::write_asset(&req.output, &out)?;
+        Ok::<_, SimulateError>(files)
+    })?;
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
 }
@@ -1027,16 +1041,8 @@ fn write_yarns(
             first_frame: *f,
             ..opts.clone()
         };
-        match io::write_path(path, &asset.rest_yarns, Some(&one), &o) {
-            Ok(w) => written.extend(w),
-            Err(e) => {
-                // Leave no partial sequence behind.
-                for f in &written {
-                    let _ = std::fs::remove_file(f);
-                }
-                return Err(e.into());
-            }
-        }
+        // No partial sequence: the caller stages every file (all_or_nothing).
+        written.extend(io::write_path(path, &asset.rest_yarns, Some(&one), &o)?);
     }
     Ok(written)
 }

@@ -250,6 +250,18 @@ pub fn run(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<YlsReport, YlsError> {
     let t0 = Instant::now();
+    // The files the scene names are inputs too (exit 2 if `out` is one).
+    let characters = scene.colliders.iter().filter_map(|c| match c {
+        ColliderSpec::Character { file, .. } => Some(file.as_path()),
+        _ => None,
+    });
+    let inputs: Vec<&Path> = [Some(file), scene.swatch.file.as_deref()]
+        .into_iter()
+        .chain([scene.swatch.grid.as_deref()])
+        .flatten()
+        .chain(characters)
+        .collect();
+    io::overwrite::refuse_inputs(&[out], &inputs)?;
     let (rest, relax_ms) = scene_swatch(scene, file)?;
     let params = scene_params(scene, file)?;
     let sim_err = |source| YlsError::Sim {
