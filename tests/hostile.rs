@@ -932,3 +932,32 @@ fn sigterm_while_simulate_writes_leaves_nothing() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 13 item 6: names a scene gives for the character's animation and
+/// fit joint are quoted cut to one short line when they are not found.
+#[test]
+fn unknown_scene_animation_and_joint_are_quoted_short() {
+    let dir = scratch("scene-names");
+    small_asset(&dir, "a.vtkhdf");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb"),
+        dir.join("Fox.glb"),
+    )
+    .unwrap();
+    let long = "q".repeat(5000);
+    for key in ["animation", "fit_joint"] {
+        let scene =
+            format!("[character]\nfile = \"Fox.glb\"\nscale = 0.0025\n{key} = \"{long}\"\n");
+        std::fs::write(dir.join("s.toml"), scene).unwrap();
+        let args = [
+            "simulate", "a.vtkhdf", "--scene", "s.toml", "--frames", "1-2", "-o", "o.vtkhdf",
+        ];
+        let (o, _) = knitvox_in(&dir, &args, Duration::from_secs(30));
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{key}: {e}");
+        assert!(e.contains(&format!("character.{key}")), "{key}: {e}");
+        assert!(!e.contains(&"q".repeat(100)), "{key}: {e}");
+        assert!(!dir.join("o.vtkhdf").exists());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

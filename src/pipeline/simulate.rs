@@ -523,8 +523,9 @@ pub fn simulate(
                 invalid(
                     &path,
                     format!(
-                        "character.animation: no animation '{name}' (the file has: {})",
-                        character.animation_names().join(", ")
+                        "character.animation: no animation '{}' (the file has: {})",
+                        crate::geom::excerpt(name),
+                        crate::geom::excerpt(&character.animation_names().join(", "))
                     ),
                 )
             })?),
@@ -568,7 +569,10 @@ pub fn simulate(
                 .ok_or_else(|| {
                     invalid(
                         &path,
-                        format!("character.fit_joint: no node named '{joint}'"),
+                        format!(
+                            "character.fit_joint: no node named '{}'",
+                            crate::geom::excerpt(joint)
+                        ),
                     )
                 })?;
             let w = b.character.node_world_matrices(None, 0.0)[j];
@@ -591,7 +595,10 @@ pub fn simulate(
             if !lift.is_finite() {
                 return Err(invalid(
                     &path,
-                    format!("character.fit_joint: the body has no surface under the garment at joint '{joint}'"),
+                    format!(
+                        "character.fit_joint: the body has no surface under the garment at joint '{}'",
+                        crate::geom::excerpt(joint)
+                    ),
                 ));
             }
             let shift = [dx[0], lift + c.fit_gap, dx[1]];
