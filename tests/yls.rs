@@ -240,10 +240,34 @@ fn bench_yls_prints_its_figures_and_refuses_unknown_patterns() {
         "ms_per_frame",
         "steps_per_frame",
         "contact_pairs",
+        "contacts_per_vertex",
         "min_distance_ratio",
     ] {
         assert!(v.get(key).is_some(), "{key} missing in {stdout}");
     }
+    // Relaxed into contact first, the timed steps run with the yarns
+    // touching (the loose generated swatch has almost no contacts).
+    let loose_cpv = v["contacts_per_vertex"].as_f64().unwrap();
+    let (code, stdout, err) = run(&[
+        "bench",
+        "yls",
+        "--vertices",
+        "600",
+        "--steps",
+        "5",
+        "--warmup",
+        "0",
+        "--relax",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let cpv = r["contacts_per_vertex"].as_f64().unwrap();
+    assert!(
+        cpv > 0.3 && cpv > 3.0 * loose_cpv,
+        "relaxed {cpv}, loose {loose_cpv}"
+    );
+    assert!(r["min_distance_ratio"].as_f64().unwrap() >= 0.75);
     let n = v["vertices"].as_f64().unwrap();
     assert!(
         (300.0..1200.0).contains(&n),

@@ -399,6 +399,14 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
         (yarns, report) = generate(&job(n))?;
     }
+    if a.relax {
+        let (relaxed, _) = crate::yarn::fabric::relax_into_contact(
+            &yarns,
+            &Default::default(),
+            &Default::default(),
+        )?;
+        yarns = relaxed;
+    }
     let opts = BenchOptions {
         vertices: yarns.num_points(),
         steps: a.steps.max(1),
@@ -417,7 +425,9 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         "ms_per_frame": r.ms_per_frame,
         "steps_per_frame": r.steps_per_frame,
         "dt_median": r.dt_median,
+        "relaxed": a.relax,
         "contact_pairs": r.contact_pairs,
+        "contacts_per_vertex": r.contacts_per_vertex,
         "candidate_pairs": r.candidate_pairs,
         "min_distance_ratio": r.min_distance_ratio,
         "rebuilds": r.rebuilds,
@@ -432,8 +442,8 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(
-            "yls: {} vertices, {:.3} us per vertex per step (median), {:.0} steps per 1/150 s frame, {:.1} ms per frame, {} contact pairs, min distance / 2r {:.3}",
-            r.vertices, r.us_per_vertex_step, r.steps_per_frame, r.ms_per_frame, r.contact_pairs, r.min_distance_ratio
+            "yls: {} vertices, {:.3} us per vertex per step (median), {:.0} steps per 1/150 s frame, {:.1} ms per frame, {} contact pairs ({:.2} per vertex), min distance / 2r {:.3}",
+            r.vertices, r.us_per_vertex_step, r.steps_per_frame, r.ms_per_frame, r.contact_pairs, r.contacts_per_vertex, r.min_distance_ratio
         );
     }
     Ok(ExitCode::Success)

@@ -280,6 +280,11 @@ pub struct BenchYlsArgs {
     /// Whole 1/150 s frames to run and time after the timed steps.
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
+    /// Relax the swatch into contact first (as `knitvox pattern` does; the
+    /// simulator then starts from the stored rest shape with its yarns
+    /// touching) instead of timing the loose generated curves.
+    #[arg(long)]
+    pub relax: bool,
     /// Print a JSON object.
     #[arg(long)]
     pub json: bool,

@@ -73,6 +73,9 @@ pub struct BenchReport {
     pub dt_median: f64,
     /// Segment pairs in contact at the end.
     pub contact_pairs: usize,
+    /// `2 contact_pairs / vertices`: a speed figure counts only with the
+    /// contacts engaged (a relaxed knit has about 0.5-2).
+    pub contacts_per_vertex: f64,
     /// Candidate pairs in the reused list at the end.
     pub candidate_pairs: usize,
     /// Minimum over the run of closest non-adjacent segment distance / 2r.
@@ -263,6 +266,7 @@ pub fn bench_yarns(
         steps_per_frame: spf,
         dt_median: dt_med,
         contact_pairs: active,
+        contacts_per_vertex: 2.0 * active as f64 / n.max(1) as f64,
         candidate_pairs: sim.contacts.pairs.len(),
         min_distance_ratio: min_ratio,
         rebuilds,
