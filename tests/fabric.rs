@@ -11,21 +11,9 @@ use knitvox::yarn::fabric::{
     relax_into_contact, stretch_test, Direction, Fabric, FabricParams, RelaxParams, Rig,
     StretchParams,
 };
-use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
 
 fn rib(courses: usize, wales: usize) -> Yarns {
-    let tile = build_tile(&builtin("rib1x1").unwrap(), &PatternParams::default()).unwrap();
-    lay_out(
-        &tile,
-        &Layout {
-            courses,
-            wales,
-            tube_radius: None,
-            helix: false,
-            separate_courses: false,
-        },
-    )
-    .unwrap()
+    common::flat_swatch("rib1x1", courses, wales)
 }
 
 #[test]

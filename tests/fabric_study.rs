@@ -2,13 +2,14 @@
 //! stretch and hang tests, printing every figure.
 //! `FS_PATTERN=rib1x1 FS_COURSES=6 FS_WALES=4 FS_SCALE=0.9 cargo test --test fabric_study -- --ignored --nocapture`
 
+mod common;
+
 use std::time::Instant;
 
 use knitvox::yarn::fabric::{
     hang_test, relax_into_contact, stretch_test, Direction, FabricParams, HangParams, RelaxParams,
     StretchParams,
 };
-use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
 
 fn env_f(name: &str, d: f64) -> f64 {
     std::env::var(name)
@@ -23,18 +24,7 @@ fn relax_stretch_hang() {
     let pattern = std::env::var("FS_PATTERN").unwrap_or("rib1x1".into());
     let courses = env_f("FS_COURSES", 6.0) as usize;
     let wales = env_f("FS_WALES", 4.0) as usize;
-    let tile = build_tile(&builtin(&pattern).unwrap(), &PatternParams::default()).unwrap();
-    let y = lay_out(
-        &tile,
-        &Layout {
-            courses,
-            wales,
-            tube_radius: None,
-            helix: false,
-            separate_courses: false,
-        },
-    )
-    .unwrap();
+    let y = common::flat_swatch(&pattern, courses, wales);
     let mut fp = FabricParams::default();
     fp.rods.bend_scale = env_f("FS_GAMMA", fp.rods.bend_scale);
     let rp = RelaxParams {
@@ -103,18 +93,7 @@ fn stretch_step_diagnostic() {
     let relaxed = match knitvox::io::read_path(std::path::Path::new(&cache), &Default::default()) {
         Ok(d) => d.yarns,
         Err(_) => {
-            let tile = build_tile(&builtin(&pattern).unwrap(), &PatternParams::default()).unwrap();
-            let y = lay_out(
-                &tile,
-                &Layout {
-                    courses,
-                    wales,
-                    tube_radius: None,
-                    helix: false,
-                    separate_courses: false,
-                },
-            )
-            .unwrap();
+            let y = common::flat_swatch(&pattern, courses, wales);
             let rp = RelaxParams {
                 length_scale: scale,
                 ..RelaxParams::default()

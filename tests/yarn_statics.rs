@@ -213,6 +213,23 @@ fn contact_gradient_matches_finite_differences() {
     assert!(checked >= 12, "{checked} coordinates checked");
 }
 
+/// Rods of a [`crossing`] at rest in its positions, with the two end
+/// vertices and end twists of both yarns clamped: topology, rest state,
+/// coordinates and the fixed mask.
+fn clamped_crossing(y: &Yarns) -> (RodTopology, RodRest, Vec<f64>, Vec<bool>) {
+    let topo = RodTopology::new(y).unwrap();
+    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
+    let q = topo.q_from_points(&y.points);
+    let mut fixed = vec![false; q.len()];
+    for v in [0, 1, 39, 40, 41, 42, 80, 81] {
+        fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
+    }
+    for e in [0, 39, 40, 79] {
+        fixed[topo.twist_dof(e)] = true;
+    }
+    (topo, rest, q, fixed)
+}
+
 #[test]
 fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
     use knitvox::yarn::sim::YarnSimParams;
@@ -224,16 +241,7 @@ fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
         bend_scale: 1.0,
         ..RodParams::default()
     };
-    let topo = RodTopology::new(&y).unwrap();
-    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
-    let mut q = topo.q_from_points(&y.points);
-    let mut fixed = vec![false; q.len()];
-    for v in [0, 1, 39, 40, 41, 42, 80, 81] {
-        fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
-    }
-    for e in [0, 39, 40, 79] {
-        fixed[topo.twist_dof(e)] = true;
-    }
+    let (topo, rest, mut q, fixed) = clamped_crossing(&y);
     let mut rods = RodEnergy::new(topo, rest, &params, &q).unwrap();
     let mut contact = ContactTerm::new(&y, &YarnSimParams::default(), 0.5 * R).unwrap();
     let sp = StaticParams {
@@ -281,16 +289,7 @@ fn yarn_pulled_through_another_stops_on_it_with_large_steps_allowed() {
         bend_scale: 1.0,
         ..RodParams::default()
     };
-    let topo = RodTopology::new(&y).unwrap();
-    let rest = RodRest::from_positions(&topo, &y.points).unwrap();
-    let mut q = topo.q_from_points(&y.points);
-    let mut fixed = vec![false; q.len()];
-    for v in [0, 1, 39, 40, 41, 42, 80, 81] {
-        fixed[3 * v..3 * v + 3].iter_mut().for_each(|f| *f = true);
-    }
-    for e in [0, 39, 40, 79] {
-        fixed[topo.twist_dof(e)] = true;
-    }
+    let (topo, rest, mut q, fixed) = clamped_crossing(&y);
     // A smooth arch: the ends down by 7 r, the middle in place.
     for v in 41..82 {
         let z = q[3 * v + 2] / 0.01;

@@ -120,3 +120,21 @@ pub fn slide_on_incline(
         / total;
     (largest, along, x)
 }
+
+/// A flat swatch of the built-in `pattern`, `courses` x `wales`, laid out
+/// as one yarn (the generator's default parameters).
+pub fn flat_swatch(pattern: &str, courses: usize, wales: usize) -> knitvox::geom::Yarns {
+    use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
+    let tile = build_tile(&builtin(pattern).unwrap(), &PatternParams::default()).unwrap();
+    lay_out(
+        &tile,
+        &Layout {
+            courses,
+            wales,
+            tube_radius: None,
+            helix: false,
+            separate_courses: false,
+        },
+    )
+    .unwrap()
+}

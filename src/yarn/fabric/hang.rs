@@ -128,22 +128,26 @@ pub fn hang_test(
         fabric.settle(&mut extra, &fixed, &settle, "hanging")?
     };
     settle.require(&st, "hanging")?;
-    let frame = |fabric: &mut Fabric, gravity: &mut GravityTerm, index: usize, t: f64| {
+    // One equilibrium frame to the writer; returns the clamp reactions.
+    let mut emit = |fabric: &mut Fabric,
+                    gravity: &mut GravityTerm,
+                    index: usize|
+     -> Result<Vec<crate::geom::Vec3>, FabricError> {
         let mut extra: [&mut dyn EnergyTerm; 1] = [gravity];
         let (_, g) = fabric.gradient(&mut extra);
-        let energy = fabric.elastic_energy();
-        (index, t, energy, vertex_forces(&g, &rig.high))
+        let reactions = vertex_forces(&g, &rig.high);
+        let x = fabric.points();
+        on_frame(&RigFrame {
+            index,
+            parameter: index as f64 * params.dt,
+            points: &x,
+            energy: fabric.elastic_energy(),
+            reactions: reactions.clone(),
+            external: external.clone(),
+        })?;
+        Ok(reactions)
     };
-    let (i, t, e, reactions) = frame(&mut fabric, &mut gravity, 0, 0.0);
-    let x = fabric.points();
-    on_frame(&RigFrame {
-        index: i,
-        parameter: t,
-        points: &x,
-        energy: e,
-        reactions: reactions.clone(),
-        external: external.clone(),
-    })?;
+    let reactions = emit(&mut fabric, &mut gravity, 0)?;
     let clamp_force_n: f64 = reactions.iter().map(|f| f[1]).sum::<f64>().abs();
     let steps = (params.watch_time / params.dt).round() as usize;
     let mut prev = fabric.q[..3 * n].to_vec();
@@ -163,17 +167,7 @@ pub fn hang_test(
             })
             .fold(0.0, f64::max);
         prev = cur;
-        let (i, t, e, reactions) =
-            frame(&mut fabric, &mut gravity, k + 1, (k + 1) as f64 * params.dt);
-        let x = fabric.points();
-        on_frame(&RigFrame {
-            index: i,
-            parameter: t,
-            points: &x,
-            energy: e,
-            reactions,
-            external: external.clone(),
-        })?;
+        emit(&mut fabric, &mut gravity, k + 1)?;
     }
     let x = fabric.points();
     let y_low = x.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
