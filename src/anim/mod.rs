@@ -21,6 +21,7 @@
 //! Morph target weights are not modelled (the reader skips `weights` channels
 //! with a note): knitvox only needs the body surface for collisions.
 
+pub mod cache;
 pub mod pins;
 pub mod summary;
 

@@ -1,0 +1,119 @@
+//! HDF5 character caches (issue 12 item 6, schemas/character-hdf5.md): a
+//! cache written independently with h5py, in centimetres and Z up with
+//! 32-bit floats and 64-bit triangle indices, reads into knitvox's metres,
+//! +Y up; hostile variants are refused with the dataset named.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use knitvox::io::character_h5::{is_character_cache, read_character_cache};
+
+fn have_h5py() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import h5py, numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    common::require_tool(ok, "python3 with h5py")
+}
+
+fn python(dir: &Path, script: &str) {
+    let o = Command::new("python3")
+        .args(["-c", script])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// A 2-triangle quad in the x-y plane of a Z-up world, 100 cm wide, moving
+/// up (+Z) by 10 cm per frame at 24 fps, written with h5py.
+const WRITE_CACHE: &str = r#"
+import h5py, numpy as np
+quad = np.array([[0, 0, 0], [100, 0, 0], [100, 100, 0], [0, 100, 0]], "f4")
+frames = np.stack([quad + [0, 0, 10 * f] for f in range(3)]).astype("f4")
+with h5py.File("body.h5", "w") as f:
+    f.attrs["knitvox_format"] = "character"
+    f.attrs["knitvox_format_version"] = np.int64(1)
+    f.attrs["units"] = "cm"
+    f.attrs["up_axis"] = "z"
+    f.attrs["generator"] = "h5py test"
+    g = f.create_group("character")
+    g["triangles"] = np.array([[0, 1, 2], [0, 2, 3]], "i8")
+    g["times"] = np.arange(3) / 24.0
+    g.create_dataset("points", data=frames, chunks=(1, 4, 3), compression="gzip")
+"#;
+
+#[test]
+fn h5py_cache_reads_in_metres_y_up() {
+    if !have_h5py() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    python(dir.path(), WRITE_CACHE);
+    let p = dir.path().join("body.h5");
+    assert!(is_character_cache(&p));
+    let c = read_character_cache(&p, 1 << 30).unwrap();
+    let cache = &c.cache;
+    assert_eq!(cache.num_frames(), 3);
+    assert_eq!(cache.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+    // Z up -> Y up: (x, y, z) -> (x, z, -y); cm -> m.
+    let f2 = cache.frame(2);
+    let expect = [[0.0, 0.2, 0.0], [1.0, 0.2, 0.0], [1.0, 0.2, -1.0], [0.0, 0.2, -1.0]];
+    for (a, b) in f2.iter().zip(expect) {
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() < 1e-6, "{a:?} vs {b:?}");
+        }
+    }
+    // Half-way between frames 0 and 1 the body is 5 cm up.
+    let mid = cache.positions_at(0.5 / 24.0);
+    assert!((mid[0][1] - 0.05).abs() < 1e-6, "{:?}", mid[0]);
+    // No rest pose stored: the first frame is the rest.
+    assert_eq!(cache.rest_positions(), cache.frame(0));
+}
+
+#[test]
+fn hostile_caches_are_refused_naming_the_dataset() {
+    if !have_h5py() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    python(dir.path(), WRITE_CACHE);
+    std::fs::write(dir.path().join("secret.raw"), vec![0u8; 288]).unwrap();
+    python(
+        dir.path(),
+        r#"
+import h5py, shutil, numpy as np
+for name in ["ext", "badtri", "backwards", "huge", "nan"]:
+    shutil.copy("body.h5", name + ".h5")
+with h5py.File("ext.h5", "a") as f:
+    del f["character/points"]
+    f["character"].create_dataset("points", (3, 4, 3), "f8", external=[("secret.raw", 0, 288)])
+with h5py.File("badtri.h5", "a") as f:
+    f["character/triangles"][1, 2] = 7
+with h5py.File("backwards.h5", "a") as f:
+    f["character/times"][2] = 0.0
+with h5py.File("huge.h5", "a") as f:
+    del f["character/points"]
+    f["character"].create_dataset("points", (3, 10**9, 3), "f4", chunks=(1, 1000, 3), compression="gzip")
+with h5py.File("nan.h5", "a") as f:
+    f["character/points"][1, 2, 0] = np.nan
+"#,
+    );
+    for (file, needles) in [
+        ("ext.h5", &["/character/points", "external"][..]),
+        ("badtri.h5", &["/character/triangles/1", "out of range"][..]),
+        ("backwards.h5", &["/character/times/2", "increase"][..]),
+        ("huge.h5", &["/character/points", "memory budget"][..]),
+        ("nan.h5", &["/character/points/1/2", "not finite"][..]),
+    ] {
+        let e = read_character_cache(&dir.path().join(file), 1 << 30)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(file), "{file}: {e}");
+        for n in needles {
+            assert!(e.contains(n), "{file}: expected '{n}' in: {e}");
+        }
+    }
+}
