@@ -151,7 +151,7 @@ pub struct ConvertArgs {
     #[arg(long, value_name = "y|z", default_value = "y")]
     pub out_up_axis: UpAxis,
     /// First frame number of a written sequence (-1e9 to 1e9).
-    #[arg(long, default_value_t = 1, allow_negative_numbers = true,
+    #[arg(long, default_value_t = WriteOptions::default().first_frame, allow_negative_numbers = true,
           value_parser = clap::value_parser!(i64).range(-crate::geom::MAX_FRAME_NUMBER..=crate::geom::MAX_FRAME_NUMBER))]
     pub first_frame: i64,
     /// Print what was written as JSON.
@@ -415,6 +415,25 @@ mod tests {
             panic!("not bench sim")
         };
         assert_eq!(b.dt, crate::sim::pd::PdParams::default().dt);
+        assert_eq!(
+            b.backend,
+            crate::pipeline::sim_scene::BackendChoice::default()
+        );
+        assert_eq!(
+            b.solver,
+            crate::pipeline::sim_scene::SolverChoice::default()
+        );
+        let cli = Cli::try_parse_from(["knitvox", "convert", "a.ply", "b.ply"]).unwrap();
+        let Command::Convert(c) = cli.command else {
+            panic!("not convert")
+        };
+        assert_eq!(c.write_options(), WriteOptions::default());
+        let cli = Cli::try_parse_from(["knitvox", "export", "a.vtkhdf", "-o", "out"]).unwrap();
+        let Command::Export(e) = cli.command else {
+            panic!("not export")
+        };
+        let w = WriteOptions::default();
+        assert_eq!((e.out_units, e.out_up_axis), (w.units, w.up_axis));
         let cli = Cli::try_parse_from([
             "knitvox",
             "simulate",

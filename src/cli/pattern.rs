@@ -45,7 +45,7 @@ pub struct PatternArgs {
     #[arg(long, value_name = "METRES")]
     pub yarn_radius: Option<f64>,
     /// Vertex spacing along the yarn, in yarn radii.
-    #[arg(long, value_name = "R", default_value_t = 1.25)]
+    #[arg(long, value_name = "R", default_value_t = PatternParams::default().spacing)]
     pub spacing: f64,
     /// Skip the relaxation into contact: write the loose generated curves,
     /// without a rest shape.

@@ -495,3 +495,84 @@ impl Stage for ExportJob {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::{ErrorClass, Quiet};
+    use crate::yarn::analytic::{knit_swatch, SwatchParams};
+
+    fn embed_job(dir: &Path, yarns: &str) -> EmbedJob {
+        EmbedJob {
+            yarns: dir.join(yarns),
+            read: ReadOptions::default(),
+            params: EmbedParams {
+                voxel_size: Some(2.5e-3),
+                ..EmbedParams::default()
+            },
+            output: dir.join("a.vtkhdf"),
+            command: "test".into(),
+        }
+    }
+
+    /// The stages read and write their own files, record provenance, and
+    /// fail with a classified error naming the file.
+    #[test]
+    fn stages_own_their_files_and_classify_failures() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let e = embed_job(d, "missing.ply").run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::Missing, "{e}");
+        assert_eq!(e.file(), Some(d.join("missing.ply")));
+        assert!(!d.join("a.vtkhdf").exists());
+
+        let y = knit_swatch(&SwatchParams {
+            courses: 3,
+            wales: 3,
+            ..SwatchParams::default()
+        });
+        io::write_path(&d.join("sw.ply"), &y, None, &WriteOptions::default()).unwrap();
+        let r = embed_job(d, "sw.ply").run(&mut Quiet).unwrap();
+        assert_eq!(r.asset, d.join("a.vtkhdf"));
+        let asset = io::vtkhdf::read_asset(&r.asset).unwrap();
+        assert_eq!(
+            asset.provenance.inputs[0].sha256,
+            sha256_file(&d.join("sw.ply")).unwrap()
+        );
+        assert_eq!(asset.mesh.num_tets(), r.stats.tets);
+
+        let mut export = ExportJob {
+            asset: r.asset.clone(),
+            selection: None,
+            format: io::Format::Ply,
+            output: d.join("out"),
+            name: None,
+            write: WriteOptions::default(),
+        };
+        // A fresh asset has no steps: the input cannot be exported.
+        let e = export.run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::BadInput, "{e}");
+
+        // Fill two steps, then ask for one it does not hold: usage (exit 2).
+        let mut filled = asset.clone();
+        for t in [0.0, 0.5] {
+            filled.steps.times.push(t);
+            filled.steps.positions.extend_from_slice(&asset.mesh.nodes);
+        }
+        io::vtkhdf::write_asset(&r.asset, &filled).unwrap();
+        export.selection = Some("0-2".parse().unwrap());
+        let e = export.run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::Usage, "{e}");
+        assert!(e.to_string().contains("step 2 does not exist"), "{e}");
+        assert!(!d.join("out/a.0000.ply").exists());
+        export.selection = None;
+        let r = export.run(&mut Quiet).unwrap();
+        assert_eq!(r.steps, 2);
+        assert_eq!(
+            r.written,
+            [d.join("out/a.0000.ply"), d.join("out/a.0001.ply")]
+        );
+        let back = io::read_path(&r.written[1], &ReadOptions::default()).unwrap();
+        assert_eq!(back.yarns.num_points(), y.num_points());
+    }
+}
