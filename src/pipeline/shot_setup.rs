@@ -192,7 +192,7 @@ pub(super) fn setup(
         steps_per_frame,
         frame_intervals: (last - first) as usize,
     };
-    if !schedule.total_steps().is_some_and(|t| t <= MAX_TOTAL_STEPS) {
+    if schedule.total_steps().is_none_or(|t| t > MAX_TOTAL_STEPS) {
         return Err(invalid(
             asset_path,
             format!(
@@ -273,7 +273,7 @@ fn load_character(
     let anim = match &c.animation {
         Some(name) => Some(character.animation_index(name).ok_or_else(|| {
             invalid(
-                &path,
+                path,
                 format!(
                     "character.animation: no animation '{}' (the file has: {})",
                     crate::geom::excerpt(name),
@@ -345,7 +345,7 @@ fn load_character(
             .fold(f64::NEG_INFINITY, f64::max);
         if !lift.is_finite() {
             return Err(invalid(
-                &path,
+                path,
                 format!(
                     "character.fit_joint: the body has no surface under the garment at joint '{}'",
                     crate::geom::excerpt(joint)

@@ -327,52 +327,17 @@ pub fn simulate(
     let sim = &scene.simulation;
     let mut setup = shot_setup::setup(asset, asset_path, scene, first, last)?;
     let schedule = setup.schedule;
-    let stored = stored_domains(&asset.domain);
-    let mut solver = PdSolver::new_partitioned(
-        &asset.mesh,
-        &asset.node_mass,
-        &asset.gamma_s,
-        &asset.gamma_v,
-        &setup.pinned,
-        pd_params(sim, schedule.dt),
-        stored.as_deref(),
-    )
-    .map_err(|e| invalid(asset_path, e.to_string()))?;
-    let backend = attach_backend(&mut solver, sim.backend)?;
-    let dd_domains = solver.dd_stats().map(|d| d.domains);
-    let dd_partition = dd_domains.map(|_| {
-        if stored.is_some() {
-            "asset"
-        } else {
-            "bisection"
-        }
-    });
+    let (mut solver, backend, dd) = build_solver(asset, asset_path, sim, &setup)?;
     setup.project_start(scene)?;
 
-    // The output asset: a copy with the frames as its time series.
-    let mut out = asset.clone();
-    out.steps = NodeSteps::default();
-    if let serde_json::Value::Object(m) = &mut out.parameters {
-        m.insert(
-            "simulate".into(),
-            serde_json::json!({
-                "scene": scene,
-                "frames": [first, last],
-                "dt": schedule.dt,
-                "steps_per_frame": schedule.steps_per_frame,
-                "preroll_steps": schedule.preroll_steps,
-                "solver": solver_name,
-                "backend": backend,
-            }),
-        );
-    }
-    out.provenance.command = format!("{} && {}", out.provenance.command, req.command);
-    if let Some(p) = scene.character_path() {
-        out.provenance.inputs.push(crate::geom::InputFile {
-            path: p.display().to_string(),
-            sha256: super::asset::sha256_file(&p)?,
-        });
-    }
+    let mut out = output_asset(
+        asset,
+        scene,
+        req,
+        [first, last],
+        &schedule,
+        [solver_name, backend],
+    )?;
 
     // All or nothing (issue 13 item 4): each yarn frame is written as it
     // is computed, but stays a temporary file until the asset is written
@@ -447,20 +412,7 @@ pub fn simulate(
         Ok::<_, SimulateError>((files, stats))
     })?;
 
-    let mut notes = std::mem::take(&mut setup.notes);
-    for (what, pen) in [
-        ("tet nodes", Some(measures.max_pen)),
-        ("yarn vertices", measures.max_pen_yarns),
-    ] {
-        if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
-            notes.push(format!(
-                "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
-                 {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
-            ));
-        }
-    }
-    let pinned_body = setup.body_pins.nodes.len();
-    Ok(SimulateReport {
+    let mut report = SimulateReport {
         asset: asset_path.to_path_buf(),
         output: req.output.clone(),
         yarn_files,
@@ -474,27 +426,97 @@ pub fn simulate(
         steps: stats.steps,
         nodes: asset.mesh.num_nodes(),
         tets: asset.mesh.num_tets(),
-        pinned_scripted: setup.pinned.len() - pinned_body,
-        pinned_body,
+        pinned_scripted: setup.pinned.len() - setup.body_pins.nodes.len(),
+        pinned_body: setup.body_pins.nodes.len(),
         solver: solver_name.into(),
-        dd_domains,
-        dd_partition,
+        dd_domains: dd.map(|d| d.0),
+        dd_partition: dd.map(|d| d.1),
         backend: backend.into(),
         ms_per_step_median: median(stats.step_ms.clone()),
+        ms_total: 0.0,
         pd_iterations_mean: stats.iterations_mean(),
         pd_iterations_max: stats.iterations_max,
         residual_max: stats.residual_max,
-        max_penetration_m: measures.max_pen.max(0.0),
-        max_penetration_body_m: measures.max_pen_body,
-        max_penetration_yarns_m: measures.max_pen_yarns,
+        max_penetration_m: 0.0,
+        max_penetration_body_m: None,
+        max_penetration_yarns_m: None,
         penetration_tolerance_m: PENETRATION_TOLERANCE_M,
-        min_distance_m: measures.min_dist,
-        max_penetration_pinned_m: measures.pen_pinned,
+        min_distance_m: None,
+        max_penetration_pinned_m: None,
         max_contact_correction_m: stats.correction_max,
         character: setup.character.take(),
-        notes,
-        ms_total: t_total.elapsed().as_secs_f64() * 1e3,
-    })
+        notes: std::mem::take(&mut setup.notes),
+    };
+    measures.fill(&mut report);
+    report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
+    Ok(report)
+}
+
+/// The PD solver of a shot on its backend; with the domain-decomposed
+/// solver, its domain count and where the partition comes from.
+#[allow(clippy::type_complexity)]
+fn build_solver(
+    asset: &Asset,
+    asset_path: &Path,
+    sim: &SimulationSection,
+    setup: &shot_setup::ShotSetup,
+) -> Result<(PdSolver, &'static str, Option<(usize, &'static str)>), SimulateError> {
+    let stored = stored_domains(&asset.domain);
+    let mut solver = PdSolver::new_partitioned(
+        &asset.mesh,
+        &asset.node_mass,
+        &asset.gamma_s,
+        &asset.gamma_v,
+        &setup.pinned,
+        pd_params(sim, setup.schedule.dt),
+        stored.as_deref(),
+    )
+    .map_err(|e| invalid(asset_path, e.to_string()))?;
+    let backend = attach_backend(&mut solver, sim.backend)?;
+    let from = if stored.is_some() {
+        "asset"
+    } else {
+        "bisection"
+    };
+    let dd = solver.dd_stats().map(|d| (d.domains, from));
+    Ok((solver, backend, dd))
+}
+
+/// The output asset before its frames: a copy of `asset` with an empty time
+/// series, the shot's parameters (`parameters.simulate`) and provenance
+/// (the command, the character file's SHA-256).
+fn output_asset(
+    asset: &Asset,
+    scene: &Scene,
+    req: &ShotRequest,
+    [first, last]: [i64; 2],
+    schedule: &shot::Schedule,
+    [solver_name, backend]: [&str; 2],
+) -> Result<Asset, SimulateError> {
+    let mut out = asset.clone();
+    out.steps = NodeSteps::default();
+    if let serde_json::Value::Object(m) = &mut out.parameters {
+        m.insert(
+            "simulate".into(),
+            serde_json::json!({
+                "scene": scene,
+                "frames": [first, last],
+                "dt": schedule.dt,
+                "steps_per_frame": schedule.steps_per_frame,
+                "preroll_steps": schedule.preroll_steps,
+                "solver": solver_name,
+                "backend": backend,
+            }),
+        );
+    }
+    out.provenance.command = format!("{} && {}", out.provenance.command, req.command);
+    if let Some(p) = scene.character_path() {
+        out.provenance.inputs.push(crate::geom::InputFile {
+            path: p.display().to_string(),
+            sha256: super::asset::sha256_file(&p)?,
+        });
+    }
+    Ok(out)
 }
 
 /// The PD parameters of a scene's `[simulation]` at step `dt` (s).
@@ -522,6 +544,27 @@ struct Measures {
 }
 
 impl Measures {
+    /// Puts the figures into `report`, with a warning in its notes for
+    /// tet nodes or yarn vertices deeper than the tolerance.
+    fn fill(&self, report: &mut SimulateReport) {
+        for (what, pen) in [
+            ("tet nodes", Some(self.max_pen)),
+            ("yarn vertices", self.max_pen_yarns),
+        ] {
+            if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
+                report.notes.push(format!(
+                    "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
+                     {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
+                ));
+            }
+        }
+        report.max_penetration_m = self.max_pen.max(0.0);
+        report.max_penetration_body_m = self.max_pen_body;
+        report.max_penetration_yarns_m = self.max_pen_yarns;
+        report.min_distance_m = self.min_dist;
+        report.max_penetration_pinned_m = self.pen_pinned;
+    }
+
     /// Adds one frame: node positions `x`, their yarn vertices (V2Y; given
     /// whenever there are colliders), the colliders then.
     fn add(&mut self, x: &[Vec3], yarns: Option<&[Vec3]>, posed: &Posed, is_pinned: &[bool]) {
