@@ -122,6 +122,9 @@ pub enum Error {
     /// A yarn-level scene run.
     #[error(transparent)]
     Yls(#[from] super::yls::YlsError),
+    /// A fabric test (Sperl 2022 §4).
+    #[error(transparent)]
+    Fabric(#[from] super::fabric_test::FabricTestError),
     /// Embedding outside a stage (benchmarks).
     #[error(transparent)]
     Embed(#[from] crate::embed::EmbedError),
@@ -149,6 +152,7 @@ impl Error {
             Error::Shot(e) => e.class(),
             Error::Pattern(e) => e.class(),
             Error::Yls(e) => e.class(),
+            Error::Fabric(e) => fabric_class(e),
             Error::Embed(_) | Error::Fit(_) | Error::Geom(_) => ErrorClass::BadInput,
             Error::Usage(_) => ErrorClass::Usage,
             Error::Internal(_) => ErrorClass::Internal,
@@ -195,6 +199,8 @@ impl Error {
             Some(e.class())
         } else if let Some(e) = cause.downcast_ref::<YlsError>() {
             Some(e.class())
+        } else if let Some(e) = cause.downcast_ref::<super::fabric_test::FabricTestError>() {
+            Some(fabric_class(e))
         } else if cause.is::<crate::embed::EmbedError>()
             || cause.is::<crate::fit::FitError>()
             || cause.is::<crate::geom::GeomError>()
@@ -203,6 +209,16 @@ impl Error {
         } else {
             None
         }
+    }
+}
+
+/// A fabric test's class: its swatch's pattern errors keep theirs, its
+/// parameter errors are usage errors.
+fn fabric_class(e: &super::fabric_test::FabricTestError) -> ErrorClass {
+    match e {
+        super::fabric_test::FabricTestError::Pattern(p) => p.class(),
+        _ if e.is_usage() => ErrorClass::Usage,
+        _ => e.class().into(),
     }
 }
 
