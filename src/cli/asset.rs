@@ -2,15 +2,15 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use clap::Args;
 
 use super::{ExitCode, ReadArgs};
 use crate::embed::EmbedParams;
 use crate::fit::ShapeFitParams;
 use crate::geom::{FrameSpec, Units, UpAxis};
-use crate::io::{self, vtkhdf, Format, WriteOptions};
+use crate::io::{Format, WriteOptions};
 use crate::pipeline::asset as stages;
+use crate::pipeline::{Quiet, Stage};
 
 /// The command line as typed, for provenance.
 pub fn command_line() -> String {
@@ -89,70 +89,27 @@ pub struct ExportArgs {
     pub json: bool,
 }
 
-fn check_asset_ext(path: &Path) -> anyhow::Result<()> {
-    if path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-        != Some("vtkhdf")
-    {
-        return Err(anyhow::Error::new(io::IoError::Unsupported {
-            path: path.to_path_buf(),
-            message: "an asset file must have the .vtkhdf extension".into(),
-        }));
-    }
-    Ok(())
-}
-
-/// Resolves `--frames` against `n` available frames: 0-based indices, all
-/// in range. One out of range is a usage error (exit 2) naming the option:
-/// the file is fine, the option asks for what it does not hold.
-fn select(
-    spec: &Option<FrameSpec>,
-    n: usize,
-    what: &str,
-    path: &Path,
-) -> anyhow::Result<Vec<usize>> {
-    let frames = spec.clone().unwrap_or_else(|| FrameSpec::all(n)).frames();
-    frames
-        .into_iter()
-        .map(|f| {
-            usize::try_from(f).ok().filter(|&i| i < n).ok_or_else(|| {
-                super::guard::UsageError(format!(
-                    "--frames {}: {what} {f} does not exist: {} has {n} {what}s (0..{})",
-                    spec.as_ref().map_or(String::new(), |s| s.to_string()),
-                    path.display(),
-                    n.saturating_sub(1)
-                ))
-                .into()
-            })
-        })
-        .collect()
-}
-
 pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
-    check_asset_ext(&a.output)?;
-    let params = EmbedParams {
-        voxel_size: a.voxel_size,
-        max_voxels: a.max_voxels,
-        material_density: a.density,
-        ..EmbedParams::default()
+    let job = stages::EmbedJob {
+        yarns: a.yarns.clone(),
+        read: a.read.options(),
+        params: EmbedParams {
+            voxel_size: a.voxel_size,
+            max_voxels: a.max_voxels,
+            material_density: a.density,
+            ..EmbedParams::default()
+        },
+        output: a.output.clone(),
+        command: command_line(),
     };
-    let (asset, stats) =
-        stages::build_asset(&a.yarns, &a.read.options(), &params, &command_line())?;
-    let warnings = super::warn_all(
-        stages::size_warning(&asset)
-            .map(|w| format!("{}: {w}", a.yarns.display()))
-            .into_iter()
-            .collect(),
-    );
-    vtkhdf::write_asset(&a.output, &asset)?;
+    let mut console = super::Console::new(false, 0, "");
+    let r = job.run(&mut console)?;
+    let stats = &r.stats;
     if a.json {
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "warnings": warnings })
+                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "warnings": console.warnings })
             )?
         );
     } else {
@@ -173,42 +130,22 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn shapefit(a: &ShapefitArgs) -> anyhow::Result<ExitCode> {
-    check_asset_ext(&a.asset)?;
-    let mut asset = vtkhdf::read_asset(&a.asset)?;
-    let data = io::read_path(&a.frames, &a.read.options())?;
-    let Some(frames) = data.frames else {
-        return Err(anyhow::Error::new(io::IoError::Unsupported {
-            path: a.frames.clone(),
-            message:
-                "holds no frames: give a knitvox HDF5 file with /frames or a name.####.ext sequence"
-                    .into(),
-        }));
+    let job = stages::ShapefitJob {
+        asset: a.asset.clone(),
+        frames: a.frames.clone(),
+        read: a.read.options(),
+        selection: a.frames_spec.clone(),
+        output: a.output.clone(),
+        params: ShapeFitParams { alpha: a.alpha },
+        command: command_line(),
     };
-    let selection = select(&a.frames_spec, frames.num_frames(), "frame", &a.frames)?;
-    let report = stages::shapefit(
-        &mut asset,
-        &a.asset,
-        &frames,
-        &selection,
-        &ShapeFitParams { alpha: a.alpha },
-    )?;
-    asset.provenance.inputs.push(crate::geom::InputFile {
-        path: a.frames.display().to_string(),
-        sha256: if a.frames.is_file() {
-            stages::sha256_file(&a.frames)?
-        } else {
-            String::new()
-        },
-    });
-    asset.provenance.command = format!("{} && {}", asset.provenance.command, command_line());
-    let out = a.output.clone().unwrap_or_else(|| a.asset.clone());
-    vtkhdf::write_asset(&out, &asset).with_context(|| "writing the fitted asset")?;
+    let report = job.run(&mut Quiet)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
             "{}: fitted {} frames (prepare {:.1} ms, median {:.2} ms per frame); worst RMS yarn error {:.3e} m",
-            out.display(),
+            job.output_path().display(),
             report.frames,
             report.prepare_ms,
             report.fit_ms_per_frame_median,
@@ -219,40 +156,32 @@ pub fn shapefit(a: &ShapefitArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn export(a: &ExportArgs) -> anyhow::Result<ExitCode> {
-    check_asset_ext(&a.asset)?;
-    let asset = vtkhdf::read_asset(&a.asset)?;
-    if asset.steps.num_steps() == 0 {
-        return Err(anyhow::Error::new(io::IoError::Unsupported {
-            path: a.asset.clone(),
-            message: "the asset has no steps to export: fill it with `knitvox shapefit` or `knitvox simulate` first".into(),
-        }));
-    }
-    let steps = select(&a.frames_spec, asset.steps.num_steps(), "step", &a.asset)?;
-    let format = Format::from_path(Path::new(&format!("x.{}", a.format))).unwrap_or(Format::Ply);
-    let name = a.name.clone().unwrap_or_else(|| {
-        a.asset
-            .file_stem()
-            .map_or("asset".into(), |s| s.to_string_lossy().into_owned())
-    });
-    let opts = WriteOptions {
-        units: a.out_units,
-        up_axis: a.out_up_axis,
-        first_frame: 0,
+    let job = stages::ExportJob {
+        asset: a.asset.clone(),
+        selection: a.frames_spec.clone(),
+        format: Format::from_path(Path::new(&format!("x.{}", a.format))).unwrap_or(Format::Ply),
+        output: a.output.clone(),
+        name: a.name.clone(),
+        write: WriteOptions {
+            units: a.out_units,
+            up_axis: a.out_up_axis,
+            first_frame: 0,
+        },
     };
-    let written = stages::export(&asset, &steps, format, &a.output, &name, &opts)?;
+    let r = job.run(&mut Quiet)?;
     if a.json {
-        let files: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        let files: Vec<String> = r.written.iter().map(|p| p.display().to_string()).collect();
         println!(
             "{}",
-            serde_json::json!({ "steps": steps.len(), "written": files })
+            serde_json::json!({ "steps": r.steps, "written": files })
         );
     } else {
         eprintln!(
             "exported {} step(s) into {} file(s)",
-            steps.len(),
-            written.len()
+            r.steps,
+            r.written.len()
         );
-        for p in &written {
+        for p in &r.written {
             println!("{}", p.display());
         }
     }

@@ -8,6 +8,7 @@ use serde::Serialize;
 use super::{BenchEmbedArgs, BenchIoArgs, BenchSimArgs, ExitCode};
 use crate::io::{self, Format, ReadOptions, WriteOptions};
 use crate::pipeline::simulate::median;
+use crate::pipeline::Error;
 use crate::yarn::analytic::knit_swatch_with_points;
 
 fn time_ms<T>(runs: usize, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<f64> {
@@ -155,17 +156,20 @@ pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
         voxel_size: a.voxel_size,
         ..EmbedParams::default()
     };
-    let e = run_embed(&yarns, &params)?;
-    let embed_ms = time_ms(a.runs, || Ok(run_embed(&yarns, &params)?))?;
+    let e = run_embed(&yarns, &params).map_err(Error::from)?;
+    let embed_ms = time_ms(a.runs, || {
+        Ok(run_embed(&yarns, &params).map_err(Error::from)?)
+    })?;
     let t = Instant::now();
-    let fitter = ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default())?;
+    let fitter =
+        ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default()).map_err(Error::from)?;
     let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
     let frames = crate::pipeline::demo::demo_frames(&yarns, a.frames.max(1));
     let mut per_frame = Vec::new();
     let mut worst: f64 = 0.0;
     for f in 0..frames.num_frames() {
         let t = Instant::now();
-        let (_, st) = fitter.fit(frames.frame(f))?;
+        let (_, st) = fitter.fit(frames.frame(f)).map_err(Error::from)?;
         per_frame.push(t.elapsed().as_secs_f64() * 1e3);
         worst = worst.max(st.rms_error);
     }
@@ -260,12 +264,12 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     // embedding table); one correction from the first embedding's ratio.
     let mut points = (a.tets as f64 / 1.7).max(800.0) as usize;
     let mut yarns = knit_swatch_with_points(points);
-    let mut e = run_embed(&yarns, &EmbedParams::default())?;
+    let mut e = run_embed(&yarns, &EmbedParams::default()).map_err(Error::from)?;
     let ratio = a.tets as f64 / e.mesh.num_tets().max(1) as f64;
     if !(0.85..=1.15).contains(&ratio) {
         points = ((points as f64) * ratio).max(800.0) as usize;
         yarns = knit_swatch_with_points(points);
-        e = run_embed(&yarns, &EmbedParams::default())?;
+        e = run_embed(&yarns, &EmbedParams::default()).map_err(Error::from)?;
     }
     let mesh = &e.mesh;
     let nt = mesh.num_tets();

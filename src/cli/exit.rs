@@ -1,7 +1,9 @@
 //! Documented process exit codes (sysexits.h values, which farm schedulers
-//! and shell scripts already understand).
+//! and shell scripts already understand). The numbers and the retry
+//! decisions come from [`crate::pipeline::ErrorClass`]; this module only
+//! names them for the binary.
 
-use crate::io::{ErrorClass, IoError};
+use crate::pipeline::ErrorClass;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
@@ -31,6 +33,22 @@ impl ExitCode {
     }
 }
 
+/// The one mapping from error classes to exit codes
+/// ([`ErrorClass::exit_code`] holds the numbers).
+impl From<ErrorClass> for ExitCode {
+    fn from(c: ErrorClass) -> Self {
+        match c {
+            ErrorClass::Usage => ExitCode::Usage,
+            ErrorClass::BadInput => ExitCode::BadInput,
+            ErrorClass::Missing => ExitCode::MissingInput,
+            ErrorClass::Unavailable => ExitCode::Unavailable,
+            ErrorClass::Internal => ExitCode::Internal,
+            ErrorClass::Output => ExitCode::Output,
+            ErrorClass::Transient => ExitCode::Transient,
+        }
+    }
+}
+
 /// The one-line message of an error and its causes, each cause printed
 /// once: library errors both embed their source in their own message and
 /// return it from `source()` (so `{e:#}` would print it twice), and a cause
@@ -50,54 +68,19 @@ pub fn error_message(err: &anyhow::Error) -> String {
     text
 }
 
-/// The exit code for an error: looks through the error chain for a library
-/// error that knows its class.
+/// The exit code for an error: the class of the first cause in its chain
+/// that knows one ([`crate::pipeline::Error::class_of`]); anything else is
+/// an internal error.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
-    let of_class = |c: ErrorClass| match c {
-        ErrorClass::BadInput => ExitCode::BadInput,
-        ErrorClass::MissingInput => ExitCode::MissingInput,
-        ErrorClass::Output => ExitCode::Output,
-        ErrorClass::Transient => ExitCode::Transient,
-        ErrorClass::Usage => ExitCode::Usage,
-    };
-    for cause in err.chain() {
-        if cause.downcast_ref::<super::guard::UsageError>().is_some() {
-            return ExitCode::Usage;
-        }
-        if let Some(e) = cause.downcast_ref::<IoError>() {
-            return of_class(e.class());
-        }
-        if let Some(e) = cause.downcast_ref::<crate::pipeline::asset::StageError>() {
-            return of_class(e.class());
-        }
-        if let Some(e) = cause.downcast_ref::<crate::pipeline::simulate::SimulateError>() {
-            // The inputs are fine; this machine cannot run the backend.
-            if matches!(e, crate::pipeline::simulate::SimulateError::Unavailable(_)) {
-                return ExitCode::Unavailable;
-            }
-            return of_class(e.class());
-        }
-        if let Some(e) = cause.downcast_ref::<crate::pipeline::pattern::PatternStageError>() {
-            return super::pattern::stage_exit_code(e);
-        }
-        if let Some(e) = cause.downcast_ref::<crate::pipeline::yls::YlsError>() {
-            return of_class(e.class());
-        }
-        if cause.downcast_ref::<crate::embed::EmbedError>().is_some()
-            || cause.downcast_ref::<crate::fit::FitError>().is_some()
-        {
-            return ExitCode::BadInput;
-        }
-        if cause.downcast_ref::<crate::geom::GeomError>().is_some() {
-            return ExitCode::BadInput;
-        }
-    }
-    ExitCode::Internal
+    err.chain()
+        .find_map(crate::pipeline::Error::class_of)
+        .map_or(ExitCode::Internal, ExitCode::from)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::IoError;
 
     #[test]
     fn each_cause_is_printed_once() {
@@ -114,5 +97,15 @@ mod tests {
             m.starts_with("converting x.bcc to y.ply: x.bcc: cannot read"),
             "{m}"
         );
+    }
+
+    #[test]
+    fn exit_codes_are_the_classes_codes() {
+        for c in ErrorClass::ALL {
+            assert_eq!(ExitCode::from(c).code(), c.exit_code(), "{c:?}");
+        }
+        let e = anyhow::Error::new(crate::pipeline::Error::Usage("--frames 9".into()));
+        assert_eq!(exit_code_for(&e), ExitCode::Usage);
+        assert_eq!(exit_code_for(&anyhow::anyhow!("a bug")), ExitCode::Internal);
     }
 }

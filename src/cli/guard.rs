@@ -7,11 +7,7 @@ use std::path::Path;
 
 use super::{Cli, Command};
 use crate::io::overwrite;
-
-/// A usage error found before running the command (exit 2).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
+use crate::pipeline::Error;
 
 /// Parses a byte count with an optional binary suffix: `4096`, `512K`,
 /// `512M`, `4G`, `1T` (also `MB`, `MiB`, ...).
@@ -133,7 +129,7 @@ pub fn check(cli: &Cli) -> anyhow::Result<()> {
     overwrite::refuse_inputs(&outputs, &inputs)?;
     for (i, o) in outputs.iter().enumerate() {
         if let Some(other) = outputs[..i].iter().find(|p| overwrite::same_file(p, o)) {
-            return Err(UsageError(format!(
+            return Err(Error::Usage(format!(
                 "outputs '{}' and '{}' are the same file",
                 other.display(),
                 o.display()
@@ -150,14 +146,14 @@ pub fn check(cli: &Cli) -> anyhow::Result<()> {
 }
 
 /// `export --name`: a file name, never a path (it must not leave `-o`).
-pub fn check_plain_name(name: &str) -> Result<(), UsageError> {
+pub fn check_plain_name(name: &str) -> Result<(), Error> {
     let bad = name.is_empty()
         || name == "."
         || name == ".."
         || name.contains(['/', '\\', '\0'])
         || name.starts_with('.');
     if bad {
-        return Err(UsageError(format!(
+        return Err(Error::Usage(format!(
             "--name '{name}': give a plain file name (no '/', '\\', leading '.' or '..'); files are written inside -o"
         )));
     }

@@ -151,7 +151,7 @@ pub struct ConvertArgs {
     #[arg(long, value_name = "y|z", default_value = "y")]
     pub out_up_axis: UpAxis,
     /// First frame number of a written sequence (-1e9 to 1e9).
-    #[arg(long, default_value_t = 1, allow_negative_numbers = true,
+    #[arg(long, default_value_t = WriteOptions::default().first_frame, allow_negative_numbers = true,
           value_parser = clap::value_parser!(i64).range(-crate::geom::MAX_FRAME_NUMBER..=crate::geom::MAX_FRAME_NUMBER))]
     pub first_frame: i64,
     /// Print what was written as JSON.
@@ -343,35 +343,55 @@ pub(crate) fn warn_all(warnings: Vec<String>) -> Vec<String> {
     warnings
 }
 
-/// Runs `job` with a frames progress bar on stderr (`label {bar} pos/len
-/// frames [elapsed < eta]`) when `show`: `job` gets the callback that moves
-/// it (frames done, total); the bar is cleared when `job` returns.
-pub(crate) fn with_frame_progress<T>(
-    show: bool,
-    frames: usize,
-    label: &str,
-    job: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T,
-) -> T {
-    let bar = show.then(|| {
-        let b = indicatif::ProgressBar::new(frames as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(&format!(
-                "{label} {{bar:40}} {{pos}}/{{len}} frames [{{elapsed_precise}} < {{eta}}]"
-            ))
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
-    let mut progress = |done: usize, _total: usize| {
-        if let Some(b) = &bar {
+/// The CLI's [`crate::pipeline::Observer`]: warnings on stderr
+/// (`warning: ...`, kept for a `--json` report's `warnings` array) and a
+/// frames progress bar on stderr when shown.
+pub(crate) struct Console {
+    pub warnings: Vec<String>,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Console {
+    /// A console; with `show`, a progress bar of `frames` frames labelled
+    /// `label` (`label {bar} pos/len frames [elapsed < eta]`).
+    pub fn new(show: bool, frames: usize, label: &str) -> Console {
+        Console {
+            warnings: Vec::new(),
+            bar: show.then(|| frame_bar(frames, label)),
+        }
+    }
+}
+
+impl Drop for Console {
+    fn drop(&mut self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+impl crate::pipeline::Observer for Console {
+    fn warning(&mut self, message: &str) {
+        eprintln!("warning: {message}");
+        self.warnings.push(message.to_string());
+    }
+    fn frames(&mut self, done: usize, total: usize) {
+        if let Some(b) = &self.bar {
+            b.set_length(total as u64);
             b.set_position(done as u64);
         }
-    };
-    let result = job(&mut progress);
-    if let Some(b) = &bar {
-        b.finish_and_clear();
     }
-    result
+}
+
+fn frame_bar(frames: usize, label: &str) -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new(frames as u64);
+    b.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{label} {{bar:40}} {{pos}}/{{len}} frames [{{elapsed_precise}} < {{eta}}]"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    b
 }
 
 #[cfg(test)]
@@ -382,6 +402,61 @@ mod tests {
     fn cli_definition_is_consistent() {
         use clap::CommandFactory;
         Cli::command().debug_assert();
+    }
+
+    /// Defaults written as text in clap attributes are the library's.
+    #[test]
+    fn textual_defaults_are_the_librarys() {
+        let cli = Cli::try_parse_from(["knitvox", "bench", "sim"]).unwrap();
+        let Command::Bench(BenchArgs {
+            target: BenchTarget::Sim(b),
+        }) = cli.command
+        else {
+            panic!("not bench sim")
+        };
+        assert_eq!(b.dt, crate::sim::pd::PdParams::default().dt);
+        assert_eq!(
+            b.backend,
+            crate::pipeline::sim_scene::BackendChoice::default()
+        );
+        assert_eq!(
+            b.solver,
+            crate::pipeline::sim_scene::SolverChoice::default()
+        );
+        let cli = Cli::try_parse_from(["knitvox", "convert", "a.ply", "b.ply"]).unwrap();
+        let Command::Convert(c) = cli.command else {
+            panic!("not convert")
+        };
+        assert_eq!(c.write_options(), WriteOptions::default());
+        let cli = Cli::try_parse_from(["knitvox", "export", "a.vtkhdf", "-o", "out"]).unwrap();
+        let Command::Export(e) = cli.command else {
+            panic!("not export")
+        };
+        let w = WriteOptions::default();
+        assert_eq!((e.out_units, e.out_up_axis), (w.units, w.up_axis));
+        let cli = Cli::try_parse_from([
+            "knitvox",
+            "simulate",
+            "a.vtkhdf",
+            "--character",
+            "c.glb",
+            "--frames",
+            "1",
+            "-o",
+            "o.vtkhdf",
+        ])
+        .unwrap();
+        let Command::Simulate(a) = cli.command else {
+            panic!("not simulate")
+        };
+        let scene = simulate::scene_of(&a).unwrap();
+        let c = scene.character.unwrap();
+        let d = crate::pipeline::sim_scene::CharacterSection::default();
+        assert_eq!((c.scale, c.pin_distance), (d.scale, d.pin_distance));
+        assert_eq!(
+            scene.simulation,
+            crate::pipeline::sim_scene::SimulationSection::default()
+        );
     }
 
     #[test]

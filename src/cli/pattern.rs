@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::{error_message, exit_code_for, ExitCode};
+use super::ExitCode;
 use crate::io::{self, WriteOptions};
-use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
+use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
 use crate::yarn::fabric::RelaxParams;
-use crate::yarn::pattern::{Layout, PatternError, PatternParams, BUILTIN_NAMES};
+use crate::yarn::pattern::{Layout, PatternParams, BUILTIN_NAMES};
 
 #[derive(Debug, Args)]
 pub struct PatternArgs {
@@ -45,7 +45,7 @@ pub struct PatternArgs {
     #[arg(long, value_name = "METRES")]
     pub yarn_radius: Option<f64>,
     /// Vertex spacing along the yarn, in yarn radii.
-    #[arg(long, value_name = "R", default_value_t = 1.25)]
+    #[arg(long, value_name = "R", default_value_t = PatternParams::default().spacing)]
     pub spacing: f64,
     /// Skip the relaxation into contact: write the loose generated curves,
     /// without a rest shape.
@@ -62,21 +62,6 @@ pub struct PatternArgs {
     /// Print a JSON summary (curves, vertices, size, min distance ratio).
     #[arg(long)]
     pub json: bool,
-}
-
-pub(crate) fn stage_exit_code(e: &PatternStageError) -> ExitCode {
-    match e {
-        PatternStageError::UnknownPattern(_) => ExitCode::Usage,
-        PatternStageError::Read { source, .. } => match source.kind() {
-            std::io::ErrorKind::InvalidData => ExitCode::BadInput,
-            _ => ExitCode::MissingInput,
-        },
-        PatternStageError::Grid { .. } => ExitCode::BadInput,
-        // Sizes and shape parameters come from the flags.
-        PatternStageError::Pattern(PatternError::BadParameter { .. }) => ExitCode::Usage,
-        PatternStageError::Pattern(_) => ExitCode::Internal,
-        PatternStageError::Relax(_) => ExitCode::BadInput,
-    }
 }
 
 pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
@@ -122,23 +107,8 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
             return Ok(ExitCode::Usage);
         }
     }
-    // Library errors are reported here: their exit codes depend on the kind
-    // (an unknown name is a usage error, a bad grid bad input).
-    let (yarns, mut report) = match generate(&job) {
-        Ok(x) => x,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return Ok(stage_exit_code(&e));
-        }
-    };
-    let written = match io::write_path(&a.output, &yarns, None, &WriteOptions::default()) {
-        Ok(w) => w,
-        Err(e) => {
-            let e = anyhow::Error::new(e);
-            eprintln!("error: {}", error_message(&e));
-            return Ok(exit_code_for(&e));
-        }
-    };
+    let (yarns, mut report) = generate(&job).map_err(crate::pipeline::Error::from)?;
+    let written = io::write_path(&a.output, &yarns, None, &WriteOptions::default())?;
     report.written = written;
     let format = io::Format::from_path(&a.output);
     if yarns.rest.is_some() && !format.is_some_and(|f| f.holds_rest_shape()) {

@@ -10,11 +10,13 @@ use super::guard::{parse_non_negative, parse_positive};
 use super::ExitCode;
 use crate::anim::pins::DEFAULT_PIN_DISTANCE;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
-use crate::io::{vtkhdf, WriteOptions};
+use crate::io::WriteOptions;
+use crate::pipeline::asset::check_asset_ext;
 use crate::pipeline::sim_scene::{
     parse_seconds, BackendChoice, CharacterSection, Scene, Seconds, SolverChoice,
 };
-use crate::pipeline::simulate::{self as stage, ShotRequest};
+use crate::pipeline::simulate::{self as stage, ShotJob, ShotRequest};
+use crate::pipeline::Stage;
 
 fn parse_vec3(s: &str) -> Result<Vec3, String> {
     let v: Vec<f64> = s
@@ -77,7 +79,7 @@ pub struct SimulateArgs {
     pub pin_distance: f64,
     /// Metres per unit of --character (glTF is metres; Fox.glb needs about 0.0025 for a
     /// fox of 20 cm height under the demo swatch, 0.01 for 80 cm).
-    #[arg(long, value_name = "SCALE", requires = "character", default_value_t = 1.0, value_parser = parse_positive)]
+    #[arg(long, value_name = "SCALE", requires = "character", default_value_t = CharacterSection::default().scale, value_parser = parse_positive)]
     pub character_scale: f64,
     /// Lay the garment flat on the body over this joint (glTF node name, e.g. b_Spine02_03).
     #[arg(long, value_name = "NODE", requires = "character")]
@@ -165,52 +167,36 @@ pub fn scene_of(a: &SimulateArgs) -> anyhow::Result<Scene> {
     Ok(scene)
 }
 
-fn check_asset_ext(path: &std::path::Path) -> anyhow::Result<()> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    if ext.as_deref() != Some("vtkhdf") {
-        return Err(anyhow::Error::new(crate::io::IoError::Unsupported {
-            path: path.to_path_buf(),
-            message: "an asset file must have the .vtkhdf extension".into(),
-        }));
-    }
-    Ok(())
-}
-
 pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
+    // Cheap checks of the command line first, before the asset is read.
     check_asset_ext(&a.asset)?;
     check_asset_ext(&a.output)?;
     let scene = scene_of(a)?;
     check_step_count(a, &scene)?;
     check_character_names(a)?;
-    let asset = vtkhdf::read_asset(&a.asset)?;
-    // The asset records how its yarns were read: an assumed unit and an
-    // implausible size are worth a warning before a long shot.
-    let warnings = super::warn_all(
-        crate::pipeline::asset::size_warning(&asset)
-            .map(|w| format!("{}: {w} (when embedding its yarns)", a.asset.display()))
-            .into_iter()
-            .collect(),
-    );
-    let req = ShotRequest {
-        frames: a.frames.frames(),
-        output: a.output.clone(),
-        yarns_out: a.yarns_out.clone(),
-        write: WriteOptions {
-            units: a.out_units,
-            up_axis: a.out_up_axis,
-            first_frame: 1,
+    let job = ShotJob {
+        asset: a.asset.clone(),
+        scene,
+        request: ShotRequest {
+            frames: a.frames.frames(),
+            output: a.output.clone(),
+            yarns_out: a.yarns_out.clone(),
+            write: WriteOptions {
+                units: a.out_units,
+                up_axis: a.out_up_axis,
+                first_frame: 1,
+            },
+            command: super::asset::command_line(),
         },
-        command: super::asset::command_line(),
     };
-    let result = super::with_frame_progress(
+    let mut console = super::Console::new(
         std::io::stderr().is_terminal(),
-        req.frames.len(),
+        job.request.frames.len(),
         "simulating",
-        |progress| stage::simulate(&asset, &a.asset, &scene, &req, progress),
     );
+    let result = job.run(&mut console);
+    let warnings = std::mem::take(&mut console.warnings);
+    drop(console);
     let r = result?;
     if a.json {
         let mut v = serde_json::to_value(&r)?;
@@ -287,7 +273,7 @@ fn check_character_names(a: &SimulateArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let ch = crate::io::gltf_skin::read_character(path)?;
-    let usage = |m: String| Err(super::guard::UsageError(m).into());
+    let usage = |m: String| Err(crate::pipeline::Error::Usage(m).into());
     if let Some(name) = &a.animation {
         if ch.animation_index(name).is_none() {
             let names: Vec<String> = ch.animation_names().iter().map(|n| excerpt(n)).collect();
@@ -333,7 +319,7 @@ fn check_step_count(a: &SimulateArgs, scene: &Scene) -> anyhow::Result<()> {
     let preroll = s.preroll.unwrap_or(0.0) / s.dt.0;
     let steps = per_frame * (last - first) as f64 + preroll.ceil();
     if !(steps <= MAX_TOTAL_STEPS as f64) {
-        return Err(super::guard::UsageError(format!(
+        return Err(crate::pipeline::Error::Usage(format!(
             "--frames {} at {} fps with dt {} s (pre-roll {} s) needs {steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
             a.frames,
             s.fps,

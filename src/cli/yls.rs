@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::ExitCode;
-use crate::pipeline::yls::{run, YlsError};
-use crate::pipeline::yls_scene::YlsScene;
+use crate::pipeline::yls::YlsJob;
+use crate::pipeline::Stage;
 
 #[derive(Debug, Args)]
 pub struct YlsArgs {
@@ -28,22 +28,14 @@ pub struct YlsArgs {
 }
 
 pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
-    let ext = a.output.extension().and_then(|e| e.to_str()).unwrap_or("");
-    if !matches!(ext.to_ascii_lowercase().as_str(), "h5" | "hdf5") {
-        return Err(anyhow::Error::new(crate::io::IoError::Unsupported {
-            path: a.output.clone(),
-            message: "yls writes knitvox HDF5 frames; name the output .h5 or .hdf5".into(),
-        }));
-    }
-    let text = std::fs::read_to_string(&a.scene).map_err(|source| crate::io::IoError::Read {
-        path: a.scene.clone(),
-        source,
-    })?;
-    let scene = YlsScene::parse(&text, &a.scene).map_err(YlsError::from)?;
+    let job = YlsJob {
+        scene: a.scene.clone(),
+        output: a.output.clone(),
+    };
     let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
-    let result = super::with_frame_progress(show, scene.num_frames(), "yarn-level", |progress| {
-        run(&scene, &text, &a.scene, &a.output, progress)
-    });
+    let mut console = super::Console::new(show, 0, "yarn-level");
+    let result = job.run(&mut console);
+    drop(console);
     let r = result?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);

@@ -9,9 +9,12 @@ use sha2::{Digest, Sha256};
 use crate::embed::{self, EmbedError, EmbedParams, EmbedStats, Embedded};
 use crate::fit::{FitError, FitStats, ShapeFitParams, ShapeFitter};
 use crate::geom::{
-    Asset, InputFile, NodeSteps, Provenance, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V,
+    Asset, FrameSpec, InputFile, NodeSteps, Provenance, Vec3, YarnFrames, DEFAULT_GAMMA_S,
+    DEFAULT_GAMMA_V,
 };
 use crate::io::{self, IoError, ReadOptions, WriteOptions};
+use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
+use crate::pipeline::{Error, ErrorClass, Observer, Stage};
 
 /// Errors of the asset stages.
 #[derive(Debug, thiserror::Error)]
@@ -36,10 +39,10 @@ pub enum StageError {
 
 impl StageError {
     /// Whether the inputs are at fault (as opposed to output or transient trouble).
-    pub fn class(&self) -> io::ErrorClass {
+    pub fn class(&self) -> ErrorClass {
         match self {
-            StageError::Io(e) => e.class(),
-            _ => io::ErrorClass::BadInput,
+            StageError::Io(e) => e.class().into(),
+            _ => ErrorClass::BadInput,
         }
     }
 }
@@ -235,7 +238,8 @@ pub fn v2y_steps(asset: &Asset, steps: &[usize]) -> YarnFrames {
 
 /// Writes V2Y yarn curves of the selected steps into `out_dir` as
 /// `name.####.ext` (step number = index in the asset's time series), or one
-/// `name.h5` holding every selected step.
+/// `name.h5` holding every selected step. Each step goes through the frame
+/// writer as it is computed; every file or none gets its final name.
 pub fn export(
     asset: &Asset,
     steps: &[usize],
@@ -248,33 +252,31 @@ pub fn export(
         path: out_dir.to_path_buf(),
         source,
     })?;
-    let frames = v2y_steps(asset, steps);
     let ext = format.extensions()[0];
-    if format.holds_frames() {
-        let path = out_dir.join(format!("{name}.{ext}"));
-        return Ok(io::write_path(
-            &path,
-            &asset.rest_yarns,
-            Some(&frames),
-            opts,
-        )?);
-    }
+    let n = asset.mesh.num_nodes();
     // Every step or none under its final name (issue 13 item 4).
     io::atomic::all_or_nothing(|| {
-        let mut written = Vec::with_capacity(steps.len());
-        for (i, &s) in steps.iter().enumerate() {
-            let y =
-                asset
-                    .rest_yarns
-                    .with_points(frames.frame(i))
-                    .map_err(|e| StageError::Invalid {
-                        path: out_dir.to_path_buf(),
-                        message: e.to_string(),
-                    })?;
-            let path = out_dir.join(format!("{name}.{s:04}.{ext}"));
-            written.extend(io::write_path(&path, &y, None, opts)?);
+        let mut writer = if format.holds_frames() {
+            YarnFrameWriter::create(
+                &out_dir.join(format!("{name}.{ext}")),
+                &asset.rest_yarns,
+                opts,
+            )?
+        } else {
+            // Built, not parsed: `name` may hold any character.
+            let pattern = io::sequence::Pattern {
+                dir: out_dir.to_path_buf(),
+                prefix: format!("{name}."),
+                width: 4,
+                suffix: format!(".{ext}"),
+            };
+            YarnFrameWriter::per_frame(pattern, &asset.rest_yarns, opts)
+        };
+        for &s in steps {
+            let pts = asset.embedding.v2y(&asset.mesh, asset.steps.step(s, n));
+            writer.push(s as i64, asset.steps.times[s], &pts)?;
         }
-        Ok(written)
+        Ok(writer.finish()?)
     })
 }
 
@@ -300,4 +302,277 @@ pub fn size_warning(asset: &Asset) -> Option<String> {
     }
     let b = asset.rest_yarns.bounds()?;
     crate::geom::garment_size_warning(&b, units, &assumed)
+}
+
+/// Refuses an asset path without the `.vtkhdf` extension.
+pub fn check_asset_ext(path: &Path) -> Result<(), IoError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if ext.as_deref() != Some("vtkhdf") {
+        return Err(IoError::Unsupported {
+            path: path.to_path_buf(),
+            message: "an asset file must have the .vtkhdf extension".into(),
+        });
+    }
+    Ok(())
+}
+
+/// Resolves a frame selection against `n` available frames: 0-based
+/// indices, all in range [default: all]. One out of range is a usage error
+/// naming the `--frames` option: the file is fine, the request asks for
+/// what it does not hold.
+pub fn select(
+    spec: &Option<FrameSpec>,
+    n: usize,
+    what: &str,
+    path: &Path,
+) -> Result<Vec<usize>, Error> {
+    let frames = spec.clone().unwrap_or_else(|| FrameSpec::all(n)).frames();
+    frames
+        .into_iter()
+        .map(|f| {
+            usize::try_from(f).ok().filter(|&i| i < n).ok_or_else(|| {
+                Error::Usage(format!(
+                    "--frames {}: {what} {f} does not exist: {} has {n} {what}s (0..{})",
+                    spec.as_ref().map_or(String::new(), |s| s.to_string()),
+                    path.display(),
+                    n.saturating_sub(1)
+                ))
+            })
+        })
+        .collect()
+}
+
+/// The `embed` stage: yarns -> homogenized asset (.vtkhdf).
+#[derive(Debug, Clone)]
+pub struct EmbedJob {
+    /// Yarn file (any readable format).
+    pub yarns: PathBuf,
+    /// How to read it.
+    pub read: ReadOptions,
+    /// Embedding parameters.
+    pub params: EmbedParams,
+    /// Output asset (.vtkhdf).
+    pub output: PathBuf,
+    /// The command line, for provenance.
+    pub command: String,
+}
+
+/// What `embed` did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct EmbedReport {
+    pub asset: PathBuf,
+    pub stats: EmbedStats,
+}
+
+impl Stage for EmbedJob {
+    type Report = EmbedReport;
+    const NAME: &'static str = "embed";
+    fn run(&self, observer: &mut dyn Observer) -> Result<EmbedReport, Error> {
+        check_asset_ext(&self.output)?;
+        let (asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;
+        if let Some(w) = size_warning(&asset) {
+            observer.warning(&format!("{}: {w}", self.yarns.display()));
+        }
+        io::vtkhdf::write_asset(&self.output, &asset)?;
+        Ok(EmbedReport {
+            asset: self.output.clone(),
+            stats,
+        })
+    }
+}
+
+/// The `shapefit` stage: yarn frames -> the asset's time series (Y2V).
+#[derive(Debug, Clone)]
+pub struct ShapefitJob {
+    /// The asset (.vtkhdf).
+    pub asset: PathBuf,
+    /// Yarn frames: knitvox HDF5 or a `name.####.ext` sequence.
+    pub frames: PathBuf,
+    /// How to read the frames.
+    pub read: ReadOptions,
+    /// Frames to fit, 0-based [default: all].
+    pub selection: Option<FrameSpec>,
+    /// Where the fitted asset goes [default: the asset, updated in place].
+    pub output: Option<PathBuf>,
+    /// Shape-fit parameters.
+    pub params: ShapeFitParams,
+    /// The command line, for provenance.
+    pub command: String,
+}
+
+impl ShapefitJob {
+    /// The asset written.
+    pub fn output_path(&self) -> &Path {
+        self.output.as_deref().unwrap_or(&self.asset)
+    }
+}
+
+impl Stage for ShapefitJob {
+    type Report = ShapefitReport;
+    const NAME: &'static str = "shapefit";
+    fn run(&self, _observer: &mut dyn Observer) -> Result<ShapefitReport, Error> {
+        check_asset_ext(&self.asset)?;
+        let mut asset = io::vtkhdf::read_asset(&self.asset)?;
+        let data = io::read_path(&self.frames, &self.read)?;
+        let Some(frames) = data.frames else {
+            return Err(IoError::Unsupported {
+                path: self.frames.clone(),
+                message: "holds no frames: give a knitvox HDF5 file with /frames or a name.####.ext sequence".into(),
+            }
+            .into());
+        };
+        let selection = select(&self.selection, frames.num_frames(), "frame", &self.frames)?;
+        let report = shapefit(&mut asset, &self.asset, &frames, &selection, &self.params)?;
+        asset.provenance.inputs.push(input_record(&self.frames)?);
+        asset.provenance.command = format!("{} && {}", asset.provenance.command, self.command);
+        io::vtkhdf::write_asset(self.output_path(), &asset)?;
+        Ok(report)
+    }
+}
+
+/// The `export` stage: an asset's stored steps -> yarn curves (V2Y).
+#[derive(Debug, Clone)]
+pub struct ExportJob {
+    /// The asset (.vtkhdf).
+    pub asset: PathBuf,
+    /// Steps to export, 0-based [default: all].
+    pub selection: Option<FrameSpec>,
+    /// Output format.
+    pub format: io::Format,
+    /// Output folder.
+    pub output: PathBuf,
+    /// Base name of the files [default: the asset's file stem].
+    pub name: Option<String>,
+    /// Units and up axis of bcc, obj and ply files.
+    pub write: WriteOptions,
+}
+
+/// What `export` did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ExportReport {
+    pub steps: usize,
+    pub written: Vec<PathBuf>,
+}
+
+impl Stage for ExportJob {
+    type Report = ExportReport;
+    const NAME: &'static str = "export";
+    fn run(&self, _observer: &mut dyn Observer) -> Result<ExportReport, Error> {
+        check_asset_ext(&self.asset)?;
+        let asset = io::vtkhdf::read_asset(&self.asset)?;
+        if asset.steps.num_steps() == 0 {
+            return Err(IoError::Unsupported {
+                path: self.asset.clone(),
+                message: "the asset has no steps to export: fill it with `knitvox shapefit` or `knitvox simulate` first".into(),
+            }
+            .into());
+        }
+        let steps = select(
+            &self.selection,
+            asset.steps.num_steps(),
+            "step",
+            &self.asset,
+        )?;
+        let name = self.name.clone().unwrap_or_else(|| {
+            self.asset
+                .file_stem()
+                .map_or("asset".into(), |s| s.to_string_lossy().into_owned())
+        });
+        let written = export(
+            &asset,
+            &steps,
+            self.format,
+            &self.output,
+            &name,
+            &self.write,
+        )?;
+        Ok(ExportReport {
+            steps: steps.len(),
+            written,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::{ErrorClass, Quiet};
+    use crate::yarn::analytic::{knit_swatch, SwatchParams};
+
+    fn embed_job(dir: &Path, yarns: &str) -> EmbedJob {
+        EmbedJob {
+            yarns: dir.join(yarns),
+            read: ReadOptions::default(),
+            params: EmbedParams {
+                voxel_size: Some(2.5e-3),
+                ..EmbedParams::default()
+            },
+            output: dir.join("a.vtkhdf"),
+            command: "test".into(),
+        }
+    }
+
+    /// The stages read and write their own files, record provenance, and
+    /// fail with a classified error naming the file.
+    #[test]
+    fn stages_own_their_files_and_classify_failures() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let e = embed_job(d, "missing.ply").run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::Missing, "{e}");
+        assert_eq!(e.file(), Some(d.join("missing.ply")));
+        assert!(!d.join("a.vtkhdf").exists());
+
+        let y = knit_swatch(&SwatchParams {
+            courses: 3,
+            wales: 3,
+            ..SwatchParams::default()
+        });
+        io::write_path(&d.join("sw.ply"), &y, None, &WriteOptions::default()).unwrap();
+        let r = embed_job(d, "sw.ply").run(&mut Quiet).unwrap();
+        assert_eq!(r.asset, d.join("a.vtkhdf"));
+        let asset = io::vtkhdf::read_asset(&r.asset).unwrap();
+        assert_eq!(
+            asset.provenance.inputs[0].sha256,
+            sha256_file(&d.join("sw.ply")).unwrap()
+        );
+        assert_eq!(asset.mesh.num_tets(), r.stats.tets);
+
+        let mut export = ExportJob {
+            asset: r.asset.clone(),
+            selection: None,
+            format: io::Format::Ply,
+            output: d.join("out"),
+            name: None,
+            write: WriteOptions::default(),
+        };
+        // A fresh asset has no steps: the input cannot be exported.
+        let e = export.run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::BadInput, "{e}");
+
+        // Fill two steps, then ask for one it does not hold: usage (exit 2).
+        let mut filled = asset.clone();
+        for t in [0.0, 0.5] {
+            filled.steps.times.push(t);
+            filled.steps.positions.extend_from_slice(&asset.mesh.nodes);
+        }
+        io::vtkhdf::write_asset(&r.asset, &filled).unwrap();
+        export.selection = Some("0-2".parse().unwrap());
+        let e = export.run(&mut Quiet).unwrap_err();
+        assert_eq!(e.class(), ErrorClass::Usage, "{e}");
+        assert!(e.to_string().contains("step 2 does not exist"), "{e}");
+        assert!(!d.join("out/a.0000.ply").exists());
+        export.selection = None;
+        let r = export.run(&mut Quiet).unwrap();
+        assert_eq!(r.steps, 2);
+        assert_eq!(
+            r.written,
+            [d.join("out/a.0000.ply"), d.join("out/a.0001.ply")]
+        );
+        let back = io::read_path(&r.written[1], &ReadOptions::default()).unwrap();
+        assert_eq!(back.yarns.num_points(), y.num_points());
+    }
 }

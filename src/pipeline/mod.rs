@@ -1,12 +1,81 @@
-//! Orchestration: stages that combine io and the solvers. Later issues add the
-//! job manifest, stage caching and resume.
+//! Orchestration: stages that combine io and the solvers.
+//!
+//! # The stage contract
+//!
+//! A stage (embed, shapefit, export, shot; train and fit to come) is a
+//! struct of typed inputs and parameters implementing [`Stage`]:
+//!
+//! * **Inputs are paths and parameters.** The stage reads its own inputs
+//!   (`io`), so the CLI, a job manifest and a watch-folder daemon run it the
+//!   same way; the CLI only parses arguments into the job, calls
+//!   [`Stage::run`] and prints the report. In-memory cores (`asset::shapefit`,
+//!   `simulate::simulate`, ...) stay public for tests and benchmarks.
+//! * **Outputs are atomic and carry provenance.** Every file is written to a
+//!   temporary and renamed into place; a stage writing several files runs
+//!   inside `io::atomic::all_or_nothing`, so either all appear or none.
+//!   Assets record the command, knitvox version and SHA-256 of every input
+//!   file (`geom::Provenance`) and the parameters used.
+//! * **Frames stream.** A stage that produces frames hands each one, as it
+//!   is computed, to the shared frame writer ([`frames::FrameSink`],
+//!   [`frames::YarnFrameWriter`]): a `name.####.ext` sequence numbered by
+//!   frame, or one HDF5 file. No stage keeps every frame's yarns in memory.
+//!   (The shot's node positions still become the output asset's time
+//!   series, which `io::vtkhdf` writes in one piece.)
+//! * **Progress and warnings go to an [`Observer`]**; a stage never prints.
+//! * **Failures are one [`Error`].** Its [`Error::class`] ([`ErrorClass`]:
+//!   usage, bad input, missing, unavailable, internal, output, transient)
+//!   gives the process exit code ([`ErrorClass::exit_code`]) and the retry
+//!   decision ([`ErrorClass::retry`], [`ErrorClass::retryable`]) for the CLI,
+//!   a daemon and a farm alike. The variants keep each stage's own typed
+//!   error, which names the file and the place.
+//! * **Solver work is a function of typed inputs** in the math modules: the
+//!   shot is its setup ([`shot_setup`]: placement, pins, colliders,
+//!   schedule), the time loop `sim::shot::run` (PD stepper, per-step
+//!   pin/collider update, per-frame callback, statistics), and the writer.
+//! * **One source per default**: parameter structs' `Default` impls (e.g.
+//!   `sim::pd::PdParams`, `embed::EmbedParams`) are the defaults; scene
+//!   sections and clap arguments refer to them instead of repeating numbers.
+//!
+//! Later items of issue 12 add job manifests, stage caching and resume on
+//! top of this contract.
 
 pub mod asset;
 pub mod demo;
+pub mod error;
 pub mod fabric_test;
+pub mod frames;
 pub mod inspect;
 pub mod pattern;
+pub mod shot_setup;
 pub mod sim_scene;
 pub mod simulate;
 pub mod yls;
 pub mod yls_scene;
+
+pub use error::{Error, ErrorClass, Retry};
+
+/// What a stage tells its caller while it runs (the CLI prints it; a
+/// daemon logs it). Both methods default to doing nothing.
+pub trait Observer {
+    /// A warning about the inputs (printed as `warning: ...`).
+    fn warning(&mut self, _message: &str) {}
+    /// `done` of `total` frames are computed.
+    fn frames(&mut self, _done: usize, _total: usize) {}
+}
+
+/// An observer that ignores everything.
+pub struct Quiet;
+
+impl Observer for Quiet {}
+
+/// A stage: typed inputs and parameters (the implementing struct) that
+/// reads its inputs, writes its outputs atomically with their provenance,
+/// and reports what it did or fails with [`Error`].
+pub trait Stage {
+    /// What a successful run reports (`--json` prints it).
+    type Report;
+    /// The stage's name in logs and manifests.
+    const NAME: &'static str;
+    /// Runs the stage.
+    fn run(&self, observer: &mut dyn Observer) -> Result<Self::Report, Error>;
+}

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::geom::Yarns;
+use crate::pipeline::ErrorClass;
 use crate::yarn::fabric::{
     relax_into_contact, FabricError, FabricParams, RelaxIntoContactStats, RelaxParams,
 };
@@ -36,8 +37,7 @@ pub struct PatternJob {
     pub relax: Option<RelaxParams>,
 }
 
-/// Why the stage failed. The CLI maps `UnknownPattern` to a usage error,
-/// `Grid`/`Pattern` to bad input and `Read` to a missing input.
+/// Why the stage failed; [`PatternStageError::class`] classifies it.
 #[derive(Debug, thiserror::Error)]
 pub enum PatternStageError {
     #[error("{path}: cannot read: {source}", path = path.display())]
@@ -61,6 +61,25 @@ pub enum PatternStageError {
     /// The relaxation found no equilibrium or was given bad parameters.
     #[error("relaxation: {0}")]
     Relax(FabricError),
+}
+
+impl PatternStageError {
+    /// An unknown name and bad sizes come from the request (usage); a
+    /// malformed grid or a relaxation without equilibrium is bad input; an
+    /// unreadable grid file is missing; any other pattern error is a bug.
+    pub fn class(&self) -> ErrorClass {
+        match self {
+            PatternStageError::UnknownPattern(_) => ErrorClass::Usage,
+            PatternStageError::Read { source, .. } => match source.kind() {
+                std::io::ErrorKind::InvalidData => ErrorClass::BadInput,
+                _ => ErrorClass::Missing,
+            },
+            PatternStageError::Grid { .. } => ErrorClass::BadInput,
+            PatternStageError::Pattern(PatternError::BadParameter { .. }) => ErrorClass::Usage,
+            PatternStageError::Pattern(_) => ErrorClass::Internal,
+            PatternStageError::Relax(_) => ErrorClass::BadInput,
+        }
+    }
 }
 
 /// What was generated (lengths in metres).

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::anim::pins::DEFAULT_PIN_DISTANCE;
 use crate::geom::Vec3;
+use crate::sim::pd::PdParams;
 
 /// Global solver of the PD step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -188,17 +189,30 @@ pub struct SimulationSection {
     pub backend: BackendChoice,
 }
 
+/// Frames per second of a scene without `fps`.
+pub const DEFAULT_FPS: f64 = 24.0;
+
+/// Mass-proportional damping (1/s) of a shot without `damping` (see
+/// [`SimulationSection::damping`]; the simulator's own default is none).
+pub const DEFAULT_SHOT_DAMPING: f64 = 2.0;
+
+/// Coulomb friction coefficient of a shot without `friction`.
+pub const DEFAULT_FRICTION: f64 = 0.5;
+
+/// The step, gravity, iterations, Anderson window and tolerance are the
+/// simulator's own defaults ([`PdParams::default`]): one source.
 impl Default for SimulationSection {
     fn default() -> Self {
+        let pd = PdParams::default();
         SimulationSection {
-            dt: Seconds(1.0 / 150.0),
-            fps: 24.0,
-            gravity: [0.0, -9.81, 0.0],
-            damping: 2.0,
-            max_iterations: 8,
-            anderson_window: 5,
-            friction: 0.5,
-            tolerance: 1e-6,
+            dt: Seconds(pd.dt),
+            fps: DEFAULT_FPS,
+            gravity: pd.gravity,
+            damping: DEFAULT_SHOT_DAMPING,
+            max_iterations: pd.max_iterations,
+            anderson_window: pd.anderson_window,
+            friction: DEFAULT_FRICTION,
+            tolerance: pd.tolerance,
             preroll: None,
             solver: SolverChoice::Direct,
             backend: BackendChoice::Auto,
@@ -567,6 +581,22 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One source for each default: the scene's simulator settings are
+    /// the simulator's defaults.
+    #[test]
+    fn scene_defaults_are_the_simulators() {
+        let s = SimulationSection::default();
+        let pd = PdParams::default();
+        assert_eq!(s.dt.0, pd.dt);
+        assert_eq!(s.gravity, pd.gravity);
+        assert_eq!(s.max_iterations, pd.max_iterations);
+        assert_eq!(s.anderson_window, pd.anderson_window);
+        assert_eq!(s.tolerance, pd.tolerance);
+        // An empty scene file gets the same.
+        let parsed = Scene::parse("", Path::new("s.toml")).unwrap();
+        assert_eq!(parsed.simulation, s);
+    }
 
     #[test]
     fn parses_a_full_scene() {

@@ -10,26 +10,20 @@
 //! first frame's pose (smoothstep), so the garment, placed against the bind
 //! pose, is carried into the shot instead of jumping.
 
-// `!(a > b)` is deliberate throughout: it also rejects NaN.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-// Small fixed-size loops over x, y, z read better indexed.
-#![allow(clippy::needless_range_loop)]
-
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nalgebra::{Rotation3, Vector3};
 use serde::Serialize;
 
-use super::sim_scene::{BackendChoice, ColliderSection, Scene, SceneError, SolverChoice};
-use crate::anim::pins::BodyPins;
-use crate::anim::Character;
-use crate::geom::{Asset, NodeSteps, Vec3, YarnFrames};
+use super::frames::{FrameSink, YarnFrameWriter};
+use super::shot_setup::{self, Posed};
+use super::sim_scene::{BackendChoice, Scene, SceneError, SimulationSection, SolverChoice};
+use crate::geom::{Asset, NodeSteps, Vec3};
 use crate::io::{self, IoError, WriteOptions};
-use crate::sim::collide::{Collider, ColliderSet, MeshCollider, MeshTopology, Shape};
-use crate::sim::contact::NodeProjector;
+use crate::pipeline::{Error, ErrorClass, Observer, Stage};
 use crate::sim::dd::DdParams;
-use crate::sim::pd::{GlobalSolver, PdParams, PdSolver, StepStats};
+use crate::sim::pd::{GlobalSolver, PdParams, PdSolver};
+use crate::sim::shot::{self, LoopError};
 use crate::sim::SimError;
 
 /// Errors of the shot stage.
@@ -57,13 +51,15 @@ pub enum SimulateError {
 }
 
 impl SimulateError {
-    /// How the caller should react (mapped to exit codes by the binary):
-    /// everything but i/o is bad input (retrying the same inputs fails the
-    /// same way).
-    pub fn class(&self) -> io::ErrorClass {
+    /// How the caller should react: a backend this machine cannot run is
+    /// `Unavailable` (the inputs are fine; retry on a GPU node); everything
+    /// else but i/o is bad input (retrying the same inputs fails the same
+    /// way, divergence included).
+    pub fn class(&self) -> ErrorClass {
         match self {
-            SimulateError::Io(e) => e.class(),
-            _ => io::ErrorClass::BadInput,
+            SimulateError::Io(e) => e.class().into(),
+            SimulateError::Unavailable(_) => ErrorClass::Unavailable,
+            _ => ErrorClass::BadInput,
         }
     }
     /// The PD step that diverged (1-based), if that is what happened.
@@ -89,24 +85,6 @@ pub const PENETRATION_TOLERANCE_M: f64 = 1e-3;
 /// Default pre-roll (s) of a scene with a character when the scene gives
 /// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
 pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
-
-/// One PD time step with contacts: [`PdSolver::step_with_contacts`], whose
-/// PD iterations carry the contacts as projection constraints with Coulomb
-/// friction (VH §8.5; `sim::contact`, the coefficient is the collider
-/// set's) and which moves every free node still not admissible at the end
-/// onto its target. Returns the step's statistics and the largest such
-/// final correction (m).
-pub fn pd_step(
-    solver: &mut PdSolver,
-    x: &mut [Vec3],
-    v: &mut [Vec3],
-    pinned_positions: &[Vec3],
-    contacts: &dyn NodeProjector,
-) -> Result<(StepStats, f64), SimError> {
-    let stats = solver.step_with_contacts(x, v, pinned_positions, contacts)?;
-    let correction = stats.max_projection;
-    Ok((stats, correction))
-}
 
 /// The global solver of a [`SolverChoice`] (its default parameters).
 pub fn global_solver(solver: SolverChoice) -> GlobalSolver {
@@ -168,99 +146,6 @@ pub fn resolve_backend(
 ) -> Result<(&'static str, &'static str), SimulateError> {
     Ok(("cpu", global_solver(solver).name()))
 }
-
-/// A scripted pin group resolved to nodes.
-#[derive(Debug, Clone)]
-struct Handle {
-    nodes: Vec<usize>,
-    rest: Vec<Vec3>,
-    pivot: Vec3,
-    velocity: Vec3,
-    omega: Vec3,
-    start: f64,
-    end: f64,
-}
-
-impl Handle {
-    fn positions(&self, t: f64, out: &mut Vec<Vec3>) {
-        let tau = if t <= self.start {
-            0.0
-        } else {
-            t.min(self.end) - self.start
-        };
-        let w = Vector3::from(self.omega) * tau;
-        let r = Rotation3::new(w);
-        for p in &self.rest {
-            let d = Vector3::new(
-                p[0] - self.pivot[0],
-                p[1] - self.pivot[1],
-                p[2] - self.pivot[2],
-            );
-            let q = r * d;
-            out.push(std::array::from_fn(|k| {
-                self.pivot[k] + q[k] + self.velocity[k] * tau
-            }));
-        }
-    }
-}
-
-/// The character of a shot: skin, animation, placement, topology.
-struct Body {
-    character: Character,
-    anim: Option<usize>,
-    duration: f64,
-    scale: f64,
-    translate: Vec3,
-    looped: bool,
-    time_offset: f64,
-    topology: MeshTopology,
-    bind: Vec<Vec3>,
-    first_pose: Vec<Vec3>,
-    preroll: f64,
-    thickness: f64,
-    collide: bool,
-}
-
-impl Body {
-    fn place(&self, p: Vec<Vec3>) -> Vec<Vec3> {
-        p.into_iter()
-            .map(|q| std::array::from_fn(|k| q[k] * self.scale + self.translate[k]))
-            .collect()
-    }
-    fn anim_time(&self, t: f64) -> f64 {
-        let a = self.time_offset + t;
-        if self.looped && self.duration > 0.0 {
-            a.rem_euclid(self.duration)
-        } else {
-            a
-        }
-    }
-    /// Body vertices (m) at shot time `t` (negative: pre-roll blend).
-    fn positions(&self, t: f64) -> Vec<Vec3> {
-        if t < 0.0 {
-            let s = if self.preroll > 0.0 {
-                ((t + self.preroll) / self.preroll).clamp(0.0, 1.0)
-            } else {
-                1.0
-            };
-            let s = s * s * (3.0 - 2.0 * s);
-            return self
-                .bind
-                .iter()
-                .zip(&self.first_pose)
-                .map(|(a, b)| std::array::from_fn(|k| a[k] + s * (b[k] - a[k])))
-                .collect();
-        }
-        self.place(
-            self.character
-                .skinned_positions(self.anim, self.anim_time(t)),
-        )
-    }
-}
-
-/// Colliders posed at one time, the body's vertices then, and the body
-/// alone as a collider.
-type Posed = (ColliderSet, Option<Vec<Vec3>>, Option<ColliderSet>);
 
 /// What a shot did.
 #[derive(Debug, Clone, Serialize)]
@@ -350,7 +235,7 @@ pub struct ShotRequest {
     pub command: String,
 }
 
-fn invalid(path: &Path, message: impl Into<String>) -> SimulateError {
+pub(super) fn invalid(path: &Path, message: impl Into<String>) -> SimulateError {
     SimulateError::Invalid {
         path: path.to_path_buf(),
         message: message.into(),
@@ -413,54 +298,15 @@ fn refuse_input_overwrite(
     Ok(io::overwrite::refuse_inputs(&outputs, &inputs)?)
 }
 
-/// Rotation (degrees about x, then y, then z).
-fn euler_deg(r: Vec3) -> Rotation3<f64> {
-    let [a, b, c] = r.map(f64::to_radians);
-    Rotation3::from_axis_angle(&Vector3::z_axis(), c)
-        * Rotation3::from_axis_angle(&Vector3::y_axis(), b)
-        * Rotation3::from_axis_angle(&Vector3::x_axis(), a)
-}
-
-fn bbox(x: &[Vec3]) -> (Vec3, Vec3) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in x {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
-}
-
-/// Height (m) of the highest point of the mesh on the vertical line
-/// through `(x, z)`, if the line meets it.
-fn surface_height(topology: &MeshTopology, pos: &[Vec3], x: f64, z: f64) -> Option<f64> {
-    let mut best: Option<f64> = None;
-    for t in topology.triangles() {
-        let [a, b, c] = t.map(|i| pos[i as usize]);
-        // Barycentric coordinates of (x, z) in the triangle's x-z projection.
-        let det = (b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2]);
-        if !(det.abs() > 0.0) {
-            continue;
-        }
-        let u = ((x - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (z - a[2])) / det;
-        let v = ((b[0] - a[0]) * (z - a[2]) - (x - a[0]) * (b[2] - a[2])) / det;
-        if u < 0.0 || v < 0.0 || u + v > 1.0 {
-            continue;
-        }
-        let y = a[1] + u * (b[1] - a[1]) + v * (c[1] - a[1]);
-        best = Some(best.map_or(y, |m: f64| m.max(y)));
-    }
-    best
-}
-
 /// Most PD steps one shot may take (pre-roll included): hours of work at
 /// the fastest step; larger requests are refused before any work starts.
 pub const MAX_TOTAL_STEPS: usize = 10_000_000;
 
 /// Simulates `asset` (read from `asset_path`) under `scene` and writes the
-/// outputs of `req`. `progress(done, total)` is called after every frame.
+/// outputs of `req`: shot setup ([`shot_setup`](super::shot_setup)), the
+/// time loop ([`crate::sim::shot::run`]), and the frame writer, which gets
+/// each requested frame as it is computed. Outputs are all or nothing.
+/// `progress(done, total)` is called after every frame.
 pub fn simulate(
     asset: &Asset,
     asset_path: &Path,
@@ -479,513 +325,185 @@ pub fn simulate(
         return Err(invalid(asset_path, "--frames selects no frame"));
     };
     let sim = &scene.simulation;
-    let n = asset.mesh.num_nodes();
-    let mut notes = Vec::new();
+    let mut setup = shot_setup::setup(asset, asset_path, scene, first, last)?;
+    let schedule = setup.schedule;
+    let (mut solver, backend, dd) = build_solver(asset, asset_path, sim, &setup)?;
+    setup.project_start(scene)?;
 
-    // Garment placement: rotation about the bbox centre, then translation.
-    let (lo, hi) = bbox(&asset.mesh.nodes);
-    let centre: Vec3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
-    let rot = euler_deg(scene.garment.rotate_deg);
-    let target = scene.garment.center.unwrap_or(centre);
-    let mut x: Vec<Vec3> = asset
-        .mesh
-        .nodes
-        .iter()
-        .map(|p| {
-            let d = rot * Vector3::new(p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]);
-            std::array::from_fn(|k| target[k] + d[k])
-        })
-        .collect();
+    let mut out = output_asset(
+        asset,
+        scene,
+        req,
+        [first, last],
+        &schedule,
+        [solver_name, backend],
+    )?;
 
-    // Character.
-    let frame_dt = 1.0 / sim.fps;
-    let spf = ((frame_dt / sim.dt.0) * (1.0 - 1e-12)).ceil().max(1.0);
-    // Bounded before any work (issue 13 item 3): dt, fps and the frame range
-    // are user input; the pre-roll is added once the character is known.
-    let frame_steps = spf * (last - first) as f64;
-    if !(frame_steps <= MAX_TOTAL_STEPS as f64) {
-        return Err(invalid(
-            asset_path,
-            format!(
-                "frames {first}-{last} at {} fps with dt {} s need {frame_steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
-                sim.fps, sim.dt.0
-            ),
-        ));
-    }
-    let steps_per_frame = spf as usize;
-    let dt = frame_dt / steps_per_frame as f64;
-    let mut body: Option<Body> = None;
-    let mut char_report = None;
-    if let (Some(c), Some(path)) = (&scene.character, scene.character_path()) {
-        let character = io::gltf_skin::read_character(&path)?;
-        let anim = match &c.animation {
-            Some(name) => Some(character.animation_index(name).ok_or_else(|| {
-                invalid(
-                    &path,
-                    format!(
-                        "character.animation: no animation '{}' (the file has: {})",
-                        crate::geom::excerpt(name),
-                        crate::geom::excerpt(&character.animation_names().join(", "))
-                    ),
-                )
-            })?),
-            None => (!character.animations.is_empty()).then_some(0),
+    // All or nothing (issue 13 item 4): each yarn frame is written as it
+    // is computed, but stays a temporary file until the asset is written
+    // too; then all get their names.
+    let mut measures = Measures::default();
+    let (yarn_files, stats) = io::atomic::all_or_nothing(|| {
+        let mut writer = match &req.yarns_out {
+            Some(y) => Some(YarnFrameWriter::create(y, &asset.rest_yarns, &req.write)?),
+            None => None,
         };
-        let duration = anim.map_or(0.0, |a| character.duration(a));
-        let rest = character.body_mesh(None, 0.0);
-        if rest.triangles.is_empty() {
-            return Err(invalid(&path, "the character has no triangles"));
-        }
-        let (topology, dropped) = MeshTopology::welded(&rest.triangles, &rest.positions);
-        if dropped > 0 {
-            notes.push(format!(
-                "character: {dropped} degenerate or out-of-range triangles ignored"
-            ));
-        }
-        let preroll = sim.preroll.unwrap_or(DEFAULT_CHARACTER_PREROLL);
-        let mut b = Body {
-            character,
-            anim,
-            duration,
-            scale: c.scale,
-            translate: c.translate,
-            looped: c.r#loop,
-            time_offset: c.time_offset,
-            topology,
-            bind: Vec::new(),
-            first_pose: Vec::new(),
-            preroll,
-            thickness: c.thickness,
-            collide: c.collide,
+        let mut x = std::mem::take(&mut setup.x);
+        let mut v = vec![[0.0; 3]; x.len()];
+        let mut body_before = setup.body.as_ref().map(|b| b.positions(schedule.t0()));
+        let mut next_frame = 0usize;
+        let stats = shot::run(
+            &mut solver,
+            &mut x,
+            &mut v,
+            &schedule,
+            |_, t, pins| -> Result<Posed, SimulateError> {
+                let mut posed = setup.pose(scene, t, body_before.as_deref())?;
+                setup.pin_positions(asset_path, t, posed.verts.as_deref(), pins)?;
+                body_before = posed.verts.take();
+                Ok(posed)
+            },
+            |k, x, posed| -> Result<(), SimulateError> {
+                let f = first + k as i64;
+                if frames.get(next_frame) != Some(&f) {
+                    return Ok(());
+                }
+                let at_start;
+                let posed = match posed {
+                    Some(p) => p,
+                    None => {
+                        at_start = setup.pose(scene, 0.0, None)?;
+                        &at_start
+                    }
+                };
+                let time = f as f64 / sim.fps;
+                let yarns = (writer.is_some() || !posed.set.colliders.is_empty())
+                    .then(|| asset.embedding.v2y(&asset.mesh, x));
+                measures.add(x, yarns.as_deref(), posed, &setup.is_pinned);
+                out.steps.times.push(time);
+                out.steps.positions.extend_from_slice(x);
+                if let (Some(w), Some(y)) = (writer.as_mut(), &yarns) {
+                    w.push(f, time, y)?;
+                }
+                next_frame += 1;
+                progress(next_frame, frames.len());
+                Ok(())
+            },
+        )
+        .map_err(|e| match e {
+            LoopError::Diverged {
+                time,
+                frame,
+                source,
+                ..
+            } => SimulateError::Diverged {
+                path: asset_path.to_path_buf(),
+                frame: first + frame as i64,
+                time,
+                source,
+            },
+            LoopError::Callback(e) => e,
+        })?;
+        let files = match writer {
+            Some(w) => w.finish()?,
+            None => Vec::new(),
         };
-        b.bind = b.place(rest.positions);
-        b.first_pose = b.place(b.character.skinned_positions(b.anim, b.anim_time(0.0)));
-        if let Some(joint) = &c.fit_joint {
-            let j = b
-                .character
-                .skeleton
-                .iter()
-                .position(|nd| nd.name.as_deref() == Some(joint.as_str()))
-                .ok_or_else(|| {
-                    invalid(
-                        &path,
-                        format!(
-                            "character.fit_joint: no node named '{}'",
-                            crate::geom::excerpt(joint)
-                        ),
-                    )
-                })?;
-            let w = b.character.node_world_matrices(None, 0.0)[j];
-            let jp: Vec3 = std::array::from_fn(|k| w[(k, 3)] * b.scale + b.translate[k]);
-            let (glo, ghi) = bbox(&x);
-            // Centre over the joint, then lift so that the lowest clearance
-            // between a garment node and the body surface straight below it
-            // is `fit_gap`.
-            let dx = [
-                jp[0] - 0.5 * (glo[0] + ghi[0]),
-                jp[2] - 0.5 * (glo[2] + ghi[2]),
-            ];
-            let lift = x
-                .iter()
-                .filter_map(|p| {
-                    surface_height(&b.topology, &b.bind, p[0] + dx[0], p[2] + dx[1])
-                        .map(|h| h - p[1])
-                })
-                .fold(f64::NEG_INFINITY, f64::max);
-            if !lift.is_finite() {
-                return Err(invalid(
-                    &path,
-                    format!(
-                        "character.fit_joint: the body has no surface under the garment at joint '{}'",
-                        crate::geom::excerpt(joint)
-                    ),
-                ));
-            }
-            let shift = [dx[0], lift + c.fit_gap, dx[1]];
-            for p in &mut x {
-                for k in 0..3 {
-                    p[k] += shift[k];
-                }
-            }
-        }
-        char_report = Some(CharacterReport {
-            file: path.clone(),
-            animation: anim.map(|a| b.character.animation_names()[a].clone()),
-            duration_s: duration,
-            vertices: b.bind.len(),
-            triangles: b.topology.triangles().len(),
-            closed: b.topology.is_closed(),
-            scale: c.scale,
-            preroll_s: preroll,
-        });
-        body = Some(b);
-    }
-    for p in &mut x {
-        for k in 0..3 {
-            p[k] += scene.garment.translate[k];
-        }
-    }
+        io::vtkhdf::write_asset(&req.output, &out)?;
+        Ok::<_, SimulateError>((files, stats))
+    })?;
 
-    // Scripted pins.
-    let mut is_pinned = vec![false; n];
-    let mut handles = Vec::new();
-    for (i, ps) in scene.pin.iter().enumerate() {
-        let mut nodes = Vec::new();
-        for &nd in &ps.nodes {
-            if nd >= n {
-                return Err(invalid(
-                    asset_path,
-                    format!("pin[{i}].nodes: node {nd} does not exist (the mesh has {n} nodes)"),
-                ));
-            }
-            nodes.push(nd);
-        }
-        if let (Some(a), Some(b)) = (ps.box_min, ps.box_max) {
-            nodes.extend((0..n).filter(|&j| (0..3).all(|k| x[j][k] >= a[k] && x[j][k] <= b[k])));
-        }
-        nodes.sort_unstable();
-        nodes.dedup();
-        nodes.retain(|&j| !std::mem::replace(&mut is_pinned[j], true));
-        if nodes.is_empty() {
-            notes.push(format!("pin[{i}] ({}) selects no free node", ps.name));
-            continue;
-        }
-        let rest: Vec<Vec3> = nodes.iter().map(|&j| x[j]).collect();
-        let pivot = ps.pivot.unwrap_or_else(|| {
-            let s = rest
-                .iter()
-                .fold([0.0; 3], |a, p| std::array::from_fn(|k| a[k] + p[k]));
-            s.map(|c| c / rest.len() as f64)
-        });
-        handles.push(Handle {
-            nodes,
-            rest,
-            pivot,
-            velocity: ps.velocity,
-            omega: ps.angular_velocity_deg.map(f64::to_radians),
-            start: ps.start,
-            end: ps.end.unwrap_or(f64::INFINITY),
-        });
-    }
-
-    // Body pins at the bind pose.
-    let mut body_pins = BodyPins::default();
-    if let (Some(b), Some(c)) = (&body, &scene.character) {
-        if c.pins {
-            let bind = MeshCollider::new(&b.topology, &b.bind)
-                .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
-            let all = BodyPins::select(&b.topology, &bind, &x, c.pin_distance);
-            for (k, &nd) in all.nodes.iter().enumerate() {
-                if !is_pinned[nd] {
-                    is_pinned[nd] = true;
-                    body_pins.nodes.push(nd);
-                    body_pins.attachments.push(all.attachments[k]);
-                    body_pins.distances.push(all.distances[k]);
-                }
-            }
-            if body_pins.nodes.is_empty() {
-                return Err(invalid(
-                    &scene.character_path().unwrap_or_default(),
-                    format!(
-                        "character.pin_distance: no garment node lies within {} m of the bind-pose body; \
-                         place the garment on the body (character.fit_joint / --fit-joint, garment.translate / \
-                         --garment-offset, character.scale / --character-scale) or raise the pin distance",
-                        c.pin_distance
-                    ),
-                ));
-            }
-        }
-    }
-    let pinned: Vec<usize> = handles
-        .iter()
-        .flat_map(|h| h.nodes.iter().copied())
-        .chain(body_pins.nodes.iter().copied())
-        .collect();
-
-    let params = PdParams {
-        dt,
-        gravity: sim.gravity,
-        mass_damping: sim.damping,
-        max_iterations: sim.max_iterations,
-        anderson_window: sim.anderson_window,
-        tolerance: sim.tolerance,
-        global: global_solver(sim.solver),
-        ..PdParams::default()
+    let mut report = SimulateReport {
+        asset: asset_path.to_path_buf(),
+        output: req.output.clone(),
+        yarn_files,
+        frames: out.steps.num_steps(),
+        first_frame: first,
+        last_frame: last,
+        fps: sim.fps,
+        dt: schedule.dt,
+        steps_per_frame: schedule.steps_per_frame,
+        preroll_steps: schedule.preroll_steps,
+        steps: stats.steps,
+        nodes: asset.mesh.num_nodes(),
+        tets: asset.mesh.num_tets(),
+        pinned_scripted: setup.pinned.len() - setup.body_pins.nodes.len(),
+        pinned_body: setup.body_pins.nodes.len(),
+        solver: solver_name.into(),
+        dd_domains: dd.map(|d| d.0),
+        dd_partition: dd.map(|d| d.1),
+        backend: backend.into(),
+        ms_per_step_median: median(stats.step_ms.clone()),
+        ms_total: 0.0,
+        pd_iterations_mean: stats.iterations_mean(),
+        pd_iterations_max: stats.iterations_max,
+        residual_max: stats.residual_max,
+        max_penetration_m: 0.0,
+        max_penetration_body_m: None,
+        max_penetration_yarns_m: None,
+        penetration_tolerance_m: PENETRATION_TOLERANCE_M,
+        min_distance_m: None,
+        max_penetration_pinned_m: None,
+        max_contact_correction_m: stats.correction_max,
+        character: setup.character.take(),
+        notes: std::mem::take(&mut setup.notes),
     };
+    measures.fill(&mut report);
+    report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
+    Ok(report)
+}
+
+/// The PD solver of a shot on its backend; with the domain-decomposed
+/// solver, its domain count and where the partition comes from.
+#[allow(clippy::type_complexity)]
+fn build_solver(
+    asset: &Asset,
+    asset_path: &Path,
+    sim: &SimulationSection,
+    setup: &shot_setup::ShotSetup,
+) -> Result<(PdSolver, &'static str, Option<(usize, &'static str)>), SimulateError> {
     let stored = stored_domains(&asset.domain);
     let mut solver = PdSolver::new_partitioned(
         &asset.mesh,
         &asset.node_mass,
         &asset.gamma_s,
         &asset.gamma_v,
-        &pinned,
-        params,
+        &setup.pinned,
+        pd_params(sim, setup.schedule.dt),
         stored.as_deref(),
     )
     .map_err(|e| invalid(asset_path, e.to_string()))?;
     let backend = attach_backend(&mut solver, sim.backend)?;
-    let dd_domains = solver.dd_stats().map(|d| d.domains);
-    let dd_partition = dd_domains.map(|_| {
-        if stored.is_some() {
-            "asset"
-        } else {
-            "bisection"
-        }
-    });
-
-    // Static colliders.
-    let mut statics = Vec::new();
-    for c in &scene.collider {
-        statics.push(match c {
-            ColliderSection::Plane {
-                point,
-                normal,
-                thickness,
-            } => Collider {
-                shape: Shape::Plane {
-                    point: *point,
-                    normal: *normal,
-                },
-                thickness: *thickness,
-            },
-            ColliderSection::Sphere {
-                center,
-                radius,
-                thickness,
-            } => Collider {
-                shape: Shape::Sphere {
-                    center: *center,
-                    radius: *radius,
-                },
-                thickness: *thickness,
-            },
-        });
-    }
-
-    let preroll_steps = body
-        .as_ref()
-        .map_or(0, |b| (b.preroll / dt).ceil() as usize);
-    let total_steps = preroll_steps
-        .checked_add((last - first) as usize * steps_per_frame)
-        .filter(|&t| t <= MAX_TOTAL_STEPS)
-        .ok_or_else(|| {
-            invalid(
-                asset_path,
-                format!(
-                    "a pre-roll of {preroll_steps} steps plus {} frame steps is more than the limit of {MAX_TOTAL_STEPS} steps",
-                    (last - first) as usize * steps_per_frame
-                ),
-            )
-        })?;
-    let mut v = vec![[0.0; 3]; n];
-    let mut recorded: Vec<(i64, Vec<Vec3>)> = Vec::with_capacity(frames.len());
-    let mut max_pen = 0.0f64;
-    let mut max_pen_body: Option<f64> = None;
-    let mut max_pen_yarns: Option<f64> = None;
-    let mut min_dist: Option<f64> = None;
-    let mut step_ms = Vec::with_capacity(total_steps);
-    let mut iters_sum = 0u64;
-    let mut iters_max = 0u32;
-    let mut residual_max = 0.0f64;
-    let mut correction_max = 0.0f64;
-    let mut pen_pinned: Option<f64> = None;
-    let mut next_frame = 0usize;
-    let mut pin_pos = Vec::with_capacity(pinned.len());
-
-    // Colliders (and the body alone) posed at shot time t; `previous`: the
-    // body's vertices at the start of the step, for friction against its
-    // motion.
-    let pose = |t: f64, previous: Option<&[Vec3]>| -> Result<Posed, SimulateError> {
-        let mut set = ColliderSet {
-            colliders: statics.clone(),
-            friction: sim.friction,
-        };
-        let mut body_set = None;
-        let mut verts = None;
-        if let Some(b) = &body {
-            let pts = b.positions(t);
-            if b.collide {
-                let bad = |m| invalid(&scene.character_path().unwrap_or_default(), m);
-                let mut m = MeshCollider::new(&b.topology, &pts).map_err(bad)?;
-                if let Some(prev) = previous {
-                    m = m.with_previous(prev).map_err(bad)?;
-                }
-                let c = Collider {
-                    shape: Shape::Mesh(Box::new(m)),
-                    thickness: b.thickness,
-                };
-                set.colliders.push(c.clone());
-                body_set = Some(ColliderSet {
-                    colliders: vec![c],
-                    ..ColliderSet::default()
-                });
-            }
-            verts = Some(pts);
-        }
-        Ok((set, verts, body_set))
+    let from = if stored.is_some() {
+        "asset"
+    } else {
+        "bisection"
     };
+    let dd = solver.dd_stats().map(|d| (d.domains, from));
+    Ok((solver, backend, dd))
+}
 
-    let mut measure = |x: &[Vec3], set: &ColliderSet, body_set: &Option<ColliderSet>| {
-        if !set.colliders.is_empty() {
-            let yarns = asset.embedding.v2y(&asset.mesh, x);
-            let pen = set.max_penetration(&yarns);
-            max_pen_yarns = Some(max_pen_yarns.map_or(pen, |m| m.max(pen)));
-        }
-        for (i, p) in x.iter().enumerate() {
-            if is_pinned[i] {
-                if let Some(bs) = body_set {
-                    let pen = bs.penetration(*p);
-                    pen_pinned = Some(pen_pinned.map_or(pen, |m| m.max(pen)));
-                }
-                continue;
-            }
-            if let Some((_, d)) = set.min_signed_distance(*p) {
-                min_dist = Some(min_dist.map_or(d, |m| m.min(d)));
-                max_pen = max_pen.max(-d);
-            }
-            if let Some(bs) = body_set {
-                let pen = bs.penetration(*p);
-                max_pen_body = Some(max_pen_body.map_or(pen, |m| m.max(pen)));
-            }
-        }
-    };
-
-    let t0 = -(preroll_steps as f64) * dt;
-    // Initial state: project the free nodes out of the colliders at t0.
-    {
-        let (set, _, _) = pose(t0, None)?;
-        for (i, p) in x.iter_mut().enumerate() {
-            if !is_pinned[i] {
-                if let Some(q) = set.project(i, *p) {
-                    *p = q;
-                }
-            }
-        }
-    }
-    let record = |s: usize| -> Option<i64> {
-        // Step count `s` since t0 reaches frame first + k when
-        // s == preroll_steps + k * steps_per_frame.
-        let k = s.checked_sub(preroll_steps)?;
-        (k % steps_per_frame == 0).then(|| first + (k / steps_per_frame) as i64)
-    };
-    if record(0) == Some(first) {
-        let (set, _, body_set) = pose(0.0, None)?;
-        measure(&x, &set, &body_set);
-        recorded.push((first, x.clone()));
-        next_frame = 1;
-        progress(1, frames.len());
-    }
-    let mut body_before = body.as_ref().map(|b| b.positions(t0));
-    for s in 1..=total_steps {
-        let t = t0 + s as f64 * dt;
-        let (set, verts, body_set) = pose(t, body_before.as_deref())?;
-        pin_pos.clear();
-        for h in &handles {
-            h.positions(t, &mut pin_pos);
-        }
-        if !body_pins.nodes.is_empty() {
-            let (Some(b), Some(verts)) = (&body, &verts) else {
-                unreachable!("body pins come from a body")
-            };
-            pin_pos.extend(
-                body_pins
-                    .positions(&b.topology, verts)
-                    .ok_or_else(|| invalid(asset_path, "body pin lost its triangle"))?,
-            );
-        }
-        let frame_of_step =
-            first + ((s.saturating_sub(preroll_steps)).div_ceil(steps_per_frame)) as i64;
-        let (st, correction) =
-            pd_step(&mut solver, &mut x, &mut v, &pin_pos, &set).map_err(|source| {
-                SimulateError::Diverged {
-                    path: asset_path.to_path_buf(),
-                    frame: frame_of_step,
-                    time: t,
-                    source,
-                }
-            })?;
-        step_ms.push(st.ms);
-        iters_sum += st.iterations as u64;
-        iters_max = iters_max.max(st.iterations);
-        residual_max = residual_max.max(st.residual);
-        correction_max = correction_max.max(correction);
-        if let Some(f) = record(s) {
-            if frames.get(next_frame) == Some(&f) {
-                measure(&x, &set, &body_set);
-                recorded.push((f, x.clone()));
-                next_frame += 1;
-                progress(next_frame, frames.len());
-            }
-        }
-        body_before = verts;
-    }
-
-    // Outputs: the asset's time series and the yarn frames.
+/// The output asset before its frames: a copy of `asset` with an empty time
+/// series, the shot's parameters (`parameters.simulate`) and provenance
+/// (the command, the character file's SHA-256).
+fn output_asset(
+    asset: &Asset,
+    scene: &Scene,
+    req: &ShotRequest,
+    [first, last]: [i64; 2],
+    schedule: &shot::Schedule,
+    [solver_name, backend]: [&str; 2],
+) -> Result<Asset, SimulateError> {
     let mut out = asset.clone();
-    let mut steps = NodeSteps::default();
-    for (f, pos) in &recorded {
-        steps.times.push(*f as f64 / sim.fps);
-        steps.positions.extend_from_slice(pos);
-    }
-    out.steps = steps;
-    let ms_per_step_median = median(step_ms.clone());
-    let pinned_body = body_pins.nodes.len();
-    let pinned_scripted = pinned.len() - pinned_body;
-    for (what, pen) in [
-        ("tet nodes", Some(max_pen)),
-        ("yarn vertices", max_pen_yarns),
-    ] {
-        if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
-            notes.push(format!(
-                "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
-                 {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
-            ));
-        }
-    }
-    let mut report = SimulateReport {
-        asset: asset_path.to_path_buf(),
-        output: req.output.clone(),
-        yarn_files: Vec::new(),
-        frames: recorded.len(),
-        first_frame: first,
-        last_frame: last,
-        fps: sim.fps,
-        dt,
-        steps_per_frame,
-        preroll_steps,
-        steps: total_steps,
-        nodes: n,
-        tets: asset.mesh.num_tets(),
-        pinned_scripted,
-        pinned_body,
-        solver: solver_name.into(),
-        dd_domains,
-        dd_partition,
-        backend: backend.into(),
-        ms_per_step_median,
-        ms_total: 0.0,
-        pd_iterations_mean: iters_sum as f64 / total_steps.max(1) as f64,
-        pd_iterations_max: iters_max,
-        residual_max,
-        max_penetration_m: max_pen.max(0.0),
-        max_penetration_body_m: max_pen_body,
-        max_penetration_yarns_m: max_pen_yarns,
-        penetration_tolerance_m: PENETRATION_TOLERANCE_M,
-        min_distance_m: min_dist,
-        max_penetration_pinned_m: pen_pinned,
-        max_contact_correction_m: correction_max,
-        character: char_report,
-        notes,
-    };
+    out.steps = NodeSteps::default();
     if let serde_json::Value::Object(m) = &mut out.parameters {
         m.insert(
             "simulate".into(),
             serde_json::json!({
                 "scene": scene,
                 "frames": [first, last],
-                "dt": dt,
-                "steps_per_frame": steps_per_frame,
-                "preroll_steps": preroll_steps,
+                "dt": schedule.dt,
+                "steps_per_frame": schedule.steps_per_frame,
+                "preroll_steps": schedule.preroll_steps,
                 "solver": solver_name,
                 "backend": backend,
             }),
@@ -998,60 +516,81 @@ pub fn simulate(
             sha256: super::asset::sha256_file(&p)?,
         });
     }
-    // All or nothing (issue 13 item 4): the yarn frames and the asset stay
-    // temporary files until every one is written, then all get their names.
-    report.yarn_files = io::atomic::all_or_nothing(|| {
-        let files = match &req.yarns_out {
-            Some(y) => write_yarns(&out, &recorded, y, &req.write)?,
-            None => Vec::new(),
-        };
-        io::vtkhdf::write_asset(&req.output, &out)?;
-        Ok::<_, SimulateError>(files)
-    })?;
-    report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
-    Ok(report)
+    Ok(out)
 }
 
-/// V2Y of every recorded frame, written as `name.####.ext` (numbered by
-/// frame) or into one HDF5 file.
-fn write_yarns(
-    asset: &Asset,
-    recorded: &[(i64, Vec<Vec3>)],
-    path: &Path,
-    opts: &WriteOptions,
-) -> Result<Vec<PathBuf>, SimulateError> {
-    let np = asset.rest_yarns.num_points();
-    let fps_times = &asset.steps.times;
-    let format = io::format_of(path)?;
-    if format.holds_frames() {
-        let mut frames = YarnFrames::new(np);
-        for (k, (_, pos)) in recorded.iter().enumerate() {
-            let pts = asset.embedding.v2y(&asset.mesh, pos);
-            frames
-                .push_frame(fps_times[k], &pts)
-                .map_err(|e| invalid(path, e.to_string()))?;
+/// The PD parameters of a scene's `[simulation]` at step `dt` (s).
+fn pd_params(sim: &SimulationSection, dt: f64) -> PdParams {
+    PdParams {
+        dt,
+        gravity: sim.gravity,
+        mass_damping: sim.damping,
+        max_iterations: sim.max_iterations,
+        anderson_window: sim.anderson_window,
+        tolerance: sim.tolerance,
+        global: global_solver(sim.solver),
+        ..PdParams::default()
+    }
+}
+
+/// Penetration figures over the output frames (m).
+#[derive(Debug, Default)]
+struct Measures {
+    max_pen: f64,
+    max_pen_body: Option<f64>,
+    max_pen_yarns: Option<f64>,
+    min_dist: Option<f64>,
+    pen_pinned: Option<f64>,
+}
+
+impl Measures {
+    /// Puts the figures into `report`, with a warning in its notes for
+    /// tet nodes or yarn vertices deeper than the tolerance.
+    fn fill(&self, report: &mut SimulateReport) {
+        for (what, pen) in [
+            ("tet nodes", Some(self.max_pen)),
+            ("yarn vertices", self.max_pen_yarns),
+        ] {
+            if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {
+                report.notes.push(format!(
+                    "warning: {what} sit up to {p:.3e} m inside a collider, more than the tolerance of \
+                     {PENETRATION_TOLERANCE_M} m (raise the collider thickness, use smaller voxels or check the pins)"
+                ));
+            }
         }
-        return Ok(io::write_path(
-            path,
-            &asset.rest_yarns,
-            Some(&frames),
-            opts,
-        )?);
+        report.max_penetration_m = self.max_pen.max(0.0);
+        report.max_penetration_body_m = self.max_pen_body;
+        report.max_penetration_yarns_m = self.max_pen_yarns;
+        report.min_distance_m = self.min_dist;
+        report.max_penetration_pinned_m = self.pen_pinned;
     }
-    let mut written = Vec::with_capacity(recorded.len());
-    for (k, (f, pos)) in recorded.iter().enumerate() {
-        let pts = asset.embedding.v2y(&asset.mesh, pos);
-        let mut one = YarnFrames::new(np);
-        one.push_frame(fps_times[k], &pts)
-            .map_err(|e| invalid(path, e.to_string()))?;
-        let o = WriteOptions {
-            first_frame: *f,
-            ..opts.clone()
-        };
-        // No partial sequence: the caller stages every file (all_or_nothing).
-        written.extend(io::write_path(path, &asset.rest_yarns, Some(&one), &o)?);
+
+    /// Adds one frame: node positions `x`, their yarn vertices (V2Y; given
+    /// whenever there are colliders), the colliders then.
+    fn add(&mut self, x: &[Vec3], yarns: Option<&[Vec3]>, posed: &Posed, is_pinned: &[bool]) {
+        let (set, body_set) = (&posed.set, &posed.body_set);
+        if let (false, Some(y)) = (set.colliders.is_empty(), yarns) {
+            let pen = set.max_penetration(y);
+            self.max_pen_yarns = Some(self.max_pen_yarns.map_or(pen, |m| m.max(pen)));
+        }
+        for (i, p) in x.iter().enumerate() {
+            if is_pinned[i] {
+                if let Some(bs) = body_set {
+                    let pen = bs.penetration(*p);
+                    self.pen_pinned = Some(self.pen_pinned.map_or(pen, |m| m.max(pen)));
+                }
+                continue;
+            }
+            if let Some((_, d)) = set.min_signed_distance(*p) {
+                self.min_dist = Some(self.min_dist.map_or(d, |m| m.min(d)));
+                self.max_pen = self.max_pen.max(-d);
+            }
+            if let Some(bs) = body_set {
+                let pen = bs.penetration(*p);
+                self.max_pen_body = Some(self.max_pen_body.map_or(pen, |m| m.max(pen)));
+            }
+        }
     }
-    Ok(written)
 }
 
 /// The asset's per-tet domain ids as the domain-decomposed solver's
@@ -1087,4 +626,41 @@ pub fn read_scene(path: &Path) -> Result<Scene, SimulateError> {
         source,
     })?;
     Ok(Scene::parse(&text, path)?)
+}
+
+/// The shot stage: an asset under a scene -> the asset with the frames as
+/// its time series, and yarn curves per frame.
+#[derive(Debug, Clone)]
+pub struct ShotJob {
+    /// The homogenized asset (.vtkhdf); read, never modified.
+    pub asset: PathBuf,
+    /// The scene (a scene file's, or built from a command line).
+    pub scene: Scene,
+    /// Frames and outputs.
+    pub request: ShotRequest,
+}
+
+impl Stage for ShotJob {
+    type Report = SimulateReport;
+    const NAME: &'static str = "shot";
+    fn run(&self, observer: &mut dyn Observer) -> Result<SimulateReport, Error> {
+        super::asset::check_asset_ext(&self.asset)?;
+        super::asset::check_asset_ext(&self.request.output)?;
+        let asset = io::vtkhdf::read_asset(&self.asset)?;
+        // The asset records how its yarns were read: an assumed unit and an
+        // implausible size are worth a warning before a long shot.
+        if let Some(w) = super::asset::size_warning(&asset) {
+            observer.warning(&format!(
+                "{}: {w} (when embedding its yarns)",
+                self.asset.display()
+            ));
+        }
+        Ok(simulate(
+            &asset,
+            &self.asset,
+            &self.scene,
+            &self.request,
+            &mut |done, total| observer.frames(done, total),
+        )?)
+    }
 }

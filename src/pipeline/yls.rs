@@ -14,6 +14,7 @@ use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
 use crate::pipeline::simulate::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
+use crate::pipeline::{Error, ErrorClass, Observer, Stage};
 use crate::sim::collide::{MeshCollider, MeshTopology};
 use crate::yarn::fabric::RelaxParams;
 use crate::yarn::pattern::{Layout, PatternParams};
@@ -46,14 +47,14 @@ pub enum YlsError {
 impl YlsError {
     /// The exit-code class. Divergence counts as bad input (the scene asks
     /// for something the simulator cannot do stably), like `simulate`.
-    pub fn class(&self) -> io::ErrorClass {
+    pub fn class(&self) -> ErrorClass {
         match self {
-            YlsError::Io(e) => e.class(),
+            YlsError::Io(e) => e.class().into(),
             YlsError::Pattern {
                 source: PatternStageError::Read { .. },
                 ..
-            } => io::ErrorClass::MissingInput,
-            _ => io::ErrorClass::BadInput,
+            } => ErrorClass::Missing,
+            _ => ErrorClass::BadInput,
         }
     }
 }
@@ -376,4 +377,44 @@ pub fn run(
         relax_ms,
         wall_s: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// The yarn-level scene stage: a scene file -> knitvox HDF5 frames.
+#[derive(Debug, Clone)]
+pub struct YlsJob {
+    /// Scene file (schemas/yls-scene.md).
+    pub scene: PathBuf,
+    /// Output knitvox HDF5 file (.h5 or .hdf5).
+    pub output: PathBuf,
+}
+
+impl Stage for YlsJob {
+    type Report = YlsReport;
+    const NAME: &'static str = "yls";
+    fn run(&self, observer: &mut dyn Observer) -> Result<YlsReport, Error> {
+        let ext = self
+            .output
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("");
+        if !matches!(ext.to_ascii_lowercase().as_str(), "h5" | "hdf5") {
+            return Err(IoError::Unsupported {
+                path: self.output.clone(),
+                message: "yls writes knitvox HDF5 frames; name the output .h5 or .hdf5".into(),
+            }
+            .into());
+        }
+        let text = std::fs::read_to_string(&self.scene).map_err(|source| IoError::Read {
+            path: self.scene.clone(),
+            source,
+        })?;
+        let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
+        Ok(run(
+            &scene,
+            &text,
+            &self.scene,
+            &self.output,
+            &mut |done, total| observer.frames(done, total),
+        )?)
+    }
 }

@@ -40,6 +40,7 @@ pub mod jacobi;
 pub mod local;
 pub mod partition;
 pub mod pd;
+pub mod shot;
 pub mod statics;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};
