@@ -47,17 +47,26 @@ impl BodyCache {
         if v == 0 || self.triangles.is_empty() {
             return fail(
                 "/character/triangles",
-                format!("the cache has {v} vertices and {} triangles", self.triangles.len()),
+                format!(
+                    "the cache has {v} vertices and {} triangles",
+                    self.triangles.len()
+                ),
             );
         }
         if Some(self.points.len()) != f.checked_mul(v) {
             return fail(
                 "/character/points",
-                format!("{} positions for {f} frames x {v} vertices", self.points.len()),
+                format!(
+                    "{} positions for {f} frames x {v} vertices",
+                    self.points.len()
+                ),
             );
         }
         if let Some(i) = self.times.iter().position(|t| !t.is_finite()) {
-            return fail(&format!("/character/times/{i}"), "time is not finite".into());
+            return fail(
+                &format!("/character/times/{i}"),
+                "time is not finite".into(),
+            );
         }
         if let Some(i) = (1..f).find(|&i| self.times[i] <= self.times[i - 1]) {
             return fail(
@@ -69,7 +78,11 @@ impl BodyCache {
                 ),
             );
         }
-        if let Some(i) = self.points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
+        if let Some(i) = self
+            .points
+            .iter()
+            .position(|p| !p.iter().all(|x| x.is_finite()))
+        {
             return fail(
                 &format!("/character/points/{}/{}", i / v, i % v),
                 "coordinate is not finite".into(),
@@ -217,19 +230,35 @@ mod tests {
     fn validation_names_the_place() {
         let mut c = two_frames();
         c.times[1] = 1.0;
-        assert!(c.validate().unwrap_err().to_string().contains("/character/times/1"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("/character/times/1"));
         let mut c = two_frames();
         c.triangles.push([0, 1, 3]);
-        assert!(c.validate().unwrap_err().to_string().contains("/character/triangles/1"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("/character/triangles/1"));
         let mut c = two_frames();
         c.points[4][1] = f64::NAN;
-        assert!(c.validate().unwrap_err().to_string().contains("/character/points/1/1"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("/character/points/1/1"));
         let mut c = two_frames();
         c.points.pop();
         assert!(c.validate().is_err());
         let mut c = two_frames();
         c.rest = Some(vec![[0.0; 3]; 2]);
-        assert!(c.validate().unwrap_err().to_string().contains("rest_points"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("rest_points"));
     }
 
     #[test]

@@ -114,6 +114,7 @@ fn io_paths(cli: &Cli) -> (Vec<&Path>, Vec<&Path>) {
             (ins, outs)
         }
         Command::Yls(a) => (vec![p(&a.scene)], vec![p(&a.output)]),
+        Command::Bake(a) => (vec![p(&a.character)], vec![p(&a.output)]),
         Command::Pattern(a) => (
             a.grid.iter().map(|g| g.as_path()).collect(),
             vec![p(&a.output)],

@@ -2,6 +2,7 @@
 //! library. Only this module and `main` know about processes and terminals.
 
 mod asset;
+mod bake;
 mod bench;
 mod commands;
 pub mod exit;
@@ -45,6 +46,8 @@ pub enum Command {
     Shapefit(asset::ShapefitArgs),
     /// Export an asset's stored steps as per-frame yarn curves (V2Y).
     Export(asset::ExportArgs),
+    /// Bake a glTF character's animation into an HDF5 character cache (schemas/character-hdf5.md).
+    Bake(bake::BakeArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
     Simulate(simulate::SimulateArgs),
     /// Run a yarn-level scene (schemas/yls-scene.md) and write its frames (knitvox HDF5).
@@ -311,6 +314,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Shapefit(a) => asset::shapefit(&a),
         Command::Export(a) => asset::export(&a),
         Command::Simulate(a) => simulate::simulate(&a),
+        Command::Bake(a) => bake::bake(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),

@@ -68,7 +68,8 @@ pub struct SimulateArgs {
     /// Scene file (TOML; schemas/sim-scene.md): time stepping, pins, colliders, character.
     #[arg(long, value_name = "SCENE.toml")]
     pub scene: Option<PathBuf>,
-    /// Character (glTF/GLB with a skin): the garment is pinned to it and collides with it.
+    /// Character (glTF/GLB with a skin, or an HDF5 character cache: schemas/character-hdf5.md):
+    /// the garment is pinned to it and collides with it.
     #[arg(long, value_name = "CHAR.glb", conflicts_with = "scene")]
     pub character: Option<PathBuf>,
     /// Animation of --character [default: the file's first].
@@ -272,8 +273,15 @@ fn check_character_names(a: &SimulateArgs) -> anyhow::Result<()> {
     if a.animation.is_none() && a.fit_joint.is_none() {
         return Ok(());
     }
-    let ch = crate::io::gltf_skin::read_character(path)?;
     let usage = |m: String| Err(crate::pipeline::Error::Usage(m).into());
+    if crate::pipeline::shot_setup::is_cache(path) {
+        return usage(format!(
+            "--animation / --fit-joint: {} is a character cache (one motion, no skeleton); \
+             drop the option and place the garment with --garment-offset",
+            path.display()
+        ));
+    }
+    let ch = crate::io::gltf_skin::read_character(path)?;
     if let Some(name) = &a.animation {
         if ch.animation_index(name).is_none() {
             let names: Vec<String> = ch.animation_names().iter().map(|n| excerpt(n)).collect();

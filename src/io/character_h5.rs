@@ -152,11 +152,17 @@ fn read_group(g: &Group, budget: u64) -> Result<BodyCache, FormatError> {
     let pts = Ds::open(g, GP, "points", true)?
         .expect("required")
         .with_budget(budget);
-    pts.expect_shape(&[None, None, Some(3)], "F x V x 3 (frames x vertices x xyz)")?;
+    pts.expect_shape(
+        &[None, None, Some(3)],
+        "F x V x 3 (frames x vertices x xyz)",
+    )?;
     pts.expect_float()?;
     let (f, v) = (pts.shape[0], pts.shape[1]);
     if times.len() != f {
-        return Err(times.err(format!("{} times for {f} frames of /character/points", times.len())));
+        return Err(times.err(format!(
+            "{} times for {f} frames of /character/points",
+            times.len()
+        )));
     }
     let total = f
         .checked_mul(v)
@@ -184,12 +190,15 @@ fn read_group(g: &Group, budget: u64) -> Result<BodyCache, FormatError> {
         .map(|(i, c)| {
             let mut out = [0u32; 3];
             for k in 0..3 {
-                out[k] = u32::try_from(c[k]).ok().filter(|&x| (x as usize) < v).ok_or_else(|| {
-                    FormatError::at_path(
-                        format!("{GP}/triangles/{i}"),
-                        format!("vertex index {} out of range ({v} vertices)", c[k]),
-                    )
-                })?;
+                out[k] = u32::try_from(c[k])
+                    .ok()
+                    .filter(|&x| (x as usize) < v)
+                    .ok_or_else(|| {
+                        FormatError::at_path(
+                            format!("{GP}/triangles/{i}"),
+                            format!("vertex index {} out of range ({v} vertices)", c[k]),
+                        )
+                    })?;
             }
             Ok(out)
         })
@@ -274,7 +283,12 @@ mod tests {
             points: (0..12)
                 .map(|i| [i as f64, (i % 4) as f64 * 0.1, 0.25 * (i / 4) as f64])
                 .collect(),
-            rest: Some(vec![[0.0; 3], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]),
+            rest: Some(vec![
+                [0.0; 3],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ]),
         }
     }
 
@@ -297,6 +311,9 @@ mod tests {
         let p = dir.path().join("body.h5");
         write_character_cache(&p, &cache()).unwrap();
         let e = read_character_cache(&p, 100).unwrap_err().to_string();
-        assert!(e.contains("memory budget") && e.contains("/character/points"), "{e}");
+        assert!(
+            e.contains("memory budget") && e.contains("/character/points"),
+            "{e}"
+        );
     }
 }

@@ -40,6 +40,7 @@
 //! top of this contract.
 
 pub mod asset;
+pub mod bake;
 pub mod demo;
 pub mod error;
 pub mod fabric_test;

@@ -16,8 +16,9 @@ use super::sim_scene::{CharacterSection, ColliderSection, Scene, SimulationSecti
 use super::simulate::{
     invalid, CharacterReport, SimulateError, DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS,
 };
+use crate::anim::cache::BodyCache;
 use crate::anim::pins::BodyPins;
-use crate::anim::Character;
+use crate::anim::{Character, TriangleMesh};
 use crate::geom::{Asset, Vec3};
 use crate::io;
 use crate::sim::collide::{Collider, ColliderSet, MeshCollider, MeshTopology, Shape};
@@ -59,10 +60,31 @@ impl Handle {
     }
 }
 
-/// The character of a shot: skin, animation, placement, topology.
+/// Where a body's motion comes from.
+enum Motion {
+    /// A skinned glTF character and its animation (`None`: the bind pose).
+    Skinned {
+        character: Character,
+        anim: Option<usize>,
+    },
+    /// A baked point cache (schemas/character-hdf5.md): animation time 0
+    /// is its first frame.
+    Cache(BodyCache),
+}
+
+impl Motion {
+    /// Body vertices (file units, unplaced) at animation time `t` (s).
+    fn positions(&self, t: f64) -> Vec<Vec3> {
+        match self {
+            Motion::Skinned { character, anim } => character.skinned_positions(*anim, t),
+            Motion::Cache(c) => c.positions_at(c.times[0] + t),
+        }
+    }
+}
+
+/// The character of a shot: motion, placement, topology.
 pub(super) struct Body {
-    character: Character,
-    anim: Option<usize>,
+    motion: Motion,
     duration: f64,
     scale: f64,
     translate: Vec3,
@@ -106,10 +128,7 @@ impl Body {
                 .map(|(a, b)| std::array::from_fn(|k| a[k] + s * (b[k] - a[k])))
                 .collect();
         }
-        self.place(
-            self.character
-                .skinned_positions(self.anim, self.anim_time(t)),
-        )
+        self.place(self.motion.positions(self.anim_time(t)))
     }
 }
 
@@ -269,22 +288,11 @@ fn load_character(
     x: &mut [Vec3],
     notes: &mut Vec<String>,
 ) -> Result<(Body, CharacterReport), SimulateError> {
-    let character = io::gltf_skin::read_character(path)?;
-    let anim = match &c.animation {
-        Some(name) => Some(character.animation_index(name).ok_or_else(|| {
-            invalid(
-                path,
-                format!(
-                    "character.animation: no animation '{}' (the file has: {})",
-                    crate::geom::excerpt(name),
-                    crate::geom::excerpt(&character.animation_names().join(", "))
-                ),
-            )
-        })?),
-        None => (!character.animations.is_empty()).then_some(0),
+    let (motion, animation, duration, rest) = if is_cache(path) {
+        read_cache(c, path)?
+    } else {
+        read_skinned(c, path)?
     };
-    let duration = anim.map_or(0.0, |a| character.duration(a));
-    let rest = character.body_mesh(None, 0.0);
     if rest.triangles.is_empty() {
         return Err(invalid(path, "the character has no triangles"));
     }
@@ -296,8 +304,7 @@ fn load_character(
     }
     let preroll = sim.preroll.unwrap_or(DEFAULT_CHARACTER_PREROLL);
     let mut b = Body {
-        character,
-        anim,
+        motion,
         duration,
         scale: c.scale,
         translate: c.translate,
@@ -311,10 +318,9 @@ fn load_character(
         collide: c.collide,
     };
     b.bind = b.place(rest.positions);
-    b.first_pose = b.place(b.character.skinned_positions(b.anim, b.anim_time(0.0)));
-    if let Some(joint) = &c.fit_joint {
-        let j = b
-            .character
+    b.first_pose = b.place(b.motion.positions(b.anim_time(0.0)));
+    if let (Some(joint), Motion::Skinned { character, .. }) = (&c.fit_joint, &b.motion) {
+        let j = character
             .skeleton
             .iter()
             .position(|nd| nd.name.as_deref() == Some(joint.as_str()))
@@ -327,7 +333,7 @@ fn load_character(
                     ),
                 )
             })?;
-        let w = b.character.node_world_matrices(None, 0.0)[j];
+        let w = character.node_world_matrices(None, 0.0)[j];
         let jp: Vec3 = std::array::from_fn(|k| w[(k, 3)] * b.scale + b.translate[k]);
         let (glo, ghi) = bbox(x);
         // Centre over the joint, then lift so that the lowest clearance
@@ -361,7 +367,7 @@ fn load_character(
     }
     let report = CharacterReport {
         file: path.to_path_buf(),
-        animation: anim.map(|a| b.character.animation_names()[a].clone()),
+        animation,
         duration_s: duration,
         vertices: b.bind.len(),
         triangles: b.topology.triangles().len(),
@@ -370,6 +376,69 @@ fn load_character(
         preroll_s: preroll,
     };
     Ok((b, report))
+}
+
+/// Whether a character file is an HDF5 point cache (by its extension; a
+/// cache's content is checked when it is read).
+pub(crate) fn is_cache(path: &Path) -> bool {
+    io::Format::from_path(path) == Some(io::Format::Hdf5)
+}
+
+/// A glTF character: its motion, the animation's name and duration, and
+/// the bind-pose body.
+fn read_skinned(
+    c: &CharacterSection,
+    path: &Path,
+) -> Result<(Motion, Option<String>, f64, TriangleMesh), SimulateError> {
+    let character = io::gltf_skin::read_character(path)?;
+    let anim = match &c.animation {
+        Some(name) => Some(character.animation_index(name).ok_or_else(|| {
+            invalid(
+                path,
+                format!(
+                    "character.animation: no animation '{}' (the file has: {})",
+                    crate::geom::excerpt(name),
+                    crate::geom::excerpt(&character.animation_names().join(", "))
+                ),
+            )
+        })?),
+        None => (!character.animations.is_empty()).then_some(0),
+    };
+    let duration = anim.map_or(0.0, |a| character.duration(a));
+    let name = anim.map(|a| character.animation_names()[a].clone());
+    let rest = character.body_mesh(None, 0.0);
+    Ok((Motion::Skinned { character, anim }, name, duration, rest))
+}
+
+/// An HDF5 character cache: one motion, no skeleton; its rest pose is the
+/// bind pose.
+fn read_cache(
+    c: &CharacterSection,
+    path: &Path,
+) -> Result<(Motion, Option<String>, f64, TriangleMesh), SimulateError> {
+    let no = |key: &str, why: &str| {
+        Err(invalid(
+            path,
+            format!("character.{key}: {why}; this file is a character cache (schemas/character-hdf5.md)"),
+        ))
+    };
+    if c.animation.is_some() {
+        return no(
+            "animation",
+            "a cache holds one motion, so there is nothing to choose",
+        );
+    }
+    if c.fit_joint.is_some() {
+        return no(
+            "fit_joint",
+            "a cache has no skeleton; place the garment with garment.translate / --garment-offset",
+        );
+    }
+    let read = io::character_h5::read_character_cache(path, io::max_memory())?;
+    let cache = read.cache;
+    let rest = cache.rest_mesh();
+    let duration = cache.duration();
+    Ok((Motion::Cache(cache), None, duration, rest))
 }
 
 /// The `[[pin]]` groups resolved to nodes of the placed garment `x`; a
