@@ -153,3 +153,42 @@ fn bake_of_fox_matches_skinning_between_samples() {
         ch.skinned_positions(anim, times[7])
     );
 }
+
+/// `knitvox inspect CHAR.h5` recognises a character cache and summarises it;
+/// a hostile one is an error naming the dataset (exit 65).
+#[test]
+fn inspect_summarises_a_character_cache() {
+    if !have_h5py() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    python(dir.path(), WRITE_CACHE);
+    let o = Command::new(common::knitvox_bin())
+        .args(["inspect", "body.h5", "--json"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v[0]["format"], "character-hdf5", "{v}");
+    assert_eq!(v[0]["frames"], 3);
+    assert_eq!(v[0]["vertices"], 4);
+    assert_eq!(v[0]["triangles"], 2);
+    assert!((v[0]["duration_s"].as_f64().unwrap() - 2.0 / 24.0).abs() < 1e-12);
+    python(
+        dir.path(),
+        r#"
+import h5py
+with h5py.File("body.h5", "a") as f:
+    f["character/triangles"][0, 0] = 9
+"#,
+    );
+    let o = Command::new(common::knitvox_bin())
+        .args(["inspect", "body.h5"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(e.contains("/character/triangles/0"), "{e}");
+}

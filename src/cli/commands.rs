@@ -63,6 +63,11 @@ fn inspect_one(
     if let Some(c) = character(path) {
         return Ok(character_report(path, &c));
     }
+    if io::Format::from_path(path) == Some(io::Format::Hdf5)
+        && io::character_h5::is_character_cache(path)
+    {
+        return character_cache_report(path);
+    }
     if let Some(datasets) = foreign_hdf5(path) {
         let _ = writeln!(
             text,
@@ -341,4 +346,48 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         print_demo_fabric(&r.fabric);
     }
     Ok(ExitCode::Success)
+}
+
+/// The summary of an HDF5 character cache (schemas/character-hdf5.md).
+fn character_cache_report(
+    path: &std::path::Path,
+) -> Result<(serde_json::Value, String), io::IoError> {
+    let read = io::character_h5::read_character_cache(path, io::max_memory())?;
+    let c = &read.cache;
+    let rest = c.rest_positions();
+    let (lo, hi) = rest.iter().fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                std::array::from_fn(|k| lo[k].min(p[k])),
+                std::array::from_fn(|k| hi[k].max(p[k])),
+            )
+        },
+    );
+    let v = serde_json::json!({
+        "path": path.display().to_string(),
+        "format": "character-hdf5",
+        "frames": c.num_frames(),
+        "first_time_s": c.times[0],
+        "duration_s": c.duration(),
+        "vertices": c.num_vertices,
+        "triangles": c.triangles.len(),
+        "rest_pose": if c.rest.is_some() { "rest_points" } else { "frame 0" },
+        "rest_bbox_m": [lo, hi],
+        "height_m": hi[1] - lo[1],
+        "notes": read.notes,
+    });
+    let text = format!(
+        "{}\n  format        character cache (HDF5)\n  frames        {} from {} s over {:.4} s\n  vertices      {}\n  triangles     {}\n  rest pose     {}\n  height        {:.4} m (+Y, metres)\n{}",
+        path.display(),
+        c.num_frames(),
+        c.times[0],
+        c.duration(),
+        c.num_vertices,
+        c.triangles.len(),
+        if c.rest.is_some() { "rest_points" } else { "frame 0" },
+        hi[1] - lo[1],
+        read.notes.iter().map(|n| format!("  note          {n}\n")).collect::<String>()
+    );
+    Ok((v, text))
 }
