@@ -200,3 +200,45 @@ fn fabric_test_command_prints_the_stretch_curve_as_json() {
         String::from_utf8_lossy(&bad.stderr)
     );
 }
+
+#[test]
+fn friction_makes_the_unloading_force_lower_than_the_loading_force() {
+    use knitvox::yarn::statics::FrictionParams;
+    // Stretch a relaxed rib to 10% and release it, with the default yarn
+    // friction and without: at 5% the unloading force falls below the
+    // loading force with friction (hysteresis), not without.
+    let fp = FabricParams::default();
+    assert!(fp.friction.mu > 0.0, "friction is on by default");
+    let (relaxed, _) = relax_into_contact(&rib(6, 4), &fp, &RelaxParams::default()).unwrap();
+    let sp = StretchParams {
+        direction: Direction::Weft,
+        max_stretch: 0.1,
+        steps: 2,
+        hold_steps: 0,
+        release_steps: 2,
+        ..StretchParams::default()
+    };
+    let mut loops = Vec::new();
+    for friction in [fp.friction.clone(), FrictionParams::off()] {
+        let p = FabricParams {
+            friction,
+            ..fp.clone()
+        };
+        let r = stretch_test(&relaxed, &p, &sp, &mut |_| Ok(())).unwrap();
+        assert_eq!(r.release.len(), 2);
+        assert!((r.release[0].stretch - 0.05).abs() < 1e-12);
+        let (up, down) = (r.points[1].force_n, r.release[0].force_n);
+        eprintln!(
+            "mu {}: 5% loading {up:.4e} N, unloading {down:.4e} N; 10% {:.4e} N; back at 0: {:.4e} N",
+            p.friction.mu, r.points[2].force_n, r.release[1].force_n
+        );
+        assert!(r.min_distance_ratio > 0.75);
+        loops.push((up, down));
+    }
+    let ((up_f, down_f), (up_0, down_0)) = (loops[0], loops[1]);
+    // Frictionless: the same equilibrium both ways (within 5%).
+    assert!((down_0 - up_0).abs() <= 0.05 * up_0, "{loops:?}");
+    // Friction: a clear loop, larger than the frictionless difference.
+    assert!(down_f < 0.9 * up_f, "{loops:?}");
+    assert!(up_f - down_f > 2.0 * (up_0 - down_0).abs(), "{loops:?}");
+}
