@@ -200,3 +200,57 @@ fn fabric_test_command_prints_the_stretch_curve_as_json() {
         String::from_utf8_lossy(&bad.stderr)
     );
 }
+
+#[test]
+fn friction_adds_hysteresis_to_a_stretch_and_release() {
+    use knitvox::yarn::statics::FrictionParams;
+    // Stretch a relaxed rib to 10% and release it to 0, with the default
+    // yarn friction and without. Friction resists the loading (higher force
+    // at 10%) and keeps the released swatch from springing back: at 0 the
+    // clamp must hold a residual force, where the frictionless swatch
+    // returns to (nearly) no force.
+    let fp = FabricParams::default();
+    assert!(fp.friction.mu > 0.0, "friction is on by default");
+    let (relaxed, _) = relax_into_contact(&rib(6, 4), &fp, &RelaxParams::default()).unwrap();
+    let sp = StretchParams {
+        direction: Direction::Weft,
+        max_stretch: 0.1,
+        steps: 2,
+        hold_steps: 0,
+        release_steps: 2,
+        ..StretchParams::default()
+    };
+    let mut runs = Vec::new();
+    for friction in [fp.friction.clone(), FrictionParams::off()] {
+        let p = FabricParams {
+            friction,
+            ..fp.clone()
+        };
+        let r = stretch_test(&relaxed, &p, &sp, &mut |_| Ok(())).unwrap();
+        assert_eq!(r.release.len(), 2);
+        assert!(r.release[1].stretch.abs() < 1e-12);
+        let f: Vec<f64> = r
+            .points
+            .iter()
+            .chain(&r.release)
+            .map(|p| p.force_n)
+            .collect();
+        // Work in and out (N x stretch, trapezoids of 5%): their difference
+        // is the loop's area.
+        let work = |a: &[f64]| a.windows(2).map(|w| 0.025 * (w[0] + w[1])).sum::<f64>();
+        let loop_area = work(&f[..3]) - work(&f[2..]);
+        eprintln!(
+            "mu {}: force at 0/5/10/5/0% {:?} N, loop area {loop_area:.3e}",
+            p.friction.mu,
+            f.iter().map(|x| format!("{x:.4e}")).collect::<Vec<_>>()
+        );
+        assert!(r.min_distance_ratio > 0.75);
+        runs.push((f[2], f[4]));
+    }
+    let ((top_f, end_f), (top_0, end_0)) = (runs[0], runs[1]);
+    assert!(top_f > 1.03 * top_0, "{runs:?}");
+    assert!(
+        end_f.abs() > 5.0 * end_0.abs() && end_f.abs() > 0.02 * top_f,
+        "{runs:?}"
+    );
+}

@@ -27,6 +27,7 @@ fn relax_stretch_hang() {
     let y = common::flat_swatch(&pattern, courses, wales);
     let mut fp = FabricParams::default();
     fp.rods.bend_scale = env_f("FS_GAMMA", fp.rods.bend_scale);
+    fp.friction.mu = env_f("FS_MU", fp.friction.mu);
     let rp = RelaxParams {
         length_scale: env_f("FS_SCALE", 0.9),
         stages: env_f("FS_STAGES", 3.0) as usize,
@@ -169,7 +170,9 @@ fn stretch_step_diagnostic() {
 /// weft and warp, the default 6 cm x 10 cm swatch relaxed with the
 /// defaults, stretched to 50% in 5% steps; hung by the top edge.
 /// `cargo test --test fabric_study fabric_checks -- --ignored --nocapture`
-/// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset).
+/// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset; FC_MU sets the yarn
+/// friction coefficient, 0 for none; FC_WIDTH/FC_LENGTH (m) and FC_STEPS a
+/// smaller swatch or fewer steps).
 #[test]
 #[ignore]
 fn fabric_checks() {
@@ -185,14 +188,19 @@ fn fabric_checks() {
             .collect()
     };
     let mut failures = Vec::new();
+    let mut fabric = FabricParams::default();
+    fabric.friction.mu = env_f("FC_MU", fabric.friction.mu);
+    let size = [env_f("FC_WIDTH", 0.06), env_f("FC_LENGTH", 0.10)];
+    let steps = env_f("FC_STEPS", 10.0) as usize;
+    println!("yarn friction mu {}", fabric.friction.mu);
     for pattern in list("FC_PATTERNS", "stockinette,rib1x1") {
         let job = |test: FabricTest| FabricTestJob {
             swatch: SwatchSource::Pattern {
                 source: PatternSource::Builtin(pattern.clone()),
-                size: [0.06, 0.10],
+                size,
             },
             test,
-            fabric: FabricParams::default(),
+            fabric: fabric.clone(),
             relax: RelaxParams::default(),
             output_dir: None,
         };
@@ -200,7 +208,7 @@ fn fabric_checks() {
             let sp = StretchParams {
                 direction: dir.parse().unwrap(),
                 max_stretch: 0.5,
-                steps: 10,
+                steps,
                 ..StretchParams::default()
             };
             let t = Instant::now();
@@ -221,7 +229,7 @@ fn fabric_checks() {
             println!(
                 "{} {dir}: {} vertices, {:.1} x {:.1} mm; relax near {:.3} cpv {:.2} min {:.3}, {} its; \
                  force 10/30/50% {:.3}/{:.3}/{:.3} N, stiffening {:.2}, compression@30 {:.3}, \
-                 hold {:+.4}, min ratio {:.3}, {} Newton its, {:.1} s",
+                 contacts/vertex@30 {:.2}, hold {:+.4}, min ratio {:.3}, {} Newton its, {:.1} s",
                 rep.swatch,
                 r.vertices,
                 1e3 * r.width_m,
@@ -235,6 +243,7 @@ fn fabric_checks() {
                 at(0.5).force_n,
                 stiffening,
                 p30.compression,
+                p30.contacts_per_vertex,
                 r.hold_energy_change,
                 r.min_distance_ratio,
                 iters,

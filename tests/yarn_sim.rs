@@ -726,3 +726,65 @@ fn hylc_tiles_4x4_relax_and_stay_intact() {
         assert!(relaxed.points.iter().flatten().all(|c| c.is_finite()));
     }
 }
+
+/// A straight yarn lying across an inclined plane (20 deg, normal in the
+/// x-y plane) under gravity for `time` s with Coulomb coefficient `mu`:
+/// its mean displacement down the slope (m) and its smallest distance
+/// from the plane (m).
+fn slide_on_incline(mu: f64, time: f64) -> (f64, f64) {
+    let theta = 20f64.to_radians();
+    let n = [theta.sin(), theta.cos(), 0.0];
+    let pts: Vec<Vec3> = (0..11)
+        .map(|i| [R * n[0], R * n[1], -5e-3 + 1e-3 * i as f64])
+        .collect();
+    let mut y = Yarns::new();
+    y.push_curve(&pts, false, R);
+    let params = YarnSimParams {
+        global_damping: 0.0,
+        ..YarnSimParams::default()
+    };
+    let mut sim = YarnSim::new(&y, params).unwrap();
+    sim.add_collider(Box::new(PlaneCollider {
+        point: [0.0; 3],
+        normal: n,
+        friction: mu,
+    }));
+    while sim.time() < time - 1e-12 {
+        sim.advance((time - sim.time()).min(0.05)).unwrap();
+    }
+    assert!((sim.time() - time).abs() < 1e-9, "{}", sim.time());
+    let down = [theta.cos(), -theta.sin(), 0.0];
+    let x = sim.positions();
+    let moved = x
+        .iter()
+        .zip(&pts)
+        .map(|(p, p0)| (0..3).map(|k| (p[k] - p0[k]) * down[k]).sum::<f64>())
+        .sum::<f64>()
+        / x.len() as f64;
+    let gap = x
+        .iter()
+        .map(|p| p[0] * n[0] + p[1] * n[1])
+        .fold(f64::INFINITY, f64::min);
+    (moved, gap)
+}
+
+#[test]
+fn yarn_on_inclined_plane_sticks_above_tan_angle_and_slides_by_coulomb_below() {
+    // tan 20 deg = 0.364. Sliding from rest: s = g (sin - mu cos) t^2 / 2.
+    let (g, theta, t) = (9.81, 20f64.to_radians(), 0.2);
+    let coulomb = |mu: f64| 0.5 * g * (theta.sin() - mu * theta.cos()) * t * t;
+    let (held, gap) = slide_on_incline(0.5, t);
+    eprintln!("mu 0.5: moved {held:.3e} m, gap {gap:.6e} m");
+    assert!(held.abs() < 1e-6, "mu 0.5 moved {held} m");
+    assert!(gap > R - 1e-6, "gap {gap}");
+    for mu in [0.2, 0.0] {
+        let (s, gap) = slide_on_incline(mu, t);
+        let expect = coulomb(mu);
+        eprintln!("mu {mu}: slid {s:.5e} m, Coulomb {expect:.5e} m");
+        assert!(
+            (s - expect).abs() <= 0.002 * expect,
+            "mu {mu}: slid {s} m, Coulomb {expect} m"
+        );
+        assert!(gap > R - 1e-6, "gap {gap}");
+    }
+}

@@ -348,3 +348,242 @@ fn contact_limits_the_moves_of_nearby_vertices_only() {
         assert!(caps[v] >= 1.75 * R, "vertex {v}: cap {}", caps[v]);
     }
 }
+
+/// Friction lagged on a [`crossing`] pressed at centre distance `h`, at
+/// the given positions (also the start positions).
+fn lagged_friction(
+    y: &Yarns,
+    q: &[f64],
+    mu: f64,
+    eps: f64,
+) -> (
+    knitvox::yarn::statics::ContactTerm,
+    knitvox::yarn::statics::FrictionTerm,
+) {
+    use knitvox::yarn::sim::YarnSimParams;
+    use knitvox::yarn::statics::{ContactTerm, FrictionParams, FrictionTerm};
+    let mut contact = ContactTerm::new(y, &YarnSimParams::default(), 0.5 * R).unwrap();
+    contact.begin_iteration(q);
+    let mut friction = FrictionTerm::new(&FrictionParams {
+        mu,
+        stick_distance: eps,
+        lag_updates: 1,
+    });
+    friction.lag(&contact, q, q);
+    (contact, friction)
+}
+
+#[test]
+fn friction_gradient_and_hessian_match_finite_differences_and_hessian_is_psd() {
+    let y = crossing(1.6 * R);
+    let q0: Vec<f64> = y.points.iter().flatten().copied().collect();
+    let eps = 1e-5;
+    let (_, friction) = lagged_friction(&y, &q0, 0.3, eps);
+    assert!(friction.contacts().len() >= 2, "{:?}", friction.contacts());
+    // Yarn B moved tangentially (x, z) by a small (stick) and a large
+    // (slide) amount, plus a vertex-wise wobble so no two contacts agree.
+    for (shift, label) in [(3e-6, "stick"), (4e-5, "slide")] {
+        let mut q = q0.clone();
+        for v in 41..82 {
+            let w = (v as f64 * 0.7).sin();
+            q[3 * v] += shift * (1.0 + 0.2 * w);
+            q[3 * v + 1] += 1e-7 * w;
+            q[3 * v + 2] -= 0.5 * shift * (1.0 - 0.3 * w);
+        }
+        let slips = friction.slips(&q);
+        let regime = |s: &f64| if label == "stick" { *s < eps } else { *s > eps };
+        assert!(slips.iter().all(regime), "{label}: slips {slips:?}");
+        let n = q.len();
+        let mut g = vec![0.0; n];
+        let mut trip = knitvox::yarn::statics::Triplets::new();
+        let e = friction.eval(&q, &mut g, Some(&mut trip));
+        assert!(e > 0.0);
+        let mut h = vec![0.0; n * n];
+        for ((&r, &c), &v) in trip.rows.iter().zip(&trip.cols).zip(&trip.vals) {
+            h[r as usize * n + c as usize] += v;
+        }
+        let gmax = g.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let hmax = h.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        assert!(gmax > 0.0 && hmax > 0.0);
+        let dofs: Vec<usize> = (0..n).filter(|&i| g[i].abs() > 1e-6 * gmax).collect();
+        assert!(dofs.len() >= 12, "{label}: {} coordinates", dofs.len());
+        let step = 1e-3 * eps;
+        for &i in &dofs {
+            let (mut qp, mut qm) = (q.clone(), q.clone());
+            qp[i] += step;
+            qm[i] -= step;
+            let (mut gp, mut gm) = (vec![0.0; n], vec![0.0; n]);
+            let ep = friction.eval(&qp, &mut gp, None);
+            let em = friction.eval(&qm, &mut gm, None);
+            let fd = (ep - em) / (2.0 * step);
+            assert!(
+                (fd - g[i]).abs() <= 1e-5 * gmax,
+                "{label} gradient {i}: fd {fd} vs {}",
+                g[i]
+            );
+            for &j in &dofs {
+                let fdh = (gp[j] - gm[j]) / (2.0 * step);
+                assert!(
+                    (fdh - h[j * n + i]).abs() <= 1e-4 * hmax,
+                    "{label} Hessian ({j}, {i}): fd {fdh} vs {}",
+                    h[j * n + i]
+                );
+            }
+        }
+        // PSD: x^T H x >= 0 for pseudo-random x.
+        for k in 0..20 {
+            let x: Vec<f64> = (0..n).map(|i| ((i * 7 + k * 13) as f64).sin()).collect();
+            let xhx: f64 = (0..n)
+                .map(|r| x[r] * (0..n).map(|c| h[r * n + c] * x[c]).sum::<f64>())
+                .sum();
+            assert!(xhx >= -1e-9 * hmax, "{label}: x^T H x = {xhx}");
+        }
+    }
+    // Sliding (B shifted 1 mm along A), every contact pulls with exactly
+    // its Coulomb force mu lambda (the force on segment A's vertices), and
+    // the whole pull along the shift is at most sum(mu lambda).
+    let mut q = q0.clone();
+    for v in 41..82 {
+        q[3 * v] += 1e-3;
+    }
+    let mut fx = 0.0;
+    for c in friction.contacts() {
+        let mut one = friction.clone();
+        one.set_contacts(vec![*c]);
+        let mut g = vec![0.0; q.len()];
+        one.eval(&q, &mut g, None);
+        let fa: Vec<f64> = (0..3)
+            .map(|k| g[3 * c.vertices[0] + k] + g[3 * c.vertices[1] + k])
+            .collect();
+        let mag = (fa[0] * fa[0] + fa[1] * fa[1] + fa[2] * fa[2]).sqrt();
+        let cap = 0.3 * c.normal_force;
+        assert!((mag - cap).abs() <= 1e-9 * cap, "{mag} N vs {cap} N");
+        fx += c.vertices[2..].iter().map(|&v| g[3 * v]).sum::<f64>();
+    }
+    let cap = friction.total_capacity();
+    assert!(
+        fx > 0.5 * cap && fx <= cap * (1.0 + 1e-12),
+        "{fx} N vs {cap} N"
+    );
+}
+
+#[test]
+fn pressed_crossing_sticks_below_and_slides_at_coulomb_force_above() {
+    use knitvox::yarn::statics::FrictionTerm;
+    // B pressed onto A (centre distance 1.6 r, as above), then B's clamps
+    // moved sideways along A (x) by delta in one load step: friction on the
+    // crossing holds B's middle while B's lateral bending force is below
+    // mu N, and B slides along A at the constant force mu N above it.
+    let (mu, eps) = (0.25, 1e-5);
+    let y = crossing(1.6 * R);
+    let params = RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    };
+    let (topo, rest, mut q0, fixed) = clamped_crossing(&y);
+    let mut rods = RodEnergy::new(topo, rest, &params, &q0).unwrap();
+    let (mut contact, _) = lagged_friction(&y, &q0, mu, eps);
+    let sp = StaticParams {
+        force_tolerance: 1e-9,
+        max_displacement: 0.25 * R,
+        clip_per_vertex: true,
+        ..StaticParams::default()
+    };
+    let mut cache = SymbolicCache::default();
+    {
+        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
+        solve_static(&mut terms, &mut q0, &fixed, &sp, &mut cache).unwrap();
+    }
+    let b_clamp = [41, 42, 80, 81];
+    let mut ratios = Vec::new();
+    for delta in [2e-6, 5e-6, 2e-5, 1e-4, 5e-4, 1e-3, 2e-3] {
+        let mut q = q0.clone();
+        contact.begin_iteration(&q0);
+        let mut friction = FrictionTerm::new(&knitvox::yarn::statics::FrictionParams {
+            mu,
+            stick_distance: eps,
+            lag_updates: 2,
+        });
+        friction.lag(&contact, &q0, &q0);
+        for v in b_clamp {
+            q[3 * v] += delta;
+        }
+        // One solve and two lag refreshes (normal forces and contacts at
+        // the new equilibrium, start positions kept).
+        for refresh in 0..3 {
+            if refresh > 0 {
+                contact.begin_iteration(&q);
+                friction.lag(&contact, &q, &q0);
+            }
+            let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact, &mut friction];
+            let st = solve_static(&mut terms, &mut q, &fixed, &sp, &mut cache).unwrap();
+            assert!(st.converged, "delta {delta}: {st:?}");
+        }
+        let slip = friction.slips(&q).into_iter().fold(0.0, f64::max);
+        let terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact, &mut friction];
+        let react = reaction_forces(&terms, &q, &fixed);
+        let fx: f64 = b_clamp.iter().map(|&v| react[3 * v]).sum();
+        let normal: f64 = b_clamp.iter().map(|&v| react[3 * v + 1]).sum::<f64>().abs();
+        // The clamps hold B against friction: the force pulling it along.
+        let ratio = fx.abs() / (mu * normal);
+        // The friction force itself against its Coulomb bound mu sum(lambda)
+        // (each segment pair is its own contact; the lagged sum of their
+        // force magnitudes is a little above the net N where their forces
+        // are not parallel).
+        let mut g = vec![0.0; q.len()];
+        friction.eval(&q, &mut g, None);
+        let fric: f64 = (41..82).map(|v| g[3 * v]).sum();
+        let of_capacity = fric.abs() / friction.total_capacity();
+        eprintln!(
+            "delta {delta:.1e} m: tangential {fx:.4e} N, normal {normal:.4e} N, F/(mu N) {ratio:.4}, \
+             F/(mu sum lambda) {of_capacity:.4}, slip {slip:.3e} m"
+        );
+        ratios.push((delta, ratio, slip, of_capacity));
+    }
+    // Stick: well below mu N the closest points move less than eps_u.
+    for &(delta, ratio, slip, _) in &ratios[..2] {
+        assert!(ratio < 0.9 && slip < eps, "delta {delta}: {ratio} {slip}");
+    }
+    // The clamp force never exceeds mu N by more than 5%.
+    assert!(ratios.iter().all(|r| r.1 <= 1.05), "{ratios:?}");
+    // Slide: above, B slid along A, the friction force saturates at its
+    // Coulomb bound (1%) and the clamps pull with mu N (5%).
+    for &(delta, ratio, slip, of_capacity) in &ratios[ratios.len() - 4..] {
+        assert!(
+            of_capacity >= 0.99 && (ratio - 1.0).abs() <= 0.05 && slip > eps,
+            "delta {delta}: F/(mu N) {ratio}, F/(mu sum lambda) {of_capacity}, slip {slip}"
+        );
+    }
+}
+
+#[test]
+fn carried_offsets_keep_the_friction_force_across_a_new_lag() {
+    // B shifted 3 um along A (sticking, eps_u 10 um): re-lagging there with
+    // the carried offsets keeps the friction force on B; plain IPC lagging
+    // (no carry) starts from zero force.
+    let y = crossing(1.6 * R);
+    let q0: Vec<f64> = y.points.iter().flatten().copied().collect();
+    let (mut contact, friction) = lagged_friction(&y, &q0, 0.3, 1e-5);
+    let mut q = q0.clone();
+    for v in 41..82 {
+        q[3 * v] += 3e-6;
+    }
+    let pull = |f: &knitvox::yarn::statics::FrictionTerm| -> f64 {
+        let mut g = vec![0.0; q.len()];
+        f.eval(&q, &mut g, None);
+        (41..82).map(|v| g[3 * v]).sum()
+    };
+    let before = pull(&friction);
+    assert!(before > 0.1 * friction.total_capacity(), "{before}");
+    contact.begin_iteration(&q);
+    let mut carried = friction.clone();
+    carried.lag_carrying(&contact, &q, &q, &friction.carry(&q));
+    let mut plain = friction.clone();
+    plain.lag(&contact, &q, &q);
+    let (after, reset) = (pull(&carried), pull(&plain));
+    assert!(
+        (after - before).abs() <= 0.01 * before,
+        "{after} N after vs {before} N before"
+    );
+    assert!(reset.abs() <= 1e-12, "{reset}");
+}

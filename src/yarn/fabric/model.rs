@@ -7,8 +7,8 @@ use crate::geom::{RestShape, Vec3, Yarns};
 use crate::yarn::rods::{RodEnergy, RodError, RodParams, RodRest, RodTopology};
 use crate::yarn::sim::{YarnSimError, YarnSimParams};
 use crate::yarn::statics::{
-    evaluate, solve_static, ContactStats, ContactTerm, EnergyTerm, StaticError, StaticParams,
-    StaticStats, SymbolicCache,
+    evaluate, solve_static, Carry, ContactStats, ContactTerm, EnergyTerm, FrictionParams,
+    FrictionTerm, StaticError, StaticParams, StaticStats, SymbolicCache,
 };
 
 /// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
@@ -26,6 +26,13 @@ pub struct FabricParams {
     /// Yarn density (kg/m^3) when the yarns carry no linear density.
     /// Default 120.
     pub density: f64,
+    /// Yarn-yarn Coulomb friction (lagged IPC potential,
+    /// `yarn::statics::friction`): mu 0.25 (dimensionless), stick distance
+    /// 1e-5 m, one lag refresh per load step. On in the stretch and hang
+    /// tests; the relaxation into contact runs frictionless (its rest state
+    /// must be an energy minimum of rods + contact alone, so a reloaded
+    /// swatch is at equilibrium without a friction history).
+    pub friction: FrictionParams,
     /// Newton controls (force tolerance 1e-5 N, 1e-5 of a fabric test's
     /// ~1 N; per-vertex step clipping); the displacement cap defaults to
     /// [`MAX_MOVE_RADII`] smallest yarn radii (set by [`Fabric::new`] when
@@ -43,6 +50,7 @@ impl Default for FabricParams {
             },
             contact_stiffness: y.contact_stiffness,
             density: y.density,
+            friction: FrictionParams::default(),
             solver: StaticParams {
                 force_tolerance: 1e-5,
                 max_iterations: 400,
@@ -78,10 +86,18 @@ pub enum FabricError {
 /// vertices' moves (`ContactTerm::limit_vertex_moves`).
 pub const MAX_MOVE_RADII: f64 = 2.0;
 
-/// Rods + contact + masses of one yarn set, and its current coordinates.
+/// Rods + contact + friction + masses of one yarn set, and its current
+/// coordinates.
 pub struct Fabric {
     pub rods: RodEnergy,
     pub contact: ContactTerm,
+    /// Lagged friction, lagged at construction and by [`Fabric::begin_step`].
+    pub friction: FrictionTerm,
+    /// Coordinates at the start of the current load step (the friction's
+    /// start positions).
+    step_start: Vec<f64>,
+    /// Elastic friction offsets carried into this step (`FrictionTerm::carry`).
+    carry: Carry,
     /// Lumped mass per vertex (kg).
     pub mass: Vec<f64>,
     /// Current coordinates: 3 per vertex (m), then one twist per edge (rad).
@@ -120,15 +136,49 @@ impl Fabric {
         let mut contact = ContactTerm::new(yarns, &ysp, p.solver.max_displacement)?;
         contact.set_rest_lengths(&rods.topology().edges, &rods.rest().l0)?;
         let mass = lumped_masses(yarns, params.density);
-        Ok(Fabric {
+        if !params.friction.is_valid() {
+            return Err(FabricError::Setup(format!(
+                "friction parameters out of range (mu >= 0, stick distance > 0, lag updates <= 100): {:?}",
+                params.friction
+            )));
+        }
+        let mut fabric = Fabric {
             rods,
             contact,
+            friction: FrictionTerm::new(&params.friction),
+            step_start: q.clone(),
+            carry: Carry::new(),
             mass,
             q,
             r_min,
             params: p,
             cache: SymbolicCache::default(),
-        })
+        };
+        fabric.begin_step();
+        Ok(fabric)
+    }
+
+    /// Starts a load step at the current state: friction is lagged here
+    /// (normal forces, tangent bases, start positions), each contact keeping
+    /// the elastic offset it held at the end of the last step. Call it
+    /// before moving clamps or predicting.
+    pub fn begin_step(&mut self) {
+        self.carry = self.friction.carry(&self.q);
+        self.step_start = self.q.clone();
+        self.refresh_friction();
+    }
+
+    /// Re-lags the friction's normal forces, tangent bases and contact set
+    /// at the current state, keeping the step's start positions.
+    pub fn refresh_friction(&mut self) {
+        if !self.params.friction.is_on() {
+            self.friction.set_contacts(Vec::new());
+            return;
+        }
+        let q = self.q.clone();
+        self.contact.begin_iteration(&q);
+        self.friction
+            .lag_carrying(&self.contact, &q, &self.step_start, &self.carry);
     }
 
     /// Replaces the rest state of the rods and, with its lengths, the
@@ -194,7 +244,8 @@ impl Fabric {
         fixed: &[bool],
         stage: &str,
     ) -> Result<StaticStats, FabricError> {
-        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut self.rods, &mut self.contact];
+        let mut terms: Vec<&mut dyn EnergyTerm> =
+            vec![&mut self.rods, &mut self.contact, &mut self.friction];
         for t in extra.iter_mut() {
             terms.push(&mut **t);
         }
@@ -211,11 +262,13 @@ impl Fabric {
         })
     }
 
-    /// `dE/dq` of rods + contact + `extra` at the current state.
+    /// `dE/dq` of rods + contact + friction + `extra` at the current state
+    /// (the energy includes the friction potential).
     pub fn gradient(&mut self, extra: &mut [&mut dyn EnergyTerm]) -> (f64, Vec<f64>) {
         let q = self.q.clone();
         self.contact.begin_iteration(&q);
-        let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut self.rods, &mut self.contact];
+        let mut terms: Vec<&mut dyn EnergyTerm> =
+            vec![&mut self.rods, &mut self.contact, &mut self.friction];
         for t in extra.iter_mut() {
             terms.push(&mut **t);
         }
@@ -225,7 +278,7 @@ impl Fabric {
     }
 
     /// Largest `|dE/dq|` over the coordinates not `fixed` (N, or N m for
-    /// twists), rods + contact only.
+    /// twists), rods + contact + friction.
     pub fn static_residual(&mut self, fixed: &[bool]) -> f64 {
         self.residual_with(&mut [], fixed)
     }
@@ -252,6 +305,7 @@ impl Fabric {
         fixed: &[bool],
         stage: &str,
     ) -> Result<Vec<f64>, FabricError> {
+        self.begin_step();
         let cur = self.q[..3 * self.num_vertices()].to_vec();
         let target: Vec<f64> = cur.iter().zip(prev).map(|(c, p)| 2.0 * c - p).collect();
         let mut inertia = super::InertiaTerm::new(self.mass.clone(), target, dt);
@@ -263,16 +317,48 @@ impl Fabric {
         Ok(cur)
     }
 
-    /// Elastic energy (rods + contact, J).
+    /// Elastic energy (rods + contact, J; friction is dissipation, not
+    /// stored energy).
     pub fn elastic_energy(&mut self) -> f64 {
-        self.gradient(&mut []).0
+        let q = self.q.clone();
+        self.contact.begin_iteration(&q);
+        let terms: Vec<&mut dyn EnergyTerm> = vec![&mut self.rods, &mut self.contact];
+        let mut g = vec![0.0; q.len()];
+        evaluate(&terms, &q, &mut g, None)
     }
 
     /// Proximal Newton rounds (implicit-Euler steps of `dt` from rest,
     /// `extra` terms added) until the static residual of rods + contact +
-    /// `extra` is at most `tol` or `max_rounds` are spent. The inertia term
-    /// only regularizes null and buckling modes; it vanishes at the end.
+    /// friction + `extra` is at most `tol` or `max_rounds` are spent. The
+    /// inertia term only regularizes null and buckling modes; it vanishes
+    /// at the end. With friction on, the lag is then refreshed at the
+    /// equilibrium (start positions kept) and the settle repeated,
+    /// `friction.lag_updates` times.
     pub fn settle(
+        &mut self,
+        extra: &mut [&mut dyn EnergyTerm],
+        fixed: &[bool],
+        settle: &Settle,
+        stage: &str,
+    ) -> Result<SettleStats, FabricError> {
+        let mut out = self.settle_once(extra, fixed, settle, stage)?;
+        if self.params.friction.is_on() {
+            for _ in 0..self.params.friction.lag_updates {
+                self.refresh_friction();
+                let st = self.settle_once(extra, fixed, settle, stage)?;
+                out = SettleStats {
+                    rounds: out.rounds + st.rounds,
+                    newton_iterations: out.newton_iterations + st.newton_iterations,
+                    residual: st.residual,
+                    converged: st.converged,
+                    min_distance_ratio: out.min_distance_ratio.min(st.min_distance_ratio),
+                };
+            }
+        }
+        Ok(out)
+    }
+
+    fn settle_once(
         &mut self,
         extra: &mut [&mut dyn EnergyTerm],
         fixed: &[bool],

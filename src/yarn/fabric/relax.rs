@@ -13,13 +13,16 @@
 //! twist rest shape, expressed in the relaxed material frames, so the
 //! relaxed positions are an equilibrium of exactly the rest shape stored
 //! with them: the loops' bending holds them against their neighbours.
+//!
+//! Friction is off during the relaxation (whatever `FabricParams::friction`
+//! says): the relaxed state is then a minimum of the stored elastic energy.
 
 use std::time::Instant;
 
 use super::model::{Fabric, FabricError, FabricParams, Settle};
 use crate::geom::Yarns;
 use crate::yarn::rods::RodRest;
-use crate::yarn::statics::{ContactStats, EnergyTerm};
+use crate::yarn::statics::{ContactStats, EnergyTerm, FrictionParams};
 
 /// Controls of [`relax_into_contact`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -108,7 +111,14 @@ pub fn relax_into_contact(
     let t0 = Instant::now();
     let mut plain = yarns.clone();
     plain.rest = None;
-    let mut fabric = Fabric::new(&plain, fabric_params)?;
+    // Frictionless: the rest state must be an energy minimum of rods +
+    // contact alone (a reloaded swatch has no friction history); friction
+    // acts in the tests that load it.
+    let frictionless = FabricParams {
+        friction: FrictionParams::off(),
+        ..fabric_params.clone()
+    };
+    let mut fabric = Fabric::new(&plain, &frictionless)?;
     let topo = fabric.rods.topology().clone();
     let generated = RodRest::from_positions(&topo, &yarns.points)?;
     let fixed = fabric.twist_gauge();

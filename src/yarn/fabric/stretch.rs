@@ -26,6 +26,10 @@ pub struct StretchParams {
     /// check that the equilibrium holds (energy does not drain away).
     /// Default 4.
     pub hold_steps: usize,
+    /// Unloading steps after the hold, from `max_stretch` back to 0
+    /// (friction makes the unloading force lower than the loading one: the
+    /// hysteresis of Sperl 2022 §3, Miguel 2013). Default 0: none.
+    pub release_steps: usize,
 }
 
 impl Default for StretchParams {
@@ -37,6 +41,7 @@ impl Default for StretchParams {
             clamp_depth: 8e-3,
             settle: Settle::default(),
             hold_steps: 4,
+            release_steps: 0,
         }
     }
 }
@@ -72,6 +77,10 @@ pub struct StretchResult {
     /// Relative change of the elastic energy over the hold at the last
     /// stretch (negative: energy lost).
     pub hold_energy_change: f64,
+    /// Unloading steps (`StretchParams::release_steps`), from the largest
+    /// stretch down to 0; empty when none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub release: Vec<StretchPoint>,
     /// Smallest contact distance ratio over every step (pull-through < 0.75).
     pub min_distance_ratio: f64,
     pub seconds: f64,
@@ -99,7 +108,8 @@ impl StretchParams {
             && (1..=1000).contains(&self.steps)
             && self.clamp_depth.is_finite()
             && self.clamp_depth > 0.0
-            && self.hold_steps <= 1000;
+            && self.hold_steps <= 1000
+            && self.release_steps <= 1000;
         if ok {
             Ok(())
         } else {
@@ -151,15 +161,22 @@ pub fn stretch_test(
     let mut points = Vec::with_capacity(params.steps + 1);
     let mut min_ratio = f64::INFINITY;
     let mut offset = 0.0;
-    for step in 0..=params.steps {
-        let stretch = params.max_stretch * step as f64 / params.steps as f64;
+    let mut step_to = |fabric: &mut Fabric,
+                       index: usize,
+                       stretch: f64,
+                       offset: &mut f64|
+     -> Result<StretchPoint, FabricError> {
         let target = stretch * rig.gauge();
-        predict(&mut fabric, &rig, offset, target);
-        offset = target;
+        // The load step starts at the last equilibrium (friction lags
+        // there), before the predictor moves anything.
+        fabric.begin_step();
+        predict(fabric, &rig, *offset, target);
+        *offset = target;
         let stage = format!("stretch {stretch:.3}");
         let st = fabric.settle(&mut [], &fixed, &params.settle, &stage)?;
         params.settle.require(&st, &stage)?;
-        let (energy, g) = fabric.gradient(&mut []);
+        let (_, g) = fabric.gradient(&mut []);
+        let energy = fabric.elastic_energy();
         let reactions = vertex_forces(&g, &clamped);
         let force: f64 = reactions
             .iter()
@@ -172,26 +189,40 @@ pub fn stretch_test(
         min_ratio = min_ratio
             .min(st.min_distance_ratio)
             .min(cst.min_distance_ratio);
-        points.push(StretchPoint {
-            stretch,
-            force_n: force,
-            compression: 1.0 - rig.mid_width(&x, offset) / w0,
-            energy_j: energy,
-            newton_iterations: st.newton_iterations,
-            residual_n: st.residual,
-            contacts_per_vertex: cst.contacts_per_vertex,
-            min_distance_ratio: cst.min_distance_ratio,
-        });
         on_frame(&RigFrame {
-            index: step,
+            index,
             parameter: stretch,
             points: &x,
             energy,
             reactions,
             external: vec![[0.0; 3]; x.len()],
         })?;
+        Ok(StretchPoint {
+            stretch,
+            force_n: force,
+            compression: 1.0 - rig.mid_width(&x, *offset) / w0,
+            energy_j: energy,
+            newton_iterations: st.newton_iterations,
+            residual_n: st.residual,
+            contacts_per_vertex: cst.contacts_per_vertex,
+            min_distance_ratio: cst.min_distance_ratio,
+        })
+    };
+    for step in 0..=params.steps {
+        let stretch = params.max_stretch * step as f64 / params.steps as f64;
+        points.push(step_to(&mut fabric, step, stretch, &mut offset)?);
     }
     let hold_energy_change = hold(&mut fabric, &fixed, params)?;
+    let mut release = Vec::with_capacity(params.release_steps);
+    for k in 1..=params.release_steps {
+        let stretch = params.max_stretch * (1.0 - k as f64 / params.release_steps as f64);
+        release.push(step_to(
+            &mut fabric,
+            params.steps + k,
+            stretch,
+            &mut offset,
+        )?);
+    }
     Ok(StretchResult {
         direction: params.direction,
         width_m: w0,
@@ -200,6 +231,7 @@ pub fn stretch_test(
         vertices: fabric.num_vertices(),
         points,
         hold_energy_change,
+        release,
         min_distance_ratio: min_ratio,
         seconds: t0.elapsed().as_secs_f64(),
     })
@@ -207,7 +239,8 @@ pub fn stretch_test(
 
 /// Moves the high clamp from `from` to `to` (m along the axis) and the free
 /// vertices by the affine stretch of the gauge section (a good start for
-/// Newton; it never brings two yarns closer along the axis).
+/// Newton; while loading it never brings two yarns closer along the axis,
+/// while unloading by at most the step's strain).
 fn predict(fabric: &mut Fabric, rig: &Rig, from: f64, to: f64) {
     let s0 = rig.s_min + rig.clamp_depth;
     let s1 = rig.s_max - rig.clamp_depth + from;

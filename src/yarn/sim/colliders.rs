@@ -12,8 +12,11 @@ pub trait PointCollider: Send + Sync + std::fmt::Debug {
     fn velocity(&self, _p: Vec3, _t: f64) -> Vec3 {
         [0.0; 3]
     }
-    /// Fraction in [0, 1] of the tangential relative velocity removed on
-    /// contact (0: frictionless, 1: sticking). Default 0.
+    /// Coulomb friction coefficient mu (dimensionless, >= 0) between the
+    /// surface and a yarn vertex: on contact the tangential relative
+    /// velocity is removed when it is within `mu` times the normal velocity
+    /// change (stick), else reduced by that much (slide; Bridson et al.
+    /// 2002 §7.2). Default 0: frictionless.
     fn friction(&self) -> f64 {
         0.0
     }
@@ -25,7 +28,7 @@ pub struct PlaneCollider {
     pub point: Vec3,
     /// Outward normal (normalized on use).
     pub normal: Vec3,
-    /// See [`PointCollider::friction`]. Default 0.
+    /// Coulomb coefficient mu, see [`PointCollider::friction`]. Default 0.
     pub friction: f64,
 }
 
@@ -52,7 +55,7 @@ pub struct SphereCollider {
     pub radius: f64,
     /// Centre velocity (m/s). Default 0.
     pub velocity: Vec3,
-    /// See [`PointCollider::friction`]. Default 0.
+    /// Coulomb coefficient mu, see [`PointCollider::friction`]. Default 0.
     pub friction: f64,
 }
 
@@ -79,10 +82,23 @@ impl PointCollider for SphereCollider {
     }
 }
 
-/// Pushes a vertex of radius `r` out of the collider and removes the inward
-/// normal (and a `friction` share of the tangential) relative velocity.
+/// Pushes a vertex of radius `r` out of the collider, removes the inward
+/// normal relative velocity and applies Coulomb friction with the
+/// collider's `mu` as a velocity-level impulse cap (Bridson et al. 2002
+/// §7.2): with `dvn` the normal velocity removed, a tangential relative
+/// velocity `vt` with `|vt| <= mu dvn` is removed (stick), a larger one
+/// shortened by `mu dvn` (slide). The position, just advanced by `dt` with
+/// the old velocity, is corrected by `dt` times the tangential change, so
+/// that it moved with the new velocity (a sticking vertex does not creep).
 /// Returns whether the vertex was in contact.
-pub(crate) fn resolve(c: &dyn PointCollider, x: &mut Vec3, v: &mut Vec3, r: f64, t: f64) -> bool {
+pub(crate) fn resolve(
+    c: &dyn PointCollider,
+    x: &mut Vec3,
+    v: &mut Vec3,
+    r: f64,
+    t: f64,
+    dt: f64,
+) -> bool {
     let (sd, n) = c.signed_distance(*x, t);
     if !(sd < r) {
         return false;
@@ -92,14 +108,18 @@ pub(crate) fn resolve(c: &dyn PointCollider, x: &mut Vec3, v: &mut Vec3, r: f64,
         x[i] += push * n[i];
     }
     let vc = c.velocity(*x, t);
-    let mut rel = [v[0] - vc[0], v[1] - vc[1], v[2] - vc[2]];
+    let rel = [v[0] - vc[0], v[1] - vc[1], v[2] - vc[2]];
     let vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
-    let vn_in = vn.min(0.0);
-    let keep = 1.0 - c.friction().clamp(0.0, 1.0);
+    let dvn = -vn.min(0.0);
+    let tan = [rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]];
+    let vt = (tan[0] * tan[0] + tan[1] * tan[1] + tan[2] * tan[2]).sqrt();
+    let cap = c.friction().max(0.0) * dvn;
+    // Fraction of the tangential velocity kept.
+    let keep = if vt <= cap { 0.0 } else { 1.0 - cap / vt };
     for i in 0..3 {
-        let tan = rel[i] - vn * n[i];
-        rel[i] = keep * tan + (vn - vn_in) * n[i];
-        v[i] = vc[i] + rel[i];
+        let dvt = (keep - 1.0) * tan[i];
+        v[i] = vc[i] + keep * tan[i] + (vn + dvn) * n[i];
+        x[i] += dt * dvt;
     }
     true
 }

@@ -57,47 +57,50 @@ pub(crate) struct ContactSet {
 
 /// Closest distance between segments [p0, p1] and [q0, q1] (Ericson 2005, §5.1.9).
 pub fn segment_distance(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f64 {
+    let (s, t) = segment_closest_params(p0, p1, q0, q1);
+    let (d1, d2) = (sub(p1, p0), sub(q1, q0));
+    let cp = [p0[0] + d1[0] * s, p0[1] + d1[1] * s, p0[2] + d1[2] * s];
+    let cq = [q0[0] + d2[0] * t, q0[1] + d2[1] * t, q0[2] + d2[2] * t];
+    norm(sub(cp, cq))
+}
+
+/// Parameters `(s, t)` in [0, 1] of the closest points `p0 + s (p1 - p0)`
+/// and `q0 + t (q1 - q0)` of two segments (Ericson 2005, §5.1.9; parallel
+/// segments get `s = 0` or an end clamp).
+#[inline]
+pub fn segment_closest_params(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> (f64, f64) {
     let d1 = sub(p1, p0);
     let d2 = sub(q1, q0);
     let r = sub(p0, q0);
     let a = dot(d1, d1);
     let e = dot(d2, d2);
     let f = dot(d2, r);
-    let (s, t);
     if a <= 1e-300 && e <= 1e-300 {
-        return norm(r);
+        return (0.0, 0.0);
     }
     if a <= 1e-300 {
-        s = 0.0;
-        t = (f / e).clamp(0.0, 1.0);
-    } else {
-        let c = dot(d1, r);
-        if e <= 1e-300 {
-            t = 0.0;
-            s = (-c / a).clamp(0.0, 1.0);
-        } else {
-            let b = dot(d1, d2);
-            let denom = a * e - b * b;
-            let mut s0 = if denom > 1e-14 * a * e {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let mut t0 = (b * s0 + f) / e;
-            if t0 < 0.0 {
-                t0 = 0.0;
-                s0 = (-c / a).clamp(0.0, 1.0);
-            } else if t0 > 1.0 {
-                t0 = 1.0;
-                s0 = ((b - c) / a).clamp(0.0, 1.0);
-            }
-            s = s0;
-            t = t0;
-        }
+        return (0.0, (f / e).clamp(0.0, 1.0));
     }
-    let cp = [p0[0] + d1[0] * s, p0[1] + d1[1] * s, p0[2] + d1[2] * s];
-    let cq = [q0[0] + d2[0] * t, q0[1] + d2[1] * t, q0[2] + d2[2] * t];
-    norm(sub(cp, cq))
+    let c = dot(d1, r);
+    if e <= 1e-300 {
+        return ((-c / a).clamp(0.0, 1.0), 0.0);
+    }
+    let b = dot(d1, d2);
+    let denom = a * e - b * b;
+    let mut s0 = if denom > 1e-14 * a * e {
+        ((b * f - c * e) / denom).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let mut t0 = (b * s0 + f) / e;
+    if t0 < 0.0 {
+        t0 = 0.0;
+        s0 = (-c / a).clamp(0.0, 1.0);
+    } else if t0 > 1.0 {
+        t0 = 1.0;
+        s0 = ((b - c) / a).clamp(0.0, 1.0);
+    }
+    (s0, t0)
 }
 
 /// Simpson weights on [0, 1] for `n` (odd) samples.

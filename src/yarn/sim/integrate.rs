@@ -602,7 +602,7 @@ impl YarnSim {
                     *v = damped_velocity(*v, a, dt, c_global);
                     *x = [x[0] + dt * v[0], x[1] + dt * v[1], x[2] + dt * v[2]];
                     for c in colliders {
-                        resolve(c.as_ref(), x, v, radius[i], t_new);
+                        resolve(c.as_ref(), x, v, radius[i], t_new, dt);
                     }
                 }
                 let d = norm(sub(*x, old));

@@ -176,6 +176,19 @@ impl ContactTerm {
         }
     }
 
+    /// The pairs in contact at `q` (the candidate set as last built): their
+    /// four vertices `(a0, a1, b0, b1)` and the contact gradient on them
+    /// (`dE/dx`, 12 entries; the force on segment A is minus the sum of the
+    /// first two 3-vectors). For the friction term's lagged normal forces.
+    pub fn active_pair_gradients(&self, q: &[f64]) -> Vec<([usize; 4], [f64; 12])> {
+        let x = points_of(q, self.model.n_real);
+        (0..self.set.pairs.len())
+            .filter_map(|i| self.pair(i, &x, false))
+            .filter(|(_, ids, _, _)| ids.iter().all(|&v| v < self.model.n_real))
+            .map(|(_, ids, g, _)| (ids, g))
+            .collect()
+    }
+
     /// Energy, the 12 gradient entries and the 12x12 PSD Hessian of one pair.
     fn pair(
         &self,

@@ -10,11 +10,13 @@
 
 pub mod contact;
 pub mod external;
+pub mod friction;
 pub mod solver;
 pub mod term;
 
 pub use contact::{ContactStats, ContactTerm, NEAR_FACTOR};
 pub use external::GravityTerm;
+pub use friction::{Carry, FrictionContact, FrictionParams, FrictionTerm};
 pub use solver::{
     evaluate, reaction_forces, solve_static, StaticError, StaticParams, StaticStats, SymbolicCache,
 };
