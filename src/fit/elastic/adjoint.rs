@@ -53,8 +53,17 @@ impl FreeDofs {
     }
 }
 
+/// Newton tolerance of the projected-Hessian solve before polishing: the
+/// energy line search of [`StaticSolver`] stalls near 1e-8 (energy changes
+/// reach rounding), so tighter residuals come from exact Newton steps.
+const COARSE_TOLERANCE: f64 = 1e-6;
+
 /// Equilibrium of `frame` under `model` (VH Eq. 14, quasi-static) from
-/// `start` (pinned nodes are put at the frame's own start positions).
+/// `start` (pinned nodes are put at the frame's own start positions):
+/// [`StaticSolver`] to `max(tolerance, 1e-6)`, then, as VH §8 does after PD,
+/// a few full Newton steps with the exact force Jacobian (sparse LU) until
+/// the relative residual (as [`crate::sim::statics`] defines it) is at most
+/// `params.tolerance`.
 pub fn equilibrium(
     model: &ElasticModel,
     mass: &[f64],
@@ -68,14 +77,115 @@ pub fn equilibrium(
     for &p in &frame.pinned {
         x0[p] = frame.start[p];
     }
-    let (x, stats) = solver
-        .solve(&x0, &frame.f_ext, None, params)
+    let coarse = StaticParams {
+        tolerance: params.tolerance.max(COARSE_TOLERANCE),
+        ..*params
+    };
+    let (mut x, mut stats) = solver
+        .solve(&x0, &frame.f_ext, None, &coarse)
         .map_err(|e| format!("no equilibrium: {e}"))?;
-    let last = stats.residuals.last().copied().unwrap_or(f64::NAN);
-    if !(last <= params.tolerance) || !x.iter().flatten().all(|v| v.is_finite()) {
-        return Err(format!("no equilibrium: residual {last:e}"));
+    let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
+    let (mut g, mut rel) = residual(model, frame, &x, &free)?;
+    let mut polish = 0;
+    while rel > params.tolerance && polish < 8 {
+        polish += 1;
+        let k = assemble_k(model, &x, &free)?;
+        let lu = sparse_lu(free.ndof, &k)?;
+        let mut rhs = Mat::<f64>::from_fn(free.ndof, 1, |i, _| -g[i]);
+        lu.solve_in_place_with_conj(Conj::No, rhs.as_mut());
+        let mut step = 1.0;
+        let mut improved = false;
+        for _ in 0..4 {
+            let trial: Vec<Vec3> = x
+                .iter()
+                .enumerate()
+                .map(|(i, p)| match free.index[i] {
+                    Some(d) => std::array::from_fn(|c| p[c] + step * rhs[(d + c, 0)]),
+                    None => *p,
+                })
+                .collect();
+            let (gt, rt) = residual(model, frame, &trial, &free)?;
+            if rt < rel {
+                (x, g, rel, improved) = (trial, gt, rt, true);
+                break;
+            }
+            step *= 0.5;
+        }
+        stats.iterations += 1;
+        stats.residuals.push(rel);
+        if !improved {
+            break;
+        }
+    }
+    if !(rel <= params.tolerance) || !x.iter().flatten().all(|v| v.is_finite()) {
+        return Err(format!(
+            "no equilibrium: relative residual {rel:e} > {:e}",
+            params.tolerance
+        ));
     }
     Ok((x, stats))
+}
+
+/// `g = ∂E/∂x - f_ext` on the free DOFs and its relative size: largest free
+/// node residual over the largest free-node external or elastic force.
+fn residual(
+    model: &ElasticModel,
+    frame: &Frame,
+    x: &[Vec3],
+    free: &FreeDofs,
+) -> Result<(Vec<f64>, f64), String> {
+    let grad = model.gradient(x).map_err(|e| e.to_string())?;
+    let mut g = vec![0.0; free.ndof];
+    let (mut worst, mut scale) = (0.0f64, 0.0f64);
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    for (i, fi) in free.index.iter().enumerate() {
+        if let Some(d) = fi {
+            let f = frame.f_ext[i];
+            let r = [grad[i][0] - f[0], grad[i][1] - f[1], grad[i][2] - f[2]];
+            g[*d..*d + 3].copy_from_slice(&r);
+            worst = worst.max(norm(r));
+            scale = scale.max(norm(f)).max(norm(grad[i]));
+        }
+    }
+    let rel = if scale > 0.0 { worst / scale } else { worst };
+    if !rel.is_finite() {
+        return Err("non-finite residual".into());
+    }
+    Ok((g, rel))
+}
+
+/// Exact `K = ∂g/∂x` on the free DOFs (entries, duplicates summed).
+fn assemble_k(
+    model: &ElasticModel,
+    x: &[Vec3],
+    free: &FreeDofs,
+) -> Result<Vec<(usize, usize, f64)>, String> {
+    let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
+    let rest = model.rest();
+    let (gs, gv) = (model.gamma_s(), model.gamma_v());
+    let blocks: Vec<_> = (0..rest.len())
+        .into_par_iter()
+        .map(|e| element_hessian(&f[e], &rest[e], gs[e], gv[e], false))
+        .collect();
+    let mut k = Vec::with_capacity(rest.len() * 144);
+    for (r, h) in rest.iter().zip(&blocks) {
+        for b in 0..4 {
+            let Some(ib) = free.index[r.nodes[b]] else {
+                continue;
+            };
+            for a in 0..4 {
+                let Some(ia) = free.index[r.nodes[a]] else {
+                    continue;
+                };
+                for kk in 0..3 {
+                    for cc in 0..3 {
+                        k.push((ib + kk, ia + cc, h[(3 * b + kk, 3 * a + cc)]));
+                    }
+                }
+            }
+        }
+    }
+    Ok(k)
 }
 
 /// Everything Eq. 16-21 need from one frame at its equilibrium.
@@ -119,19 +229,10 @@ pub fn linearize(
     let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
     let rest = model.rest();
     let ne = rest.len();
-    let (gs, gv) = (model.gamma_s(), model.gamma_v());
-    let blocks: Vec<_> = (0..ne)
-        .into_par_iter()
-        .map(|e| {
-            (
-                element_hessian(&f[e], &rest[e], gs[e], gv[e], false),
-                element_gamma_derivatives(&f[e], &rest[e]),
-            )
-        })
-        .collect();
-    let mut k = Vec::with_capacity(ne * 144);
+    let k = assemble_k(model, x, &free)?;
     let mut c = Vec::with_capacity(ne * 24);
-    for (e, (r, (h, (ds, dv)))) in rest.iter().zip(&blocks).enumerate() {
+    for (e, r) in rest.iter().enumerate() {
+        let (ds, dv) = element_gamma_derivatives(&f[e], r);
         for b in 0..4 {
             let Some(ib) = free.index[r.nodes[b]] else {
                 continue;
@@ -139,14 +240,6 @@ pub fn linearize(
             for kk in 0..3 {
                 c.push((ib + kk, e, ds[3 * b + kk]));
                 c.push((ib + kk, ne + e, dv[3 * b + kk]));
-                for a in 0..4 {
-                    let Some(ia) = free.index[r.nodes[a]] else {
-                        continue;
-                    };
-                    for cc in 0..3 {
-                        k.push((ib + kk, ia + cc, h[(3 * b + kk, 3 * a + cc)]));
-                    }
-                }
             }
         }
     }

@@ -100,7 +100,12 @@ impl Basis {
         }
     }
     /// `C diag(H, H)` of the triplets `c` (`ndof` rows).
-    fn columns(&self, c: &[(usize, usize, f64)], ndof: usize, ne: usize) -> Vec<(usize, usize, f64)> {
+    fn columns(
+        &self,
+        c: &[(usize, usize, f64)],
+        ndof: usize,
+        ne: usize,
+    ) -> Vec<(usize, usize, f64)> {
         match self {
             Basis::Full => c.to_vec(),
             Basis::Harmonic(h) => {
@@ -162,17 +167,53 @@ pub fn gn_solve(
     for (j, &fx) in fixed.iter().enumerate() {
         t.push((dcol + j, dcol + j, if fx { 1.0 } else { kappa }));
     }
+    // The blocks differ by many orders of magnitude (G ~ m, K ~ Pa m,
+    // C ~ m², κ tiny): equilibrate symmetrically before the LU.
+    let scale = ruiz_scaling(total, &t);
+    for e in t.iter_mut() {
+        e.2 *= scale[e.0] * scale[e.1];
+    }
     let lu = sparse_lu(total, &t).map_err(|e| format!("Gauss-Newton system: {e}"))?;
     let mut rhs = Mat::<f64>::zeros(total, 1);
     for j in 0..m {
-        rhs[(dcol + j, 0)] = if fixed[j] { 0.0 } else { grad[j] };
+        rhs[(dcol + j, 0)] = if fixed[j] {
+            0.0
+        } else {
+            grad[j] * scale[dcol + j]
+        };
     }
     lu.solve_in_place_with_conj(Conj::No, rhs.as_mut());
-    let d: Vec<f64> = (0..m).map(|j| rhs[(dcol + j, 0)]).collect();
+    let d: Vec<f64> = (0..m)
+        .map(|j| rhs[(dcol + j, 0)] * scale[dcol + j])
+        .collect();
     if !d.iter().all(|v| v.is_finite()) {
         return Err("Gauss-Newton direction is not finite".into());
     }
     Ok(d)
+}
+
+/// Symmetric Ruiz equilibration of the matrix `t` (duplicates summed):
+/// `D` with `D A D` having rows of max-norm close to 1.
+fn ruiz_scaling(n: usize, t: &[(usize, usize, f64)]) -> Vec<f64> {
+    let mut sum = std::collections::HashMap::with_capacity(t.len());
+    for &(r, c, v) in t {
+        *sum.entry((r, c)).or_insert(0.0) += v;
+    }
+    let mut entries: Vec<((usize, usize), f64)> = sum.into_iter().collect();
+    entries.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    let mut d = vec![1.0; n];
+    for _ in 0..8 {
+        let mut rmax = vec![0.0f64; n];
+        for &((r, c), v) in &entries {
+            rmax[r] = rmax[r].max((v * d[r] * d[c]).abs());
+        }
+        for (di, m) in d.iter_mut().zip(&rmax) {
+            if *m > 0.0 {
+                *di /= m.sqrt();
+            }
+        }
+    }
+    d
 }
 
 /// What one stage did.
@@ -237,8 +278,9 @@ impl SampleFit<'_> {
             .par_iter()
             .enumerate()
             .map(|(i, fr)| {
-                let (x, st) = equilibrium(&model, self.mass, fr, &starts[i], &self.params.statics())
-                    .map_err(|e| (i, e))?;
+                let (x, st) =
+                    equilibrium(&model, self.mass, fr, &starts[i], &self.params.statics())
+                        .map_err(|e| (i, e))?;
                 let loss = fr.target.loss(&model, &x);
                 if !loss.is_finite() {
                     return Err((i, "the loss is not finite".into()));
@@ -274,7 +316,10 @@ impl SampleFit<'_> {
     }
 
     /// Adjoint linearization of every frame and the total gradient `∂ε/∂γ`.
-    fn linearize(&self, ev: &Evaluated) -> Result<(Vec<FrameLinearization>, Vec<f64>), ElasticFitError> {
+    fn linearize(
+        &self,
+        ev: &Evaluated,
+    ) -> Result<(Vec<FrameLinearization>, Vec<f64>), ElasticFitError> {
         let lins: Vec<Result<FrameLinearization, (usize, String)>> = self
             .sample
             .frames
@@ -295,7 +340,13 @@ impl SampleFit<'_> {
     }
 
     /// One stage from `ev`; returns the new state and the stage report.
-    fn stage(&self, basis: &Basis, name: String, mut ev: Evaluated, loss_goal: f64) -> Result<(Evaluated, StageReport), ElasticFitError> {
+    fn stage(
+        &self,
+        basis: &Basis,
+        name: String,
+        mut ev: Evaluated,
+        loss_goal: f64,
+    ) -> Result<(Evaluated, StageReport), ElasticFitError> {
         let start = Instant::now();
         let ne = self.ne();
         let p = self.params;
@@ -308,7 +359,11 @@ impl SampleFit<'_> {
         };
         let mut q = basis.project(&ev.gamma, ne);
         let back = basis.expand(&q, ne);
-        let off: f64 = back.iter().zip(&ev.gamma).map(|(a, b)| (a - b).powi(2)).sum();
+        let off: f64 = back
+            .iter()
+            .zip(&ev.gamma)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
         if off > 1e-18 * ev.gamma.iter().map(|g| g * g).sum::<f64>() {
             // γ is not in the subspace (a non-uniform start): continue from
             // its projection when that is a valid material, else skip.
@@ -325,6 +380,10 @@ impl SampleFit<'_> {
         rep.losses.push(ev.loss);
         let mut clamped = vec![false; m];
         let mut fixed = vec![false; m];
+        // Levenberg-Marquardt: κ grows when the GN step had to be shortened
+        // or failed, and shrinks when the full step was taken.
+        let mut lm = 1.0f64;
+        let mut failures = 0;
         let floor = p.gamma_floor;
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
@@ -334,9 +393,10 @@ impl SampleFit<'_> {
             let gn = it >= p.gd_iterations;
             let (lins, grad_gamma) = self.linearize(&ev)?;
             let grad = basis.pull(&grad_gamma, ne);
-            let gamma_rms = (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
+            let gamma_rms =
+                (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
             let mut dir: Vec<f64> = if gn {
-                let kappa = p.kappa * ev.loss / (m as f64 * gamma_rms * gamma_rms);
+                let kappa = p.kappa * lm * ev.loss / (m as f64 * gamma_rms * gamma_rms);
                 let raw = self.gn_direction(&lins, basis, &grad, kappa, &fixed)?;
                 let mut d = raw.clone();
                 if full {
@@ -378,6 +438,7 @@ impl SampleFit<'_> {
             }
             let mut step = if gn { p.gn_step } else { p.gd_step };
             let mut accepted = None;
+            let mut halved = 0;
             for _ in 0..=p.max_halvings {
                 let qt: Vec<f64> = q.iter().zip(&dir).map(|(a, b)| a + step * b).collect();
                 let mut gt = basis.expand(&qt, ne);
@@ -406,10 +467,24 @@ impl SampleFit<'_> {
                 }
                 step *= 0.5;
                 rep.halvings += 1;
+                halved += 1;
             }
             let Some((t, newly, qn)) = accepted else {
+                if gn && failures < 3 {
+                    failures += 1;
+                    lm *= 100.0;
+                    continue;
+                }
                 break;
             };
+            failures = 0;
+            if gn {
+                lm = if halved == 0 {
+                    (lm / 3.0).max(1e-6)
+                } else {
+                    lm * 4.0
+                };
+            }
             for j in newly {
                 clamped[j] = true;
             }
@@ -428,7 +503,14 @@ impl SampleFit<'_> {
         Ok((ev, rep))
     }
 
-    fn gn_direction(&self, lins: &[FrameLinearization], basis: &Basis, grad: &[f64], kappa: f64, fixed: &[bool]) -> Result<Vec<f64>, ElasticFitError> {
+    fn gn_direction(
+        &self,
+        lins: &[FrameLinearization],
+        basis: &Basis,
+        grad: &[f64],
+        kappa: f64,
+        fixed: &[bool],
+    ) -> Result<Vec<f64>, ElasticFitError> {
         gn_solve(lins, basis, self.ne(), grad, kappa, fixed)
             .map(|d| d.iter().map(|v| -v).collect())
             .map_err(|e| self.error(0, e))
@@ -448,25 +530,46 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Checks a sample against the mesh; the message names the frame.
-fn validate(mesh: &TetMesh, mass: &[f64], sample: &Sample, model: &ElasticModel) -> Result<(), (usize, String)> {
+fn validate(
+    mesh: &TetMesh,
+    mass: &[f64],
+    sample: &Sample,
+    model: &ElasticModel,
+) -> Result<(), (usize, String)> {
     let n = mesh.num_nodes();
     if sample.frames.is_empty() {
         return Err((0, "the sample has no frames".into()));
     }
     if !(sample.energy > 0.0 && sample.energy.is_finite()) {
-        return Err((0, format!("energy weight {} must be > 0 and finite", sample.energy)));
+        return Err((
+            0,
+            format!("energy weight {} must be > 0 and finite", sample.energy),
+        ));
     }
     if mass.len() != n {
         return Err((0, format!("{} masses for {n} nodes", mass.len())));
     }
     for (i, f) in sample.frames.iter().enumerate() {
         if f.start.len() != n || f.f_ext.len() != n {
-            return Err((i, format!("{} start positions and {} forces for {n} nodes", f.start.len(), f.f_ext.len())));
+            return Err((
+                i,
+                format!(
+                    "{} start positions and {} forces for {n} nodes",
+                    f.start.len(),
+                    f.f_ext.len()
+                ),
+            ));
         }
         if let Some(p) = f.pinned.iter().find(|&&p| p >= n) {
             return Err((i, format!("pinned node {p} but the mesh has {n} nodes")));
         }
-        if !f.start.iter().chain(&f.f_ext).flatten().all(|v| v.is_finite()) {
+        if !f
+            .start
+            .iter()
+            .chain(&f.f_ext)
+            .flatten()
+            .all(|v| v.is_finite())
+        {
             return Err((i, "non-finite start position or force".into()));
         }
         f.target.validate(model).map_err(|e| (i, e))?;
@@ -534,7 +637,11 @@ pub fn fit_sample(
         ev = e;
         reports.push(rep);
     }
-    if let Some(g) = ev.gamma.iter().find(|g| !(g.is_finite() && **g >= params.gamma_floor)) {
+    if let Some(g) = ev
+        .gamma
+        .iter()
+        .find(|g| !(g.is_finite() && **g >= params.gamma_floor))
+    {
         return Err(fit.error(0, format!("fit produced gamma {g}")));
     }
     Ok((MaterialFields::from_stacked(&ev.gamma), reports, loss0))

@@ -77,14 +77,20 @@ impl FrameTarget {
             ));
         }
         if !(h > 0.0 && h.is_finite() && alpha >= 0.0 && alpha.is_finite()) {
-            return Err(format!("voxel size {h} and alpha {alpha} must be > 0, >= 0"));
+            return Err(format!(
+                "voxel size {h} and alpha {alpha} must be > 0, >= 0"
+            ));
         }
         let total_mass: f64 = mass.iter().sum();
         let volume: f64 = model.rest().iter().map(|r| r.volume).sum();
         if !(total_mass > 0.0 && total_mass.is_finite()) {
             return Err(format!("total node mass {total_mass} kg must be > 0"));
         }
-        let f_target = model.rest().iter().map(|r| deformation_gradient(x_hat, r)).collect();
+        let f_target = model
+            .rest()
+            .iter()
+            .map(|r| deformation_gradient(x_hat, r))
+            .collect();
         let positions = (0..n)
             .filter(|&i| mass[i] > 0.0)
             .map(|i| PositionTerm {

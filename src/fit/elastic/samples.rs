@@ -74,8 +74,9 @@ pub fn fold(gamma: &mut MaterialFields, w: f64, gamma_k: &MaterialFields, w_k: f
 }
 
 fn range(v: &[f64]) -> [f64; 2] {
-    v.iter()
-        .fold([f64::INFINITY, f64::NEG_INFINITY], |r, &x| [r[0].min(x), r[1].max(x)])
+    v.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |r, &x| {
+        [r[0].min(x), r[1].max(x)]
+    })
 }
 
 /// Fits per-element materials to the training samples (VH §6): each sample
@@ -115,8 +116,14 @@ pub fn fit_materials(
     let mut w = 0.0f64;
     for sample in inputs.samples {
         let ts = Instant::now();
-        let (gk, stages, loss0) =
-            fit_sample(inputs.mesh, inputs.mass, sample, inputs.init, &basis, params)?;
+        let (gk, stages, loss0) = fit_sample(
+            inputs.mesh,
+            inputs.mass,
+            sample,
+            inputs.init,
+            &basis,
+            params,
+        )?;
         let final_loss = stages
             .last()
             .and_then(|s| s.losses.last().copied())
