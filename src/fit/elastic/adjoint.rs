@@ -1,0 +1,291 @@
+//! Equilibrium per frame (VH Eq. 14) and the adjoint gradient of the loss
+//! (VH Eq. 15-17).
+//!
+//! With `g(x, γ) = ∂E/∂x - f_ext` on the free DOFs (pinned nodes are
+//! Dirichlet: fixed, so the unknowns are the free coordinates),
+//! `K = ∂g/∂x` the exact force Jacobian ([`crate::sim::hessian::element_hessian`]
+//! without projection: the adjoint needs the true linearization) and
+//! `C = ∂g/∂γ` ([`crate::sim::hessian::element_gamma_derivatives`]):
+//! `Kᵀ λ = ∂ε/∂xᵀ` (Eq. 17) and `∂ε/∂γ = -λᵀ C` (Eq. 16). `K` is
+//! factorized by sparse LU (faer): it is symmetric except where the 0.01
+//! singular-value floor is active, and need not be definite away from a
+//! stable equilibrium; the LU solves with `Kᵀ` exactly.
+
+use faer::linalg::solvers::SolveCore;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{Conj, Mat};
+use rayon::prelude::*;
+
+use super::loss::FrameTarget;
+use super::Frame;
+use crate::geom::Vec3;
+use crate::sim::energy::ElasticModel;
+use crate::sim::hessian::{element_gamma_derivatives, element_hessian};
+use crate::sim::statics::{StaticParams, StaticSolver, StaticStats};
+
+/// Free DOFs of a frame: 3 per unpinned node, in node order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FreeDofs {
+    /// First DOF of each node, None when pinned.
+    pub index: Vec<Option<usize>>,
+    /// Number of free DOFs.
+    pub ndof: usize,
+}
+
+impl FreeDofs {
+    /// Free DOFs of `n` nodes with `pinned` fixed (indices checked by the caller).
+    pub fn new(n: usize, pinned: &[usize]) -> FreeDofs {
+        let mut is_pinned = vec![false; n];
+        for &p in pinned {
+            if p < n {
+                is_pinned[p] = true;
+            }
+        }
+        let mut index = vec![None; n];
+        let mut ndof = 0;
+        for i in 0..n {
+            if !is_pinned[i] {
+                index[i] = Some(ndof);
+                ndof += 3;
+            }
+        }
+        FreeDofs { index, ndof }
+    }
+}
+
+/// Newton tolerance of the projected-Hessian solve before polishing: the
+/// energy line search of [`StaticSolver`] stalls near 1e-8 (energy changes
+/// reach rounding), so tighter residuals come from exact Newton steps.
+const COARSE_TOLERANCE: f64 = 1e-6;
+
+/// Equilibrium of `frame` under `model` (VH Eq. 14, quasi-static) from
+/// `start` (pinned nodes are put at the frame's own start positions):
+/// [`StaticSolver`] to `max(tolerance, 1e-6)`, then, as VH §8 does after PD,
+/// a few full Newton steps with the exact force Jacobian (sparse LU) until
+/// the relative residual (as [`crate::sim::statics`] defines it) is at most
+/// `params.tolerance`.
+pub fn equilibrium(
+    model: &ElasticModel,
+    mass: &[f64],
+    frame: &Frame,
+    start: &[Vec3],
+    params: &StaticParams,
+) -> Result<(Vec<Vec3>, StaticStats), String> {
+    let mut solver =
+        StaticSolver::new(model.clone(), mass, &frame.pinned).map_err(|e| e.to_string())?;
+    let mut x0 = start.to_vec();
+    for &p in &frame.pinned {
+        x0[p] = frame.start[p];
+    }
+    let coarse = StaticParams {
+        tolerance: params.tolerance.max(COARSE_TOLERANCE),
+        ..*params
+    };
+    let (mut x, mut stats) = solver
+        .solve(&x0, &frame.f_ext, None, &coarse)
+        .map_err(|e| format!("no equilibrium: {e}"))?;
+    let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
+    let (mut g, mut rel) = residual(model, frame, &x, &free)?;
+    let mut polish = 0;
+    while rel > params.tolerance && polish < 8 {
+        polish += 1;
+        let k = assemble_k(model, &x, &free)?;
+        let lu = sparse_lu(free.ndof, &k)?;
+        let mut rhs = Mat::<f64>::from_fn(free.ndof, 1, |i, _| -g[i]);
+        lu.solve_in_place_with_conj(Conj::No, rhs.as_mut());
+        let mut step = 1.0;
+        let mut improved = false;
+        for _ in 0..4 {
+            let trial: Vec<Vec3> = x
+                .iter()
+                .enumerate()
+                .map(|(i, p)| match free.index[i] {
+                    Some(d) => std::array::from_fn(|c| p[c] + step * rhs[(d + c, 0)]),
+                    None => *p,
+                })
+                .collect();
+            let (gt, rt) = residual(model, frame, &trial, &free)?;
+            if rt < rel {
+                (x, g, rel, improved) = (trial, gt, rt, true);
+                break;
+            }
+            step *= 0.5;
+        }
+        stats.iterations += 1;
+        stats.residuals.push(rel);
+        if !improved {
+            break;
+        }
+    }
+    if !(rel <= params.tolerance) || !x.iter().flatten().all(|v| v.is_finite()) {
+        return Err(format!(
+            "no equilibrium: relative residual {rel:e} > {:e}",
+            params.tolerance
+        ));
+    }
+    Ok((x, stats))
+}
+
+/// `g = ∂E/∂x - f_ext` on the free DOFs and its relative size: largest free
+/// node residual over the largest free-node external or elastic force.
+fn residual(
+    model: &ElasticModel,
+    frame: &Frame,
+    x: &[Vec3],
+    free: &FreeDofs,
+) -> Result<(Vec<f64>, f64), String> {
+    let grad = model.gradient(x).map_err(|e| e.to_string())?;
+    let mut g = vec![0.0; free.ndof];
+    let (mut worst, mut scale) = (0.0f64, 0.0f64);
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    for (i, fi) in free.index.iter().enumerate() {
+        if let Some(d) = fi {
+            let f = frame.f_ext[i];
+            let r = [grad[i][0] - f[0], grad[i][1] - f[1], grad[i][2] - f[2]];
+            g[*d..*d + 3].copy_from_slice(&r);
+            worst = worst.max(norm(r));
+            scale = scale.max(norm(f)).max(norm(grad[i]));
+        }
+    }
+    let rel = if scale > 0.0 { worst / scale } else { worst };
+    if !rel.is_finite() {
+        return Err("non-finite residual".into());
+    }
+    Ok((g, rel))
+}
+
+/// Exact `K = ∂g/∂x` on the free DOFs (entries, duplicates summed).
+fn assemble_k(
+    model: &ElasticModel,
+    x: &[Vec3],
+    free: &FreeDofs,
+) -> Result<Vec<(usize, usize, f64)>, String> {
+    let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
+    let rest = model.rest();
+    let (gs, gv) = (model.gamma_s(), model.gamma_v());
+    let blocks: Vec<_> = (0..rest.len())
+        .into_par_iter()
+        .map(|e| element_hessian(&f[e], &rest[e], gs[e], gv[e], false))
+        .collect();
+    let mut k = Vec::with_capacity(rest.len() * 144);
+    for (r, h) in rest.iter().zip(&blocks) {
+        for b in 0..4 {
+            let Some(ib) = free.index[r.nodes[b]] else {
+                continue;
+            };
+            for a in 0..4 {
+                let Some(ia) = free.index[r.nodes[a]] else {
+                    continue;
+                };
+                for kk in 0..3 {
+                    for cc in 0..3 {
+                        k.push((ib + kk, ia + cc, h[(3 * b + kk, 3 * a + cc)]));
+                    }
+                }
+            }
+        }
+    }
+    Ok(k)
+}
+
+/// Everything Eq. 16-21 need from one frame at its equilibrium.
+pub struct FrameLinearization {
+    pub free: FreeDofs,
+    /// `K = ∂g/∂x` on free DOFs, entries (row, col, value), duplicates summed.
+    pub k: Vec<(usize, usize, f64)>,
+    /// `C = ∂g/∂γ`: (free DOF, index in the stacked `γ` of length 2 n_E, value).
+    pub c: Vec<(usize, usize, f64)>,
+    /// `G = ∂²ε/∂x²` on free DOFs (row, col, value).
+    pub g: Vec<(usize, usize, f64)>,
+    /// `∂ε/∂x` on free DOFs.
+    pub de_dx: Vec<f64>,
+    /// The adjoint state `λ` (Eq. 17).
+    pub lambda: Vec<f64>,
+    /// `∂ε/∂γ` (Eq. 16), stacked `[γs; γv]`.
+    pub grad: Vec<f64>,
+}
+
+/// Sparse LU of the square matrix given by `entries`.
+pub(crate) fn sparse_lu(
+    n: usize,
+    entries: &[(usize, usize, f64)],
+) -> Result<faer::sparse::linalg::solvers::Lu<usize, f64>, String> {
+    let trip: Vec<Triplet<usize, usize, f64>> = entries
+        .iter()
+        .map(|&(r, c, v)| Triplet::new(r, c, v))
+        .collect();
+    let a = SparseColMat::try_new_from_triplets(n, n, &trip).map_err(|e| format!("{e:?}"))?;
+    a.sp_lu().map_err(|e| format!("sparse LU: {e:?}"))
+}
+
+/// Linearizes `frame` at its equilibrium `x` under `model`: `K`, `C`, `G`,
+/// and the adjoint gradient.
+pub fn linearize(
+    model: &ElasticModel,
+    frame: &Frame,
+    x: &[Vec3],
+) -> Result<FrameLinearization, String> {
+    let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
+    let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
+    let rest = model.rest();
+    let ne = rest.len();
+    let k = assemble_k(model, x, &free)?;
+    let mut c = Vec::with_capacity(ne * 24);
+    for (e, r) in rest.iter().enumerate() {
+        let (ds, dv) = element_gamma_derivatives(&f[e], r);
+        for b in 0..4 {
+            let Some(ib) = free.index[r.nodes[b]] else {
+                continue;
+            };
+            for kk in 0..3 {
+                c.push((ib + kk, e, ds[3 * b + kk]));
+                c.push((ib + kk, ne + e, dv[3 * b + kk]));
+            }
+        }
+    }
+    let g = free_hessian(&frame.target, model, &free);
+    let dfull = frame.target.gradient(model, x);
+    let mut de_dx = vec![0.0; free.ndof];
+    for (i, fi) in free.index.iter().enumerate() {
+        if let Some(d) = fi {
+            de_dx[*d..*d + 3].copy_from_slice(&dfull[i]);
+        }
+    }
+    let lu = sparse_lu(free.ndof, &k).map_err(|e| format!("force Jacobian: {e}"))?;
+    let mut rhs = Mat::<f64>::from_fn(free.ndof, 1, |i, _| de_dx[i]);
+    lu.solve_transpose_in_place_with_conj(Conj::No, rhs.as_mut());
+    let lambda: Vec<f64> = (0..free.ndof).map(|i| rhs[(i, 0)]).collect();
+    if !lambda.iter().all(|v| v.is_finite()) {
+        return Err("the force Jacobian is singular (adjoint not finite)".into());
+    }
+    let mut grad = vec![0.0; 2 * ne];
+    for &(row, j, v) in &c {
+        grad[j] -= lambda[row] * v;
+    }
+    Ok(FrameLinearization {
+        free,
+        k,
+        c,
+        g,
+        de_dx,
+        lambda,
+        grad,
+    })
+}
+
+/// `G` of the frame's loss on the free DOFs (3 coordinates expanded).
+fn free_hessian(
+    target: &FrameTarget,
+    model: &ElasticModel,
+    free: &FreeDofs,
+) -> Vec<(usize, usize, f64)> {
+    let mut g = Vec::new();
+    for (i, j, v) in target.hessian_entries(model) {
+        if let (Some(a), Some(b)) = (free.index[i], free.index[j]) {
+            for c in 0..3 {
+                g.push((a + c, b + c, v));
+            }
+        }
+    }
+    g
+}

@@ -1,0 +1,648 @@
+//! The staged optimizer of one sample (VH §6.1-6.3, §6.5): gradient descent
+//! then adjoint Gauss-Newton, in harmonic subspaces of growing rank and then
+//! on the full per-element field, with line search and non-negativity.
+//!
+//! # Gauss-Newton direction (Eq. 19-21)
+//! For frames `i` with `K_i = ∂g_i/∂x`, `C_i = ∂g_i/∂q` (`q` the parameters:
+//! `γ` itself, or the harmonic coefficients with `C_i ← C_i diag(H, H)`,
+//! Eq. 24) and `G_i = ∂²ε_i/∂x²`, the sparse system of Zehnder et al. 2021
+//! (VH Eq. 21), one `(μ_i, ν_i)` pair per frame and a shared `d`:
+//!
+//! ```text
+//! [ G_i   -K_iᵀ   0   ] [μ_i]   [ 0  ]
+//! [ -K_i   0     C_i  ] [ν_i] = [ 0  ]
+//! [ 0     C_iᵀ   κ I  ] [ d ]   [ ∇ε ]
+//! ```
+//!
+//! gives `(Σ_i P_i + κ I) d = ∇ε` with `P_i = J_iᵀ G_i J_i`, `J_i = -K_i⁻¹ C_i`
+//! (Eq. 19-20); the search direction is `-d`. The Levenberg-Marquardt `κ I`
+//! sits on the `d` block, so the result is exactly the damped Eq. 20 (VH
+//! adds `κ I` "at the l.h.s."; on the other blocks it would perturb `P`).
+//! Solved by sparse LU (faer) with partial pivoting.
+//!
+//! # Steps and non-negativity (§6.3)
+//! Line search: the first trial step is `gd_step` (GD) or `gn_step` (GN),
+//! halved while the loss does not decrease (a trial whose equilibrium fails
+//! counts as an increase). On the full field, components that a step would
+//! take below `gamma_floor` are set to it and remembered ("clamped"); a
+//! later direction that would lower a clamped component has that component
+//! zeroed; if the zeroed GN direction is no longer a descent direction, the
+//! clamped components it wanted to lower are pivoted: held at the floor and
+//! removed from the GN system for the rest of the stage. In a harmonic
+//! subspace a trial with any `γ` below the floor counts as an increase.
+
+use std::time::Instant;
+
+use faer::linalg::solvers::SolveCore;
+use faer::{Conj, Mat};
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+
+use super::adjoint::{equilibrium, linearize, sparse_lu, FrameLinearization};
+use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
+use crate::geom::{TetMesh, Vec3};
+use crate::sim::energy::ElasticModel;
+
+/// The parametrization of a stage: `γ` itself or harmonic coefficients.
+#[derive(Debug, Clone)]
+pub enum Basis {
+    /// One parameter per `γs_e` and `γv_e`.
+    Full,
+    /// `γ = diag(H, H) q` (Eq. 23), `H` of size `n_E x r`.
+    Harmonic(DMatrix<f64>),
+}
+
+impl Basis {
+    /// Number of parameters for `ne` tets.
+    pub fn dim(&self, ne: usize) -> usize {
+        match self {
+            Basis::Full => 2 * ne,
+            Basis::Harmonic(h) => 2 * h.ncols(),
+        }
+    }
+    /// `γ` (stacked) of the parameters `q`.
+    pub fn expand(&self, q: &[f64], ne: usize) -> Vec<f64> {
+        match self {
+            Basis::Full => q.to_vec(),
+            Basis::Harmonic(h) => {
+                let r = h.ncols();
+                let mut g = vec![0.0; 2 * ne];
+                for half in 0..2 {
+                    for e in 0..ne {
+                        g[half * ne + e] = (0..r).map(|k| h[(e, k)] * q[half * r + k]).sum();
+                    }
+                }
+                g
+            }
+        }
+    }
+    /// Least-squares parameters of `γ` (exact when `γ` lies in the span).
+    pub fn project(&self, gamma: &[f64], ne: usize) -> Vec<f64> {
+        match self {
+            Basis::Full => gamma.to_vec(),
+            Basis::Harmonic(_) => self.pull(gamma, ne),
+        }
+    }
+    /// `diag(H, H)ᵀ v` (the chain rule of §6.5): gradients to parameters.
+    pub fn pull(&self, v: &[f64], ne: usize) -> Vec<f64> {
+        match self {
+            Basis::Full => v.to_vec(),
+            Basis::Harmonic(h) => {
+                let r = h.ncols();
+                let mut q = vec![0.0; 2 * r];
+                for half in 0..2 {
+                    for k in 0..r {
+                        q[half * r + k] = (0..ne).map(|e| h[(e, k)] * v[half * ne + e]).sum();
+                    }
+                }
+                q
+            }
+        }
+    }
+    /// `C diag(H, H)` of the triplets `c` (`ndof` rows).
+    fn columns(
+        &self,
+        c: &[(usize, usize, f64)],
+        ndof: usize,
+        ne: usize,
+    ) -> Vec<(usize, usize, f64)> {
+        match self {
+            Basis::Full => c.to_vec(),
+            Basis::Harmonic(h) => {
+                let r = h.ncols();
+                let mut dense = DMatrix::<f64>::zeros(ndof, 2 * r);
+                for &(row, j, v) in c {
+                    let (half, e) = (j / ne, j % ne);
+                    for k in 0..r {
+                        dense[(row, half * r + k)] += v * h[(e, k)];
+                    }
+                }
+                let mut out = Vec::new();
+                for col in 0..2 * r {
+                    for row in 0..ndof {
+                        let v = dense[(row, col)];
+                        if v != 0.0 {
+                            out.push((row, col, v));
+                        }
+                    }
+                }
+                out
+            }
+        }
+    }
+}
+
+/// The damped Gauss-Newton step `d` of Eq. 20-21: solves
+/// `(Σ_i P_i + κ I) d = grad` through the sparse system of Eq. 21 (module
+/// doc). Parameters with `fixed[j]` are removed (their `d_j` is 0). Returns
+/// `d`; the search direction is `-d`.
+pub fn gn_solve(
+    lins: &[FrameLinearization],
+    basis: &Basis,
+    ne: usize,
+    grad: &[f64],
+    kappa: f64,
+    fixed: &[bool],
+) -> Result<Vec<f64>, String> {
+    let m = grad.len();
+    let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
+    let dcol = total - m;
+    let mut t = Vec::new();
+    let mut off = 0;
+    for l in lins {
+        let n = l.free.ndof;
+        t.extend(l.g.iter().map(|&(r, c, v)| (off + r, off + c, v)));
+        for &(r, c, v) in &l.k {
+            t.push((off + c, off + n + r, -v));
+            t.push((off + n + r, off + c, -v));
+        }
+        for (r, j, v) in basis.columns(&l.c, n, ne) {
+            if !fixed[j] {
+                t.push((off + n + r, dcol + j, v));
+                t.push((dcol + j, off + n + r, v));
+            }
+        }
+        off += 2 * n;
+    }
+    for (j, &fx) in fixed.iter().enumerate() {
+        t.push((dcol + j, dcol + j, if fx { 1.0 } else { kappa }));
+    }
+    // The blocks differ by many orders of magnitude (G ~ m, K ~ Pa m,
+    // C ~ m², κ tiny): equilibrate symmetrically before the LU.
+    let scale = ruiz_scaling(total, &t);
+    for e in t.iter_mut() {
+        e.2 *= scale[e.0] * scale[e.1];
+    }
+    let lu = sparse_lu(total, &t).map_err(|e| format!("Gauss-Newton system: {e}"))?;
+    let mut rhs = Mat::<f64>::zeros(total, 1);
+    for j in 0..m {
+        rhs[(dcol + j, 0)] = if fixed[j] {
+            0.0
+        } else {
+            grad[j] * scale[dcol + j]
+        };
+    }
+    lu.solve_in_place_with_conj(Conj::No, rhs.as_mut());
+    let d: Vec<f64> = (0..m)
+        .map(|j| rhs[(dcol + j, 0)] * scale[dcol + j])
+        .collect();
+    if !d.iter().all(|v| v.is_finite()) {
+        return Err("Gauss-Newton direction is not finite".into());
+    }
+    Ok(d)
+}
+
+/// Symmetric Ruiz equilibration of the matrix `t` (duplicates summed):
+/// `D` with `D A D` having rows of max-norm close to 1.
+fn ruiz_scaling(n: usize, t: &[(usize, usize, f64)]) -> Vec<f64> {
+    let mut sum = std::collections::HashMap::with_capacity(t.len());
+    for &(r, c, v) in t {
+        *sum.entry((r, c)).or_insert(0.0) += v;
+    }
+    let mut entries: Vec<((usize, usize), f64)> = sum.into_iter().collect();
+    entries.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    let mut d = vec![1.0; n];
+    for _ in 0..8 {
+        let mut rmax = vec![0.0f64; n];
+        for &((r, c), v) in &entries {
+            rmax[r] = rmax[r].max((v * d[r] * d[c]).abs());
+        }
+        for (di, m) in d.iter_mut().zip(&rmax) {
+            if *m > 0.0 {
+                *di /= m.sqrt();
+            }
+        }
+    }
+    d
+}
+
+/// What one stage did.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct StageReport {
+    /// "harmonic r=N" or "full".
+    pub name: String,
+    /// Number of parameters.
+    pub parameters: usize,
+    /// Loss (m³) at the stage start, then after each accepted iteration.
+    pub losses: Vec<f64>,
+    /// "gd" or "gn" per accepted iteration.
+    pub methods: Vec<String>,
+    /// Iterations tried (accepted or not).
+    pub iterations: u32,
+    /// Line-search halvings in total.
+    pub halvings: u32,
+    /// Components projected to the floor (full stage).
+    pub clamped: usize,
+    /// Components pivoted out of the GN system (full stage).
+    pub pivoted: usize,
+    /// Newton iterations of all equilibrium solves.
+    pub newton_iterations: u64,
+    /// Largest relative force residual of the frames at the stage end.
+    pub final_residual: f64,
+    /// Wall time (ms).
+    pub ms: f64,
+}
+
+/// A material and its equilibria.
+struct Evaluated {
+    gamma: Vec<f64>,
+    model: ElasticModel,
+    xs: Vec<Vec<Vec3>>,
+    loss: f64,
+    residual: f64,
+    newton: u64,
+}
+
+/// Context of one sample's fit.
+struct SampleFit<'a> {
+    mesh: &'a TetMesh,
+    mass: &'a [f64],
+    sample: &'a Sample,
+    params: &'a ElasticFitParams,
+}
+
+impl SampleFit<'_> {
+    fn ne(&self) -> usize {
+        self.mesh.num_tets()
+    }
+
+    /// Equilibria and loss at `gamma`, warm-started from `starts`. The error
+    /// carries the failing frame.
+    fn evaluate(&self, gamma: &[f64], starts: &[Vec<Vec3>]) -> Result<Evaluated, (usize, String)> {
+        let ne = self.ne();
+        let model = ElasticModel::new(self.mesh, &gamma[..ne], &gamma[ne..])
+            .map_err(|e| (0, e.to_string()))?;
+        let frames: Vec<Result<(Vec<Vec3>, f64, f64, u64), (usize, String)>> = self
+            .sample
+            .frames
+            .par_iter()
+            .enumerate()
+            .map(|(i, fr)| {
+                let (x, st) =
+                    equilibrium(&model, self.mass, fr, &starts[i], &self.params.statics())
+                        .map_err(|e| (i, e))?;
+                let loss = fr.target.loss(&model, &x);
+                if !loss.is_finite() {
+                    return Err((i, "the loss is not finite".into()));
+                }
+                let res = st.residuals.last().copied().unwrap_or(0.0);
+                Ok((x, loss, res, st.iterations as u64))
+            })
+            .collect();
+        let mut ev = Evaluated {
+            gamma: gamma.to_vec(),
+            model,
+            xs: Vec::new(),
+            loss: 0.0,
+            residual: 0.0,
+            newton: 0,
+        };
+        for f in frames {
+            let (x, l, r, it) = f?;
+            ev.xs.push(x);
+            ev.loss += l;
+            ev.residual = ev.residual.max(r);
+            ev.newton += it;
+        }
+        Ok(ev)
+    }
+
+    fn error(&self, frame: usize, message: String) -> ElasticFitError {
+        ElasticFitError::Sample {
+            sample: self.sample.name.clone(),
+            frame,
+            message,
+        }
+    }
+
+    /// Adjoint linearization of every frame and the total gradient `∂ε/∂γ`.
+    fn linearize(
+        &self,
+        ev: &Evaluated,
+    ) -> Result<(Vec<FrameLinearization>, Vec<f64>), ElasticFitError> {
+        let lins: Vec<Result<FrameLinearization, (usize, String)>> = self
+            .sample
+            .frames
+            .par_iter()
+            .enumerate()
+            .map(|(i, fr)| linearize(&ev.model, fr, &ev.xs[i]).map_err(|e| (i, e)))
+            .collect();
+        let mut out = Vec::with_capacity(lins.len());
+        let mut grad = vec![0.0; 2 * self.ne()];
+        for l in lins {
+            let l = l.map_err(|(i, e)| self.error(i, e))?;
+            for (g, v) in grad.iter_mut().zip(&l.grad) {
+                *g += v;
+            }
+            out.push(l);
+        }
+        Ok((out, grad))
+    }
+
+    /// One stage from `ev`; returns the new state and the stage report.
+    fn stage(
+        &self,
+        basis: &Basis,
+        name: String,
+        mut ev: Evaluated,
+        loss_goal: f64,
+    ) -> Result<(Evaluated, StageReport), ElasticFitError> {
+        let start = Instant::now();
+        let ne = self.ne();
+        let p = self.params;
+        let m = basis.dim(ne);
+        let full = matches!(basis, Basis::Full);
+        let mut rep = StageReport {
+            name,
+            parameters: m,
+            ..Default::default()
+        };
+        let mut q = basis.project(&ev.gamma, ne);
+        let back = basis.expand(&q, ne);
+        let off: f64 = back
+            .iter()
+            .zip(&ev.gamma)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        if off > 1e-18 * ev.gamma.iter().map(|g| g * g).sum::<f64>() {
+            // γ is not in the subspace (a non-uniform start): continue from
+            // its projection when that is a valid material, else skip.
+            if back.iter().all(|g| *g >= p.gamma_floor) {
+                if let Ok(t) = self.evaluate(&back, &ev.xs) {
+                    ev = t;
+                }
+            }
+            if ev.gamma != back {
+                rep.name.push_str(" (skipped: start not representable)");
+                return Ok((ev, rep));
+            }
+        }
+        rep.losses.push(ev.loss);
+        let mut clamped = vec![false; m];
+        let mut fixed = vec![false; m];
+        // Levenberg-Marquardt: κ grows when the GN step had to be shortened
+        // or failed, and shrinks when the full step was taken.
+        let mut lm = 1.0f64;
+        let mut failures = 0;
+        let floor = p.gamma_floor;
+        for it in 0..p.gd_iterations + p.gn_iterations {
+            if ev.loss <= loss_goal {
+                break;
+            }
+            rep.iterations += 1;
+            let gn = it >= p.gd_iterations;
+            let (lins, grad_gamma) = self.linearize(&ev)?;
+            let grad = basis.pull(&grad_gamma, ne);
+            let gamma_rms =
+                (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
+            let mut dir: Vec<f64> = if gn {
+                let kappa = p.kappa * lm * ev.loss / (m as f64 * gamma_rms * gamma_rms);
+                let raw = self.gn_direction(&lins, basis, &grad, kappa, &fixed)?;
+                let mut d = raw.clone();
+                if full {
+                    zero_clamped(&mut d, &clamped);
+                    if dot(&grad, &d) >= 0.0 {
+                        // §6.3 pivoting: hold the clamped components the
+                        // direction wanted to lower, and solve again.
+                        for j in 0..m {
+                            if clamped[j] && raw[j] < 0.0 && !fixed[j] {
+                                fixed[j] = true;
+                                rep.pivoted += 1;
+                            }
+                        }
+                        d = self.gn_direction(&lins, basis, &grad, kappa, &fixed)?;
+                        zero_clamped(&mut d, &clamped);
+                    }
+                }
+                d
+            } else {
+                let mut d: Vec<f64> = grad.iter().map(|g| -g).collect();
+                if full {
+                    zero_clamped(&mut d, &clamped);
+                }
+                // Step 1 changes the most sensitive γ by the RMS of γ.
+                let dg = basis.expand(&d, ne);
+                let big = dg.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                if big > 0.0 {
+                    d.iter_mut().for_each(|v| *v *= gamma_rms / big);
+                }
+                d
+            };
+            for j in 0..m {
+                if fixed[j] {
+                    dir[j] = 0.0;
+                }
+            }
+            if !(dot(&grad, &dir) < 0.0) {
+                break;
+            }
+            let mut step = if gn { p.gn_step } else { p.gd_step };
+            let mut accepted = None;
+            let mut halved = 0;
+            for _ in 0..=p.max_halvings {
+                let qt: Vec<f64> = q.iter().zip(&dir).map(|(a, b)| a + step * b).collect();
+                let mut gt = basis.expand(&qt, ne);
+                let mut newly = Vec::new();
+                let feasible = if full {
+                    for (j, g) in gt.iter_mut().enumerate() {
+                        if *g < floor || fixed[j] {
+                            if !fixed[j] {
+                                newly.push(j);
+                            }
+                            *g = floor;
+                        }
+                    }
+                    true
+                } else {
+                    gt.iter().all(|g| *g >= floor)
+                };
+                if feasible && gt.iter().all(|g| g.is_finite()) {
+                    if let Ok(t) = self.evaluate(&gt, &ev.xs) {
+                        rep.newton_iterations += t.newton;
+                        if t.loss < ev.loss {
+                            accepted = Some((t, newly, if full { gt.clone() } else { qt }));
+                            break;
+                        }
+                    }
+                }
+                step *= 0.5;
+                rep.halvings += 1;
+                halved += 1;
+            }
+            let Some((t, newly, qn)) = accepted else {
+                if gn && failures < 3 {
+                    failures += 1;
+                    lm *= 100.0;
+                    continue;
+                }
+                break;
+            };
+            failures = 0;
+            if gn {
+                lm = if halved == 0 {
+                    (lm / 3.0).max(1e-6)
+                } else {
+                    lm * 4.0
+                };
+            }
+            for j in newly {
+                clamped[j] = true;
+            }
+            let decrease = (ev.loss - t.loss) / ev.loss;
+            q = qn;
+            ev = t;
+            rep.losses.push(ev.loss);
+            rep.methods.push(if gn { "gn" } else { "gd" }.into());
+            if decrease < p.min_decrease {
+                break;
+            }
+        }
+        rep.clamped = clamped.iter().filter(|c| **c).count();
+        rep.final_residual = ev.residual;
+        rep.ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok((ev, rep))
+    }
+
+    fn gn_direction(
+        &self,
+        lins: &[FrameLinearization],
+        basis: &Basis,
+        grad: &[f64],
+        kappa: f64,
+        fixed: &[bool],
+    ) -> Result<Vec<f64>, ElasticFitError> {
+        gn_solve(lins, basis, self.ne(), grad, kappa, fixed)
+            .map(|d| d.iter().map(|v| -v).collect())
+            .map_err(|e| self.error(0, e))
+    }
+}
+
+fn zero_clamped(d: &mut [f64], clamped: &[bool]) {
+    for (v, &c) in d.iter_mut().zip(clamped) {
+        if c && *v < 0.0 {
+            *v = 0.0;
+        }
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Checks a sample against the mesh; the message names the frame.
+fn validate(
+    mesh: &TetMesh,
+    mass: &[f64],
+    sample: &Sample,
+    model: &ElasticModel,
+) -> Result<(), (usize, String)> {
+    let n = mesh.num_nodes();
+    if sample.frames.is_empty() {
+        return Err((0, "the sample has no frames".into()));
+    }
+    if !(sample.energy > 0.0 && sample.energy.is_finite()) {
+        return Err((
+            0,
+            format!("energy weight {} must be > 0 and finite", sample.energy),
+        ));
+    }
+    if mass.len() != n {
+        return Err((0, format!("{} masses for {n} nodes", mass.len())));
+    }
+    for (i, f) in sample.frames.iter().enumerate() {
+        if f.start.len() != n || f.f_ext.len() != n {
+            return Err((
+                i,
+                format!(
+                    "{} start positions and {} forces for {n} nodes",
+                    f.start.len(),
+                    f.f_ext.len()
+                ),
+            ));
+        }
+        if let Some(p) = f.pinned.iter().find(|&&p| p >= n) {
+            return Err((i, format!("pinned node {p} but the mesh has {n} nodes")));
+        }
+        if !f
+            .start
+            .iter()
+            .chain(&f.f_ext)
+            .flatten()
+            .all(|v| v.is_finite())
+        {
+            return Err((i, "non-finite start position or force".into()));
+        }
+        f.target.validate(model).map_err(|e| (i, e))?;
+    }
+    Ok(())
+}
+
+/// Fits one sample from `init` (VH §6.1-6.3, §6.5): for each rank of
+/// `params.harmonic_ranks` (columns of `harmonic`, the basis of
+/// [`super::harmonic::harmonic_basis`] with at least that many columns), a
+/// stage in that subspace, then the full field when `params.full_stage`.
+/// Every stage runs `gd_iterations` of gradient descent, then
+/// `gn_iterations` of Gauss-Newton. Returns the fitted materials, the stage
+/// reports, and the loss at `init`.
+pub fn fit_sample(
+    mesh: &TetMesh,
+    mass: &[f64],
+    sample: &Sample,
+    init: &MaterialFields,
+    harmonic: &DMatrix<f64>,
+    params: &ElasticFitParams,
+) -> Result<(MaterialFields, Vec<StageReport>, f64), ElasticFitError> {
+    params.check()?;
+    let ne = mesh.num_tets();
+    let model = ElasticModel::new(mesh, &init.gamma_s, &init.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(format!("initial material: {e}")))?;
+    if init.stacked().iter().any(|g| *g < params.gamma_floor) {
+        return Err(ElasticFitError::Inconsistent(format!(
+            "initial material below the floor {} Pa",
+            params.gamma_floor
+        )));
+    }
+    let fit = SampleFit {
+        mesh,
+        mass,
+        sample,
+        params,
+    };
+    validate(mesh, mass, sample, &model).map_err(|(i, e)| fit.error(i, e))?;
+    let starts: Vec<Vec<Vec3>> = sample.frames.iter().map(|f| f.start.clone()).collect();
+    let mut ev = fit
+        .evaluate(&init.stacked(), &starts)
+        .map_err(|(i, e)| fit.error(i, e))?;
+    let loss0 = ev.loss;
+    let goal = params.loss_stop * loss0;
+    let mut reports = Vec::new();
+    for &r in &params.harmonic_ranks {
+        if r == 0 || r >= ne {
+            continue;
+        }
+        if harmonic.ncols() < r || harmonic.nrows() != ne {
+            return Err(ElasticFitError::Harmonic(format!(
+                "rank {r} asked but the basis is {} x {} for {ne} tets",
+                harmonic.nrows(),
+                harmonic.ncols()
+            )));
+        }
+        let basis = Basis::Harmonic(harmonic.columns(0, r).into_owned());
+        let (e, rep) = fit.stage(&basis, format!("harmonic r={r}"), ev, goal)?;
+        ev = e;
+        reports.push(rep);
+    }
+    if params.full_stage {
+        let (e, rep) = fit.stage(&Basis::Full, "full".into(), ev, goal)?;
+        ev = e;
+        reports.push(rep);
+    }
+    if let Some(g) = ev
+        .gamma
+        .iter()
+        .find(|g| !(g.is_finite() && **g >= params.gamma_floor))
+    {
+        return Err(fit.error(0, format!("fit produced gamma {g}")));
+    }
+    Ok((MaterialFields::from_stacked(&ev.gamma), reports, loss0))
+}

@@ -1,0 +1,210 @@
+//! Elasticity fitting (VH 2024 §6, Eq. 9-24): per-element `γs`, `γv` of the
+//! Eq. 7 energy learned from target poses of the tet mesh.
+//!
+//! * [`loss`]: the loss of VH Eq. 10 for one frame (deformation-gradient term
+//!   plus the α position term), its gradient and its constant Hessian `G`.
+//! * [`adjoint`]: the equilibrium of Eq. 14 per frame ([`crate::sim::statics`])
+//!   and the adjoint gradient of the loss (Eq. 16-17).
+//! * [`gauss_newton`]: the adjoint Gauss-Newton direction (Eq. 19-21, with the
+//!   Levenberg-Marquardt `κ I`), line search and the non-negativity
+//!   projection / pivoting of §6.3, and the staged optimizer of one sample.
+//! * [`harmonic`]: the harmonic bases of §6.5 (lowest eigenvectors of the
+//!   tet-mesh graph Laplacian).
+//! * [`samples`]: sample-by-sample fitting with the energy-weighted convex
+//!   average of Eq. 22, and the driver [`fit_materials`].
+//!
+//! Units: positions m, forces N, `γ` Pa, loss m³ (`V_e |F - F̂|²`; the
+//! position term is made commensurate by its weights, [`loss::FrameTarget`]).
+//! Pure: no files, no printing, no environment.
+
+pub mod adjoint;
+pub mod gauss_newton;
+pub mod harmonic;
+pub mod loss;
+pub mod samples;
+
+#[cfg(test)]
+mod tests;
+
+use crate::geom::Vec3;
+use crate::sim::statics::StaticParams;
+
+pub use gauss_newton::{fit_sample, StageReport};
+pub use loss::{FrameTarget, PositionTerm};
+pub use samples::{fit_materials, FitInputs, FitReport, SampleReport};
+
+/// Errors of elasticity fitting. Every error about a sample names it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ElasticFitError {
+    /// Inputs that do not fit together (lengths, indices, parameters).
+    #[error("inconsistent inputs: {0}")]
+    Inconsistent(String),
+    /// A sample that cannot be fitted: its frame has no equilibrium, a
+    /// non-finite value or an inverted target, or the loss became non-finite.
+    #[error("sample '{sample}' frame {frame}: {message}")]
+    Sample {
+        sample: String,
+        frame: usize,
+        message: String,
+    },
+    /// The harmonic basis could not be computed.
+    #[error("harmonic basis: {0}")]
+    Harmonic(String),
+}
+
+/// Per-element materials (Pa), one value per tet.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MaterialFields {
+    pub gamma_s: Vec<f64>,
+    pub gamma_v: Vec<f64>,
+}
+
+impl MaterialFields {
+    /// The same `gamma_s`, `gamma_v` (Pa) on `n` tets.
+    pub fn uniform(n: usize, gamma_s: f64, gamma_v: f64) -> Self {
+        MaterialFields {
+            gamma_s: vec![gamma_s; n],
+            gamma_v: vec![gamma_v; n],
+        }
+    }
+    /// `[γs; γv]` stacked (the `γ` of VH Eq. 23).
+    pub fn stacked(&self) -> Vec<f64> {
+        let mut g = self.gamma_s.clone();
+        g.extend_from_slice(&self.gamma_v);
+        g
+    }
+    /// Inverse of [`Self::stacked`].
+    pub fn from_stacked(g: &[f64]) -> Self {
+        let n = g.len() / 2;
+        MaterialFields {
+            gamma_s: g[..n].to_vec(),
+            gamma_v: g[n..].to_vec(),
+        }
+    }
+}
+
+/// One target frame of a training sample: where the mesh should be (the loss
+/// targets, from Y2V) and the boundary conditions under which the mesh is
+/// brought to equilibrium (quasi-static, VH Eq. 14 without inertia).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Loss targets (VH Eq. 10).
+    pub target: FrameTarget,
+    /// Pinned (handled) nodes: Dirichlet constraints held at `start`.
+    pub pinned: Vec<usize>,
+    /// Start positions of the equilibrium solve (m); the pinned nodes keep
+    /// theirs. The Y2V positions of the frame are a good choice.
+    pub start: Vec<Vec3>,
+    /// External node forces (N): reaction forces of the yarn-level pose,
+    /// gravity `m_i g`, ...
+    pub f_ext: Vec<Vec3>,
+}
+
+/// A training sample (VH §6.4): one or more frames fitted together.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// Name used in reports and errors (e.g. the pose file).
+    pub name: String,
+    /// Its frames.
+    pub frames: Vec<Frame>,
+    /// Eq. 22 weight `w_k` (J): the elastic energy stored in the yarn-level
+    /// pose; > 0 and finite.
+    pub energy: f64,
+}
+
+/// Parameters of [`fit_materials`] and [`fit_sample`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ElasticFitParams {
+    /// Harmonic ranks fitted before the full per-element field (VH §6.5).
+    /// Default `[1, 10, 30]`; empty fits the full field directly. Ranks at or
+    /// above the number of tets are skipped.
+    pub harmonic_ranks: Vec<usize>,
+    /// Whether the full per-element field is fitted after the harmonic
+    /// stages. Default true.
+    pub full_stage: bool,
+    /// Gradient-descent iterations at the start of every stage (VH §6.3:
+    /// 10-15). Default 12.
+    pub gd_iterations: u32,
+    /// Gauss-Newton iterations after them, per stage (VH §6.3: 20-30).
+    /// Default 25.
+    pub gn_iterations: u32,
+    /// First trial step of gradient descent (dimensionless): the direction
+    /// is scaled so that a step of 1 changes the most sensitive `γ` by the
+    /// RMS of the current `γ`. Default 0.01 (VH §6.3).
+    pub gd_step: f64,
+    /// First trial step of Gauss-Newton (dimensionless). Default 1.0 (VH §6.3).
+    pub gn_step: f64,
+    /// Line-search halvings before an iteration gives up (the stage then
+    /// ends). Default 10.
+    pub max_halvings: u32,
+    /// Levenberg-Marquardt damping, relative: `κ = kappa · ε / (m γ_rms²)`
+    /// for `m` parameters at loss `ε` (the damping shrinks with the residual,
+    /// as in Yamashita-Fukushima LM). Default 1e-3.
+    pub kappa: f64,
+    /// Floor of every `γ` (Pa): projected values (VH §6.3). Default 1e-3.
+    pub gamma_floor: f64,
+    /// Relative force residual of every equilibrium solve (dimensionless,
+    /// [`crate::sim::statics`]); must be <= 1e-5 (VH §8: before any
+    /// gradient). Default 1e-6: the force of Eq. 7 is evaluated to about
+    /// 1e-8 relative (the SL(3) projection is iterative), so much tighter
+    /// values may not be reachable.
+    pub equilibrium_tolerance: f64,
+    /// Newton iteration cap of every equilibrium solve. Default 100.
+    pub equilibrium_iterations: u32,
+    /// A sample's fit stops once its loss is at most this fraction of its
+    /// starting loss (dimensionless). Default 1e-10.
+    pub loss_stop: f64,
+    /// A stage stops when an iteration lowers the loss by less than this
+    /// fraction (dimensionless). Default 1e-9.
+    pub min_decrease: f64,
+}
+
+impl Default for ElasticFitParams {
+    fn default() -> Self {
+        ElasticFitParams {
+            harmonic_ranks: vec![1, 10, 30],
+            full_stage: true,
+            gd_iterations: 12,
+            gn_iterations: 25,
+            gd_step: 0.01,
+            gn_step: 1.0,
+            max_halvings: 10,
+            kappa: 1e-3,
+            gamma_floor: 1e-3,
+            equilibrium_tolerance: 1e-6,
+            equilibrium_iterations: 100,
+            loss_stop: 1e-10,
+            min_decrease: 1e-9,
+        }
+    }
+}
+
+impl ElasticFitParams {
+    /// The equilibrium solver's parameters.
+    pub fn statics(&self) -> StaticParams {
+        StaticParams {
+            tolerance: self.equilibrium_tolerance,
+            max_iterations: self.equilibrium_iterations,
+        }
+    }
+
+    fn check(&self) -> Result<(), ElasticFitError> {
+        let ok = self.gd_step > 0.0
+            && self.gn_step > 0.0
+            && self.kappa >= 0.0
+            && self.kappa.is_finite()
+            && self.gamma_floor > 0.0
+            && self.gamma_floor.is_finite()
+            && self.equilibrium_tolerance > 0.0
+            && self.equilibrium_tolerance <= 1e-5
+            && self.loss_stop >= 0.0
+            && self.min_decrease >= 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(ElasticFitError::Inconsistent(format!(
+                "fit parameters out of range (steps > 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
+            )))
+        }
+    }
+}
