@@ -56,7 +56,12 @@ pub enum PlotError {
 }
 
 /// Colours for successive series.
-pub const PALETTE: [[u8; 3]; 4] = [[31, 119, 180], [214, 39, 40], [44, 160, 44], [148, 103, 189]];
+pub const PALETTE: [[u8; 3]; 4] = [
+    [31, 119, 180],
+    [214, 39, 40],
+    [44, 160, 44],
+    [148, 103, 189],
+];
 
 /// Space (pixels) around each panel's plotting area: left (tick labels),
 /// right, top (axis label), bottom (tick labels and axis label).
@@ -121,7 +126,12 @@ fn data_range(panel: &Panel) -> Result<[f64; 4], PlotError> {
             )));
         }
         any = true;
-        r = [r[0].min(p[0]), r[1].max(p[0]), r[2].min(p[1]), r[3].max(p[1])];
+        r = [
+            r[0].min(p[0]),
+            r[1].max(p[0]),
+            r[2].min(p[1]),
+            r[3].max(p[1]),
+        ];
     }
     if !any {
         return Err(PlotError::Data(format!("{}: no points", panel.y_label)));
@@ -149,8 +159,9 @@ fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .map(|f| f * mag)
         .find(|s| *s >= raw)
         .unwrap_or(10.0 * mag);
-    let first = (lo / step).ceil() as i64;
-    let last = (hi / step).floor() as i64;
+    // Tolerant of rounding: 0.3 / 0.05 is 5.999...
+    let first = (lo / step - 1e-9).ceil() as i64;
+    let last = (hi / step + 1e-9).floor() as i64;
     (first..=last).map(|i| i as f64 * step).collect()
 }
 
@@ -158,7 +169,10 @@ fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
 fn tick_text(v: f64, step: f64) -> String {
     let decimals = (-step.log10().floor()).max(0.0) as usize;
     let s = format!("{:.*}", decimals, v);
-    if s.trim_start_matches('-').chars().all(|c| c == '0' || c == '.') {
+    if s.trim_start_matches('-')
+        .chars()
+        .all(|c| c == '0' || c == '.')
+    {
         "0".into()
     } else {
         s
@@ -325,6 +339,7 @@ mod tests {
     #[test]
     fn ticks_are_round_and_inside() {
         assert_eq!(ticks(0.0, 0.5, 6), vec![0.0, 0.1, 0.2, 0.3, 0.4, 0.5]);
+        assert_eq!(ticks(0.0, 0.3, 6).len(), 7);
         let t = ticks(-0.013, 0.21, 5);
         assert!(t.iter().all(|v| (-0.013..=0.21).contains(v)), "{t:?}");
         assert_eq!(tick_text(-1e-17, 0.05), "0");

@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::geom::Yarns;
+use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
-use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::yarn::fabric::bend::{bend_test, BendParams, BendResult};
 use crate::yarn::fabric::rig::cut_rectangle;
 use crate::yarn::fabric::{

@@ -185,7 +185,11 @@ impl LoopCurve {
             let b = self.lambda - PI;
             let r = g / (PI + 4.0 * b);
             (
-                vec![(r * b, -1.0 / r), (r * (PI + 2.0 * b), 1.0 / r), (r * b, -1.0 / r)],
+                vec![
+                    (r * b, -1.0 / r),
+                    (r * (PI + 2.0 * b), 1.0 / r),
+                    (r * b, -1.0 / r),
+                ],
                 -FRAC_PI_2,
             )
         }
@@ -278,15 +282,17 @@ impl Placement {
     fn new(points: &[Vec3], rig: &Rig, z_mid: f64) -> Placement {
         let material = points
             .iter()
-            .map(|&p| [along(p, rig.axis) - rig.s_min, along(p, rig.transverse), p[2] - z_mid])
+            .map(|&p| {
+                [
+                    along(p, rig.axis) - rig.s_min,
+                    along(p, rig.transverse),
+                    p[2] - z_mid,
+                ]
+            })
             .collect();
         // The flat "curve" (lambda = 0) puts every vertex back where it is.
         let u0 = rig.s_min + rig.clamp_depth + 0.5 * rig.gauge();
-        let origin = [
-            u0 * rig.axis[0],
-            u0 * rig.axis[1],
-            u0 * rig.axis[2] + z_mid,
-        ];
+        let origin = [u0 * rig.axis[0], u0 * rig.axis[1], u0 * rig.axis[2] + z_mid];
         Placement {
             axis: rig.axis,
             transverse: rig.transverse,

@@ -152,7 +152,15 @@ pub fn cut_rectangle(
         let idx: Vec<usize> = range.clone().collect();
         let keep: Vec<bool> = idx.iter().map(|&v| inside(yarns.points[v])).collect();
         if yarns.closed[k] && keep.iter().all(|&x| x) {
-            push_piece(yarns, k, &idx, true, &mut out, &mut density, &mut vertex_radius);
+            push_piece(
+                yarns,
+                k,
+                &idx,
+                true,
+                &mut out,
+                &mut density,
+                &mut vertex_radius,
+            );
             continue;
         }
         // A closed curve is opened at a vertex outside, so that its runs
@@ -170,7 +178,15 @@ pub fn cut_rectangle(
                 continue;
             }
             if run.len() >= min_points.max(2) {
-                push_piece(yarns, k, &run, false, &mut out, &mut density, &mut vertex_radius);
+                push_piece(
+                    yarns,
+                    k,
+                    &run,
+                    false,
+                    &mut out,
+                    &mut density,
+                    &mut vertex_radius,
+                );
             }
             run.clear();
         }
