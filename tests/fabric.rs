@@ -319,6 +319,39 @@ fn bias_test_piece_is_a_rectangle_cut_at_45_degrees_clamped_across_its_ends() {
 }
 
 #[test]
+fn bias_stretch_cuts_relaxes_and_pulls_back() {
+    use knitvox::pipeline::pattern::PatternSource;
+    let job = FabricTestJob {
+        swatch: SwatchSource::Pattern {
+            source: PatternSource::Builtin("rib1x1".into()),
+            size: [0.02, 0.035],
+        },
+        test: FabricTest::Stretch(StretchParams {
+            direction: Direction::Bias,
+            max_stretch: 0.1,
+            steps: 2,
+            hold_steps: 1,
+            ..StretchParams::default()
+        }),
+        fabric: FabricParams::default(),
+        relax: RelaxParams::default(),
+        output_dir: None,
+    };
+    let rep = run(&job).unwrap();
+    let TestFigures::Stretch(s) = &rep.figures else {
+        panic!("not a stretch report")
+    };
+    println!("bias: {} {:?}", rep.swatch, s.points);
+    // The cut piece is about the asked size (relaxation shrinks it by
+    // about the rest-length scale it was laid out for).
+    assert!((0.6..1.4).contains(&(s.width_m / 0.02)), "{}", s.width_m);
+    assert!((0.6..1.4).contains(&(s.length_m / 0.035)), "{}", s.length_m);
+    let p = &s.points;
+    assert!(p[2].force_n > p[1].force_n && p[1].force_n > 0.0, "{p:?}");
+    assert!(s.min_distance_ratio > 0.75);
+}
+
+#[test]
 fn pear_loop_elongates_as_the_clamps_close_and_is_rounder_when_stiffer() {
     use knitvox::pipeline::pattern::PatternSource;
     use knitvox::yarn::fabric::bend::{bend_test, BendParams};
