@@ -61,7 +61,10 @@ pub struct SwatchArgs {
 pub struct StretchArgs {
     #[command(flatten)]
     pub swatch: SwatchArgs,
-    /// Stretch axis: weft (along the courses), warp (along the wales), bias.
+    /// Stretch axis: weft (along the courses), warp (along the wales), bias
+    /// (45 degrees: a pattern is laid out larger and cut to the test piece;
+    /// a yarn file is tested as given, so it should be a piece cut on the
+    /// bias).
     #[arg(long, value_name = "weft|warp|bias", default_value = "weft")]
     pub direction: Direction,
     /// Largest stretch of the gauge section.
@@ -77,7 +80,7 @@ pub struct BendArgs {
     #[command(flatten)]
     pub swatch: SwatchArgs,
     /// Which axis runs round the loop: weft (along the courses), warp
-    /// (along the wales), bias.
+    /// (along the wales), bias (as for stretch).
     #[arg(long, value_name = "weft|warp|bias", default_value = "weft")]
     pub direction: Direction,
     /// First (largest) distance between the clamps (m).
