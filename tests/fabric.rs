@@ -254,3 +254,322 @@ fn friction_adds_hysteresis_to_a_stretch_and_release() {
         "{runs:?}"
     );
 }
+
+/// Checks a PNG written by `-o DIR`: signature, IHDR size, decodes, and is
+/// not blank (white background plus at least axes and a coloured series).
+fn check_png(path: &std::path::Path, size: (u32, u32)) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{}", path.display());
+    assert_eq!(&bytes[12..16], b"IHDR");
+    let w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+    let h = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+    assert_eq!((w, h), size, "{}", path.display());
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    let pixels: std::collections::HashSet<&[u8]> = buf[..info.buffer_size()].chunks(3).collect();
+    assert!(pixels.len() > 3, "{} colours", pixels.len());
+    // Some pixel is strongly coloured (a series), not only grey text/axes.
+    assert!(
+        pixels
+            .iter()
+            .any(|p| p.iter().max().unwrap() - p.iter().min().unwrap() > 100),
+        "no coloured series in {}",
+        path.display()
+    );
+}
+
+#[test]
+fn stretch_writes_a_force_and_compression_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let run = std::process::Command::new(common::knitvox_bin())
+        .args([
+            "fabric-test",
+            "stretch",
+            "--pattern",
+            "rib1x1",
+            "--width",
+            "0.02",
+            "--length",
+            "0.035",
+            "--max-stretch",
+            "0.04",
+            "--steps",
+            "2",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    check_png(&out.join("stretch.png"), (800, 900));
+    assert_eq!(
+        std::fs::read_to_string(out.join("stretch.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        4
+    );
+}
+
+#[test]
+fn bias_test_piece_is_a_rectangle_cut_at_45_degrees_clamped_across_its_ends() {
+    use knitvox::yarn::fabric::rig::cut_rectangle;
+    let sheet = rib(24, 24);
+    let (axis, transverse) = Direction::Bias.axes();
+    let (length, width) = (0.05, 0.02);
+    let piece = cut_rectangle(&sheet, axis, transverse, length, width, 8).unwrap();
+    piece.validate().unwrap();
+    assert!(piece.num_curves() > 1, "the courses are cut");
+    let b = piece.bounds().unwrap();
+    let s: Vec<f64> = piece
+        .points
+        .iter()
+        .map(|p| p[0] * axis[0] + p[1] * axis[1])
+        .collect();
+    let t: Vec<f64> = piece
+        .points
+        .iter()
+        .map(|p| p[0] * transverse[0] + p[1] * transverse[1])
+        .collect();
+    let extent = |v: &[f64]| {
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+            - v.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    // Inside the rotated rectangle, and filling it.
+    assert!(
+        extent(&s) <= length + 1e-12 && extent(&s) > 0.9 * length,
+        "{}",
+        extent(&s)
+    );
+    assert!(
+        extent(&t) <= width + 1e-12 && extent(&t) > 0.9 * width,
+        "{}",
+        extent(&t)
+    );
+    assert!(b.size()[0] > width, "turned by 45 degrees: {:?}", b.size());
+    // The rig's clamps are bands across the whole width at both ends, not
+    // corners of the sheet.
+    let rig = Rig::new(&piece.points, axis, transverse, 8e-3);
+    for mask in [&rig.low, &rig.high] {
+        let held: Vec<f64> = t
+            .iter()
+            .zip(mask.iter())
+            .filter(|(_, m)| **m)
+            .map(|(t, _)| *t)
+            .collect();
+        assert!(held.len() > 20, "{} vertices clamped", held.len());
+        assert!(extent(&held) > 0.8 * width, "clamp spans {}", extent(&held));
+    }
+    assert!((rig.gauge() - (extent(&s) - 0.016)).abs() < 1e-12);
+}
+
+#[test]
+fn bias_stretch_cuts_relaxes_and_pulls_back() {
+    use knitvox::pipeline::pattern::PatternSource;
+    let job = FabricTestJob {
+        swatch: SwatchSource::Pattern {
+            source: PatternSource::Builtin("rib1x1".into()),
+            size: [0.02, 0.035],
+        },
+        test: FabricTest::Stretch(StretchParams {
+            direction: Direction::Bias,
+            max_stretch: 0.1,
+            steps: 2,
+            hold_steps: 1,
+            ..StretchParams::default()
+        }),
+        fabric: FabricParams::default(),
+        relax: RelaxParams::default(),
+        output_dir: None,
+    };
+    let rep = run(&job).unwrap();
+    let TestFigures::Stretch(s) = &rep.figures else {
+        panic!("not a stretch report")
+    };
+    println!("bias: {} {:?}", rep.swatch, s.points);
+    // The cut piece is about the asked size (relaxation shrinks it by
+    // about the rest-length scale it was laid out for).
+    assert!((0.6..1.4).contains(&(s.width_m / 0.02)), "{}", s.width_m);
+    assert!((0.6..1.4).contains(&(s.length_m / 0.035)), "{}", s.length_m);
+    let p = &s.points;
+    assert!(p[2].force_n > p[1].force_n && p[1].force_n > 0.0, "{p:?}");
+    assert!(s.min_distance_ratio > 0.75);
+}
+
+#[test]
+fn pear_loop_elongates_as_the_clamps_close_and_is_rounder_when_stiffer() {
+    use knitvox::pipeline::pattern::PatternSource;
+    use knitvox::yarn::fabric::bend::{bend_test, BendParams};
+    let fp = FabricParams::default();
+    let bp = BendParams {
+        max_distance: 0.018,
+        min_distance: 0.010,
+        steps: 2,
+        ..BendParams::default()
+    };
+    let job = FabricTestJob {
+        swatch: SwatchSource::Pattern {
+            source: PatternSource::Builtin("rib1x1".into()),
+            size: [0.02, 0.05],
+        },
+        test: FabricTest::Bend(bp.clone()),
+        fabric: fp.clone(),
+        relax: RelaxParams::default(),
+        output_dir: None,
+    };
+    let (relaxed, _, _) = knitvox::pipeline::fabric_test::swatch(&job).unwrap();
+    let mut up = Vec::new();
+    let stiff = bend_test(&relaxed, &fp, &bp, &mut |f| {
+        up.push(f.reactions.iter().map(|r| r[2]).sum::<f64>());
+        Ok(())
+    })
+    .unwrap();
+    let p = &stiff.points;
+    println!("stiff: {p:#?}");
+    assert_eq!(p.len(), 3);
+    // Closing the clamps lengthens the loop relative to its width (Sperl
+    // 2022 Fig. 8: r falls with d).
+    for w in p.windows(2) {
+        assert!(
+            w[1].aspect_ratio > w[0].aspect_ratio,
+            "h/p {} at d = {} m, {} at {} m",
+            w[0].aspect_ratio,
+            w[0].clamp_distance_m,
+            w[1].aspect_ratio,
+            w[1].clamp_distance_m
+        );
+    }
+    for q in p {
+        assert!(
+            q.aspect_ratio.is_finite() && q.width_m > q.clamp_distance_m,
+            "{q:?}"
+        );
+        // The clamps carry the weight, and hold the legs together against
+        // the loop's bending with equal and opposite axial forces.
+        let vertical = q.low_clamp_force_n[1] + q.high_clamp_force_n[1];
+        assert!(
+            (vertical - stiff.weight_n).abs() <= 0.02 * stiff.weight_n,
+            "clamps carry {vertical} N of {} N",
+            stiff.weight_n
+        );
+        let axial = q.low_clamp_force_n[0] + q.high_clamp_force_n[0];
+        assert!(axial.abs() <= 0.02 * stiff.weight_n + 1e-6, "{q:?}");
+        assert!(q.low_clamp_force_n[0] > 0.0, "{q:?}");
+        assert!(q.energy_j > 0.0 && q.min_distance_ratio > 0.75, "{q:?}");
+    }
+    assert!(up
+        .iter()
+        .all(|v| (v - stiff.weight_n).abs() <= 0.02 * stiff.weight_n));
+    // Gravity pulls the loop down against bending (Peirce 1930: the
+    // loop's drop grows as the bending length shrinks); a yarn ten times
+    // less stiff in bending gives a longer, narrower loop.
+    let mut soft_fp = fp.clone();
+    soft_fp.rods.bend_scale *= 0.1;
+    let soft = bend_test(&relaxed, &soft_fp, &bp, &mut |_| Ok(())).unwrap();
+    println!(
+        "h/p stiff {:?}, soft {:?}",
+        p.iter().map(|q| q.aspect_ratio).collect::<Vec<_>>(),
+        soft.points
+            .iter()
+            .map(|q| q.aspect_ratio)
+            .collect::<Vec<_>>()
+    );
+    for (s, f) in soft.points.iter().zip(p) {
+        assert!(
+            s.aspect_ratio > f.aspect_ratio,
+            "at d = {} m: soft h/p {}, stiff {}",
+            f.clamp_distance_m,
+            s.aspect_ratio,
+            f.aspect_ratio
+        );
+    }
+}
+
+#[test]
+fn fabric_test_bend_prints_the_loop_and_writes_csv_frames_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("out");
+    let out = std::process::Command::new(common::knitvox_bin())
+        .args([
+            "fabric-test",
+            "bend",
+            "--pattern",
+            "rib1x1",
+            "--width",
+            "0.02",
+            "--length",
+            "0.05",
+            "--max-distance",
+            "0.018",
+            "--min-distance",
+            "0.014",
+            "--steps",
+            "1",
+            "--json",
+            "-o",
+        ])
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["test"], "bend");
+    assert_eq!(v["direction"], "weft");
+    assert!(v["width_m"].as_f64().unwrap() > 0.0 && v["length_m"].as_f64().unwrap() > 0.03);
+    let pts = v["points"].as_array().unwrap();
+    assert_eq!(pts.len(), 2);
+    for (p, d) in pts.iter().zip([0.018, 0.014]) {
+        assert!((p["clamp_distance_m"].as_f64().unwrap() - d).abs() < 1e-12);
+        let (h, w, r) = (
+            p["height_m"].as_f64().unwrap(),
+            p["width_m"].as_f64().unwrap(),
+            p["aspect_ratio"].as_f64().unwrap(),
+        );
+        assert!(h > 0.0 && w > 0.0 && (r - h / w).abs() < 1e-12, "{p}");
+    }
+    let csv = std::fs::read_to_string(out_dir.join("bend.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert!(csv.starts_with("clamp_distance_m,height_m,width_m,aspect_ratio,"));
+    let (shape, _) =
+        h5::read_dataset_f64(&out_dir.join("bend.h5"), "frames/elastic_energy").unwrap();
+    assert_eq!(shape, vec![2]);
+    check_png(&out_dir.join("bend.png"), (800, 500));
+    // A clamp distance under the swatch's thickness is a usage error.
+    let bad = std::process::Command::new(common::knitvox_bin())
+        .args([
+            "fabric-test",
+            "bend",
+            "--pattern",
+            "rib1x1",
+            "--width",
+            "0.02",
+            "--length",
+            "0.05",
+            "--max-distance",
+            "0.018",
+            "--min-distance",
+            "0.001",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(
+        bad.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("thickness"));
+}

@@ -170,9 +170,10 @@ fn stretch_step_diagnostic() {
 /// weft and warp, the default 6 cm x 10 cm swatch relaxed with the
 /// defaults, stretched to 50% in 5% steps; hung by the top edge.
 /// `cargo test --test fabric_study fabric_checks -- --ignored --nocapture`
-/// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset; FC_MU sets the yarn
-/// friction coefficient, 0 for none; FC_WIDTH/FC_LENGTH (m) and FC_STEPS a
-/// smaller swatch or fewer steps).
+/// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset, FC_DIRS=bias for the
+/// bias-cut piece, FC_HANG=0 to skip hanging; FC_MU sets the yarn friction
+/// coefficient, 0 for none; FC_WIDTH/FC_LENGTH (m) and FC_STEPS a smaller
+/// swatch or fewer steps).
 #[test]
 #[ignore]
 fn fabric_checks() {
@@ -297,4 +298,65 @@ fn fabric_checks() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The pear-loop test (ignored, ~minutes) on the default 6 x 10 cm swatch
+/// of each pattern: aspect ratio h/p per clamp distance.
+/// `FB_PATTERNS=stockinette,rib1x1 FB_DIRS=weft cargo test --test fabric_study bend_study -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn bend_study() {
+    use knitvox::pipeline::fabric_test::{
+        run, FabricTest, FabricTestJob, SwatchSource, TestFigures,
+    };
+    use knitvox::pipeline::pattern::PatternSource;
+    use knitvox::yarn::fabric::bend::BendParams;
+    let list = |name: &str, d: &str| -> Vec<String> {
+        std::env::var(name)
+            .unwrap_or(d.into())
+            .split(',')
+            .map(String::from)
+            .collect()
+    };
+    for pattern in list("FB_PATTERNS", "stockinette,rib1x1") {
+        for dir in list("FB_DIRS", "weft") {
+            let t = Instant::now();
+            let job = FabricTestJob {
+                swatch: SwatchSource::Pattern {
+                    source: PatternSource::Builtin(pattern.clone()),
+                    size: [0.06, 0.10],
+                },
+                test: FabricTest::Bend(BendParams {
+                    direction: dir.parse().unwrap(),
+                    steps: env_f("FB_STEPS", 6.0) as usize,
+                    ..BendParams::default()
+                }),
+                fabric: FabricParams::default(),
+                relax: RelaxParams::default(),
+                output_dir: None,
+            };
+            let rep = run(&job).unwrap();
+            let TestFigures::Bend(b) = &rep.figures else {
+                panic!()
+            };
+            println!(
+                "{} bend {dir}: {} vertices, thickness {:.1} mm, weight {:.4} N, {:.1} s",
+                rep.swatch,
+                b.vertices,
+                1e3 * b.thickness_m,
+                b.weight_n,
+                t.elapsed().as_secs_f64()
+            );
+            for p in &b.points {
+                println!(
+                    "  d {:.1} mm: h {:.1} mm, p {:.1} mm, h/p {:.3}, {} its",
+                    1e3 * p.clamp_distance_m,
+                    1e3 * p.height_m,
+                    1e3 * p.width_m,
+                    p.aspect_ratio,
+                    p.newton_iterations
+                );
+            }
+        }
+    }
 }

@@ -1,4 +1,4 @@
-//! `knitvox fabric-test stretch|hang`: Sperl 2022 §4 tests on a yarn swatch.
+//! `knitvox fabric-test stretch|bend|hang`: Sperl 2022 §4 tests on a yarn swatch.
 
 use std::path::PathBuf;
 
@@ -9,6 +9,7 @@ use crate::pipeline::fabric_test::{
     run, FabricTest, FabricTestJob, FabricTestReport, SwatchSource, TestFigures,
 };
 use crate::pipeline::pattern::PatternSource;
+use crate::yarn::fabric::bend::BendParams;
 use crate::yarn::fabric::{Direction, FabricParams, HangParams, RelaxParams, StretchParams};
 
 #[derive(Debug, Subcommand)]
@@ -16,6 +17,10 @@ pub enum FabricTestKind {
     /// Clamped uniaxial stretch, quasi-static: force (N) and orthogonal
     /// compression per stretch step.
     Stretch(StretchArgs),
+    /// Pear-loop bending: both clamps hold the swatch hanging down side by
+    /// side and come together under gravity; loop height, width and aspect
+    /// ratio h/p per clamp distance.
+    Bend(BendArgs),
     /// Hung by the top edge under gravity: sag ratio and the speed left
     /// after settling.
     Hang(HangArgs),
@@ -44,7 +49,7 @@ pub struct SwatchArgs {
     #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
     pub length_scale: f64,
     /// Output folder: TEST.h5 (frames with energy and clamp forces) and, for
-    /// stretch, stretch.csv.
+    /// stretch and bend, TEST.csv and the plot TEST.png.
     #[arg(short, long, value_name = "DIR")]
     pub output: Option<PathBuf>,
     /// Print the figures as JSON.
@@ -56,7 +61,10 @@ pub struct SwatchArgs {
 pub struct StretchArgs {
     #[command(flatten)]
     pub swatch: SwatchArgs,
-    /// Stretch axis: weft (along the courses), warp (along the wales), bias.
+    /// Stretch axis: weft (along the courses), warp (along the wales), bias
+    /// (45 degrees: a pattern is laid out larger and cut to the test piece;
+    /// a yarn file is tested as given, so it should be a piece cut on the
+    /// bias).
     #[arg(long, value_name = "weft|warp|bias", default_value = "weft")]
     pub direction: Direction,
     /// Largest stretch of the gauge section.
@@ -64,6 +72,26 @@ pub struct StretchArgs {
     pub max_stretch: f64,
     /// Load steps.
     #[arg(long, value_name = "N", default_value_t = 10)]
+    pub steps: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct BendArgs {
+    #[command(flatten)]
+    pub swatch: SwatchArgs,
+    /// Which axis runs round the loop: weft (along the courses), warp
+    /// (along the wales), bias (as for stretch).
+    #[arg(long, value_name = "weft|warp|bias", default_value = "weft")]
+    pub direction: Direction,
+    /// First (largest) distance between the clamps (m).
+    #[arg(long, value_name = "METRES", default_value_t = BendParams::default().max_distance)]
+    pub max_distance: f64,
+    /// Last (smallest) distance between the clamps (m); above the swatch's
+    /// thickness.
+    #[arg(long, value_name = "METRES", default_value_t = BendParams::default().min_distance)]
+    pub min_distance: f64,
+    /// Intervals between the first and the last distance.
+    #[arg(long, value_name = "N", default_value_t = BendParams::default().steps)]
     pub steps: usize,
 }
 
@@ -117,6 +145,16 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
                 max_stretch: a.max_stretch,
                 steps: a.steps,
                 ..StretchParams::default()
+            }),
+        ),
+        FabricTestKind::Bend(a) => (
+            &a.swatch,
+            FabricTest::Bend(BendParams {
+                direction: a.direction,
+                max_distance: a.max_distance,
+                min_distance: a.min_distance,
+                steps: a.steps,
+                ..BendParams::default()
             }),
         ),
         FabricTestKind::Hang(a) => (
@@ -184,6 +222,26 @@ fn print_report(r: &FabricTestReport) {
                 100.0 * s.hold_energy_change,
                 s.min_distance_ratio,
                 s.seconds
+            );
+        }
+        TestFigures::Bend(b) => {
+            println!(
+                "pear loop ({}), {:.4} m wide, gauge {:.4} m, weight {:.4} N:",
+                b.direction.name(),
+                b.width_m,
+                b.gauge_m,
+                b.weight_n
+            );
+            println!("  clamps (m)  height (m)  width (m)  h/p");
+            for p in &b.points {
+                println!(
+                    "  {:10.4}  {:10.4}  {:9.4}  {:5.3}",
+                    p.clamp_distance_m, p.height_m, p.width_m, p.aspect_ratio
+                );
+            }
+            println!(
+                "  min distance {:.3} x 2r, {:.1} s",
+                b.min_distance_ratio, b.seconds
             );
         }
         TestFigures::Hang(h) => println!(

@@ -56,7 +56,7 @@ pub enum Command {
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
     Pattern(pattern::PatternArgs),
-    /// Fabric tests of Sperl 2022 §4 on a yarn swatch: stretch, hang.
+    /// Fabric tests of Sperl 2022 §4 on a yarn swatch: stretch, bend (pear loop), hang.
     #[command(subcommand)]
     FabricTest(fabric_test::FabricTestKind),
     /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.

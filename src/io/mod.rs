@@ -16,6 +16,7 @@ pub mod gltf_skin;
 pub mod h5;
 pub mod obj;
 pub mod overwrite;
+pub mod plot;
 pub mod ply;
 pub mod poly;
 pub mod pyp;

@@ -1,16 +1,21 @@
 //! `knitvox fabric-test`: the physical tests of Sperl 2022 §4 on a yarn
 //! swatch (a built-in or grid pattern sized to the test, or a yarn file),
 //! relaxed into contact first unless the yarns carry a rest shape. Writes
-//! the curve as CSV and the equilibrium frames (positions, elastic energy,
-//! clamp reactions, external forces) as knitvox HDF5.
+//! the curve as CSV and PNG plot and the equilibrium frames (positions,
+//! elastic energy, clamp reactions, external forces) as knitvox HDF5.
+//! A bias swatch of a pattern is laid out larger and cut to the test
+//! piece at 45 degrees to the courses before relaxation.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
 use crate::geom::Yarns;
+use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
+use crate::yarn::fabric::bend::{bend_test, BendParams, BendResult};
+use crate::yarn::fabric::rig::cut_rectangle;
 use crate::yarn::fabric::{
     hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams, HangParams,
     HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams, StretchResult,
@@ -34,6 +39,7 @@ pub enum SwatchSource {
 #[derive(Debug, Clone)]
 pub enum FabricTest {
     Stretch(StretchParams),
+    Bend(BendParams),
     Hang(HangParams),
 }
 
@@ -41,6 +47,7 @@ impl FabricTest {
     pub fn name(&self) -> &'static str {
         match self {
             FabricTest::Stretch(_) => "stretch",
+            FabricTest::Bend(_) => "bend",
             FabricTest::Hang(_) => "hang",
         }
     }
@@ -48,7 +55,18 @@ impl FabricTest {
     fn direction(&self) -> Direction {
         match self {
             FabricTest::Stretch(p) => p.direction,
+            FabricTest::Bend(p) => p.direction,
             FabricTest::Hang(_) => Direction::Warp,
+        }
+    }
+
+    /// The files `-o DIR` gets besides `TEST.h5`: the curve as CSV and its
+    /// plot.
+    fn curve_files(&self) -> &'static [&'static str] {
+        match self {
+            FabricTest::Stretch(_) => &["stretch.csv", "stretch.png"],
+            FabricTest::Bend(_) => &["bend.csv", "bend.png"],
+            FabricTest::Hang(_) => &[],
         }
     }
 }
@@ -113,6 +131,7 @@ impl FabricTestError {
 #[serde(untagged)]
 pub enum TestFigures {
     Stretch(StretchResult),
+    Bend(BendResult),
     Hang(HangResult),
 }
 
@@ -149,8 +168,10 @@ fn layout_for(
     let (along_x, along_y) = match dir {
         Direction::Weft => (size[1], size[0]),
         Direction::Warp => (size[0], size[1]),
+        // A square holding the test piece turned by 45 degrees, with a
+        // margin so the cut runs through whole stitches.
         Direction::Bias => {
-            let d = size[0].max(size[1]) * std::f64::consts::SQRT_2;
+            let d = 1.1 * (size[0] + size[1]) * std::f64::consts::FRAC_1_SQRT_2;
             (d, d)
         }
     };
@@ -166,6 +187,10 @@ fn layout_for(
         separate_courses: false,
     }
 }
+
+/// Fewest vertices of a yarn piece kept by the bias cut: shorter corner
+/// fragments are not held by any loop.
+const MIN_PIECE: usize = 8;
 
 /// Loads or generates the swatch, relaxing it when it has no rest shape.
 pub fn swatch(
@@ -187,7 +212,14 @@ pub fn swatch(
                 job.test.direction(),
                 job.relax.length_scale,
             );
-            let y = lay_out(&tile, &layout).map_err(PatternStageError::Pattern)?;
+            let mut y = lay_out(&tile, &layout).map_err(PatternStageError::Pattern)?;
+            let dir = job.test.direction();
+            if dir == Direction::Bias {
+                let (axis, transverse) = dir.axes();
+                let s = job.relax.length_scale;
+                y = cut_rectangle(&y, axis, transverse, size[1] / s, size[0] / s, MIN_PIECE)
+                    .map_err(fabric_err("bias cut"))?;
+            }
             let name = match source {
                 PatternSource::Builtin(n) => n.clone(),
                 PatternSource::GridFile(p) => p.display().to_string(),
@@ -207,6 +239,7 @@ pub fn swatch(
 pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     match &job.test {
         FabricTest::Stretch(p) => p.check(),
+        FabricTest::Bend(p) => p.check(),
         FabricTest::Hang(p) => p.check(),
     }
     .and_then(|_| job.relax.check())
@@ -251,6 +284,9 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
         FabricTest::Stretch(p) => {
             stretch_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Stretch)
         }
+        FabricTest::Bend(p) => {
+            bend_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Bend)
+        }
         FabricTest::Hang(p) => {
             hang_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Hang)
         }
@@ -260,13 +296,28 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     }
     let figures = figures.map_err(fabric_err(job.test.name()))?;
     if let (Some(dir), Some(w)) = (&job.output_dir, writer) {
-        // Both files or neither (issue 13 item 4).
+        // Every file or none (issue 13 item 4).
         io::atomic::all_or_nothing(|| {
             written.push(w.finish()?);
-            if let TestFigures::Stretch(s) = &figures {
-                let csv = dir.join("stretch.csv");
-                write_csv(&csv, s)?;
-                written.push(csv);
+            let curve = match &figures {
+                TestFigures::Stretch(s) => Some((stretch_csv(s), stretch_figure(s))),
+                TestFigures::Bend(b) => Some((bend_csv(b), bend_figure(b))),
+                TestFigures::Hang(_) => None,
+            };
+            if let Some((csv, fig)) = curve {
+                let [csv_name, png_name] = job.test.curve_files() else {
+                    unreachable!("curve tests name a CSV and a PNG")
+                };
+                let png_path = dir.join(png_name);
+                let png = plot::render_png(&fig).map_err(|e| FabricTestError::Output {
+                    path: png_path.clone(),
+                    message: e.to_string(),
+                })?;
+                for (name, bytes) in [(csv_name, csv.as_bytes()), (png_name, &png[..])] {
+                    let path = dir.join(name);
+                    write_file(&path, bytes)?;
+                    written.push(path);
+                }
             }
             Ok::<_, FabricTestError>(())
         })?;
@@ -295,12 +346,20 @@ fn refuse_input_overwrite(job: &FabricTestJob) -> Result<(), FabricTestError> {
         } => p,
         SwatchSource::Pattern { .. } => return Ok(()),
     };
-    let h5 = dir.join(format!("{}.h5", job.test.name()));
-    let csv = dir.join("stretch.csv");
-    Ok(io::overwrite::refuse_inputs(&[&h5, &csv], &[input])?)
+    let mut outputs = vec![dir.join(format!("{}.h5", job.test.name()))];
+    outputs.extend(job.test.curve_files().iter().map(|f| dir.join(f)));
+    let outputs: Vec<&Path> = outputs.iter().map(|p| p.as_path()).collect();
+    Ok(io::overwrite::refuse_inputs(&outputs, &[input])?)
 }
 
-fn write_csv(path: &Path, s: &StretchResult) -> Result<(), FabricTestError> {
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), FabricTestError> {
+    io::atomic::write_bytes(path, bytes).map_err(|e| FabricTestError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+fn stretch_csv(s: &StretchResult) -> String {
     let mut text = String::from("stretch,force_n,compression,energy_j,newton_iterations,residual_n,contacts_per_vertex,min_distance_ratio\n");
     for p in &s.points {
         text.push_str(&format!(
@@ -315,8 +374,90 @@ fn write_csv(path: &Path, s: &StretchResult) -> Result<(), FabricTestError> {
             p.min_distance_ratio
         ));
     }
-    io::atomic::write_bytes(path, text.as_bytes()).map_err(|e| FabricTestError::Output {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+    text
+}
+
+fn bend_csv(b: &BendResult) -> String {
+    let mut text = String::from(
+        "clamp_distance_m,height_m,width_m,aspect_ratio,low_clamp_axial_n,low_clamp_up_n,\
+         high_clamp_axial_n,high_clamp_up_n,energy_j,newton_iterations,residual_n,\
+         contacts_per_vertex,min_distance_ratio\n",
+    );
+    for p in &b.points {
+        text.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            p.clamp_distance_m,
+            p.height_m,
+            p.width_m,
+            p.aspect_ratio,
+            p.low_clamp_force_n[0],
+            p.low_clamp_force_n[1],
+            p.high_clamp_force_n[0],
+            p.high_clamp_force_n[1],
+            p.energy_j,
+            p.newton_iterations,
+            p.residual_n,
+            p.contacts_per_vertex,
+            p.min_distance_ratio
+        ));
+    }
+    text
+}
+
+/// Force and orthogonal compression against stretch (Sperl 2022 §4.3).
+fn stretch_figure(s: &StretchResult) -> Figure {
+    let series = |label: &str, f: &dyn Fn(&crate::yarn::fabric::StretchPoint) -> f64, c| Series {
+        label: label.into(),
+        points: s.points.iter().map(|p| [p.stretch, f(p)]).collect(),
+        color: c,
+    };
+    Figure {
+        title: format!(
+            "stretch test, {}: {:.0} x {:.0} mm, gauge {:.0} mm",
+            s.direction.name(),
+            1e3 * s.width_m,
+            1e3 * s.length_m,
+            1e3 * s.gauge_m
+        ),
+        panels: vec![
+            Panel {
+                x_label: "stretch l/l0 - 1".into(),
+                y_label: "clamp force (N)".into(),
+                series: vec![series("force", &|p| p.force_n, PALETTE[0])],
+            },
+            Panel {
+                x_label: "stretch l/l0 - 1".into(),
+                y_label: "orthogonal compression 1 - w/w0".into(),
+                series: vec![series("compression", &|p| p.compression, PALETTE[1])],
+            },
+        ],
+        size: (800, 900),
+    }
+}
+
+/// Loop aspect ratio against clamp distance (Sperl 2022 §4.3, Fig. 8).
+fn bend_figure(b: &BendResult) -> Figure {
+    Figure {
+        title: format!(
+            "pear-loop test, {}: {:.0} x {:.0} mm, gauge {:.0} mm",
+            b.direction.name(),
+            1e3 * b.width_m,
+            1e3 * b.length_m,
+            1e3 * b.gauge_m
+        ),
+        panels: vec![Panel {
+            x_label: "clamp distance d (cm)".into(),
+            y_label: "aspect ratio h/p".into(),
+            series: vec![Series {
+                label: "h/p".into(),
+                points: b
+                    .points
+                    .iter()
+                    .map(|p| [100.0 * p.clamp_distance_m, p.aspect_ratio])
+                    .collect(),
+                color: PALETTE[0],
+            }],
+        }],
+        size: (800, 500),
+    }
 }

@@ -6,6 +6,7 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod bend;
 pub mod hang;
 pub mod inertia;
 pub mod model;

@@ -1,7 +1,8 @@
 //! The test rig's geometry: a stretch axis in the swatch plane, clamp bands
 //! at both ends, the gauge section between them.
 
-use crate::geom::Vec3;
+use super::model::FabricError;
+use crate::geom::{Vec3, Yarns};
 
 /// Which way a swatch is pulled: along the courses (weft, x), along the
 /// wales (warp, y) or at 45 degrees between them (bias).
@@ -107,5 +108,120 @@ impl Rig {
             .zip(&self.high)
             .map(|(a, b)| *a || *b)
             .collect()
+    }
+}
+
+/// The test piece of a bias test (Sperl 2022 §4.3: swatches cut at 45
+/// degrees to the courses): the part of `yarns` inside the rectangle
+/// `length` along `axis` by `width` along `transverse` (m) centred on the
+/// yarns' bounding box. Yarns are cut where they leave it, as scissors cut
+/// a swatch from the fabric: the cut ends are free and only contact holds
+/// them (the clamps hold the ends' at the clamped edges). Pieces of fewer
+/// than `min_points` vertices (corner fragments not held by any loop) are
+/// left out. For generated yarns, before relaxation: a stored rest shape
+/// cannot be cut and is refused.
+pub fn cut_rectangle(
+    yarns: &Yarns,
+    axis: Vec3,
+    transverse: Vec3,
+    length: f64,
+    width: f64,
+    min_points: usize,
+) -> Result<Yarns, FabricError> {
+    if yarns.rest.is_some() {
+        return Err(FabricError::Setup(
+            "a yarn set with a stored rest shape cannot be cut to a test piece".into(),
+        ));
+    }
+    let b = crate::geom::bounds_of(&yarns.points)
+        .ok_or_else(|| FabricError::Setup("no yarn points to cut a test piece from".into()))?;
+    let c = [
+        0.5 * (b.min[0] + b.max[0]),
+        0.5 * (b.min[1] + b.max[1]),
+        0.5 * (b.min[2] + b.max[2]),
+    ];
+    let inside = |p: Vec3| {
+        let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        along(d, axis).abs() <= 0.5 * length && along(d, transverse).abs() <= 0.5 * width
+    };
+    let mut out = Yarns::new();
+    let mut density = Vec::new();
+    let mut vertex_radius = Vec::new();
+    for k in 0..yarns.num_curves() {
+        let range = yarns.curve_range(k);
+        let idx: Vec<usize> = range.clone().collect();
+        let keep: Vec<bool> = idx.iter().map(|&v| inside(yarns.points[v])).collect();
+        if yarns.closed[k] && keep.iter().all(|&x| x) {
+            push_piece(
+                yarns,
+                k,
+                &idx,
+                true,
+                &mut out,
+                &mut density,
+                &mut vertex_radius,
+            );
+            continue;
+        }
+        // A closed curve is opened at a vertex outside, so that its runs
+        // inside are contiguous.
+        let start = if yarns.closed[k] {
+            keep.iter().position(|&x| !x).unwrap_or(0)
+        } else {
+            0
+        };
+        let order: Vec<usize> = (0..idx.len()).map(|i| (start + i) % idx.len()).collect();
+        let mut run: Vec<usize> = Vec::new();
+        for &i in order.iter().chain(std::iter::once(&usize::MAX)) {
+            if i != usize::MAX && keep[i] {
+                run.push(idx[i]);
+                continue;
+            }
+            if run.len() >= min_points.max(2) {
+                push_piece(
+                    yarns,
+                    k,
+                    &run,
+                    false,
+                    &mut out,
+                    &mut density,
+                    &mut vertex_radius,
+                );
+            }
+            run.clear();
+        }
+    }
+    if out.num_curves() == 0 {
+        return Err(FabricError::Setup(format!(
+            "no yarn of at least {min_points} vertices inside the {length:.4} x {width:.4} m test piece"
+        )));
+    }
+    if yarns.linear_density.is_some() {
+        out.linear_density = Some(density);
+    }
+    if yarns.vertex_radius.is_some() {
+        out.vertex_radius = Some(vertex_radius);
+    }
+    Ok(out)
+}
+
+/// Appends the vertices `run` of curve `k` as one curve, with its radius,
+/// linear density and per-vertex radii.
+fn push_piece(
+    yarns: &Yarns,
+    k: usize,
+    run: &[usize],
+    closed: bool,
+    out: &mut Yarns,
+    density: &mut Vec<f64>,
+    vertex_radius: &mut Vec<f64>,
+) {
+    let pts: Vec<Vec3> = run.iter().map(|&v| yarns.points[v]).collect();
+    out.push_curve(&pts, closed, yarns.radius[k]);
+    if let Some(ld) = &yarns.linear_density {
+        density.push(ld[k]);
+    }
+    if let Some(vr) = &yarns.vertex_radius {
+        vertex_radius.extend(run.iter().map(|&v| vr[v]));
     }
 }
