@@ -48,6 +48,10 @@ pub struct SwatchArgs {
     /// Rest-length scale of the relaxation into contact (Leaf 2018 §6.1).
     #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
     pub length_scale: f64,
+    /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless; the
+    /// relaxation into contact is always frictionless).
+    #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
+    pub friction: f64,
     /// Output folder: TEST.h5 (frames with energy and clamp forces) and, for
     /// stretch and bend, TEST.csv and the plot TEST.png.
     #[arg(short, long, value_name = "DIR")]
@@ -127,7 +131,11 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
     Ok(FabricTestJob {
         swatch,
         test,
-        fabric: FabricParams::default(),
+        fabric: {
+            let mut f = FabricParams::default();
+            f.friction.mu = s.friction;
+            f
+        },
         relax: RelaxParams {
             length_scale: s.length_scale,
             ..RelaxParams::default()
