@@ -163,7 +163,7 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
 }
 
 /// Relaxes a 3 cm x 4 cm 1x1 rib into contact and stretches it along the
-/// courses to 50% in 10% steps (CSV and frames under `fabric-stretch/`).
+/// courses to 50% in 10% steps (CSV, frames and plot under `fabric-stretch/`).
 fn fabric_stretch(out_dir: &Path) -> Result<super::fabric_test::FabricTestReport, DemoError> {
     use super::fabric_test::{run, FabricTest, FabricTestJob, SwatchSource};
     let job = FabricTestJob {
