@@ -10,22 +10,7 @@ use std::process::Command;
 
 use knitvox::io::character_h5::{is_character_cache, read_character_cache};
 
-fn have_h5py() -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", "import h5py, numpy"])
-        .status()
-        .is_ok_and(|s| s.success());
-    common::require_tool(ok, "python3 with h5py")
-}
 
-fn python(dir: &Path, script: &str) {
-    let o = Command::new("python3")
-        .args(["-c", script])
-        .current_dir(dir)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-}
 
 /// A 2-triangle quad in the x-y plane of a Z-up world, 100 cm wide, moving
 /// up (+Z) by 10 cm per frame at 24 fps, written with h5py.
@@ -47,11 +32,11 @@ with h5py.File("body.h5", "w") as f:
 
 #[test]
 fn h5py_cache_reads_in_metres_y_up() {
-    if !have_h5py() {
+    if !common::have_h5py() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    python(dir.path(), WRITE_CACHE);
+    common::python(dir.path(), WRITE_CACHE);
     let p = dir.path().join("body.h5");
     assert!(is_character_cache(&p));
     let c = read_character_cache(&p, 1 << 30).unwrap();
@@ -80,13 +65,13 @@ fn h5py_cache_reads_in_metres_y_up() {
 
 #[test]
 fn hostile_caches_are_refused_naming_the_dataset() {
-    if !have_h5py() {
+    if !common::have_h5py() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    python(dir.path(), WRITE_CACHE);
+    common::python(dir.path(), WRITE_CACHE);
     std::fs::write(dir.path().join("secret.raw"), vec![0u8; 288]).unwrap();
-    python(
+    common::python(
         dir.path(),
         r#"
 import h5py, shutil, numpy as np
@@ -158,11 +143,11 @@ fn bake_of_fox_matches_skinning_between_samples() {
 /// a hostile one is an error naming the dataset (exit 65).
 #[test]
 fn inspect_summarises_a_character_cache() {
-    if !have_h5py() {
+    if !common::have_h5py() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    python(dir.path(), WRITE_CACHE);
+    common::python(dir.path(), WRITE_CACHE);
     let o = Command::new(common::knitvox_bin())
         .args(["inspect", "body.h5", "--json"])
         .current_dir(dir.path())
@@ -175,7 +160,7 @@ fn inspect_summarises_a_character_cache() {
     assert_eq!(v[0]["vertices"], 4);
     assert_eq!(v[0]["triangles"], 2);
     assert!((v[0]["duration_s"].as_f64().unwrap() - 2.0 / 24.0).abs() < 1e-12);
-    python(
+    common::python(
         dir.path(),
         r#"
 import h5py

@@ -168,22 +168,7 @@ fn gltf_buffer_reads_at_most_byte_length() {
     std::fs::remove_dir_all(&root).unwrap();
 }
 
-fn have_h5py() -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", "import h5py"])
-        .status()
-        .is_ok_and(|s| s.success());
-    common::require_tool(ok, "python3 with h5py")
-}
 
-fn python(dir: &Path, script: &str) {
-    let o = Command::new("python3")
-        .args(["-c", script])
-        .current_dir(dir)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-}
 
 /// A valid knitvox yarns file `base.h5` in `dir` (made by the binary).
 fn yarns_h5(dir: &Path) {
@@ -199,7 +184,7 @@ fn yarns_h5(dir: &Path) {
 
 #[test]
 fn hdf5_data_outside_the_file_is_refused() {
-    if !have_h5py() {
+    if !common::have_h5py() {
         return;
     }
     let dir = scratch("h5ext");
@@ -208,7 +193,7 @@ fn hdf5_data_outside_the_file_is_refused() {
     let (o, _) = knitvox_in(&dir, &["inspect", "base.h5"], Duration::from_secs(20));
     assert!(o.status.success(), "{}", stderr(&o));
     std::fs::write(dir.join("secret.raw"), vec![0u8; 96]).unwrap();
-    python(
+    common::python(
         &dir,
         r#"
 import h5py, shutil, numpy as np
@@ -249,13 +234,13 @@ with h5py.File("virt.h5", "a") as f:
 
 #[test]
 fn decompression_bomb_is_refused_under_the_budget() {
-    if !have_h5py() {
+    if !common::have_h5py() {
         return;
     }
     let dir = scratch("bomb");
     yarns_h5(&dir);
     // 180M points declared (4.3 GB of f64), gzip, one chunk written: a 4 MB file.
-    python(
+    common::python(
         &dir,
         r#"
 import h5py, shutil, numpy as np

@@ -14,8 +14,7 @@ use std::path::Path;
 use hdf5::Group;
 
 use super::h5::{
-    attr_loc, create_h5, format_err, open_group, open_path, read_int_attr, read_str_attr,
-    write_str_attr, Ds,
+    attr_loc, create_h5, format_err, open_group, open_path, read_str_attr, write_str_attr, Ds,
 };
 use super::{FormatError, IoError};
 use crate::anim::cache::BodyCache;
@@ -57,7 +56,7 @@ pub fn read_character_cache(path: &Path, max_memory: u64) -> Result<CharacterCac
 }
 
 fn decode(root: &Group, budget: u64) -> Result<CharacterCache, FormatError> {
-    let mut notes = check_format_attrs(root)?;
+    let mut notes = super::h5::check_format_attrs(root, FORMAT_NAME, FORMAT_VERSION)?;
     let units = match read_str_attr(root, "", "units")? {
         Some(u) => Some(
             u.parse::<Units>()
@@ -108,33 +107,6 @@ fn decode(root: &Group, budget: u64) -> Result<CharacterCache, FormatError> {
         up_axis,
         notes,
     })
-}
-
-fn check_format_attrs(root: &Group) -> Result<Vec<String>, FormatError> {
-    let mut notes = Vec::new();
-    if let Some(kind) = read_str_attr(root, "", "knitvox_format")? {
-        if kind != FORMAT_NAME {
-            return Err(FormatError::at_path(
-                attr_loc("", "knitvox_format"),
-                format!(
-                    "this is a knitvox '{}' file, not a '{FORMAT_NAME}' cache",
-                    crate::geom::excerpt(&kind)
-                ),
-            ));
-        }
-    }
-    if let Some(v) = read_int_attr(root, "", "knitvox_format_version")? {
-        if !(1..=FORMAT_VERSION).contains(&v) {
-            return Err(FormatError::at_path(
-                attr_loc("", "knitvox_format_version"),
-                format!("format version {v} is not supported (this build reads versions 1 to {FORMAT_VERSION})"),
-            ));
-        }
-    }
-    if let Some(g) = read_str_attr(root, "", "generator")? {
-        notes.push(format!("generator: {}", crate::geom::excerpt(&g)));
-    }
-    Ok(notes)
 }
 
 /// Reads `/character` in file units; sizes are checked before allocating.

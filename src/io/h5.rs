@@ -665,30 +665,37 @@ pub(crate) fn describe_top_level(root: &Group) -> String {
     format!("its top level holds: {}", items.join(", "))
 }
 
-fn check_format_attrs(root: &Group) -> Result<Vec<String>, FormatError> {
+/// Checks the root's `knitvox_format` (must be `name` when present) and
+/// `knitvox_format_version` (1 to `max_version`); returns notes naming the
+/// version and the generator.
+pub(crate) fn check_format_attrs(
+    root: &Group,
+    name: &str,
+    max_version: i64,
+) -> Result<Vec<String>, FormatError> {
     let mut notes = Vec::new();
     if let Some(kind) = read_str_attr(root, "", "knitvox_format")? {
-        if kind != FORMAT_NAME {
+        if kind != name {
             return Err(FormatError::at_path(
                 attr_loc("", "knitvox_format"),
                 format!(
-                    "this is a knitvox '{}' file, not a '{FORMAT_NAME}' file",
+                    "this is a knitvox '{}' file, not a '{name}' file",
                     crate::geom::excerpt(&kind)
                 ),
             ));
         }
     }
     if let Some(v) = read_int_attr(root, "", "knitvox_format_version")? {
-        if !(1..=FORMAT_VERSION).contains(&v) {
+        if !(1..=max_version).contains(&v) {
             return Err(FormatError::at_path(
                 attr_loc("", "knitvox_format_version"),
-                format!("format version {v} is not supported (this build reads versions 1 to {FORMAT_VERSION})"),
+                format!("format version {v} is not supported (this build reads versions 1 to {max_version})"),
             ));
         }
-        notes.push(format!("knitvox HDF5 yarns format version {v}"));
+        notes.push(format!("knitvox HDF5 {name} format version {v}"));
     }
     if let Some(g) = read_str_attr(root, "", "generator")? {
-        notes.push(format!("generator: {g}"));
+        notes.push(format!("generator: {}", crate::geom::excerpt(&g)));
     }
     Ok(notes)
 }
@@ -954,7 +961,7 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
             )))
         }
     };
-    let mut notes = check_format_attrs(root)?;
+    let mut notes = check_format_attrs(root, FORMAT_NAME, FORMAT_VERSION)?;
     let units = match read_str_attr(root, "", "units")? {
         Some(u) => Some(
             u.parse::<Units>()

@@ -138,3 +138,22 @@ pub fn flat_swatch(pattern: &str, courses: usize, wales: usize) -> knitvox::geom
     )
     .unwrap()
 }
+
+/// Whether python3 with h5py and numpy runs (under CI its absence fails).
+pub fn have_h5py() -> bool {
+    let ok = std::process::Command::new("python3")
+        .args(["-c", "import h5py, numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    require_tool(ok, "python3 with h5py")
+}
+
+/// Runs a Python script in `dir`; a failing script fails the test.
+pub fn python(dir: &std::path::Path, script: &str) {
+    let o = std::process::Command::new("python3")
+        .args(["-c", script])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
