@@ -46,6 +46,7 @@ pub mod error;
 pub mod fabric_test;
 pub mod frames;
 pub mod inspect;
+pub mod job;
 pub mod pattern;
 pub mod shot_setup;
 pub mod sim_scene;

@@ -1,0 +1,569 @@
+//! Job manifests (`knitvox run JOB.toml`; schemas/job.md) and stage caching.
+//!
+//! A job names the garment yarns, the character, the frames and the stages
+//! (`embed` -> `shot` -> `export`). Each stage's key is the SHA-256 of the
+//! knitvox version, the stage name, its parameters (canonical JSON), the
+//! contents of its input files and the upstream stage's key, so a changed
+//! input or parameter changes that stage's key and every key downstream
+//! (Houdini PDG's cook-from-cache rule). A record `OUT/.knitvox/STAGE.json`
+//! is written atomically after the stage's outputs exist; a rerun skips a
+//! stage whose record holds the same key and whose outputs all exist.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::asset::{sha256_file, EmbedJob, ExportJob};
+use super::sim_scene::{CharacterSection, Scene, Seconds};
+use super::simulate::{read_scene, ShotJob, ShotRequest};
+use super::{Error, Observer, Stage};
+use crate::embed::EmbedParams;
+use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
+use crate::io::{self, IoError, ReadOptions, WriteOptions};
+
+/// The stages a job may hold, in run order.
+pub const STAGES: [&str; 3] = ["embed", "shot", "export"];
+
+/// A job manifest as written (schemas/job.md, schemas/job.schema.json).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// Output folder [default: `<manifest stem>.out` beside the manifest].
+    pub output: Option<PathBuf>,
+    /// Farm frames of the shot: `1-24`, `1001-1100x5`.
+    pub frames: Option<String>,
+    pub garment: Garment,
+    pub character: Option<Character>,
+    pub embed: Option<EmbedSection>,
+    pub shot: Option<ShotSection>,
+    pub export: Option<ExportSection>,
+}
+
+/// The garment's yarns.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Garment {
+    /// Yarn file (any readable format).
+    pub yarns: PathBuf,
+    /// Unit of a unitless file (`mm`, `cm`, `m` or metres per unit) [default: the file's, else m].
+    pub units: Option<String>,
+    /// Up axis (`y` or `z`) [default: the file's, else y].
+    pub up_axis: Option<String>,
+}
+
+/// The character driving the shot (as `simulate --character` takes it).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Character {
+    /// glTF/GLB with a skin, or an HDF5 character cache.
+    pub file: PathBuf,
+    /// Animation name [default: the file's first].
+    pub animation: Option<String>,
+    /// Metres per file unit [default 1].
+    pub scale: Option<f64>,
+    /// Garment nodes within this distance (m) of the bind-pose body are pinned.
+    pub pin_distance: Option<f64>,
+    /// Lay the garment on the body over this joint.
+    pub fit_joint: Option<String>,
+}
+
+/// `[embed]`: embedding parameters ([`EmbedParams`] defaults).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmbedSection {
+    /// Voxel edge length (m) [default: VH §4 rule].
+    pub voxel_size: Option<f64>,
+    /// Refuse embeddings with more voxels than this.
+    pub max_voxels: Option<u64>,
+    /// Yarn material density (kg/m^3).
+    pub density: Option<f64>,
+}
+
+/// `[shot]`: a scene file, or the top-level `[character]` with these options.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShotSection {
+    /// Scene file (schemas/sim-scene.md); excludes `[character]`.
+    pub scene: Option<PathBuf>,
+    /// Largest time step (s).
+    pub dt: Option<f64>,
+    /// Frames per second.
+    pub fps: Option<f64>,
+    /// Pre-roll (s).
+    pub preroll: Option<f64>,
+    /// `cpu`, `gpu` or `auto`.
+    pub backend: Option<String>,
+    /// `direct` or `dd`.
+    pub solver: Option<String>,
+    /// Garment rotation (degrees about x, y, z).
+    pub garment_rotate: Option<Vec3>,
+    /// Garment translation (m).
+    pub garment_offset: Option<Vec3>,
+}
+
+/// `[export]`: per-frame files of the shot (or of the embedded asset).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportSection {
+    /// `ply`, `bcc`, `obj`, `gltf`, `glb` or `h5` [default ply].
+    pub format: Option<String>,
+    /// Steps to export, 0-based [default: all].
+    pub steps: Option<String>,
+    /// Unit of written bcc/obj/ply coordinates [default m].
+    pub units: Option<String>,
+    /// Up axis of written bcc/obj/ply coordinates [default y].
+    pub up_axis: Option<String>,
+    /// Base name of the files [default `garment`].
+    pub name: Option<String>,
+}
+
+/// A manifest that cannot be used: the file and the key.
+fn bad(path: &Path, message: String) -> Error {
+    IoError::Unsupported {
+        path: path.to_path_buf(),
+        message,
+    }
+    .into()
+}
+
+fn parse_key<T: std::str::FromStr<Err = String>>(
+    path: &Path,
+    key: &str,
+    v: &Option<String>,
+) -> Result<Option<T>, Error> {
+    v.as_deref()
+        .map(|s| {
+            s.parse::<T>()
+                .map_err(|e| bad(path, format!("key '{key}': {e}")))
+        })
+        .transpose()
+}
+
+/// A loaded job: the manifest with paths resolved against its folder.
+#[derive(Debug, Clone)]
+pub struct Job {
+    pub path: PathBuf,
+    pub manifest: Manifest,
+    pub base: PathBuf,
+    pub output: PathBuf,
+}
+
+impl Job {
+    /// Reads and checks a manifest (exit 65 naming the file and key; 66 when missing).
+    pub fn load(path: &Path) -> Result<Job, Error> {
+        let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let manifest: Manifest = toml::from_str(&text)
+            .map_err(|e| bad(path, super::sim_scene::toml_error_line(&e, &text)))?;
+        let base = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+        let output = match &manifest.output {
+            Some(o) => base.join(o),
+            None => base.join(format!("{stem}.out")),
+        };
+        let job = Job {
+            path: path.to_path_buf(),
+            manifest,
+            base,
+            output,
+        };
+        job.check()?;
+        Ok(job)
+    }
+
+    fn check(&self) -> Result<(), Error> {
+        let m = &self.manifest;
+        let p = &self.path;
+        parse_key::<Units>(p, "garment.units", &m.garment.units)?;
+        parse_key::<UpAxis>(p, "garment.up_axis", &m.garment.up_axis)?;
+        if m.garment.yarns.as_os_str().is_empty() {
+            return Err(bad(p, "key 'garment.yarns' is required".into()));
+        }
+        if let Some(s) = &m.shot {
+            if m.frames.is_none() {
+                return Err(bad(p, "key 'frames' is required with [shot]".into()));
+            }
+            match (&s.scene, &m.character) {
+                (Some(_), Some(_)) => {
+                    return Err(bad(
+                        p,
+                        "key 'shot.scene' excludes [character]: the scene names its character"
+                            .into(),
+                    ))
+                }
+                (None, None) => {
+                    return Err(bad(
+                        p,
+                        "[shot] needs key 'shot.scene' or a [character]".into(),
+                    ))
+                }
+                _ => {}
+            }
+            parse_key::<super::sim_scene::BackendChoice>(p, "shot.backend", &s.backend)?;
+            parse_key::<super::sim_scene::SolverChoice>(p, "shot.solver", &s.solver)?;
+            for (k, v) in [("shot.dt", s.dt), ("shot.fps", s.fps)] {
+                if v.is_some_and(|x| !(x.is_finite() && x > 0.0)) {
+                    return Err(bad(p, format!("key '{k}': must be a positive number")));
+                }
+            }
+        }
+        if let Some(f) = &m.frames {
+            parse_key::<FrameSpec>(p, "frames", &Some(f.clone()))?;
+        }
+        if let Some(e) = &m.export {
+            parse_key::<FrameSpec>(p, "export.steps", &e.steps)?;
+            parse_key::<Units>(p, "export.units", &e.units)?;
+            parse_key::<UpAxis>(p, "export.up_axis", &e.up_axis)?;
+            self.export_format()?;
+        }
+        Ok(())
+    }
+
+    fn export_format(&self) -> Result<io::Format, Error> {
+        let f = self
+            .manifest
+            .export
+            .as_ref()
+            .and_then(|e| e.format.clone())
+            .unwrap_or_else(|| "ply".into());
+        if !["ply", "bcc", "obj", "gltf", "glb", "h5"].contains(&f.as_str()) {
+            return Err(bad(
+                &self.path,
+                format!(
+                    "key 'export.format': '{}' is not one of ply, bcc, obj, gltf, glb, h5",
+                    crate::geom::excerpt(&f)
+                ),
+            ));
+        }
+        io::Format::from_path(Path::new(&format!("x.{f}"))).ok_or_else(|| {
+            bad(
+                &self.path,
+                format!("key 'export.format': '{f}' is not writable"),
+            )
+        })
+    }
+
+    fn resolve(&self, p: &Path) -> PathBuf {
+        self.base.join(p)
+    }
+
+    /// The stages this job holds, in run order.
+    pub fn stages(&self) -> Vec<&'static str> {
+        let m = &self.manifest;
+        let mut v = vec!["embed"];
+        if m.shot.is_some() {
+            v.push("shot");
+        }
+        if m.export.is_some() {
+            v.push("export");
+        }
+        v
+    }
+
+    fn read_options(&self) -> Result<ReadOptions, Error> {
+        let g = &self.manifest.garment;
+        Ok(ReadOptions {
+            units: parse_key(&self.path, "garment.units", &g.units)?,
+            up_axis: parse_key(&self.path, "garment.up_axis", &g.up_axis)?,
+            ..ReadOptions::default()
+        })
+    }
+
+    fn scene(&self) -> Result<(Scene, Vec<PathBuf>), Error> {
+        let s = self.manifest.shot.clone().unwrap_or_default();
+        let mut inputs = Vec::new();
+        let mut scene = match (&s.scene, &self.manifest.character) {
+            (Some(f), _) => {
+                let f = self.resolve(f);
+                inputs.push(f.clone());
+                read_scene(&f)?
+            }
+            (None, Some(c)) => {
+                let d = CharacterSection::default();
+                Scene {
+                    character: Some(CharacterSection {
+                        file: self.resolve(&c.file),
+                        animation: c.animation.clone(),
+                        scale: c.scale.unwrap_or(d.scale),
+                        pin_distance: c.pin_distance.unwrap_or(d.pin_distance),
+                        fit_joint: c.fit_joint.clone(),
+                        ..d
+                    }),
+                    ..Scene::default()
+                }
+            }
+            (None, None) => {
+                return Err(bad(
+                    &self.path,
+                    "[shot] needs key 'shot.scene' or a [character]".into(),
+                ))
+            }
+        };
+        if let Some(c) = &scene.character {
+            inputs.push(scene.base_dir.join(&c.file));
+        }
+        if let Some(r) = s.garment_rotate {
+            scene.garment.rotate_deg = r;
+        }
+        if let Some(t) = s.garment_offset {
+            scene.garment.translate = t;
+        }
+        let sim = &mut scene.simulation;
+        if let Some(dt) = s.dt {
+            sim.dt = Seconds(dt);
+        }
+        if let Some(f) = s.fps {
+            sim.fps = f;
+        }
+        if let Some(p) = s.preroll {
+            sim.preroll = Some(p);
+        }
+        if let Some(b) = parse_key(&self.path, "shot.backend", &s.backend)? {
+            sim.backend = b;
+        }
+        if let Some(v) = parse_key(&self.path, "shot.solver", &s.solver)? {
+            sim.solver = v;
+        }
+        Ok((scene, inputs))
+    }
+}
+
+/// What happened to one stage.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageOutcome {
+    pub name: String,
+    /// `ran` or `cached`.
+    pub status: String,
+    /// The stage key (hex SHA-256).
+    pub key: String,
+    /// Output files, relative to the output folder.
+    pub outputs: Vec<PathBuf>,
+    /// Run time (0 when cached).
+    pub ms: f64,
+}
+
+/// What `knitvox run` did.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    pub stages: Vec<StageOutcome>,
+    pub ran: usize,
+}
+
+/// The record `OUT/.knitvox/STAGE.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Record {
+    stage: String,
+    key: String,
+    outputs: Vec<PathBuf>,
+    knitvox: String,
+}
+
+fn stage_key(
+    name: &str,
+    params: &impl Serialize,
+    inputs: &[PathBuf],
+    upstream: Option<&str>,
+) -> Result<String, Error> {
+    let mut h = Sha256::new();
+    h.update(format!(
+        "knitvox {}\nstage {name}\n",
+        env!("CARGO_PKG_VERSION")
+    ));
+    // serde_json::Value keeps object keys sorted: canonical parameters.
+    let v = serde_json::to_value(params).map_err(|e| Error::Internal(e.to_string()))?;
+    h.update(format!("params {v}\n"));
+    for p in inputs {
+        h.update(format!("input {}\n", sha256_file(p)?));
+    }
+    if let Some(u) = upstream {
+        h.update(format!("upstream {u}\n"));
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+fn record_path(out: &Path, stage: &str) -> PathBuf {
+    out.join(".knitvox").join(format!("{stage}.json"))
+}
+
+/// Whether the record holds `key` and every recorded output exists.
+fn cached(out: &Path, stage: &str, key: &str) -> Option<Vec<PathBuf>> {
+    let text = std::fs::read_to_string(record_path(out, stage)).ok()?;
+    let r: Record = serde_json::from_str(&text).ok()?;
+    (r.key == key && r.outputs.iter().all(|o| out.join(o).exists())).then_some(r.outputs)
+}
+
+fn write_record(out: &Path, stage: &str, key: &str, outputs: &[PathBuf]) -> Result<(), Error> {
+    let dir = out.join(".knitvox");
+    std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+        path: dir.clone(),
+        source,
+    })?;
+    let r = Record {
+        stage: stage.into(),
+        key: key.into(),
+        outputs: outputs.to_vec(),
+        knitvox: env!("CARGO_PKG_VERSION").into(),
+    };
+    let text = serde_json::to_string_pretty(&r).map_err(|e| Error::Internal(e.to_string()))?;
+    crate::io::atomic::write_bytes(&record_path(out, stage), text.as_bytes())?;
+    Ok(())
+}
+
+fn relative(out: &Path, p: &Path) -> PathBuf {
+    p.strip_prefix(out).unwrap_or(p).to_path_buf()
+}
+
+/// Runs the job's stages up to `until` (all when `None`), skipping those
+/// whose key and outputs are unchanged. `command` goes into provenance.
+pub fn run(
+    job: &Job,
+    until: Option<&str>,
+    command: &str,
+    observer: &mut dyn Observer,
+) -> Result<RunReport, Error> {
+    let stages = job.stages();
+    let last = match until {
+        None => stages.len() - 1,
+        Some(n) => stages.iter().position(|s| *s == n).ok_or_else(|| {
+            Error::Usage(format!(
+                "--stage {}: {} has no such stage (it has: {})",
+                crate::geom::excerpt(n),
+                job.path.display(),
+                stages.join(", ")
+            ))
+        })?,
+    };
+    let out = &job.output;
+    std::fs::create_dir_all(out).map_err(|source| IoError::Write {
+        path: out.clone(),
+        source,
+    })?;
+    let m = &job.manifest;
+    let yarns = job.resolve(&m.garment.yarns);
+    let embed_params = {
+        let e = m.embed.clone().unwrap_or_default();
+        let d = EmbedParams::default();
+        EmbedParams {
+            voxel_size: e.voxel_size,
+            max_voxels: e.max_voxels.unwrap_or(d.max_voxels),
+            material_density: e.density.unwrap_or(d.material_density),
+            ..d
+        }
+    };
+    let garment_asset = out.join("garment.vtkhdf");
+    let shot_asset = out.join("shot.vtkhdf");
+    let mut report = RunReport {
+        stages: Vec::new(),
+        ran: 0,
+    };
+    let mut upstream: Option<String> = None;
+    for name in &stages[..=last] {
+        let (key, run_it): (
+            String,
+            Box<dyn Fn(&mut dyn Observer) -> Result<Vec<PathBuf>, Error>>,
+        ) = match *name {
+            "embed" => {
+                let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
+                let key = stage_key(name, &params, &[yarns.clone()], None)?;
+                let stage = EmbedJob {
+                    yarns: yarns.clone(),
+                    read: job.read_options()?,
+                    params: embed_params.clone(),
+                    output: garment_asset.clone(),
+                    command: command.into(),
+                };
+                (key, Box::new(move |o| Ok(vec![stage.run(o)?.asset])))
+            }
+            "shot" => {
+                let (scene, inputs) = job.scene()?;
+                let params = (&m.frames, &m.shot, &m.character, &scene);
+                let key = stage_key(name, &params, &inputs, upstream.as_deref())?;
+                let frames: FrameSpec = m
+                    .frames
+                    .as_deref()
+                    .unwrap_or("1")
+                    .parse()
+                    .map_err(|e| bad(&job.path, format!("key 'frames': {e}")))?;
+                let stage = ShotJob {
+                    asset: garment_asset.clone(),
+                    scene,
+                    request: ShotRequest {
+                        frames: frames.frames(),
+                        output: shot_asset.clone(),
+                        yarns_out: None,
+                        write: WriteOptions::default(),
+                        command: command.into(),
+                    },
+                };
+                (key, Box::new(move |o| Ok(vec![stage.run(o)?.output])))
+            }
+            _ => {
+                let e = m.export.clone().unwrap_or_default();
+                let key = stage_key(name, &e, &[], upstream.as_deref())?;
+                let stage = ExportJob {
+                    asset: if stages.contains(&"shot") {
+                        shot_asset.clone()
+                    } else {
+                        garment_asset.clone()
+                    },
+                    selection: parse_key(&job.path, "export.steps", &e.steps)?,
+                    format: job.export_format()?,
+                    output: out.join("export"),
+                    name: Some(e.name.clone().unwrap_or_else(|| "garment".into())),
+                    write: WriteOptions {
+                        units: parse_key(&job.path, "export.units", &e.units)?
+                            .unwrap_or(WriteOptions::default().units),
+                        up_axis: parse_key(&job.path, "export.up_axis", &e.up_axis)?
+                            .unwrap_or(WriteOptions::default().up_axis),
+                        first_frame: 0,
+                    },
+                };
+                let dir = out.join("export");
+                (
+                    key,
+                    Box::new(move |o| {
+                        std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                            path: dir.clone(),
+                            source,
+                        })?;
+                        Ok(stage.run(o)?.written)
+                    }),
+                )
+            }
+        };
+        let outcome = match cached(out, name, &key) {
+            Some(outputs) => StageOutcome {
+                name: name.to_string(),
+                status: "cached".into(),
+                key: key.clone(),
+                outputs,
+                ms: 0.0,
+            },
+            None => {
+                let t = Instant::now();
+                let written = run_it(observer)?;
+                let outputs: Vec<PathBuf> = written.iter().map(|p| relative(out, p)).collect();
+                write_record(out, name, &key, &outputs)?;
+                report.ran += 1;
+                StageOutcome {
+                    name: name.to_string(),
+                    status: "ran".into(),
+                    key: key.clone(),
+                    outputs,
+                    ms: t.elapsed().as_secs_f64() * 1e3,
+                }
+            }
+        };
+        report.stages.push(outcome);
+        upstream = Some(key);
+    }
+    Ok(report)
+}
