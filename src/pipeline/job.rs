@@ -162,8 +162,8 @@ impl Job {
         let base = path
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."))
-            .to_path_buf();
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
         let stem = path.file_stem().unwrap_or_default().to_string_lossy();
         let output = match &manifest.output {
             Some(o) => base.join(o),
@@ -217,6 +217,12 @@ impl Job {
         }
         if let Some(f) = &m.frames {
             parse_key::<FrameSpec>(p, "frames", &Some(f.clone()))?;
+        }
+        if m.export.is_some() && m.shot.is_none() {
+            return Err(bad(
+                p,
+                "[export] needs a [shot]: the embedded asset alone has no frames to export".into(),
+            ));
         }
         if let Some(e) = &m.export {
             parse_key::<FrameSpec>(p, "export.steps", &e.steps)?;
@@ -290,13 +296,15 @@ impl Job {
                 let d = CharacterSection::default();
                 Scene {
                     character: Some(CharacterSection {
-                        file: self.resolve(&c.file),
+                        // As written: the key must not depend on where `run` is started.
+                        file: c.file.clone(),
                         animation: c.animation.clone(),
                         scale: c.scale.unwrap_or(d.scale),
                         pin_distance: c.pin_distance.unwrap_or(d.pin_distance),
                         fit_joint: c.fit_joint.clone(),
                         ..d
                     }),
+                    base_dir: self.base.clone(),
                     ..Scene::default()
                 }
             }
@@ -442,10 +450,6 @@ pub fn run(
         })?,
     };
     let out = &job.output;
-    std::fs::create_dir_all(out).map_err(|source| IoError::Write {
-        path: out.clone(),
-        source,
-    })?;
     let m = &job.manifest;
     let yarns = job.resolve(&m.garment.yarns);
     let embed_params = {
@@ -548,6 +552,10 @@ pub fn run(
                 ms: 0.0,
             },
             None => {
+                std::fs::create_dir_all(out).map_err(|source| IoError::Write {
+                    path: out.clone(),
+                    source,
+                })?;
                 let t = Instant::now();
                 let written = run_it(observer)?;
                 let outputs: Vec<PathBuf> = written.iter().map(|p| relative(out, p)).collect();
