@@ -575,3 +575,79 @@ pub fn run(
     }
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn key_follows_params_inputs_and_upstream() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = write(dir.path(), "a.txt", "one");
+        let k = |p: &str, up: Option<&str>| stage_key("embed", &p, &[a.clone()], up).unwrap();
+        let base = k("x", None);
+        assert_eq!(base.len(), 64);
+        assert_eq!(base, k("x", None));
+        assert_ne!(base, k("y", None));
+        assert_ne!(base, k("x", Some("u")));
+        write(dir.path(), "a.txt", "two");
+        assert_ne!(base, k("x", None));
+    }
+
+    #[test]
+    fn paths_resolve_against_the_manifest_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).unwrap();
+        let text =
+            "frames = \"1\"\n[garment]\nyarns = \"y.bcc\"\n[character]\nfile = \"c.glb\"\n[shot]\n";
+        let job = Job::load(&write(&sub, "shot.toml", text)).unwrap();
+        assert_eq!(job.output, sub.join("shot.out"));
+        assert_eq!(job.resolve(&job.manifest.garment.yarns), sub.join("y.bcc"));
+        let (scene, inputs) = job.scene().unwrap();
+        assert_eq!(inputs, vec![sub.join("c.glb")]);
+        // The hashed scene holds the path as written, so the key does not
+        // depend on how the manifest was named.
+        let other = Job::load(&sub.join("..").join("sub").join("shot.toml")).unwrap();
+        let v = |s: &Scene| serde_json::to_value(s).unwrap();
+        assert_eq!(v(&scene), v(&other.scene().unwrap().0));
+        let with_out =
+            Job::load(&write(&sub, "o.toml", &format!("output = \"x\"\n{text}"))).unwrap();
+        assert_eq!(with_out.output, sub.join("x"));
+    }
+
+    #[test]
+    fn bad_manifests_name_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        for (text, key) in [
+            (
+                "[garment]\nyarns = \"y\"\nunits = \"furlong\"\n",
+                "garment.units",
+            ),
+            (
+                "[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\n",
+                "frames",
+            ),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\n",
+                "shot.scene",
+            ),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\nfps = 0\n",
+                "shot.fps",
+            ),
+            ("frames = \"x\"\n[garment]\nyarns = \"y\"\n", "frames"),
+        ] {
+            let e = Job::load(&write(dir.path(), "j.toml", text)).unwrap_err();
+            assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");
+            let m = e.to_string();
+            assert!(m.contains("j.toml") && m.contains(key), "{m}");
+        }
+    }
+}
