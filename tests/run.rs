@@ -122,6 +122,24 @@ fn second_run_does_nothing_and_says_so() {
     assert!(text.contains("export: cached (key "), "{text}");
     assert!(text.contains("nothing to do"), "{text}");
     assert!(!text.contains("ran in"), "{text}");
+    // The keys do not depend on the folder `run` starts in.
+    let parent = dir.path().parent().unwrap();
+    let relative = job.strip_prefix(parent).unwrap();
+    let elsewhere = std::process::Command::new(common::knitvox_bin())
+        .current_dir(parent)
+        .arg("run")
+        .arg(relative)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_eq!(
+        statuses(&elsewhere),
+        pairs(&[
+            ("embed", "cached"),
+            ("shot", "cached"),
+            ("export", "cached")
+        ])
+    );
     // A deleted output reruns its stage (and nothing whose key is unchanged).
     std::fs::remove_file(out.join("export/garment.0001.ply")).unwrap();
     assert_eq!(
