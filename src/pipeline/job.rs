@@ -425,6 +425,9 @@ fn write_record(out: &Path, stage: &str, key: &str, outputs: &[PathBuf]) -> Resu
     Ok(())
 }
 
+/// A stage ready to run: returns the files it wrote.
+type StageRun = Box<dyn Fn(&mut dyn Observer) -> Result<Vec<PathBuf>, Error>>;
+
 fn relative(out: &Path, p: &Path) -> PathBuf {
     p.strip_prefix(out).unwrap_or(p).to_path_buf()
 }
@@ -470,13 +473,10 @@ pub fn run(
     };
     let mut upstream: Option<String> = None;
     for name in &stages[..=last] {
-        let (key, run_it): (
-            String,
-            Box<dyn Fn(&mut dyn Observer) -> Result<Vec<PathBuf>, Error>>,
-        ) = match *name {
+        let (key, run_it): (String, StageRun) = match *name {
             "embed" => {
                 let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
-                let key = stage_key(name, &params, &[yarns.clone()], None)?;
+                let key = stage_key(name, &params, std::slice::from_ref(&yarns), None)?;
                 let stage = EmbedJob {
                     yarns: yarns.clone(),
                     read: job.read_options()?,
