@@ -453,104 +453,27 @@ pub fn run(
         })?,
     };
     let out = &job.output;
-    let m = &job.manifest;
-    let yarns = job.resolve(&m.garment.yarns);
-    let embed_params = {
-        let e = m.embed.clone().unwrap_or_default();
-        let d = EmbedParams::default();
-        EmbedParams {
-            voxel_size: e.voxel_size,
-            max_voxels: e.max_voxels.unwrap_or(d.max_voxels),
-            material_density: e.density.unwrap_or(d.material_density),
-            ..d
-        }
-    };
-    let garment_asset = out.join("garment.vtkhdf");
-    let shot_asset = out.join("shot.vtkhdf");
     let mut report = RunReport {
         stages: Vec::new(),
         ran: 0,
     };
     let mut upstream: Option<String> = None;
     for name in &stages[..=last] {
-        let (key, run_it): (String, StageRun) = match *name {
-            "embed" => {
-                let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
-                let key = stage_key(name, &params, std::slice::from_ref(&yarns), None)?;
-                let stage = EmbedJob {
-                    yarns: yarns.clone(),
-                    read: job.read_options()?,
-                    params: embed_params.clone(),
-                    output: garment_asset.clone(),
-                    command: command.into(),
-                };
-                (key, Box::new(move |o| Ok(vec![stage.run(o)?.asset])))
-            }
-            "shot" => {
-                let (scene, inputs) = job.scene()?;
-                let params = (&m.frames, &m.shot, &m.character, &scene);
-                let key = stage_key(name, &params, &inputs, upstream.as_deref())?;
-                let frames: FrameSpec = m
-                    .frames
-                    .as_deref()
-                    .unwrap_or("1")
-                    .parse()
-                    .map_err(|e| bad(&job.path, format!("key 'frames': {e}")))?;
-                let stage = ShotJob {
-                    asset: garment_asset.clone(),
-                    scene,
-                    request: ShotRequest {
-                        frames: frames.frames(),
-                        output: shot_asset.clone(),
-                        yarns_out: None,
-                        write: WriteOptions::default(),
-                        command: command.into(),
-                    },
-                };
-                (key, Box::new(move |o| Ok(vec![stage.run(o)?.output])))
-            }
-            _ => {
-                let e = m.export.clone().unwrap_or_default();
-                let key = stage_key(name, &e, &[], upstream.as_deref())?;
-                let stage = ExportJob {
-                    asset: if stages.contains(&"shot") {
-                        shot_asset.clone()
-                    } else {
-                        garment_asset.clone()
-                    },
-                    selection: parse_key(&job.path, "export.steps", &e.steps)?,
-                    format: job.export_format()?,
-                    output: out.join("export"),
-                    name: Some(e.name.clone().unwrap_or_else(|| "garment".into())),
-                    write: WriteOptions {
-                        units: parse_key(&job.path, "export.units", &e.units)?
-                            .unwrap_or(WriteOptions::default().units),
-                        up_axis: parse_key(&job.path, "export.up_axis", &e.up_axis)?
-                            .unwrap_or(WriteOptions::default().up_axis),
-                        first_frame: 0,
-                    },
-                };
-                let dir = out.join("export");
-                (
-                    key,
-                    Box::new(move |o| {
-                        std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
-                            path: dir.clone(),
-                            source,
-                        })?;
-                        Ok(stage.run(o)?.written)
-                    }),
-                )
-            }
+        let up = upstream.as_deref();
+        let (key, run_it) = match *name {
+            "embed" => job.plan_embed(command)?,
+            "shot" => job.plan_shot(up, command)?,
+            _ => job.plan_export(up)?,
         };
-        let outcome = match cached(out, name, &key) {
-            Some(outputs) => StageOutcome {
-                name: name.to_string(),
-                status: "cached".into(),
-                key: key.clone(),
-                outputs,
-                ms: 0.0,
-            },
+        let mut outcome = StageOutcome {
+            name: name.to_string(),
+            status: "cached".into(),
+            key: key.clone(),
+            outputs: Vec::new(),
+            ms: 0.0,
+        };
+        match cached(out, name, &key) {
+            Some(outputs) => outcome.outputs = outputs,
             None => {
                 std::fs::create_dir_all(out).map_err(|source| IoError::Write {
                     path: out.clone(),
@@ -558,22 +481,104 @@ pub fn run(
                 })?;
                 let t = Instant::now();
                 let written = run_it(observer)?;
-                let outputs: Vec<PathBuf> = written.iter().map(|p| relative(out, p)).collect();
-                write_record(out, name, &key, &outputs)?;
+                outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
+                // The record only after every output exists.
+                write_record(out, name, &key, &outcome.outputs)?;
+                outcome.status = "ran".into();
+                outcome.ms = t.elapsed().as_secs_f64() * 1e3;
                 report.ran += 1;
-                StageOutcome {
-                    name: name.to_string(),
-                    status: "ran".into(),
-                    key: key.clone(),
-                    outputs,
-                    ms: t.elapsed().as_secs_f64() * 1e3,
-                }
             }
-        };
+        }
         report.stages.push(outcome);
         upstream = Some(key);
     }
     Ok(report)
+}
+
+impl Job {
+    fn garment_asset(&self) -> PathBuf {
+        self.output.join("garment.vtkhdf")
+    }
+
+    fn shot_asset(&self) -> PathBuf {
+        self.output.join("shot.vtkhdf")
+    }
+
+    /// The embed stage's key and job (keyed by the garment file's content).
+    fn plan_embed(&self, command: &str) -> Result<(String, StageRun), Error> {
+        let m = &self.manifest;
+        let yarns = self.resolve(&m.garment.yarns);
+        let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
+        let key = stage_key("embed", &params, std::slice::from_ref(&yarns), None)?;
+        let e = m.embed.clone().unwrap_or_default();
+        let d = EmbedParams::default();
+        let stage = EmbedJob {
+            yarns,
+            read: self.read_options()?,
+            params: EmbedParams {
+                voxel_size: e.voxel_size,
+                max_voxels: e.max_voxels.unwrap_or(d.max_voxels),
+                material_density: e.density.unwrap_or(d.material_density),
+                ..d
+            },
+            output: self.garment_asset(),
+            command: command.into(),
+        };
+        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.asset]))))
+    }
+
+    /// The shot stage's key and job (scene and character files' contents).
+    fn plan_shot(
+        &self,
+        upstream: Option<&str>,
+        command: &str,
+    ) -> Result<(String, StageRun), Error> {
+        let m = &self.manifest;
+        let (scene, inputs) = self.scene()?;
+        let params = (&m.frames, &m.shot, &m.character, &scene);
+        let key = stage_key("shot", &params, &inputs, upstream)?;
+        let frames: Option<FrameSpec> = parse_key(&self.path, "frames", &m.frames)?;
+        let stage = ShotJob {
+            asset: self.garment_asset(),
+            scene,
+            request: ShotRequest {
+                frames: frames.map(|f| f.frames()).unwrap_or_default(),
+                output: self.shot_asset(),
+                yarns_out: None,
+                write: WriteOptions::default(),
+                command: command.into(),
+            },
+        };
+        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))
+    }
+
+    /// The export stage's key and job (its parameters and the shot's key).
+    fn plan_export(&self, upstream: Option<&str>) -> Result<(String, StageRun), Error> {
+        let e = self.manifest.export.clone().unwrap_or_default();
+        let key = stage_key("export", &e, &[], upstream)?;
+        let d = WriteOptions::default();
+        let dir = self.output.join("export");
+        let stage = ExportJob {
+            asset: self.shot_asset(),
+            selection: parse_key(&self.path, "export.steps", &e.steps)?,
+            format: self.export_format()?,
+            output: dir.clone(),
+            name: Some(e.name.clone().unwrap_or_else(|| "garment".into())),
+            write: WriteOptions {
+                units: parse_key(&self.path, "export.units", &e.units)?.unwrap_or(d.units),
+                up_axis: parse_key(&self.path, "export.up_axis", &e.up_axis)?.unwrap_or(d.up_axis),
+                first_frame: 0,
+            },
+        };
+        let run = move |o: &mut dyn Observer| {
+            std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                path: dir.clone(),
+                source,
+            })?;
+            Ok(stage.run(o)?.written)
+        };
+        Ok((key, Box::new(run)))
+    }
 }
 
 #[cfg(test)]
