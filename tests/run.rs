@@ -306,3 +306,50 @@ name = "n"
         serde_json::Value::Bool(false)
     );
 }
+
+#[test]
+fn character_job_runs_on_the_repository_fox_and_caches() {
+    // The [character] form (as `simulate --character`), on examples/Fox.glb.
+    let dir = tempfile::tempdir().unwrap();
+    write_garment(&dir.path().join("swatch.bcc"), 3);
+    let fox = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
+    let text = format!(
+        r#"
+frames = "1-2"
+[garment]
+yarns = "swatch.bcc"
+[character]
+file = "{}"
+animation = "Walk"
+scale = 0.0025
+fit_joint = "b_Spine02_03"
+[shot]
+backend = "cpu"
+garment_rotate = [-90.0, 0.0, 0.0]
+[export]
+format = "obj"
+"#,
+        fox.display()
+    );
+    let job = dir.path().join("fox.toml");
+    std::fs::write(&job, &text).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
+    );
+    assert!(dir.path().join("fox.out/export/garment.0001.obj").is_file());
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[
+            ("embed", "cached"),
+            ("shot", "cached"),
+            ("export", "cached")
+        ])
+    );
+    // A character parameter reruns the shot and what follows, not embed.
+    std::fs::write(&job, text.replace("scale = 0.0025", "scale = 0.003")).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[("embed", "cached"), ("shot", "ran"), ("export", "ran")])
+    );
+}
