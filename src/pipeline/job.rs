@@ -229,6 +229,18 @@ impl Job {
             parse_key::<Units>(p, "export.units", &e.units)?;
             parse_key::<UpAxis>(p, "export.up_axis", &e.up_axis)?;
             self.export_format()?;
+            // Files are written inside OUT/export: a name is never a path.
+            if let Some(n) = &e.name {
+                if n.is_empty() || n.contains(['/', '\\', '\0']) || n.starts_with('.') {
+                    return Err(bad(
+                        p,
+                        format!(
+                            "key 'export.name': '{}' is not a plain file name (no '/', '\\', leading '.')",
+                            crate::geom::excerpt(n)
+                        ),
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -453,6 +465,10 @@ pub fn run(
         })?,
     };
     let out = &job.output;
+    // knitvox never overwrites an input (an `output` folder holding one).
+    let yarns = job.resolve(&job.manifest.garment.yarns);
+    let (garment, shot) = (job.garment_asset(), job.shot_asset());
+    io::overwrite::refuse_inputs(&[&garment, &shot], &[&yarns])?;
     let mut report = RunReport {
         stages: Vec::new(),
         ran: 0,
@@ -648,6 +664,10 @@ mod tests {
                 "shot.fps",
             ),
             ("frames = \"x\"\n[garment]\nyarns = \"y\"\n", "frames"),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\n[export]\nname = \"../x\"\n",
+                "export.name",
+            ),
         ] {
             let e = Job::load(&write(dir.path(), "j.toml", text)).unwrap_err();
             assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");
