@@ -181,6 +181,20 @@ fn changed_export_parameter_reruns_only_export() {
     };
     assert_eq!(key(&first, 1), key(&second, 1));
     assert_ne!(key(&first, 2), key(&second, 2));
+    // Another format replaces the previous export's files.
+    std::fs::write(&job, manifest("m").replace("\"ply\"", "\"obj\"")).unwrap();
+    let third = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&third),
+        pairs(&[("embed", "cached"), ("shot", "cached"), ("export", "ran")])
+    );
+    let export = dir.path().join("job.out/export");
+    let mut files: Vec<String> = std::fs::read_dir(&export)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    files.sort();
+    assert_eq!(files, ["garment.0000.obj", "garment.0001.obj"]);
 }
 
 #[test]

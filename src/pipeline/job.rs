@@ -420,6 +420,37 @@ fn cached(out: &Path, stage: &str, key: &str) -> Option<Vec<PathBuf>> {
     (r.key == key && r.outputs.iter().all(|o| out.join(o).exists())).then_some(r.outputs)
 }
 
+/// Removes a stage's record; returns the outputs it listed.
+fn invalidate(out: &Path, stage: &str) -> Result<Vec<PathBuf>, Error> {
+    let path = record_path(out, stage);
+    let old = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Record>(&t).ok())
+        .map(|r| r.outputs)
+        .unwrap_or_default();
+    match std::fs::remove_file(&path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(IoError::Write { path, source: e }.into())
+        }
+        _ => Ok(old),
+    }
+}
+
+/// Deletes the previous run's outputs that this run did not write again
+/// (another export name or format), so OUT holds one run's files. Only
+/// plain relative paths inside OUT are touched.
+fn remove_stale(out: &Path, old: &[PathBuf], new: &[PathBuf]) {
+    for o in old.iter().filter(|o| !new.contains(o)) {
+        let inside = o
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if inside {
+            // A file already gone is what we want.
+            let _ = std::fs::remove_file(out.join(o));
+        }
+    }
+}
+
 fn write_record(out: &Path, stage: &str, key: &str, outputs: &[PathBuf]) -> Result<(), Error> {
     let dir = out.join(".knitvox");
     std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
@@ -495,11 +526,15 @@ pub fn run(
                     path: out.clone(),
                     source,
                 })?;
+                // Invalidate first: a run killed after writing new outputs
+                // must not leave an old record vouching for them.
+                let stale = invalidate(out, name)?;
                 let t = Instant::now();
                 let written = run_it(observer)?;
                 outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
                 // The record only after every output exists.
                 write_record(out, name, &key, &outcome.outputs)?;
+                remove_stale(out, &stale, &outcome.outputs);
                 outcome.status = "ran".into();
                 outcome.ms = t.elapsed().as_secs_f64() * 1e3;
                 report.ran += 1;
