@@ -9,6 +9,7 @@ pub mod exit;
 mod fabric_test;
 pub mod guard;
 mod pattern;
+mod run;
 mod simulate;
 mod yls;
 
@@ -50,6 +51,8 @@ pub enum Command {
     Bake(bake::BakeArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
     Simulate(simulate::SimulateArgs),
+    /// Run a job manifest's stages (embed, shot, export), skipping cached ones (schemas/job.md).
+    Run(run::RunArgs),
     /// Run a yarn-level scene (schemas/yls-scene.md) and write its frames (knitvox HDF5).
     Yls(yls::YlsArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
@@ -315,6 +318,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Export(a) => asset::export(&a),
         Command::Simulate(a) => simulate::simulate(&a),
         Command::Bake(a) => bake::bake(&a),
+        Command::Run(a) => run::run(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),

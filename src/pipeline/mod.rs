@@ -36,8 +36,9 @@
 //!   `sim::pd::PdParams`, `embed::EmbedParams`) are the defaults; scene
 //!   sections and clap arguments refer to them instead of repeating numbers.
 //!
-//! Later items of issue 12 add job manifests, stage caching and resume on
-//! top of this contract.
+//! [`job`] runs these stages from a job manifest (`knitvox run`), skipping
+//! those whose inputs, parameters and upstream stages are unchanged; later
+//! items of issue 12 add resume on top of this contract.
 
 pub mod asset;
 pub mod bake;
@@ -46,6 +47,7 @@ pub mod error;
 pub mod fabric_test;
 pub mod frames;
 pub mod inspect;
+pub mod job;
 pub mod pattern;
 pub mod shot_setup;
 pub mod sim_scene;

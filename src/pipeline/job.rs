@@ -1,0 +1,713 @@
+//! Job manifests (`knitvox run JOB.toml`; schemas/job.md) and stage caching.
+//!
+//! A job names the garment yarns, the character, the frames and the stages
+//! (`embed` -> `shot` -> `export`). Each stage's key is the SHA-256 of the
+//! knitvox version, the stage name, its parameters (canonical JSON), the
+//! contents of its input files and the upstream stage's key, so a changed
+//! input or parameter changes that stage's key and every key downstream
+//! (Houdini PDG's cook-from-cache rule). A record `OUT/.knitvox/STAGE.json`
+//! is written atomically after the stage's outputs exist; a rerun skips a
+//! stage whose record holds the same key and whose outputs all exist.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::asset::{sha256_file, EmbedJob, ExportJob};
+use super::sim_scene::{CharacterSection, Scene, Seconds};
+use super::simulate::{read_scene, ShotJob, ShotRequest};
+use super::{Error, Observer, Stage};
+use crate::embed::EmbedParams;
+use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
+use crate::io::{self, IoError, ReadOptions, WriteOptions};
+
+/// The stages a job may hold, in run order.
+pub const STAGES: [&str; 3] = ["embed", "shot", "export"];
+
+/// A job manifest as written (schemas/job.md, schemas/job.schema.json).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// Output folder [default: `<manifest stem>.out` beside the manifest].
+    pub output: Option<PathBuf>,
+    /// Farm frames of the shot: `1-24`, `1001-1100x5`.
+    pub frames: Option<String>,
+    pub garment: Garment,
+    pub character: Option<Character>,
+    pub embed: Option<EmbedSection>,
+    pub shot: Option<ShotSection>,
+    pub export: Option<ExportSection>,
+}
+
+/// The garment's yarns.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Garment {
+    /// Yarn file (any readable format).
+    pub yarns: PathBuf,
+    /// Unit of a unitless file (`mm`, `cm`, `m` or metres per unit) [default: the file's, else m].
+    pub units: Option<String>,
+    /// Up axis (`y` or `z`) [default: the file's, else y].
+    pub up_axis: Option<String>,
+}
+
+/// The character driving the shot (as `simulate --character` takes it).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Character {
+    /// glTF/GLB with a skin, or an HDF5 character cache.
+    pub file: PathBuf,
+    /// Animation name [default: the file's first].
+    pub animation: Option<String>,
+    /// Metres per file unit [default 1].
+    pub scale: Option<f64>,
+    /// Garment nodes within this distance (m) of the bind-pose body are pinned.
+    pub pin_distance: Option<f64>,
+    /// Lay the garment on the body over this joint.
+    pub fit_joint: Option<String>,
+}
+
+/// `[embed]`: embedding parameters ([`EmbedParams`] defaults).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmbedSection {
+    /// Voxel edge length (m) [default: VH §4 rule].
+    pub voxel_size: Option<f64>,
+    /// Refuse embeddings with more voxels than this.
+    pub max_voxels: Option<u64>,
+    /// Yarn material density (kg/m^3).
+    pub density: Option<f64>,
+}
+
+/// `[shot]`: a scene file, or the top-level `[character]` with these options.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShotSection {
+    /// Scene file (schemas/sim-scene.md); excludes `[character]`.
+    pub scene: Option<PathBuf>,
+    /// Largest time step (s).
+    pub dt: Option<f64>,
+    /// Frames per second.
+    pub fps: Option<f64>,
+    /// Pre-roll (s).
+    pub preroll: Option<f64>,
+    /// `cpu`, `gpu` or `auto`.
+    pub backend: Option<String>,
+    /// `direct` or `dd`.
+    pub solver: Option<String>,
+    /// Garment rotation (degrees about x, y, z).
+    pub garment_rotate: Option<Vec3>,
+    /// Garment translation (m).
+    pub garment_offset: Option<Vec3>,
+}
+
+/// `[export]`: per-frame files of the shot (or of the embedded asset).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportSection {
+    /// `ply`, `bcc`, `obj`, `gltf`, `glb` or `h5` [default ply].
+    pub format: Option<String>,
+    /// Steps to export, 0-based [default: all].
+    pub steps: Option<String>,
+    /// Unit of written bcc/obj/ply coordinates [default m].
+    pub units: Option<String>,
+    /// Up axis of written bcc/obj/ply coordinates [default y].
+    pub up_axis: Option<String>,
+    /// Base name of the files [default `garment`].
+    pub name: Option<String>,
+}
+
+/// A manifest that cannot be used: the file and the key.
+fn bad(path: &Path, message: String) -> Error {
+    IoError::Unsupported {
+        path: path.to_path_buf(),
+        message,
+    }
+    .into()
+}
+
+fn parse_key<T: std::str::FromStr<Err = String>>(
+    path: &Path,
+    key: &str,
+    v: &Option<String>,
+) -> Result<Option<T>, Error> {
+    v.as_deref()
+        .map(|s| {
+            s.parse::<T>()
+                .map_err(|e| bad(path, format!("key '{key}': {e}")))
+        })
+        .transpose()
+}
+
+/// A loaded job: the manifest with paths resolved against its folder.
+#[derive(Debug, Clone)]
+pub struct Job {
+    pub path: PathBuf,
+    pub manifest: Manifest,
+    pub base: PathBuf,
+    pub output: PathBuf,
+}
+
+impl Job {
+    /// Reads and checks a manifest (exit 65 naming the file and key; 66 when missing).
+    pub fn load(path: &Path) -> Result<Job, Error> {
+        let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let manifest: Manifest = toml::from_str(&text)
+            .map_err(|e| bad(path, super::sim_scene::toml_error_line(&e, &text)))?;
+        let base = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+        let output = match &manifest.output {
+            Some(o) => base.join(o),
+            None => base.join(format!("{stem}.out")),
+        };
+        let job = Job {
+            path: path.to_path_buf(),
+            manifest,
+            base,
+            output,
+        };
+        job.check()?;
+        Ok(job)
+    }
+
+    fn check(&self) -> Result<(), Error> {
+        let m = &self.manifest;
+        let p = &self.path;
+        parse_key::<Units>(p, "garment.units", &m.garment.units)?;
+        parse_key::<UpAxis>(p, "garment.up_axis", &m.garment.up_axis)?;
+        if m.garment.yarns.as_os_str().is_empty() {
+            return Err(bad(p, "key 'garment.yarns' is required".into()));
+        }
+        if let Some(s) = &m.shot {
+            if m.frames.is_none() {
+                return Err(bad(p, "key 'frames' is required with [shot]".into()));
+            }
+            match (&s.scene, &m.character) {
+                (Some(_), Some(_)) => {
+                    return Err(bad(
+                        p,
+                        "key 'shot.scene' excludes [character]: the scene names its character"
+                            .into(),
+                    ))
+                }
+                (None, None) => {
+                    return Err(bad(
+                        p,
+                        "[shot] needs key 'shot.scene' or a [character]".into(),
+                    ))
+                }
+                _ => {}
+            }
+            parse_key::<super::sim_scene::BackendChoice>(p, "shot.backend", &s.backend)?;
+            parse_key::<super::sim_scene::SolverChoice>(p, "shot.solver", &s.solver)?;
+            for (k, v) in [("shot.dt", s.dt), ("shot.fps", s.fps)] {
+                if v.is_some_and(|x| !(x.is_finite() && x > 0.0)) {
+                    return Err(bad(p, format!("key '{k}': must be a positive number")));
+                }
+            }
+        }
+        if let Some(f) = &m.frames {
+            parse_key::<FrameSpec>(p, "frames", &Some(f.clone()))?;
+        }
+        if m.export.is_some() && m.shot.is_none() {
+            return Err(bad(
+                p,
+                "[export] needs a [shot]: the embedded asset alone has no frames to export".into(),
+            ));
+        }
+        if let Some(e) = &m.export {
+            parse_key::<FrameSpec>(p, "export.steps", &e.steps)?;
+            parse_key::<Units>(p, "export.units", &e.units)?;
+            parse_key::<UpAxis>(p, "export.up_axis", &e.up_axis)?;
+            self.export_format()?;
+            // Files are written inside OUT/export: a name is never a path.
+            if let Some(n) = &e.name {
+                if n.is_empty() || n.contains(['/', '\\', '\0']) || n.starts_with('.') {
+                    return Err(bad(
+                        p,
+                        format!(
+                            "key 'export.name': '{}' is not a plain file name (no '/', '\\', leading '.')",
+                            crate::geom::excerpt(n)
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn export_format(&self) -> Result<io::Format, Error> {
+        let f = self
+            .manifest
+            .export
+            .as_ref()
+            .and_then(|e| e.format.clone())
+            .unwrap_or_else(|| "ply".into());
+        if !["ply", "bcc", "obj", "gltf", "glb", "h5"].contains(&f.as_str()) {
+            return Err(bad(
+                &self.path,
+                format!(
+                    "key 'export.format': '{}' is not one of ply, bcc, obj, gltf, glb, h5",
+                    crate::geom::excerpt(&f)
+                ),
+            ));
+        }
+        io::Format::from_path(Path::new(&format!("x.{f}"))).ok_or_else(|| {
+            bad(
+                &self.path,
+                format!("key 'export.format': '{f}' is not writable"),
+            )
+        })
+    }
+
+    fn resolve(&self, p: &Path) -> PathBuf {
+        self.base.join(p)
+    }
+
+    /// The stages this job holds, in run order.
+    pub fn stages(&self) -> Vec<&'static str> {
+        let m = &self.manifest;
+        let mut v = vec!["embed"];
+        if m.shot.is_some() {
+            v.push("shot");
+        }
+        if m.export.is_some() {
+            v.push("export");
+        }
+        v
+    }
+
+    fn read_options(&self) -> Result<ReadOptions, Error> {
+        let g = &self.manifest.garment;
+        Ok(ReadOptions {
+            units: parse_key(&self.path, "garment.units", &g.units)?,
+            up_axis: parse_key(&self.path, "garment.up_axis", &g.up_axis)?,
+            ..ReadOptions::default()
+        })
+    }
+
+    fn scene(&self) -> Result<(Scene, Vec<PathBuf>), Error> {
+        let s = self.manifest.shot.clone().unwrap_or_default();
+        let mut inputs = Vec::new();
+        let mut scene = match (&s.scene, &self.manifest.character) {
+            (Some(f), _) => {
+                let f = self.resolve(f);
+                inputs.push(f.clone());
+                read_scene(&f)?
+            }
+            (None, Some(c)) => {
+                let d = CharacterSection::default();
+                Scene {
+                    character: Some(CharacterSection {
+                        // As written: the key must not depend on where `run` is started.
+                        file: c.file.clone(),
+                        animation: c.animation.clone(),
+                        scale: c.scale.unwrap_or(d.scale),
+                        pin_distance: c.pin_distance.unwrap_or(d.pin_distance),
+                        fit_joint: c.fit_joint.clone(),
+                        ..d
+                    }),
+                    base_dir: self.base.clone(),
+                    ..Scene::default()
+                }
+            }
+            (None, None) => {
+                return Err(bad(
+                    &self.path,
+                    "[shot] needs key 'shot.scene' or a [character]".into(),
+                ))
+            }
+        };
+        if let Some(c) = &scene.character {
+            inputs.push(scene.base_dir.join(&c.file));
+        }
+        if let Some(r) = s.garment_rotate {
+            scene.garment.rotate_deg = r;
+        }
+        if let Some(t) = s.garment_offset {
+            scene.garment.translate = t;
+        }
+        let sim = &mut scene.simulation;
+        if let Some(dt) = s.dt {
+            sim.dt = Seconds(dt);
+        }
+        if let Some(f) = s.fps {
+            sim.fps = f;
+        }
+        if let Some(p) = s.preroll {
+            sim.preroll = Some(p);
+        }
+        if let Some(b) = parse_key(&self.path, "shot.backend", &s.backend)? {
+            sim.backend = b;
+        }
+        if let Some(v) = parse_key(&self.path, "shot.solver", &s.solver)? {
+            sim.solver = v;
+        }
+        Ok((scene, inputs))
+    }
+}
+
+/// What happened to one stage.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageOutcome {
+    pub name: String,
+    /// `ran` or `cached`.
+    pub status: String,
+    /// The stage key (hex SHA-256).
+    pub key: String,
+    /// Output files, relative to the output folder.
+    pub outputs: Vec<PathBuf>,
+    /// Run time (0 when cached).
+    pub ms: f64,
+}
+
+/// What `knitvox run` did.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    pub stages: Vec<StageOutcome>,
+    pub ran: usize,
+}
+
+/// The record `OUT/.knitvox/STAGE.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Record {
+    stage: String,
+    key: String,
+    outputs: Vec<PathBuf>,
+    knitvox: String,
+}
+
+fn stage_key(
+    name: &str,
+    params: &impl Serialize,
+    inputs: &[PathBuf],
+    upstream: Option<&str>,
+) -> Result<String, Error> {
+    let mut h = Sha256::new();
+    h.update(format!(
+        "knitvox {}\nstage {name}\n",
+        env!("CARGO_PKG_VERSION")
+    ));
+    // serde_json::Value keeps object keys sorted: canonical parameters.
+    let v = serde_json::to_value(params).map_err(|e| Error::Internal(e.to_string()))?;
+    h.update(format!("params {v}\n"));
+    for p in inputs {
+        h.update(format!("input {}\n", sha256_file(p)?));
+    }
+    if let Some(u) = upstream {
+        h.update(format!("upstream {u}\n"));
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+fn record_path(out: &Path, stage: &str) -> PathBuf {
+    out.join(".knitvox").join(format!("{stage}.json"))
+}
+
+/// Whether the record holds `key` and every recorded output exists.
+fn cached(out: &Path, stage: &str, key: &str) -> Option<Vec<PathBuf>> {
+    let text = std::fs::read_to_string(record_path(out, stage)).ok()?;
+    let r: Record = serde_json::from_str(&text).ok()?;
+    (r.key == key && r.outputs.iter().all(|o| out.join(o).exists())).then_some(r.outputs)
+}
+
+/// Removes a stage's record; returns the outputs it listed.
+fn invalidate(out: &Path, stage: &str) -> Result<Vec<PathBuf>, Error> {
+    let path = record_path(out, stage);
+    let old = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Record>(&t).ok())
+        .map(|r| r.outputs)
+        .unwrap_or_default();
+    match std::fs::remove_file(&path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(IoError::Write { path, source: e }.into())
+        }
+        _ => Ok(old),
+    }
+}
+
+/// Deletes the previous run's outputs that this run did not write again
+/// (another export name or format), so OUT holds one run's files. Only
+/// plain relative paths inside OUT are touched.
+fn remove_stale(out: &Path, old: &[PathBuf], new: &[PathBuf]) {
+    for o in old.iter().filter(|o| !new.contains(o)) {
+        let inside = o
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if inside {
+            // A file already gone is what we want.
+            let _ = std::fs::remove_file(out.join(o));
+        }
+    }
+}
+
+fn write_record(out: &Path, stage: &str, key: &str, outputs: &[PathBuf]) -> Result<(), Error> {
+    let dir = out.join(".knitvox");
+    std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+        path: dir.clone(),
+        source,
+    })?;
+    let r = Record {
+        stage: stage.into(),
+        key: key.into(),
+        outputs: outputs.to_vec(),
+        knitvox: env!("CARGO_PKG_VERSION").into(),
+    };
+    let text = serde_json::to_string_pretty(&r).map_err(|e| Error::Internal(e.to_string()))?;
+    crate::io::atomic::write_bytes(&record_path(out, stage), text.as_bytes())?;
+    Ok(())
+}
+
+/// A stage ready to run: returns the files it wrote.
+type StageRun = Box<dyn Fn(&mut dyn Observer) -> Result<Vec<PathBuf>, Error>>;
+
+fn relative(out: &Path, p: &Path) -> PathBuf {
+    p.strip_prefix(out).unwrap_or(p).to_path_buf()
+}
+
+/// Runs the job's stages up to `until` (all when `None`), skipping those
+/// whose key and outputs are unchanged. `command` goes into provenance.
+pub fn run(
+    job: &Job,
+    until: Option<&str>,
+    command: &str,
+    observer: &mut dyn Observer,
+) -> Result<RunReport, Error> {
+    let stages = job.stages();
+    let last = match until {
+        None => stages.len() - 1,
+        Some(n) => stages.iter().position(|s| *s == n).ok_or_else(|| {
+            Error::Usage(format!(
+                "--stage {}: {} has no such stage (it has: {})",
+                crate::geom::excerpt(n),
+                job.path.display(),
+                stages.join(", ")
+            ))
+        })?,
+    };
+    let out = &job.output;
+    // knitvox never overwrites an input (an `output` folder holding one).
+    let yarns = job.resolve(&job.manifest.garment.yarns);
+    let (garment, shot) = (job.garment_asset(), job.shot_asset());
+    io::overwrite::refuse_inputs(&[&garment, &shot], &[&yarns])?;
+    let mut report = RunReport {
+        stages: Vec::new(),
+        ran: 0,
+    };
+    let mut upstream: Option<String> = None;
+    for name in &stages[..=last] {
+        let up = upstream.as_deref();
+        let (key, run_it) = match *name {
+            "embed" => job.plan_embed(command)?,
+            "shot" => job.plan_shot(up, command)?,
+            _ => job.plan_export(up)?,
+        };
+        let mut outcome = StageOutcome {
+            name: name.to_string(),
+            status: "cached".into(),
+            key: key.clone(),
+            outputs: Vec::new(),
+            ms: 0.0,
+        };
+        match cached(out, name, &key) {
+            Some(outputs) => outcome.outputs = outputs,
+            None => {
+                std::fs::create_dir_all(out).map_err(|source| IoError::Write {
+                    path: out.clone(),
+                    source,
+                })?;
+                // Invalidate first: a run killed after writing new outputs
+                // must not leave an old record vouching for them.
+                let stale = invalidate(out, name)?;
+                let t = Instant::now();
+                let written = run_it(observer)?;
+                outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
+                // The record only after every output exists.
+                write_record(out, name, &key, &outcome.outputs)?;
+                remove_stale(out, &stale, &outcome.outputs);
+                outcome.status = "ran".into();
+                outcome.ms = t.elapsed().as_secs_f64() * 1e3;
+                report.ran += 1;
+            }
+        }
+        report.stages.push(outcome);
+        upstream = Some(key);
+    }
+    Ok(report)
+}
+
+impl Job {
+    fn garment_asset(&self) -> PathBuf {
+        self.output.join("garment.vtkhdf")
+    }
+
+    fn shot_asset(&self) -> PathBuf {
+        self.output.join("shot.vtkhdf")
+    }
+
+    /// The embed stage's key and job (keyed by the garment file's content).
+    fn plan_embed(&self, command: &str) -> Result<(String, StageRun), Error> {
+        let m = &self.manifest;
+        let yarns = self.resolve(&m.garment.yarns);
+        let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
+        let key = stage_key("embed", &params, std::slice::from_ref(&yarns), None)?;
+        let e = m.embed.clone().unwrap_or_default();
+        let d = EmbedParams::default();
+        let stage = EmbedJob {
+            yarns,
+            read: self.read_options()?,
+            params: EmbedParams {
+                voxel_size: e.voxel_size,
+                max_voxels: e.max_voxels.unwrap_or(d.max_voxels),
+                material_density: e.density.unwrap_or(d.material_density),
+                ..d
+            },
+            output: self.garment_asset(),
+            command: command.into(),
+        };
+        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.asset]))))
+    }
+
+    /// The shot stage's key and job (scene and character files' contents).
+    fn plan_shot(
+        &self,
+        upstream: Option<&str>,
+        command: &str,
+    ) -> Result<(String, StageRun), Error> {
+        let m = &self.manifest;
+        let (scene, inputs) = self.scene()?;
+        let params = (&m.frames, &m.shot, &m.character, &scene);
+        let key = stage_key("shot", &params, &inputs, upstream)?;
+        let frames: Option<FrameSpec> = parse_key(&self.path, "frames", &m.frames)?;
+        let stage = ShotJob {
+            asset: self.garment_asset(),
+            scene,
+            request: ShotRequest {
+                frames: frames.map(|f| f.frames()).unwrap_or_default(),
+                output: self.shot_asset(),
+                yarns_out: None,
+                write: WriteOptions::default(),
+                command: command.into(),
+            },
+        };
+        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))
+    }
+
+    /// The export stage's key and job (its parameters and the shot's key).
+    fn plan_export(&self, upstream: Option<&str>) -> Result<(String, StageRun), Error> {
+        let e = self.manifest.export.clone().unwrap_or_default();
+        let key = stage_key("export", &e, &[], upstream)?;
+        let d = WriteOptions::default();
+        let dir = self.output.join("export");
+        let stage = ExportJob {
+            asset: self.shot_asset(),
+            selection: parse_key(&self.path, "export.steps", &e.steps)?,
+            format: self.export_format()?,
+            output: dir.clone(),
+            name: Some(e.name.clone().unwrap_or_else(|| "garment".into())),
+            write: WriteOptions {
+                units: parse_key(&self.path, "export.units", &e.units)?.unwrap_or(d.units),
+                up_axis: parse_key(&self.path, "export.up_axis", &e.up_axis)?.unwrap_or(d.up_axis),
+                first_frame: 0,
+            },
+        };
+        let run = move |o: &mut dyn Observer| {
+            std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                path: dir.clone(),
+                source,
+            })?;
+            Ok(stage.run(o)?.written)
+        };
+        Ok((key, Box::new(run)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn key_follows_params_inputs_and_upstream() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = write(dir.path(), "a.txt", "one");
+        let k = |p: &str, up: Option<&str>| stage_key("embed", &p, &[a.clone()], up).unwrap();
+        let base = k("x", None);
+        assert_eq!(base.len(), 64);
+        assert_eq!(base, k("x", None));
+        assert_ne!(base, k("y", None));
+        assert_ne!(base, k("x", Some("u")));
+        write(dir.path(), "a.txt", "two");
+        assert_ne!(base, k("x", None));
+    }
+
+    #[test]
+    fn paths_resolve_against_the_manifest_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).unwrap();
+        let text =
+            "frames = \"1\"\n[garment]\nyarns = \"y.bcc\"\n[character]\nfile = \"c.glb\"\n[shot]\n";
+        let job = Job::load(&write(&sub, "shot.toml", text)).unwrap();
+        assert_eq!(job.output, sub.join("shot.out"));
+        assert_eq!(job.resolve(&job.manifest.garment.yarns), sub.join("y.bcc"));
+        let (scene, inputs) = job.scene().unwrap();
+        assert_eq!(inputs, vec![sub.join("c.glb")]);
+        // The hashed scene holds the path as written, so the key does not
+        // depend on how the manifest was named.
+        let other = Job::load(&sub.join("..").join("sub").join("shot.toml")).unwrap();
+        let v = |s: &Scene| serde_json::to_value(s).unwrap();
+        assert_eq!(v(&scene), v(&other.scene().unwrap().0));
+        let with_out =
+            Job::load(&write(&sub, "o.toml", &format!("output = \"x\"\n{text}"))).unwrap();
+        assert_eq!(with_out.output, sub.join("x"));
+    }
+
+    #[test]
+    fn bad_manifests_name_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        for (text, key) in [
+            (
+                "[garment]\nyarns = \"y\"\nunits = \"furlong\"\n",
+                "garment.units",
+            ),
+            (
+                "[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\n",
+                "frames",
+            ),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\n",
+                "shot.scene",
+            ),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\nfps = 0\n",
+                "shot.fps",
+            ),
+            ("frames = \"x\"\n[garment]\nyarns = \"y\"\n", "frames"),
+            (
+                "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\n[export]\nname = \"../x\"\n",
+                "export.name",
+            ),
+        ] {
+            let e = Job::load(&write(dir.path(), "j.toml", text)).unwrap_err();
+            assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");
+            let m = e.to_string();
+            assert!(m.contains("j.toml") && m.contains(key), "{m}");
+        }
+    }
+}

@@ -1,0 +1,369 @@
+//! `knitvox run JOB.toml`: job manifests and cached stages (issue 12 item 2).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use knitvox::io::{self, WriteOptions};
+use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+
+/// A small knit swatch (courses x 4 wales) as a BCC file.
+fn write_garment(path: &Path, courses: usize) {
+    let yarns = knit_swatch(&SwatchParams {
+        courses,
+        wales: 4,
+        with_ring: false,
+        points_per_loop: 12,
+        ..SwatchParams::default()
+    });
+    io::write_path(path, &yarns, None, &WriteOptions::default()).unwrap();
+}
+
+/// A scene pinning one edge of the swatch, so a frame takes a few steps.
+const SCENE: &str = r#"
+[simulation]
+fps = 24
+dt = "1/48"
+[garment]
+rotate_deg = [-90, 0, 0]
+[[pin]]
+name = "edge"
+box_min = [-1.0, -1.0, -1.0]
+box_max = [1.0, 1.0, 0.0]
+"#;
+
+fn manifest(export_units: &str) -> String {
+    format!(
+        r#"
+frames = "1-2"
+[garment]
+yarns = "swatch.bcc"
+[shot]
+scene = "scene.toml"
+backend = "cpu"
+[export]
+format = "ply"
+units = "{export_units}"
+"#
+    )
+}
+
+/// A job folder: garment, scene and manifest; returns the manifest path.
+fn job_dir(dir: &Path) -> PathBuf {
+    write_garment(&dir.join("swatch.bcc"), 3);
+    std::fs::write(dir.join("scene.toml"), SCENE).unwrap();
+    let job = dir.join("job.toml");
+    std::fs::write(&job, manifest("m")).unwrap();
+    job
+}
+
+fn run(job: &Path, extra: &[&str]) -> Output {
+    std::process::Command::new(common::knitvox_bin())
+        .arg("run")
+        .arg(job)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// `(name, status)` of each stage of a `--json` run.
+fn statuses(out: &Output) -> Vec<(String, String)> {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            (
+                s["name"].as_str().unwrap().to_string(),
+                s["status"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+fn pairs(v: &[(&str, &str)]) -> Vec<(String, String)> {
+    v.iter()
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect()
+}
+
+#[test]
+fn second_run_does_nothing_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    let first = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&first),
+        pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
+    );
+    let out = dir.path().join("job.out");
+    for f in [
+        "garment.vtkhdf",
+        "shot.vtkhdf",
+        "export/garment.0000.ply",
+        "export/garment.0001.ply",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    for s in ["embed", "shot", "export"] {
+        assert!(out.join(".knitvox").join(format!("{s}.json")).is_file());
+    }
+    let second = run(&job, &[]);
+    assert!(second.status.success());
+    let text = String::from_utf8_lossy(&second.stdout);
+    assert!(text.contains("embed: cached (key "), "{text}");
+    assert!(text.contains("export: cached (key "), "{text}");
+    assert!(text.contains("nothing to do"), "{text}");
+    assert!(!text.contains("ran in"), "{text}");
+    // The keys do not depend on the folder `run` starts in.
+    let parent = dir.path().parent().unwrap();
+    let relative = job.strip_prefix(parent).unwrap();
+    let elsewhere = std::process::Command::new(common::knitvox_bin())
+        .current_dir(parent)
+        .arg("run")
+        .arg(relative)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_eq!(
+        statuses(&elsewhere),
+        pairs(&[
+            ("embed", "cached"),
+            ("shot", "cached"),
+            ("export", "cached")
+        ])
+    );
+    // A deleted output reruns its stage (and nothing whose key is unchanged).
+    std::fs::remove_file(out.join("export/garment.0001.ply")).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[("embed", "cached"), ("shot", "cached"), ("export", "ran")])
+    );
+}
+
+#[test]
+fn changed_garment_content_reruns_every_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    statuses(&run(&job, &["--json"]));
+    write_garment(&dir.path().join("swatch.bcc"), 4);
+    let second = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&second),
+        pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
+    );
+    let v: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
+    assert_eq!(v["ran"], 3);
+}
+
+#[test]
+fn changed_export_parameter_reruns_only_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    let first = run(&job, &["--json"]);
+    statuses(&first);
+    std::fs::write(&job, manifest("cm")).unwrap();
+    let second = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&second),
+        pairs(&[("embed", "cached"), ("shot", "cached"), ("export", "ran")])
+    );
+    let key = |o: &Output, i: usize| {
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["stages"][i]["key"].as_str().unwrap().to_string()
+    };
+    assert_eq!(key(&first, 1), key(&second, 1));
+    assert_ne!(key(&first, 2), key(&second, 2));
+    // Another format replaces the previous export's files.
+    std::fs::write(&job, manifest("m").replace("\"ply\"", "\"obj\"")).unwrap();
+    let third = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&third),
+        pairs(&[("embed", "cached"), ("shot", "cached"), ("export", "ran")])
+    );
+    let export = dir.path().join("job.out/export");
+    let mut files: Vec<String> = std::fs::read_dir(&export)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    files.sort();
+    assert_eq!(files, ["garment.0000.obj", "garment.0001.obj"]);
+}
+
+#[test]
+fn stage_option_runs_that_stage_and_what_it_needs() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    assert_eq!(
+        statuses(&run(&job, &["--stage", "embed", "--json"])),
+        pairs(&[("embed", "ran")])
+    );
+    assert!(!dir.path().join("job.out/shot.vtkhdf").exists());
+    let bad = run(&job, &["--stage", "fit"]);
+    assert_eq!(bad.status.code(), Some(2));
+}
+
+#[test]
+fn unknown_key_exits_65_naming_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    std::fs::write(
+        &job,
+        manifest("m").replace("[export]", "[export]\nspeed = 3"),
+    )
+    .unwrap();
+    let out = run(&job, &[]);
+    assert_eq!(out.status.code(), Some(65));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("job.toml"), "{err}");
+    assert!(err.contains("speed"), "{err}");
+    assert!(!dir.path().join("job.out").exists());
+}
+
+#[test]
+fn missing_garment_file_exits_66_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    std::fs::remove_file(dir.path().join("swatch.bcc")).unwrap();
+    let out = run(&job, &[]);
+    assert_eq!(out.status.code(), Some(66));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("swatch.bcc"), "{err}");
+}
+
+/// Every property of schemas/job.schema.json is a manifest key and back:
+/// a manifest naming every schema property parses, and a key the schema
+/// lacks is refused by the struct as well.
+#[test]
+fn json_schema_properties_match_the_manifest() {
+    use knitvox::pipeline::job::Manifest;
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/job.schema.json"),
+    )
+    .unwrap();
+    let schema: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let names = |v: &serde_json::Value| -> Vec<String> {
+        let mut n: Vec<String> = v["properties"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .cloned()
+            .collect();
+        n.sort();
+        n
+    };
+    // The struct's keys, from a full manifest serialized back.
+    let full: Manifest = toml::from_str(
+        r#"
+output = "o"
+frames = "1"
+[garment]
+yarns = "y.bcc"
+units = "mm"
+up_axis = "z"
+[character]
+file = "c.glb"
+animation = "Walk"
+scale = 1.0
+pin_distance = 0.01
+fit_joint = "j"
+[embed]
+voxel_size = 0.001
+max_voxels = 10
+density = 1000.0
+[shot]
+scene = "s.toml"
+dt = 0.01
+fps = 24.0
+preroll = 0.1
+backend = "cpu"
+solver = "direct"
+garment_rotate = [0.0, 0.0, 0.0]
+garment_offset = [0.0, 0.0, 0.0]
+[export]
+format = "ply"
+steps = "0"
+units = "m"
+up_axis = "y"
+name = "n"
+"#,
+    )
+    .unwrap();
+    let v = serde_json::to_value(&full).unwrap();
+    let keys = |v: &serde_json::Value| -> Vec<String> {
+        let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+        k.sort();
+        k
+    };
+    assert_eq!(names(&schema), keys(&v), "top level");
+    for section in ["garment", "character", "embed", "shot", "export"] {
+        assert_eq!(
+            names(&schema["properties"][section]),
+            keys(&v[section]),
+            "[{section}]"
+        );
+        assert_eq!(
+            schema["properties"][section]["additionalProperties"],
+            serde_json::Value::Bool(false),
+            "[{section}]"
+        );
+    }
+    assert_eq!(
+        schema["additionalProperties"],
+        serde_json::Value::Bool(false)
+    );
+}
+
+#[test]
+fn character_job_runs_on_the_repository_fox_and_caches() {
+    // The [character] form (as `simulate --character`), on examples/Fox.glb.
+    let dir = tempfile::tempdir().unwrap();
+    write_garment(&dir.path().join("swatch.bcc"), 3);
+    let fox = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
+    let text = format!(
+        r#"
+frames = "1-2"
+[garment]
+yarns = "swatch.bcc"
+[character]
+file = "{}"
+animation = "Walk"
+scale = 0.0025
+fit_joint = "b_Spine02_03"
+[shot]
+backend = "cpu"
+garment_rotate = [-90.0, 0.0, 0.0]
+[export]
+format = "obj"
+"#,
+        fox.display()
+    );
+    let job = dir.path().join("fox.toml");
+    std::fs::write(&job, &text).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
+    );
+    assert!(dir.path().join("fox.out/export/garment.0001.obj").is_file());
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[
+            ("embed", "cached"),
+            ("shot", "cached"),
+            ("export", "cached")
+        ])
+    );
+    // A character parameter reruns the shot and what follows, not embed.
+    std::fs::write(&job, text.replace("scale = 0.0025", "scale = 0.003")).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[("embed", "cached"), ("shot", "ran"), ("export", "ran")])
+    );
+}
