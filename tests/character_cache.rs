@@ -5,12 +5,9 @@
 
 mod common;
 
-use std::path::Path;
 use std::process::Command;
 
 use knitvox::io::character_h5::{is_character_cache, read_character_cache};
-
-
 
 /// A 2-triangle quad in the x-y plane of a Z-up world, 100 cm wide, moving
 /// up (+Z) by 10 cm per frame at 24 fps, written with h5py.

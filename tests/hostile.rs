@@ -168,8 +168,6 @@ fn gltf_buffer_reads_at_most_byte_length() {
     std::fs::remove_dir_all(&root).unwrap();
 }
 
-
-
 /// A valid knitvox yarns file `base.h5` in `dir` (made by the binary).
 fn yarns_h5(dir: &Path) {
     std::fs::write(dir.join("ok.bin"), mark_bytes()).unwrap();
