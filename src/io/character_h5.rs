@@ -13,9 +13,7 @@ use std::path::Path;
 
 use hdf5::Group;
 
-use super::h5::{
-    attr_loc, create_h5, format_err, open_group, open_path, read_str_attr, write_str_attr, Ds,
-};
+use super::h5::{create_h5, format_err, open_group, open_path, read_str_attr, write_str_attr, Ds};
 use super::{FormatError, IoError};
 use crate::anim::cache::BodyCache;
 use crate::geom::{Units, UpAxis, Vec3};
@@ -57,20 +55,7 @@ pub fn read_character_cache(path: &Path, max_memory: u64) -> Result<CharacterCac
 
 fn decode(root: &Group, budget: u64) -> Result<CharacterCache, FormatError> {
     let mut notes = super::h5::check_format_attrs(root, FORMAT_NAME, FORMAT_VERSION)?;
-    let units = match read_str_attr(root, "", "units")? {
-        Some(u) => Some(
-            u.parse::<Units>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
-        ),
-        None => None,
-    };
-    let up_axis = match read_str_attr(root, "", "up_axis")? {
-        Some(a) => Some(
-            a.parse::<UpAxis>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
-        ),
-        None => None,
-    };
+    let (units, up_axis) = super::h5::read_units_and_axis(root)?;
     let g = open_group(root, "character", "/character")?.ok_or_else(|| {
         FormatError::whole_file(format!(
             "not a knitvox character cache: there is no /character group ({})",

@@ -700,6 +700,29 @@ pub(crate) fn check_format_attrs(
     Ok(notes)
 }
 
+/// The root's declared `units` and `up_axis` attributes (`None` when absent).
+pub(crate) fn read_units_and_axis(
+    root: &Group,
+) -> Result<(Option<Units>, Option<UpAxis>), FormatError> {
+    let parsed =
+        |name: &str| -> Result<Option<String>, FormatError> { read_str_attr(root, "", name) };
+    let units = match parsed("units")? {
+        Some(u) => Some(
+            u.parse::<Units>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+        ),
+        None => None,
+    };
+    let up_axis = match parsed("up_axis")? {
+        Some(a) => Some(
+            a.parse::<UpAxis>()
+                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+        ),
+        None => None,
+    };
+    Ok((units, up_axis))
+}
+
 pub(crate) fn open_group(
     parent: &Group,
     name: &str,
@@ -962,20 +985,7 @@ fn decode_file(file: &hdf5::File, opts: &ReadOptions) -> Result<Decoded, FormatE
         }
     };
     let mut notes = check_format_attrs(root, FORMAT_NAME, FORMAT_VERSION)?;
-    let units = match read_str_attr(root, "", "units")? {
-        Some(u) => Some(
-            u.parse::<Units>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
-        ),
-        None => None,
-    };
-    let up_axis = match read_str_attr(root, "", "up_axis")? {
-        Some(a) => Some(
-            a.parse::<UpAxis>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
-        ),
-        None => None,
-    };
+    let (units, up_axis) = read_units_and_axis(root)?;
 
     let (yarns, radius_in_file) = read_yarns_group(&yg, "/yarns", opts)?;
     let n = yarns.num_points();
