@@ -494,29 +494,33 @@ fn pear_loop_elongates_as_the_clamps_close_and_is_rounder_when_stiffer() {
     }
 }
 
+/// `fabric-test bend` on a 2 x 5 cm rib with the clamps from 18 mm to
+/// `min_distance` (m).
+fn small_rib_bend(min_distance: &str) -> std::process::Command {
+    let mut c = std::process::Command::new(common::knitvox_bin());
+    c.args([
+        "fabric-test",
+        "bend",
+        "--pattern",
+        "rib1x1",
+        "--width",
+        "0.02",
+        "--length",
+        "0.05",
+        "--max-distance",
+        "0.018",
+        "--min-distance",
+        min_distance,
+    ]);
+    c
+}
+
 #[test]
 fn fabric_test_bend_prints_the_loop_and_writes_csv_frames_and_plot() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("out");
-    let out = std::process::Command::new(common::knitvox_bin())
-        .args([
-            "fabric-test",
-            "bend",
-            "--pattern",
-            "rib1x1",
-            "--width",
-            "0.02",
-            "--length",
-            "0.05",
-            "--max-distance",
-            "0.018",
-            "--min-distance",
-            "0.014",
-            "--steps",
-            "1",
-            "--json",
-            "-o",
-        ])
+    let out = small_rib_bend("0.014")
+        .args(["--steps", "1", "--json", "-o"])
         .arg(&out_dir)
         .output()
         .unwrap();
@@ -548,23 +552,7 @@ fn fabric_test_bend_prints_the_loop_and_writes_csv_frames_and_plot() {
     assert_eq!(shape, vec![2]);
     check_png(&out_dir.join("bend.png"), (800, 500));
     // A clamp distance under the swatch's thickness is a usage error.
-    let bad = std::process::Command::new(common::knitvox_bin())
-        .args([
-            "fabric-test",
-            "bend",
-            "--pattern",
-            "rib1x1",
-            "--width",
-            "0.02",
-            "--length",
-            "0.05",
-            "--max-distance",
-            "0.018",
-            "--min-distance",
-            "0.001",
-        ])
-        .output()
-        .unwrap();
+    let bad = small_rib_bend("0.001").output().unwrap();
     assert_eq!(
         bad.status.code(),
         Some(2),

@@ -185,11 +185,9 @@ mod tests {
         assert_eq!(s.frame_of_step(6), 2);
     }
 
-    /// One free tet falling under gravity: the callbacks see every step and
-    /// frame in order, and the positions of the frames are the solver's.
-    #[test]
-    fn loop_calls_back_in_order_and_counts_steps() {
-        let mesh = TetMesh {
+    /// A single 1 cm corner tet.
+    fn one_tet() -> TetMesh {
+        TetMesh {
             nodes: vec![
                 [0.0, 0.0, 0.0],
                 [0.01, 0.0, 0.0],
@@ -197,7 +195,14 @@ mod tests {
                 [0.0, 0.0, 0.01],
             ],
             tets: vec![[0, 1, 2, 3]],
-        };
+        }
+    }
+
+    /// One free tet falling under gravity: the callbacks see every step and
+    /// frame in order, and the positions of the frames are the solver's.
+    #[test]
+    fn loop_calls_back_in_order_and_counts_steps() {
+        let mesh = one_tet();
         let schedule = Schedule {
             dt: 1.0 / 150.0,
             preroll_steps: 0,
@@ -245,15 +250,7 @@ mod tests {
 
     #[test]
     fn a_failing_update_stops_the_loop() {
-        let mesh = TetMesh {
-            nodes: vec![
-                [0.0, 0.0, 0.0],
-                [0.01, 0.0, 0.0],
-                [0.0, 0.01, 0.0],
-                [0.0, 0.0, 0.01],
-            ],
-            tets: vec![[0, 1, 2, 3]],
-        };
+        let mesh = one_tet();
         let schedule = Schedule {
             dt: 0.01,
             preroll_steps: 2,
