@@ -6,6 +6,7 @@ use clap::Args;
 
 use super::ExitCode;
 use crate::pipeline::job::{self, Job};
+use crate::pipeline::submit::{self, SlurmOptions};
 use crate::pipeline::Quiet;
 
 #[derive(Debug, Args)]
@@ -18,10 +19,85 @@ pub struct RunArgs {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Submit the stages to a farm scheduler instead of running them here:
+    /// one batch job per stage, chained by dependencies (schemas/job.md,
+    /// "Farm submission").
+    #[arg(long, value_name = "SCHEDULER", value_parser = ["slurm"], conflicts_with = "stage")]
+    pub submit: Option<String>,
+    /// Print the stages as farm jobs (scheduler-neutral; the Deadline and
+    /// OpenCue submitters in pipelines/ read it with --json) and run nothing.
+    #[arg(long, conflicts_with_all = ["submit", "stage"])]
+    pub plan: bool,
+    /// With --submit: write the batch scripts and print the submit commands, submit nothing.
+    #[arg(long, requires = "submit")]
+    pub dry_run: bool,
+    /// With --submit slurm: an extra sbatch argument for every stage (repeatable:
+    /// --sbatch-arg=--partition=sim --sbatch-arg=--time=2:00:00).
+    #[arg(
+        long,
+        value_name = "ARG",
+        allow_hyphen_values = true,
+        requires = "submit"
+    )]
+    pub sbatch_arg: Vec<String>,
+    /// With --submit: requeues of a stage after a transient failure (exit 75).
+    #[arg(long, value_name = "N", default_value_t = SlurmOptions::default().max_retries)]
+    pub max_retries: u32,
+    /// The knitvox executable the farm's nodes run [default: this one].
+    #[arg(long, value_name = "PATH")]
+    pub knitvox: Option<PathBuf>,
+}
+
+fn node_executable(a: &RunArgs) -> anyhow::Result<PathBuf> {
+    match &a.knitvox {
+        Some(p) => Ok(p.clone()),
+        None => Ok(std::env::current_exe()?),
+    }
+}
+
+/// `--plan` and `--submit`: the stages as farm jobs.
+fn farm(a: &RunArgs, job: &Job) -> anyhow::Result<ExitCode> {
+    let plan = submit::plan(job, &node_executable(a)?)?;
+    if a.plan {
+        if a.json {
+            println!("{}", serde_json::to_string(&plan)?);
+        } else {
+            for s in &plan.stages {
+                let after = if s.after.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (after {})", s.after.join(", "))
+                };
+                println!("{}{after}: {}", s.name, s.argv.join(" "));
+            }
+        }
+        return Ok(ExitCode::Success);
+    }
+    let opts = SlurmOptions {
+        max_retries: a.max_retries,
+        extra_args: a.sbatch_arg.clone(),
+        dry_run: a.dry_run,
+        ..SlurmOptions::default()
+    };
+    let r = submit::submit_slurm(&plan, &opts)?;
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+    } else {
+        for s in &r.stages {
+            match &s.job_id {
+                Some(id) => println!("{}: slurm job {id} ({})", s.stage, s.script.display()),
+                None => println!("{}: {}", s.stage, s.command.join(" ")),
+            }
+        }
+    }
+    Ok(ExitCode::Success)
 }
 
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let job = Job::load(&a.job)?;
+    if a.plan || a.submit.is_some() {
+        return farm(a, &job);
+    }
     let r = job::run(
         &job,
         a.stage.as_deref(),

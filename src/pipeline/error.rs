@@ -125,6 +125,9 @@ pub enum Error {
     /// A fabric test (Sperl 2022 §4).
     #[error(transparent)]
     Fabric(#[from] super::fabric_test::FabricTestError),
+    /// Submitting a job to a farm scheduler.
+    #[error(transparent)]
+    Submit(#[from] super::submit::SubmitError),
     /// Embedding outside a stage (benchmarks).
     #[error(transparent)]
     Embed(#[from] crate::embed::EmbedError),
@@ -153,6 +156,7 @@ impl Error {
             Error::Pattern(e) => e.class(),
             Error::Yls(e) => e.class(),
             Error::Fabric(e) => fabric_class(e),
+            Error::Submit(e) => e.class(),
             Error::Embed(_) | Error::Fit(_) | Error::Geom(_) => ErrorClass::BadInput,
             Error::Usage(_) => ErrorClass::Usage,
             Error::Internal(_) => ErrorClass::Internal,
@@ -201,6 +205,8 @@ impl Error {
             Some(e.class())
         } else if let Some(e) = cause.downcast_ref::<super::fabric_test::FabricTestError>() {
             Some(fabric_class(e))
+        } else if let Some(e) = cause.downcast_ref::<super::submit::SubmitError>() {
+            Some(e.class())
         } else if cause.is::<crate::embed::EmbedError>()
             || cause.is::<crate::fit::FitError>()
             || cause.is::<crate::geom::GeomError>()

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+pub mod job;
+
 /// The external test data folder (`$KNITVOX_EXTERNAL_DATA`, else `../shared/data`
 /// beside the checkout) joined with `sub`. Under CI (`CI` set) a missing folder
 /// fails the test; elsewhere the test is skipped with a loud message.
