@@ -319,6 +319,42 @@ impl Yarns {
         })
     }
 
+    /// The curves where `keep[c]` holds, with every per-curve, per-vertex
+    /// and per-segment datum (radii, linear density, rest shape) that goes
+    /// with them.
+    pub fn select_curves(&self, keep: &[bool]) -> Yarns {
+        let mut out = Yarns::new();
+        let mut vertex_radius = Vec::new();
+        let mut density = Vec::new();
+        let mut rest = self.rest.as_ref().map(|_| RestShape::default());
+        let mut seg0 = 0;
+        for c in 0..self.num_curves() {
+            let range = self.curve_range(c);
+            let segs = seg0..seg0 + self.curve_segments(c);
+            seg0 = segs.end;
+            if !keep.get(c).copied().unwrap_or(false) {
+                continue;
+            }
+            out.push_curve(&self.points[range.clone()], self.closed[c], self.radius[c]);
+            if let Some(vr) = &self.vertex_radius {
+                vertex_radius.extend_from_slice(&vr[range.clone()]);
+            }
+            if let Some(ld) = &self.linear_density {
+                density.push(ld[c]);
+            }
+            if let (Some(r), Some(src)) = (rest.as_mut(), &self.rest) {
+                r.lengths.extend_from_slice(&src.lengths[segs.clone()]);
+                r.directors.extend_from_slice(&src.directors[segs]);
+                r.curvature.extend_from_slice(&src.curvature[range.clone()]);
+                r.twist.extend_from_slice(&src.twist[range]);
+            }
+        }
+        out.vertex_radius = self.vertex_radius.as_ref().map(|_| vertex_radius);
+        out.linear_density = self.linear_density.as_ref().map(|_| density);
+        out.rest = rest;
+        out
+    }
+
     /// True when `other` has the same curve structure (counts, offsets, closed flags).
     pub fn same_topology(&self, other: &Yarns) -> bool {
         self.offsets == other.offsets && self.closed == other.closed
@@ -548,6 +584,41 @@ mod tests {
         assert!(y.validate().is_err());
         y.rest.as_mut().unwrap().lengths.pop();
         assert!(matches!(y.validate(), Err(GeomError::Layout(_))));
+    }
+
+    #[test]
+    fn selected_curves_keep_their_rest_shape_and_radii() {
+        // Curves: open square (4 vertices, 3 segments), closed square (4, 4),
+        // open pair (2, 1); each with distinct per-segment and per-vertex data.
+        let mut y = square(false);
+        let closed = square(true);
+        y.push_curve(&closed.points, true, 0.2);
+        y.push_curve(&[[5.0; 3], [6.0; 3]], false, 0.3);
+        let (ns, nv) = (y.num_segments(), y.num_points());
+        assert_eq!((ns, nv), (8, 10));
+        y.vertex_radius = Some((0..nv).map(|v| 0.01 * v as f64).collect());
+        y.linear_density = Some(vec![1.0, 2.0, 3.0]);
+        y.rest = Some(RestShape {
+            lengths: (0..ns).map(|i| 1.0 + i as f64).collect(),
+            directors: (0..ns).map(|i| [0.0, 0.0, i as f64]).collect(),
+            curvature: (0..nv).map(|v| [v as f64; 4]).collect(),
+            twist: (0..nv).map(|v| -(v as f64)).collect(),
+        });
+        // (Synthetic rest data: only where each datum goes is checked.)
+        let s = y.select_curves(&[false, true, true]);
+        assert_eq!(s.offsets, [0, 4, 6]);
+        assert_eq!(s.closed, [true, false]);
+        assert_eq!(s.radius, [0.2, 0.3]);
+        assert_eq!(s.linear_density.as_deref(), Some(&[2.0, 3.0][..]));
+        assert_eq!(s.vertex_radius.as_ref().unwrap()[0], 0.04);
+        let r = s.rest.as_ref().unwrap();
+        // Segments 3..7 are the closed square's, 7 the pair's.
+        assert_eq!(r.lengths, [4.0, 5.0, 6.0, 7.0, 8.0]);
+        assert_eq!(r.directors[4], [0.0, 0.0, 7.0]);
+        assert_eq!(r.curvature[0], [4.0; 4]);
+        assert_eq!(r.twist[5], -9.0);
+        assert_eq!(y.select_curves(&[true, true, true]), y);
+        assert_eq!(y.select_curves(&[false; 3]).num_curves(), 0);
     }
 
     #[test]

@@ -15,7 +15,7 @@ use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
 use crate::yarn::fabric::bend::{bend_test, BendParams, BendResult};
-use crate::yarn::fabric::rig::cut_rectangle;
+use crate::yarn::fabric::rig::{cut_rectangle, held_together};
 use crate::yarn::fabric::{
     hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams, HangParams,
     HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams, StretchResult,
@@ -143,6 +143,9 @@ pub struct FabricTestReport {
     pub vertices: usize,
     /// The relaxation into contact (none when the yarns carried a rest shape).
     pub relaxation: Option<RelaxIntoContactStats>,
+    /// Pieces of a bias cut left out after the relaxation because no
+    /// contact held them to the test piece (`rig::held_together`).
+    pub offcuts: usize,
     #[serde(flatten)]
     pub figures: TestFigures,
     pub written: Vec<PathBuf>,
@@ -192,10 +195,17 @@ fn layout_for(
 /// fragments are not held by any loop.
 const MIN_PIECE: usize = 8;
 
-/// Loads or generates the swatch, relaxing it when it has no rest shape.
-pub fn swatch(
-    job: &FabricTestJob,
-) -> Result<(Yarns, String, Option<RelaxIntoContactStats>), FabricTestError> {
+/// Two yarns touch, for [`held_together`], within this multiple of the sum
+/// of their radii (relaxed contacts sit at 0.98-1.02).
+const TOUCH: f64 = 1.1;
+
+/// A loaded or generated swatch: yarns, name, relaxation, offcuts dropped.
+type Swatch = (Yarns, String, Option<RelaxIntoContactStats>, usize);
+
+/// Loads or generates the swatch, relaxing it when it has no rest shape; a
+/// bias-cut piece then loses the offcuts no contact holds to it.
+pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
+    let mut cut = false;
     let (yarns, name) = match &job.swatch {
         SwatchSource::Yarns(path) => {
             let d = io::read_path(path, &Default::default())?;
@@ -219,6 +229,7 @@ pub fn swatch(
                 let s = job.relax.length_scale;
                 y = cut_rectangle(&y, axis, transverse, size[1] / s, size[0] / s, MIN_PIECE)
                     .map_err(fabric_err("bias cut"))?;
+                cut = true;
             }
             let name = match source {
                 PatternSource::Builtin(n) => n.clone(),
@@ -228,11 +239,19 @@ pub fn swatch(
         }
     };
     if yarns.rest.is_some() {
-        return Ok((yarns, name, None));
+        return Ok((yarns, name, None, 0));
     }
-    let (relaxed, stats) =
+    let (mut relaxed, stats) =
         relax_into_contact(&yarns, &job.fabric, &job.relax).map_err(fabric_err("relaxation"))?;
-    Ok((relaxed, name, Some(stats)))
+    let mut offcuts = 0;
+    if cut {
+        let keep = held_together(&relaxed, TOUCH);
+        offcuts = keep.iter().filter(|k| !**k).count();
+        if offcuts > 0 {
+            relaxed = relaxed.select_curves(&keep);
+        }
+    }
+    Ok((relaxed, name, Some(stats), offcuts))
 }
 
 /// Runs the job: swatch, test, outputs.
@@ -245,7 +264,7 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     .and_then(|_| job.relax.check())
     .map_err(fabric_err("parameters"))?;
     refuse_input_overwrite(job)?;
-    let (yarns, name, relaxation) = swatch(job)?;
+    let (yarns, name, relaxation, offcuts) = swatch(job)?;
     let mut written = Vec::new();
     let mut writer = match &job.output_dir {
         Some(dir) => {
@@ -327,6 +346,7 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
         swatch: name,
         vertices: yarns.num_points(),
         relaxation,
+        offcuts,
         figures,
         written,
     })

@@ -225,3 +225,108 @@ fn push_piece(
         vertex_radius.extend(run.iter().map(|&v| vr[v]));
     }
 }
+
+/// The pieces of a cut swatch that hang together: the curves of the
+/// largest group (by vertex count) linked by contact, two curves being
+/// linked where segments of theirs come within `touch` x the sum of their
+/// radii. A bias cut leaves corner fragments that no loop holds; after the
+/// relaxation they lie apart from the piece, and a clamp band that caught
+/// only them would hold nothing (as scissors' offcuts fall away).
+pub fn held_together(yarns: &Yarns, touch: f64) -> Vec<bool> {
+    use std::collections::HashMap;
+    let nc = yarns.num_curves();
+    let mut parent: Vec<usize> = (0..nc).collect();
+    fn root(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut seg: Vec<([usize; 2], usize)> = Vec::with_capacity(yarns.num_segments());
+    for c in 0..nc {
+        seg.extend(yarns.segments_of(c).map(|s| (s, c)));
+    }
+    let r_max = (0..yarns.num_points())
+        .map(|v| yarns.radius_at(v))
+        .fold(0.0, f64::max);
+    let reach = 2.0 * r_max * touch + yarns.max_segment_length();
+    let cell = reach.max(1e-12);
+    let mid = |s: [usize; 2]| -> Vec3 {
+        let (a, b) = (yarns.points[s[0]], yarns.points[s[1]]);
+        std::array::from_fn(|k| 0.5 * (a[k] + b[k]))
+    };
+    let key = |p: Vec3| -> [i64; 3] { std::array::from_fn(|k| (p[k] / cell).floor() as i64) };
+    // Only looked up, never iterated: the result does not depend on hash order.
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, (s, _)) in seg.iter().enumerate() {
+        grid.entry(key(mid(*s))).or_default().push(i);
+    }
+    for (i, &(s, c)) in seg.iter().enumerate() {
+        let k = key(mid(s));
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(cands) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) else {
+                        continue;
+                    };
+                    for &j in cands {
+                        let (t, d) = seg[j];
+                        if j <= i || d == c || root(&mut parent, c) == root(&mut parent, d) {
+                            continue;
+                        }
+                        let gap = crate::yarn::pattern::distance::segment_distance(
+                            yarns.points[s[0]],
+                            yarns.points[s[1]],
+                            yarns.points[t[0]],
+                            yarns.points[t[1]],
+                        );
+                        let limit = touch * (yarns.radius_at(s[0]) + yarns.radius_at(t[0]));
+                        if gap <= limit {
+                            let (a, b) = (root(&mut parent, c), root(&mut parent, d));
+                            parent[a.max(b)] = a.min(b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut size = vec![0usize; nc];
+    for c in 0..nc {
+        let r = root(&mut parent, c);
+        size[r] += yarns.curve_range(c).len();
+    }
+    // Ties go to the group of the lowest curve index (deterministic).
+    let best = (0..nc).fold(0, |b, r| if size[r] > size[b] { r } else { b });
+    (0..nc).map(|c| root(&mut parent, c) == best).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn offcuts_that_touch_nothing_are_not_held() {
+        let r = 0.001;
+        let mut y = Yarns::new();
+        // Two parallel yarns touching (axes 2r apart) and a third crossing
+        // the second just above it: one piece. A fragment 1 cm away, and a
+        // pair touching each other but not the piece.
+        y.push_curve(
+            &[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.0, 0.0]],
+            false,
+            r,
+        );
+        y.push_curve(&[[0.0, 0.002, 0.0], [0.02, 0.002, 0.0]], false, r);
+        y.push_curve(&[[0.01, 0.0041, -0.01], [0.01, 0.0041, 0.01]], false, r);
+        y.push_curve(&[[0.0, 0.012, 0.0], [0.005, 0.012, 0.0]], false, r);
+        y.push_curve(&[[0.05, 0.0, 0.0], [0.06, 0.0, 0.0]], false, r);
+        y.push_curve(&[[0.05, 0.0021, 0.0], [0.06, 0.0021, 0.0]], false, r);
+        assert_eq!(
+            held_together(&y, 1.1),
+            [true, true, true, false, false, false]
+        );
+        // A tighter contact threshold drops the crossing yarn 2.1r away.
+        assert_eq!(held_together(&y, 1.0)[2], false);
+    }
+}
