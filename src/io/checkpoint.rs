@@ -4,8 +4,8 @@
 //!
 //! Layout: magic `KNITVOXCKPT\n`, format version (u32 LE), header length
 //! `H` (u64 LE), `H` bytes of JSON header ([`CheckpointHeader`]), the
-//! payload (f64 LE: positions, velocities, then the written frames' node
-//! positions), and the SHA-256 of every byte before it. Written atomically
+//! payload (f64 LE: positions, velocities, the written frames' node
+//! positions, then the solver's warm start), and the SHA-256 of every byte before it. Written atomically
 //! (temporary file, fsync, rename). Read as untrusted input: the header is
 //! bounded, the payload size must match the header and the file length
 //! before anything is allocated, the hash must match, and every number
@@ -49,6 +49,8 @@ pub struct CheckpointHeader {
     pub series_frames: Vec<i64>,
     /// Shot times (s) of `series_frames`.
     pub series_times: Vec<f64>,
+    /// Values of the solver's warm start (`PdSolver::warm_start`).
+    pub warm_start_len: u64,
     /// knitvox version that wrote it.
     pub knitvox: String,
 }
@@ -63,6 +65,8 @@ pub struct Checkpoint {
     pub v: Vec<Vec3>,
     /// Node positions (m) of each of `header.series_frames`, frame after frame.
     pub series: Vec<Vec3>,
+    /// The solver's warm start (the CPU backend's per-tet SVD `V`).
+    pub warm_start: Vec<f64>,
 }
 
 fn bad(path: &Path, message: impl Into<String>) -> IoError {
@@ -138,7 +142,8 @@ pub fn write(path: &Path, c: &Checkpoint) -> Result<(), IoError> {
     let consistent = c.x.len() == n
         && c.v.len() == n
         && h.series_times.len() == h.series_frames.len()
-        && c.series.len() == n * h.series_frames.len();
+        && c.series.len() == n * h.series_frames.len()
+        && c.warm_start.len() as u64 == h.warm_start_len;
     if !consistent {
         return Err(IoError::Write {
             path: path.to_path_buf(),
@@ -152,7 +157,7 @@ pub fn write(path: &Path, c: &Checkpoint) -> Result<(), IoError> {
         path: path.to_path_buf(),
         source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()),
     })?;
-    let payload = 8 * 3 * (c.x.len() + c.v.len() + c.series.len());
+    let payload = 8 * (3 * (c.x.len() + c.v.len() + c.series.len()) + c.warm_start.len());
     let mut bytes = Vec::with_capacity(MAGIC.len() + 12 + header.len() + payload + 32);
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&VERSION.to_le_bytes());
@@ -162,6 +167,9 @@ pub fn write(path: &Path, c: &Checkpoint) -> Result<(), IoError> {
         for k in p {
             bytes.extend_from_slice(&k.to_le_bytes());
         }
+    }
+    for k in &c.warm_start {
+        bytes.extend_from_slice(&k.to_le_bytes());
     }
     let hash = Sha256::digest(&bytes);
     bytes.extend_from_slice(&hash);
@@ -210,7 +218,9 @@ fn parse_header(
     let vecs = (header.series_frames.len() as u64)
         .checked_add(2)
         .and_then(|k| k.checked_mul(header.nodes))
-        .and_then(|k| k.checked_mul(24));
+        .and_then(|k| k.checked_mul(3))
+        .and_then(|k| k.checked_add(header.warm_start_len))
+        .and_then(|k| k.checked_mul(8));
     let expected = vecs.and_then(|p| p.checked_add(end as u64 + 32));
     if expected != Some(file_len) {
         return Err(bad(
@@ -276,8 +286,12 @@ pub fn read(path: &Path, max_bytes: u64) -> Result<Checkpoint, IoError> {
     if !header.time.is_finite() || header.series_times.iter().any(|t| !t.is_finite()) {
         return Err(bad(path, "a time in its header is not finite"));
     }
-    let mut points: Vec<Vec3> = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let n = header.nodes as usize;
+    let warm_start = values[3 * n * (2 + header.series_frames.len())..].to_vec();
+    let mut points: Vec<Vec3> = values[..values.len() - warm_start.len()]
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
     let series = points.split_off(2 * n);
     let v = points.split_off(n);
     Ok(Checkpoint {
@@ -285,6 +299,7 @@ pub fn read(path: &Path, max_bytes: u64) -> Result<Checkpoint, IoError> {
         x: points,
         v,
         series,
+        warm_start,
     })
 }
 
@@ -302,11 +317,13 @@ mod tests {
                 nodes: 2,
                 series_frames: vec![1001, 1002],
                 series_times: vec![0.0, 1.0 / 24.0],
+                warm_start_len: 9,
                 knitvox: "test".into(),
             },
             x: vec![[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]],
             v: vec![[-1.0, 0.5, 0.0], [0.0, 0.0, 1e-9]],
             series: vec![[0.1; 3], [0.2; 3], [0.3; 3], [0.4; 3]],
+            warm_start: (0..9).map(|k| k as f64 / 9.0).collect(),
         }
     }
 

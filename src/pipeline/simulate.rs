@@ -481,13 +481,24 @@ pub fn simulate_chunk(
     let mut series_frames: Vec<i64> = Vec::new();
     let resumed_from = resumed.from.as_ref().map(|(p, _)| p.clone());
     match resumed.from {
-        Some((_, c)) => {
+        Some((path, c)) => {
+            solver
+                .set_warm_start(&c.warm_start)
+                .map_err(|e| invalid(&path, format!("checkpoint: {e}")))?;
             start_step = c.header.step as usize;
             x = c.x;
             v = c.v;
-            series_frames = c.header.series_frames;
-            out.steps.times = c.header.series_times;
-            out.steps.positions = c.series;
+            // Keep the frames of this request (a previous chunk's are its own).
+            let n = x.len();
+            for (i, &f) in c.header.series_frames.iter().enumerate() {
+                if frames.binary_search(&f).is_ok() {
+                    series_frames.push(f);
+                    out.steps.times.push(c.header.series_times[i]);
+                    out.steps
+                        .positions
+                        .extend_from_slice(&c.series[i * n..(i + 1) * n]);
+                }
+            }
         }
         None => {
             setup.project_start(scene)?;
@@ -591,6 +602,7 @@ pub fn simulate_chunk(
                         v: st.v,
                         frames: &series_frames,
                         steps: &out.steps,
+                        warm_start: st.solver.warm_start(),
                     };
                     let path = save_checkpoint(&ctx, start, &schedule, &state)?;
                     // Only the latest periodic checkpoint of a run is kept.
@@ -628,6 +640,7 @@ pub fn simulate_chunk(
                     v: &v,
                     frames: &series_frames,
                     steps: &out.steps,
+                    warm_start: solver.warm_start(),
                 };
                 let path = save_checkpoint(&ctx, start, &schedule, &state)?;
                 if let Some(w) = writer.take() {
@@ -929,6 +942,8 @@ struct State<'a> {
     /// The written frames' numbers and node positions.
     frames: &'a [i64],
     steps: &'a NodeSteps,
+    /// The solver's warm start.
+    warm_start: Vec<f64>,
 }
 
 /// Writes the checkpoint of `state` into the shot's folder; returns its path.
@@ -950,11 +965,13 @@ fn save_checkpoint(
             nodes: state.x.len() as u64,
             series_frames: state.frames.to_vec(),
             series_times: state.steps.times.clone(),
+            warm_start_len: state.warm_start.len() as u64,
             knitvox: env!("CARGO_PKG_VERSION").into(),
         },
         x: state.x.to_vec(),
         v: state.v.to_vec(),
         series: state.steps.positions.clone(),
+        warm_start: state.warm_start.clone(),
     };
     checkpoint::write(&path, &c)?;
     Ok(path)

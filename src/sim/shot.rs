@@ -119,6 +119,8 @@ pub struct FrameState<'a, C> {
     /// Node positions (m) and velocities (m/s) after `step` steps.
     pub x: &'a [Vec3],
     pub v: &'a [Vec3],
+    /// The solver (for its warm start, [`PdSolver::warm_start`]).
+    pub solver: &'a PdSolver,
     /// The contacts of the last step (`None` when the loop starts on a frame).
     pub contacts: Option<&'a C>,
     /// Wall time (ms) since the previous frame (or the start of the loop).
@@ -135,10 +137,10 @@ pub struct FrameState<'a, C> {
 /// the PD iterations); after every step that ends on a frame, and before the
 /// first step when the loop starts on a frame, `on_frame` gets the state.
 /// After every step (and its frame), `stop()` may end the loop with
-/// [`LoopError::Stopped`]. The solver carries no state between steps that
-/// changes the result (its energy cache only saves an evaluation), so `x`,
-/// `v` and `start_step` are the whole state of the loop. Returns the
-/// statistics of every step taken.
+/// [`LoopError::Stopped`]. `x`, `v`, `start_step` and the solver's warm
+/// start ([`PdSolver::warm_start`]; its energy cache only saves an
+/// evaluation) are the whole state of the loop: a checkpoint of them
+/// resumes bit for bit. Returns the statistics of every step taken.
 pub fn run<C, E>(
     solver: &mut PdSolver,
     x: &mut [Vec3],
@@ -170,6 +172,7 @@ where
             step: start_step,
             x,
             v,
+            solver,
             contacts: None,
             ms: 0.0,
             residual,
@@ -200,6 +203,7 @@ where
                 step: s,
                 x,
                 v,
+                solver,
                 contacts: Some(&contacts),
                 ms: since.elapsed().as_secs_f64() * 1e3,
                 residual,
@@ -358,8 +362,8 @@ mod tests {
     }
 
     /// A loop stopped after some step and run again from that state (a
-    /// fresh solver, as a resumed process has) ends bit for bit where the
-    /// uninterrupted loop ends; the resumed loop starts with the frame the
+    /// fresh solver given the warm start, as a resumed process has) ends bit
+    /// for bit where the uninterrupted loop ends; the resumed loop starts with the frame the
     /// state sits on.
     #[test]
     fn a_stopped_loop_resumes_bit_for_bit() {
@@ -391,8 +395,9 @@ mod tests {
 
         let (mut y, mut w) = (mesh.nodes.clone(), vec![[0.0; 3]; 4]);
         let last = std::cell::Cell::new(0);
+        let mut stopped = solver();
         let e = run(
-            &mut solver(),
+            &mut stopped,
             &mut y,
             &mut w,
             &schedule,
@@ -406,9 +411,11 @@ mod tests {
         )
         .unwrap_err();
         assert!(matches!(e, LoopError::Stopped { step: 5 }), "{e:?}");
+        let mut resumed = solver();
+        resumed.set_warm_start(&stopped.warm_start()).unwrap();
         let mut frames = Vec::new();
         let stats = run(
-            &mut solver(),
+            &mut resumed,
             &mut y,
             &mut w,
             &schedule,
