@@ -47,8 +47,6 @@ pub struct CheckpointHeader {
     /// Frame numbers whose node positions follow the state (the frames
     /// the writing run had written, in order).
     pub series_frames: Vec<i64>,
-    /// Shot times (s) of `series_frames`.
-    pub series_times: Vec<f64>,
     /// Values of the solver's warm start (`PdSolver::warm_start`).
     pub warm_start_len: u64,
     /// knitvox version that wrote it.
@@ -63,6 +61,9 @@ pub struct Checkpoint {
     pub x: Vec<Vec3>,
     /// Node velocities (m/s).
     pub v: Vec<Vec3>,
+    /// Shot times (s) of `header.series_frames` (in the payload, exact:
+    /// JSON does not round-trip every f64).
+    pub series_times: Vec<f64>,
     /// Node positions (m) of each of `header.series_frames`, frame after frame.
     pub series: Vec<Vec3>,
     /// The solver's warm start (the CPU backend's per-tet SVD `V`).
@@ -141,7 +142,7 @@ pub fn write(path: &Path, c: &Checkpoint) -> Result<(), IoError> {
     let n = h.nodes as usize;
     let consistent = c.x.len() == n
         && c.v.len() == n
-        && h.series_times.len() == h.series_frames.len()
+        && c.series_times.len() == h.series_frames.len()
         && c.series.len() == n * h.series_frames.len()
         && c.warm_start.len() as u64 == h.warm_start_len;
     if !consistent {
@@ -157,18 +158,24 @@ pub fn write(path: &Path, c: &Checkpoint) -> Result<(), IoError> {
         path: path.to_path_buf(),
         source: std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()),
     })?;
-    let payload = 8 * (3 * (c.x.len() + c.v.len() + c.series.len()) + c.warm_start.len());
+    let payload = 8
+        * (3 * (c.x.len() + c.v.len() + c.series.len())
+            + c.series_times.len()
+            + c.warm_start.len());
     let mut bytes = Vec::with_capacity(MAGIC.len() + 12 + header.len() + payload + 32);
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&VERSION.to_le_bytes());
     bytes.extend_from_slice(&(header.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&header);
-    for p in c.x.iter().chain(&c.v).chain(&c.series) {
-        for k in p {
-            bytes.extend_from_slice(&k.to_le_bytes());
-        }
-    }
-    for k in &c.warm_start {
+    let points = |ps: &[Vec3]| ps.iter().flatten().copied().collect::<Vec<f64>>();
+    let values = [
+        points(&c.x),
+        points(&c.v),
+        c.series_times.clone(),
+        points(&c.series),
+        c.warm_start.clone(),
+    ];
+    for k in values.iter().flatten() {
         bytes.extend_from_slice(&k.to_le_bytes());
     }
     let hash = Sha256::digest(&bytes);
@@ -210,15 +217,13 @@ fn parse_header(
     }
     let header: CheckpointHeader = serde_json::from_slice(&bytes[PREFIX..end])
         .map_err(|e| bad(path, format!("header: {e}")))?;
-    if header.series_times.len() != header.series_frames.len() {
-        return Err(bad(path, "series_frames and series_times differ in length"));
-    }
     // Payload length with checked arithmetic: a hostile header must not
     // overflow or make us allocate what the file does not hold.
     let vecs = (header.series_frames.len() as u64)
         .checked_add(2)
         .and_then(|k| k.checked_mul(header.nodes))
         .and_then(|k| k.checked_mul(3))
+        .and_then(|k| k.checked_add(header.series_frames.len() as u64))
         .and_then(|k| k.checked_add(header.warm_start_len))
         .and_then(|k| k.checked_mul(8));
     let expected = vecs.and_then(|p| p.checked_add(end as u64 + 32));
@@ -283,23 +288,23 @@ pub fn read(path: &Path, max_bytes: u64) -> Result<Checkpoint, IoError> {
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
         return Err(bad(path, format!("value {i} of its payload is not finite")));
     }
-    if !header.time.is_finite() || header.series_times.iter().any(|t| !t.is_finite()) {
-        return Err(bad(path, "a time in its header is not finite"));
+    if !header.time.is_finite() {
+        return Err(bad(path, "the time in its header is not finite"));
     }
-    let n = header.nodes as usize;
-    let warm_start = values[3 * n * (2 + header.series_frames.len())..].to_vec();
-    let mut points: Vec<Vec3> = values[..values.len() - warm_start.len()]
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
-    let series = points.split_off(2 * n);
-    let v = points.split_off(n);
+    let (n, nf) = (header.nodes as usize, header.series_frames.len());
+    let points =
+        |v: &[f64]| -> Vec<Vec3> { v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() };
+    let (x, rest) = values.split_at(3 * n);
+    let (v, rest) = rest.split_at(3 * n);
+    let (series_times, rest) = rest.split_at(nf);
+    let (series, warm_start) = rest.split_at(3 * n * nf);
     Ok(Checkpoint {
         header,
-        x: points,
-        v,
-        series,
-        warm_start,
+        x: points(x),
+        v: points(v),
+        series_times: series_times.to_vec(),
+        series: points(series),
+        warm_start: warm_start.to_vec(),
     })
 }
 
@@ -316,12 +321,12 @@ mod tests {
                 time: 0.25,
                 nodes: 2,
                 series_frames: vec![1001, 1002],
-                series_times: vec![0.0, 1.0 / 24.0],
                 warm_start_len: 9,
                 knitvox: "test".into(),
             },
             x: vec![[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]],
             v: vec![[-1.0, 0.5, 0.0], [0.0, 0.0, 1e-9]],
+            series_times: vec![0.0, 5.0 / 24.0],
             series: vec![[0.1; 3], [0.2; 3], [0.3; 3], [0.4; 3]],
             warm_start: (0..9).map(|k| k as f64 / 9.0).collect(),
         }

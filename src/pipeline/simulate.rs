@@ -493,7 +493,7 @@ pub fn simulate_chunk(
             for (i, &f) in c.header.series_frames.iter().enumerate() {
                 if frames.binary_search(&f).is_ok() {
                     series_frames.push(f);
-                    out.steps.times.push(c.header.series_times[i]);
+                    out.steps.times.push(c.series_times[i]);
                     out.steps
                         .positions
                         .extend_from_slice(&c.series[i * n..(i + 1) * n]);
@@ -964,12 +964,12 @@ fn save_checkpoint(
             time: schedule.time(state.step),
             nodes: state.x.len() as u64,
             series_frames: state.frames.to_vec(),
-            series_times: state.steps.times.clone(),
             warm_start_len: state.warm_start.len() as u64,
             knitvox: env!("CARGO_PKG_VERSION").into(),
         },
         x: state.x.to_vec(),
         v: state.v.to_vec(),
+        series_times: state.steps.times.clone(),
         series: state.steps.positions.clone(),
         warm_start: state.warm_start.clone(),
     };
