@@ -449,3 +449,87 @@ fn errors_with_json_are_a_json_object_on_stdout() {
     let (code, out, _) = run(&["convert", bcc, "x.ply"]);
     assert_eq!((code, out.as_str()), (66, ""));
 }
+
+/// One frame numbering: `export` of a shot's asset names its files by the
+/// farm frame numbers `simulate --yarns-out` wrote (same bytes), `--frames`
+/// selects by them, and `convert --first-frame` of the shot's HDF5 frames
+/// gives the same files again.
+#[test]
+fn export_and_convert_number_frames_like_simulate() {
+    let dir = tempfile::tempdir().unwrap();
+    let (asset, scene) = fixture(dir.path());
+    let shot_dir = dir.path().join("shot");
+    std::fs::create_dir_all(&shot_dir).unwrap();
+    let out = shot_dir.join("o.vtkhdf");
+    ok(shot(&asset, &scene, "1003-1005", &out, &[]));
+    let knitvox = |args: &[&str]| {
+        let mut c = Command::new(common::knitvox_bin());
+        c.args(args);
+        output(c)
+    };
+    let exported = dir.path().join("exported");
+    let (code, _, err) = knitvox(&[
+        "export",
+        out.to_str().unwrap(),
+        "-o",
+        exported.to_str().unwrap(),
+        "--name",
+        "y",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_same_frames(&exported, &shot_dir, 1003..=1005);
+    assert!(!exported.join("y.0000.ply").exists());
+    let one = dir.path().join("one");
+    let (code, _, err) = knitvox(&[
+        "export",
+        out.to_str().unwrap(),
+        "--frames",
+        "1004",
+        "-o",
+        one.to_str().unwrap(),
+        "--name",
+        "y",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_same_frames(&one, &shot_dir, 1004..=1004);
+    assert_eq!(std::fs::read_dir(&one).unwrap().count(), 1);
+    let (code, _, err) = knitvox(&[
+        "export",
+        out.to_str().unwrap(),
+        "--frames",
+        "2",
+        "-o",
+        one.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("numbered 1003..1005"), "{err}");
+
+    // The same shot's frames as one HDF5 file, converted to a sequence.
+    let h5_dir = dir.path().join("h5");
+    std::fs::create_dir_all(&h5_dir).unwrap();
+    let h5 = h5_dir.join("y.h5");
+    let (code, _, err) = knitvox(&[
+        "simulate",
+        asset.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--frames",
+        "1003-1005",
+        "-o",
+        h5_dir.join("o.vtkhdf").to_str().unwrap(),
+        "--yarns-out",
+        h5.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let converted = dir.path().join("converted");
+    std::fs::create_dir_all(&converted).unwrap();
+    let (code, _, err) = knitvox(&[
+        "convert",
+        h5.to_str().unwrap(),
+        converted.join("y.####.ply").to_str().unwrap(),
+        "--first-frame",
+        "1003",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_same_frames(&converted, &shot_dir, 1003..=1005);
+}
