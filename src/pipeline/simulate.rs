@@ -681,6 +681,11 @@ pub fn simulate_chunk(
             return Err(e);
         }
     };
+    // A rerun of a finished request wrote no checkpoint: the one it resumed
+    // from is the final one, for the next chunk.
+    if last_checkpoint.is_none() && Some(start_step) == schedule.total_steps() {
+        last_checkpoint = resumed_from.clone();
+    }
     // Superseded: the run's own periodic checkpoint, and the one it resumed
     // from when it lies inside this request (an earlier try of it).
     let step_first = ctx.step_of(first, start);
