@@ -544,3 +544,57 @@ fn export_and_convert_number_frames_like_simulate() {
     assert_eq!(code, 0, "{err}");
     assert_same_frames(&converted, &shot_dir, 1003..=1005);
 }
+
+/// With a walking character (pre-roll, body pins, a moving collider with
+/// friction against its previous pose) two chunks equal one run bit for bit.
+#[test]
+fn character_shot_in_two_chunks_equals_one_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (asset, _) = fixture(dir.path());
+    let fox = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/Fox.glb");
+    let character = |frames: &str, out: &Path, extra: &[&str]| {
+        let mut c = Command::new(common::knitvox_bin());
+        c.env("RAYON_NUM_THREADS", "1")
+            .arg("simulate")
+            .arg(&asset)
+            .arg("--character")
+            .arg(&fox)
+            .args([
+                "--animation",
+                "Walk",
+                "--character-scale",
+                "0.0025",
+                "--fit-joint",
+                "b_Spine02_03",
+                "--garment-rotate",
+                "-90,0,0",
+                "--preroll",
+                "0.02",
+                "--frames",
+                frames,
+                "-o",
+            ])
+            .arg(out)
+            .arg("--yarns-out")
+            .arg(out.parent().unwrap().join("y.####.ply"))
+            .args(extra);
+        c
+    };
+    let (one, two) = (dir.path().join("one"), dir.path().join("two"));
+    for d in [&one, &two] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    ok(character("10-13", &one.join("o.vtkhdf"), &[]));
+    ok(character("10-11", &two.join("a.vtkhdf"), &[]));
+    ok(character(
+        "12-13",
+        &two.join("b.vtkhdf"),
+        &["--shot-start", "10"],
+    ));
+    assert_same_frames(&two, &one, 10..=13);
+    let x = series(&[two.join("a.vtkhdf"), two.join("b.vtkhdf")]);
+    assert!(
+        x == series(&[one.join("o.vtkhdf")]),
+        "node positions differ"
+    );
+}
