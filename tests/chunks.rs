@@ -349,7 +349,7 @@ fn interrupted_shots_resume_to_the_clean_result() {
     .unwrap();
     assert_eq!(r["resumed_from"].as_str(), latest.to_str(), "{r}");
     assert_same_frames(&killed, &clean, 1..=last);
-    let (x, t) = series(&[out.clone()]);
+    let (x, t) = series(std::slice::from_ref(&out));
     let (x_clean, t_clean) = series(&[clean.join("all.vtkhdf")]);
     assert_eq!(t, t_clean);
     let n = x.len() / t.len();

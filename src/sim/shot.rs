@@ -141,6 +141,9 @@ pub struct FrameState<'a, C> {
 /// start ([`PdSolver::warm_start`]; its energy cache only saves an
 /// evaluation) are the whole state of the loop: a checkpoint of them
 /// resumes bit for bit. Returns the statistics of every step taken.
+// The state, the schedule, where to start and the three callbacks are
+// each the caller's; a struct of them would only be unpacked again.
+#[allow(clippy::too_many_arguments)]
 pub fn run<C, E>(
     solver: &mut PdSolver,
     x: &mut [Vec3],
