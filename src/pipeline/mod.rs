@@ -40,8 +40,9 @@
 //!   sections and clap arguments refer to them instead of repeating numbers.
 //!
 //! [`job`] runs these stages from a job manifest (`knitvox run`), skipping
-//! those whose inputs, parameters and upstream stages are unchanged; later
-//! items of issue 12 add resume on top of this contract.
+//! those whose inputs, parameters and upstream stages are unchanged. A shot
+//! split into frame chunks, checkpointed and resumed is
+//! `simulate::ChunkedShotJob` (schemas/checkpoint.md).
 
 pub mod asset;
 pub mod bake;
