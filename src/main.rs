@@ -2,7 +2,9 @@
 //! documented exit codes (see `knitvox::cli::exit`).
 
 use clap::Parser;
+use knitvox::cli::exit::{class_for, error_file, error_json};
 use knitvox::cli::{self, error_message, exit_code_for, Cli, ExitCode};
+use knitvox::pipeline::ErrorClass;
 
 fn main() -> std::process::ExitCode {
     // Like other Unix tools, end quietly when the reader of our output goes away
@@ -22,10 +24,19 @@ fn main() -> std::process::ExitCode {
         libc::signal(libc::SIGINT, handler as libc::sighandler_t);
         libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
     }
+    // With --json, errors are a JSON object on stdout as well.
+    let json = cli::wants_json(std::env::args_os());
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
             let _ = e.print();
+            if json && e.use_stderr() {
+                let text = e.kind().to_string();
+                let message = e.to_string();
+                let first = message.lines().next().unwrap_or(&text);
+                let first = first.strip_prefix("error: ").unwrap_or(first);
+                println!("{}", error_json(ErrorClass::Usage, first, None));
+            }
             return std::process::ExitCode::from(if e.use_stderr() {
                 ExitCode::Usage.code()
             } else {
@@ -38,11 +49,23 @@ fn main() -> std::process::ExitCode {
     let code = match outcome {
         Ok(Ok(code)) => code,
         Ok(Err(e)) => {
-            eprintln!("error: {}", error_message(&e));
+            let message = error_message(&e);
+            eprintln!("error: {message}");
+            if json {
+                println!(
+                    "{}",
+                    error_json(class_for(&e), &message, error_file(&e).as_deref())
+                );
+            }
             exit_code_for(&e)
         }
         Err(_) => {
-            eprintln!("error: internal error (a bug in knitvox; please report it with the input that caused it)");
+            let message =
+                "internal error (a bug in knitvox; please report it with the input that caused it)";
+            eprintln!("error: {message}");
+            if json {
+                println!("{}", error_json(ErrorClass::Internal, message, None));
+            }
             ExitCode::Internal
         }
     };

@@ -240,8 +240,11 @@ fn wide_obj(dir: &Path) -> std::path::PathBuf {
 }
 
 fn json_of(o: &Output) -> serde_json::Value {
-    serde_json::from_slice(&o.stdout)
-        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stdout)))
+    // One document, or (simulate, yls, run) JSON lines with the report last.
+    let text = String::from_utf8_lossy(&o.stdout);
+    serde_json::from_str(&text)
+        .or_else(|_| serde_json::from_str(text.lines().last().unwrap_or("")))
+        .unwrap_or_else(|e| panic!("{e}: {text}"))
 }
 
 /// Issue 13 item 6: option values checked after clap (ranges, names inside

@@ -821,6 +821,10 @@ fn simulate_with_a_failing_yarns_out_leaves_every_output_as_it_was() {
         "o.vtkhdf",
         "--yarns-out",
         "y/f.####.ply",
+        // All or nothing: without checkpoints (a resumable shot names
+        // each frame as it is done; tests/chunks.rs).
+        "--checkpoint-every",
+        "0",
     ];
     let (o, _) = knitvox_in(&dir, &args, Duration::from_secs(60));
     let e = stderr(&o);
@@ -871,6 +875,11 @@ fn sigterm_while_simulate_writes_leaves_nothing() {
             "o.vtkhdf",
             "--yarns-out",
             "y/f.####.ply",
+            // All or nothing: without checkpoints SIGTERM removes the
+            // staged frames and ends the process (with checkpoints it
+            // checkpoints and exits 75; tests/chunks.rs).
+            "--checkpoint-every",
+            "0",
         ])
         .current_dir(&dir)
         .stdout(Stdio::null())

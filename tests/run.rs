@@ -16,6 +16,13 @@ fn run(job: &Path, extra: &[&str]) -> Output {
         .unwrap()
 }
 
+/// The report of a `--json` run: the last line, after one JSON line per
+/// computed frame.
+fn report(out: &Output) -> serde_json::Value {
+    let text = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(text.lines().last().unwrap()).unwrap()
+}
+
 /// `(name, status)` of each stage of a `--json` run.
 fn statuses(out: &Output) -> Vec<(String, String)> {
     assert!(
@@ -23,8 +30,7 @@ fn statuses(out: &Output) -> Vec<(String, String)> {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    v["stages"]
+    report(out)["stages"]
         .as_array()
         .unwrap()
         .iter()
@@ -56,8 +62,9 @@ fn second_run_does_nothing_and_says_so() {
     for f in [
         "garment.vtkhdf",
         "shot.vtkhdf",
-        "export/garment.0000.ply",
+        // Numbered by farm frame, as the shot's frames 1-2.
         "export/garment.0001.ply",
+        "export/garment.0002.ply",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
@@ -108,8 +115,7 @@ fn changed_garment_content_reruns_every_stage() {
         statuses(&second),
         pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
     );
-    let v: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
-    assert_eq!(v["ran"], 3);
+    assert_eq!(report(&second)["ran"], 3);
 }
 
 #[test]
@@ -124,10 +130,7 @@ fn changed_export_parameter_reruns_only_export() {
         statuses(&second),
         pairs(&[("embed", "cached"), ("shot", "cached"), ("export", "ran")])
     );
-    let key = |o: &Output, i: usize| {
-        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-        v["stages"][i]["key"].as_str().unwrap().to_string()
-    };
+    let key = |o: &Output, i: usize| report(o)["stages"][i]["key"].as_str().unwrap().to_string();
     assert_eq!(key(&first, 1), key(&second, 1));
     assert_ne!(key(&first, 2), key(&second, 2));
     // Another format replaces the previous export's files.
@@ -143,7 +146,7 @@ fn changed_export_parameter_reruns_only_export() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     files.sort();
-    assert_eq!(files, ["garment.0000.obj", "garment.0001.obj"]);
+    assert_eq!(files, ["garment.0001.obj", "garment.0002.obj"]);
 }
 
 #[test]

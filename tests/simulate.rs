@@ -522,7 +522,8 @@ fn cli_character_shot_writes_every_frame() {
         "--json",
     ]);
     assert_eq!(code, 0, "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    // The report is the last line, after one JSON line per frame.
+    let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
     assert_eq!(v["frames"], 2);
     assert!(v["max_penetration_body_m"].as_f64().unwrap() <= 1e-3);
     // The yarn vertices' figure sits next to it, with the tolerance.

@@ -65,7 +65,9 @@ fn run_scene(dir: &Path, name: &str, text: &str) -> (serde_json::Value, std::pat
         "--json",
     ]);
     assert_eq!(code, 0, "{err}");
-    (serde_json::from_str(&stdout).unwrap(), out)
+    // The report is the last line, after one JSON line per frame.
+    let last = stdout.lines().last().unwrap_or("");
+    (serde_json::from_str(last).unwrap(), out)
 }
 
 #[test]

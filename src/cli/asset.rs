@@ -66,7 +66,8 @@ pub struct ShapefitArgs {
 pub struct ExportArgs {
     /// The asset (.vtkhdf).
     pub asset: PathBuf,
-    /// Steps to export, as 0-based indices into the asset's time series [default: all].
+    /// Steps to export [default: all]: farm frame numbers for a shot's output asset (the
+    /// numbers simulate --yarns-out writes), 0-based step indices for other assets.
     #[arg(long = "frames", value_name = "SPEC")]
     pub frames_spec: Option<FrameSpec>,
     /// Output format.

@@ -77,6 +77,47 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         .map_or(ExitCode::Internal, ExitCode::from)
 }
 
+/// The file an error is about: the first cause in its chain that names
+/// one (a pipeline error, a shot error, an i/o error).
+pub fn error_file(err: &anyhow::Error) -> Option<std::path::PathBuf> {
+    use crate::pipeline::simulate::{io_error_path, SimulateError};
+    err.chain().find_map(|c| {
+        if let Some(e) = c.downcast_ref::<crate::pipeline::Error>() {
+            match e {
+                crate::pipeline::Error::Shot(s) => s.file(),
+                other => other.file(),
+            }
+        } else if let Some(e) = c.downcast_ref::<SimulateError>() {
+            e.file()
+        } else {
+            c.downcast_ref::<crate::io::IoError>().map(io_error_path)
+        }
+    })
+}
+
+/// The `--json` form of a failure: `{"event": "error", "class", "exit_code",
+/// "message", "file"}` (`file` null where no file is named).
+pub fn error_json(
+    class: ErrorClass,
+    message: &str,
+    file: Option<&std::path::Path>,
+) -> serde_json::Value {
+    serde_json::json!({
+        "event": "error",
+        "class": class,
+        "exit_code": class.exit_code(),
+        "message": message,
+        "file": file.map(|f| f.display().to_string()),
+    })
+}
+
+/// The class of an error (internal when no cause knows one).
+pub fn class_for(err: &anyhow::Error) -> ErrorClass {
+    err.chain()
+        .find_map(crate::pipeline::Error::class_of)
+        .unwrap_or(ErrorClass::Internal)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -97,6 +138,26 @@ mod tests {
             m.starts_with("converting x.bcc to y.ply: x.bcc: cannot read"),
             "{m}"
         );
+    }
+
+    #[test]
+    fn json_errors_name_class_code_and_file() {
+        let e = anyhow::Error::new(crate::pipeline::Error::from(IoError::Read {
+            path: "gone.vtkhdf".into(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        }));
+        let class = class_for(&e);
+        let v = error_json(class, &error_message(&e), error_file(&e).as_deref());
+        assert_eq!(v["event"], "error");
+        assert_eq!(v["class"], "missing");
+        assert_eq!(v["exit_code"], 66);
+        assert_eq!(v["file"], "gone.vtkhdf");
+        assert!(
+            v["message"].as_str().unwrap().contains("cannot read"),
+            "{v}"
+        );
+        let v = error_json(ErrorClass::Internal, "a bug", None);
+        assert!(v["file"].is_null());
     }
 
     #[test]

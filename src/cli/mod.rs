@@ -351,21 +351,62 @@ pub(crate) fn warn_all(warnings: Vec<String>) -> Vec<String> {
     warnings
 }
 
+/// How a [`Console`] shows frame progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ProgressMode {
+    /// Nothing.
+    Off,
+    /// A progress bar on stderr (a terminal).
+    Bar,
+    /// A plain line per frame on stderr (no terminal: farm logs).
+    Lines,
+    /// A JSON line per frame on stdout (`--json`).
+    Json,
+}
+
+impl ProgressMode {
+    /// `--json`: JSON lines; else a bar on a terminal, plain lines without.
+    pub fn of(json: bool) -> ProgressMode {
+        use std::io::IsTerminal;
+        if json {
+            ProgressMode::Json
+        } else if std::io::stderr().is_terminal() {
+            ProgressMode::Bar
+        } else {
+            ProgressMode::Lines
+        }
+    }
+}
+
 /// The CLI's [`crate::pipeline::Observer`]: warnings on stderr
-/// (`warning: ...`, kept for a `--json` report's `warnings` array) and a
-/// frames progress bar on stderr when shown.
+/// (`warning: ...`, kept for a `--json` report's `warnings` array) and
+/// frame progress ([`ProgressMode`]).
 pub(crate) struct Console {
     pub warnings: Vec<String>,
     bar: Option<indicatif::ProgressBar>,
+    mode: ProgressMode,
+    label: String,
 }
 
 impl Console {
     /// A console; with `show`, a progress bar of `frames` frames labelled
     /// `label` (`label {bar} pos/len frames [elapsed < eta]`).
     pub fn new(show: bool, frames: usize, label: &str) -> Console {
+        let mode = if show {
+            ProgressMode::Bar
+        } else {
+            ProgressMode::Off
+        };
+        Console::with_mode(mode, frames, label)
+    }
+
+    /// A console showing progress as `mode` says.
+    pub fn with_mode(mode: ProgressMode, frames: usize, label: &str) -> Console {
         Console {
             warnings: Vec::new(),
-            bar: show.then(|| frame_bar(frames, label)),
+            bar: (mode == ProgressMode::Bar).then(|| frame_bar(frames, label)),
+            mode,
+            label: label.to_string(),
         }
     }
 }
@@ -389,6 +430,63 @@ impl crate::pipeline::Observer for Console {
             b.set_position(done as u64);
         }
     }
+    fn frame(&mut self, p: &crate::pipeline::FrameProgress) {
+        use std::io::Write;
+        match self.mode {
+            ProgressMode::Off => {}
+            ProgressMode::Bar => self.frames(p.done, p.total),
+            ProgressMode::Json => {
+                let mut v = serde_json::to_value(p).unwrap_or_default();
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("event".into(), "frame".into());
+                }
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "{v}");
+                let _ = out.flush();
+            }
+            ProgressMode::Lines => {
+                let opt = |x: Option<f64>, unit: &str| {
+                    x.map_or("-".to_string(), |x| format!("{x:.3e} {unit}"))
+                };
+                eprintln!(
+                    "{}: frame {} ({}/{}) {:.0} ms, residual {}, penetration {}",
+                    self.label,
+                    p.frame,
+                    p.done,
+                    p.total,
+                    p.ms,
+                    opt(p.residual, "N"),
+                    opt(p.penetration_m, "m")
+                );
+            }
+        }
+    }
+}
+
+/// Prints a `--json` report as the last line of stdout (after any
+/// progress lines), with `"event": "report"` and `extra` fields.
+pub(crate) fn print_json_report(
+    report: &impl serde::Serialize,
+    extra: &[(&str, serde_json::Value)],
+) -> anyhow::Result<()> {
+    let mut v = serde_json::to_value(report)?;
+    if let Some(o) = v.as_object_mut() {
+        o.insert("event".into(), "report".into());
+        for (k, x) in extra {
+            o.insert((*k).into(), x.clone());
+        }
+    }
+    println!("{}", serde_json::to_string(&v)?);
+    Ok(())
+}
+
+/// Whether a raw command line asks for `--json` (before any `--`): errors
+/// are then a JSON object on stdout, for every command, parse errors too.
+pub fn wants_json(args: impl IntoIterator<Item = std::ffi::OsString>) -> bool {
+    args.into_iter()
+        .skip(1)
+        .take_while(|a| a != "--")
+        .any(|a| a == "--json")
 }
 
 fn frame_bar(frames: usize, label: &str) -> indicatif::ProgressBar {

@@ -7,7 +7,6 @@ use clap::Args;
 use super::ExitCode;
 use crate::pipeline::job::{self, Job};
 use crate::pipeline::submit::{self, SlurmOptions};
-use crate::pipeline::Quiet;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -16,7 +15,7 @@ pub struct RunArgs {
     /// Run this stage and the stages it needs (embed, shot, export) [default: all].
     #[arg(long, value_name = "NAME")]
     pub stage: Option<String>,
-    /// Print the report as JSON.
+    /// Print one JSON line per computed frame and the report as the last line (errors as JSON too).
     #[arg(long)]
     pub json: bool,
     /// Submit the stages to a farm scheduler instead of running them here:
@@ -102,10 +101,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         &job,
         a.stage.as_deref(),
         &super::asset::command_line(),
-        &mut Quiet,
+        &mut super::Console::with_mode(super::ProgressMode::of(a.json), 0, "run"),
     )?;
     if a.json {
-        println!("{}", serde_json::to_string(&r)?);
+        super::print_json_report(&r, &[])?;
         return Ok(ExitCode::Success);
     }
     for s in &r.stages {

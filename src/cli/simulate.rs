@@ -1,8 +1,8 @@
 //! `knitvox simulate`: a shot of a homogenized asset under a scene file or a
 //! character.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Args;
 
@@ -15,7 +15,9 @@ use crate::pipeline::asset::check_asset_ext;
 use crate::pipeline::sim_scene::{
     parse_seconds, BackendChoice, CharacterSection, Scene, Seconds, SolverChoice,
 };
-use crate::pipeline::simulate::{self as stage, ShotJob, ShotRequest};
+use crate::pipeline::simulate::{
+    self as stage, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest,
+};
 use crate::pipeline::Stage;
 
 fn parse_vec3(s: &str) -> Result<Vec3, String> {
@@ -121,9 +123,51 @@ pub struct SimulateArgs {
     /// Up axis of written bcc, obj, ply coordinates.
     #[arg(long, value_name = "y|z", default_value = "y")]
     pub out_up_axis: UpAxis,
-    /// Print the report as JSON.
+    /// Checkpoint the shot every N frames and at its last frame (schemas/checkpoint.md), so
+    /// that --resume or the next chunk continues it; frame files appear as they are computed.
+    /// 0: no checkpoints, and the outputs appear all at once or not at all.
+    #[arg(long, value_name = "N", default_value_t = stage::DEFAULT_CHECKPOINT_EVERY)]
+    pub checkpoint_every: usize,
+    /// Folder of the checkpoints [default: the folder of -o].
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint_dir: Option<PathBuf>,
+    /// Continue from this checkpoint (refused when it is of another shot or lies past --frames).
+    #[arg(long, value_name = "FILE")]
+    pub checkpoint: Option<PathBuf>,
+    /// The shot's first frame when --frames is a later chunk of it (the chunk then continues the
+    /// previous chunk's checkpoint, or is refused) [default: the first of --frames, or the start
+    /// of an earlier chunk whose checkpoint is in the checkpoint folder].
+    #[arg(long, value_name = "FRAME", allow_hyphen_values = true)]
+    pub shot_start: Option<i64>,
+    /// Continue a killed or interrupted run from the latest checkpoint of this shot (none: start
+    /// as usual). SIGTERM checkpoints after the current step and exits 75.
+    #[arg(long)]
+    pub resume: bool,
+    /// Print one JSON line per frame and the report as the last line (errors as JSON too).
     #[arg(long)]
     pub json: bool,
+}
+
+/// Set by SIGTERM while a resumable shot runs.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn request_stop(_: libc::c_int) {
+    // Async-signal-safe: one atomic store.
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// From here on SIGTERM asks the shot to checkpoint and stop (exit 75)
+/// instead of ending the process at once.
+fn stop_on_sigterm() -> &'static AtomicBool {
+    #[cfg(unix)]
+    // SAFETY: installs an async-signal-safe handler (one atomic store).
+    unsafe {
+        libc::signal(
+            libc::SIGTERM,
+            request_stop as extern "C" fn(libc::c_int) as libc::sighandler_t,
+        );
+    }
+    &STOP
 }
 
 /// The scene of a command line: the file's, or one built from --character.
@@ -175,7 +219,7 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     let scene = scene_of(a)?;
     check_step_count(a, &scene)?;
     check_character_names(a)?;
-    let job = ShotJob {
+    let shot = ShotJob {
         asset: a.asset.clone(),
         scene,
         request: ShotRequest {
@@ -190,9 +234,21 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             command: super::asset::command_line(),
         },
     };
-    let mut console = super::Console::new(
-        std::io::stderr().is_terminal(),
-        job.request.frames.len(),
+    let resumable = a.checkpoint_every > 0;
+    let job = ChunkedShotJob {
+        chunk: ChunkOptions {
+            checkpoint_every: a.checkpoint_every,
+            checkpoint_dir: a.checkpoint_dir.clone(),
+            checkpoint: a.checkpoint.clone(),
+            shot_start: a.shot_start,
+            resume: a.resume,
+            stop: resumable.then(stop_on_sigterm),
+        },
+        shot,
+    };
+    let mut console = super::Console::with_mode(
+        super::ProgressMode::of(a.json),
+        job.shot.request.frames.len(),
         "simulating",
     );
     let result = job.run(&mut console);
@@ -200,11 +256,7 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     drop(console);
     let r = result?;
     if a.json {
-        let mut v = serde_json::to_value(&r)?;
-        if let Some(o) = v.as_object_mut() {
-            o.insert("warnings".into(), warnings.into());
-        }
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        super::print_json_report(&r, &[("warnings", warnings.into())])?;
     } else {
         println!(
             "{}: {} frames ({}-{}, {} fps), {} steps of {:.5} s ({} per frame, {} pre-roll), {} nodes, {} tets, {} pinned ({} to the body); {} / {}",
@@ -254,6 +306,16 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         }
         for n in &r.notes {
             println!("  note: {n}");
+        }
+        if let Some(p) = &r.resumed_from {
+            println!(
+                "  continued the shot from frame {} from {}",
+                r.shot_start,
+                p.display()
+            );
+        }
+        if let Some(p) = &r.checkpoint {
+            println!("  checkpoint {}", p.display());
         }
         for p in &r.yarn_files {
             println!("{}", p.display());

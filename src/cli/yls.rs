@@ -16,13 +16,13 @@ pub struct YlsArgs {
     /// Output knitvox HDF5 file (rest yarns, frames, times, scene, parameters).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Print the run's figures as JSON.
+    /// Print one JSON line per frame and the run's figures as the last line (errors as JSON too).
     #[arg(long)]
     pub json: bool,
     /// Show a progress bar (on by default when stderr is a terminal).
     #[arg(long, overrides_with = "no_progress")]
     pub progress: bool,
-    /// Never show a progress bar.
+    /// Never show progress (without it and without a terminal: a plain line per frame on stderr).
     #[arg(long)]
     pub no_progress: bool,
 }
@@ -32,13 +32,22 @@ pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
         scene: a.scene.clone(),
         output: a.output.clone(),
     };
-    let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
-    let mut console = super::Console::new(show, 0, "yarn-level");
+    use super::ProgressMode;
+    let mode = if a.json {
+        ProgressMode::Json
+    } else if a.no_progress {
+        ProgressMode::Off
+    } else if a.progress || std::io::stderr().is_terminal() {
+        ProgressMode::Bar
+    } else {
+        ProgressMode::Lines
+    };
+    let mut console = super::Console::with_mode(mode, 0, "yarn-level");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        super::print_json_report(&r, &[])?;
     } else {
         println!(
             "{}: {} frames of {} vertices ({} curves, {} clamped), {} steps; min distance / 2r {:.3}, max step / r {:.3}; {:.1} ms per frame (median), {:.1} s total",

@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod bcc;
 pub mod bytes;
 pub mod character_h5;
+pub mod checkpoint;
 pub mod confined;
 mod error;
 pub mod gltf;

@@ -236,9 +236,31 @@ pub fn v2y_steps(asset: &Asset, steps: &[usize]) -> YarnFrames {
     frames
 }
 
+/// The frame number of each stored step: a shot's output asset (it records
+/// `parameters.simulate.scene.simulation.fps`) stores farm frame `f` at
+/// time `f / fps`, so its steps carry their farm frame numbers, the same
+/// numbers `simulate --yarns-out` writes; other assets (`shapefit` poses)
+/// number their steps from 0.
+pub fn step_frame_numbers(asset: &Asset) -> Vec<i64> {
+    let fps = asset
+        .parameters
+        .pointer("/simulate/scene/simulation/fps")
+        .and_then(|v| v.as_f64())
+        .filter(|f| f.is_finite() && *f > 0.0);
+    match fps {
+        Some(fps) => asset
+            .steps
+            .times
+            .iter()
+            .map(|t| (t * fps).round() as i64)
+            .collect(),
+        None => (0..asset.steps.num_steps() as i64).collect(),
+    }
+}
+
 /// Writes V2Y yarn curves of the selected steps into `out_dir` as
-/// `name.####.ext` (step number = index in the asset's time series), or one
-/// `name.h5` holding every selected step. Each step goes through the frame
+/// `name.####.ext` (numbered by [`step_frame_numbers`]), or one `name.h5`
+/// holding every selected step. Each step goes through the frame
 /// writer as it is computed; every file or none gets its final name.
 pub fn export(
     asset: &Asset,
@@ -254,6 +276,7 @@ pub fn export(
     })?;
     let ext = format.extensions()[0];
     let n = asset.mesh.num_nodes();
+    let numbers = step_frame_numbers(asset);
     // Every step or none under its final name (issue 13 item 4).
     io::atomic::all_or_nothing(|| {
         let mut writer = if format.holds_frames() {
@@ -274,7 +297,7 @@ pub fn export(
         };
         for &s in steps {
             let pts = asset.embedding.v2y(&asset.mesh, asset.steps.step(s, n));
-            writer.push(s as i64, asset.steps.times[s], &pts)?;
+            writer.push(numbers[s], asset.steps.times[s], &pts)?;
         }
         Ok(writer.finish()?)
     })
@@ -339,6 +362,34 @@ pub fn select(
                     spec.as_ref().map_or(String::new(), |s| s.to_string()),
                     path.display(),
                     n.saturating_sub(1)
+                ))
+            })
+        })
+        .collect()
+}
+
+/// The steps whose numbers (`numbers[s]`, e.g. [`step_frame_numbers`])
+/// `spec` selects [default: all]; a number no step has is a usage error.
+pub fn select_numbered(
+    spec: &Option<FrameSpec>,
+    numbers: &[i64],
+    path: &Path,
+) -> Result<Vec<usize>, Error> {
+    let Some(spec) = spec else {
+        return Ok((0..numbers.len()).collect());
+    };
+    spec.frames()
+        .into_iter()
+        .map(|f| {
+            numbers.iter().position(|&k| k == f).ok_or_else(|| {
+                let have = match (numbers.first(), numbers.last()) {
+                    (Some(a), Some(b)) => format!("{a}..{b}"),
+                    _ => "none".into(),
+                };
+                Error::Usage(format!(
+                    "--frames {spec}: step {f} does not exist: {} has {} steps, numbered {have}",
+                    path.display(),
+                    numbers.len()
                 ))
             })
         })
@@ -438,7 +489,8 @@ impl Stage for ShapefitJob {
 pub struct ExportJob {
     /// The asset (.vtkhdf).
     pub asset: PathBuf,
-    /// Steps to export, 0-based [default: all].
+    /// Steps to export [default: all]: farm frame numbers for a shot's
+    /// output asset, 0-based step indices otherwise ([`step_frame_numbers`]).
     pub selection: Option<FrameSpec>,
     /// Output format.
     pub format: io::Format,
@@ -470,12 +522,7 @@ impl Stage for ExportJob {
             }
             .into());
         }
-        let steps = select(
-            &self.selection,
-            asset.steps.num_steps(),
-            "step",
-            &self.asset,
-        )?;
+        let steps = select_numbered(&self.selection, &step_frame_numbers(&asset), &self.asset)?;
         let name = self.name.clone().unwrap_or_else(|| {
             self.asset
                 .file_stem()

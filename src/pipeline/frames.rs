@@ -2,10 +2,12 @@
 //! frame as a stage computes them ([`FrameSink`]), so no stage holds every
 //! frame's yarns in memory.
 //!
-//! Output is all or nothing (README, "Atomic output"): run the stage
-//! inside [`io::atomic::all_or_nothing`]; each frame file (or the one HDF5
-//! file) stays a registered temporary until the stage succeeds, and then
-//! all get their final names together.
+//! Every file is written atomically (temporary, fsync, rename). Inside
+//! [`io::atomic::all_or_nothing`] each frame file (or the one HDF5 file)
+//! stays a registered temporary until the stage succeeds, and then all get
+//! their final names together; outside one (a resumable shot) each frame
+//! file gets its final name as soon as it is complete, and the one HDF5
+//! file when the writer finishes.
 
 use std::path::{Path, PathBuf};
 
@@ -85,6 +87,32 @@ impl<'a> YarnFrameWriter<'a> {
                 pattern,
                 written: Vec::new(),
             },
+        }
+    }
+
+    /// The final file of `frame` in a per-frame sequence (`None` for one
+    /// HDF5 file, which is written whole).
+    pub fn frame_path(&self, frame: i64) -> Option<PathBuf> {
+        match &self.layout {
+            Layout::PerFrame { pattern, .. } => Some(pattern.path_of(frame)),
+            Layout::Hdf5(_) => None,
+        }
+    }
+
+    /// Lists `path`, a frame file an earlier run of a resumed shot wrote,
+    /// among the files of this output (per-frame sequences).
+    pub fn adopt(&mut self, path: PathBuf) {
+        if let Layout::PerFrame { written, .. } = &mut self.layout {
+            written.push(path);
+        }
+    }
+
+    /// The frame files of a per-frame sequence so far, adopted ones first
+    /// (empty for one HDF5 file).
+    pub fn written(&self) -> &[PathBuf] {
+        match &self.layout {
+            Layout::PerFrame { written, .. } => written,
+            Layout::Hdf5(_) => &[],
         }
     }
 

@@ -20,8 +20,11 @@
 //!   [`frames::YarnFrameWriter`]): a `name.####.ext` sequence numbered by
 //!   frame, or one HDF5 file. No stage keeps every frame's yarns in memory.
 //!   (The shot's node positions still become the output asset's time
-//!   series, which `io::vtkhdf` writes in one piece.)
-//! * **Progress and warnings go to an [`Observer`]**; a stage never prints.
+//!   series, which `io::vtkhdf` writes in one piece.) A resumable shot
+//!   (`simulate::ChunkOptions`) gives each frame file its name as soon as
+//!   it is complete and checkpoints its state (`io::checkpoint`).
+//! * **Progress and warnings go to an [`Observer`]** (per frame:
+//!   [`FrameProgress`]); a stage never prints.
 //! * **Failures are one [`Error`].** Its [`Error::class`] ([`ErrorClass`]:
 //!   usage, bad input, missing, unavailable, internal, output, transient)
 //!   gives the process exit code ([`ErrorClass::exit_code`]) and the retry
@@ -37,8 +40,9 @@
 //!   sections and clap arguments refer to them instead of repeating numbers.
 //!
 //! [`job`] runs these stages from a job manifest (`knitvox run`), skipping
-//! those whose inputs, parameters and upstream stages are unchanged; later
-//! items of issue 12 add resume on top of this contract.
+//! those whose inputs, parameters and upstream stages are unchanged. A shot
+//! split into frame chunks, checkpointed and resumed is
+//! `simulate::ChunkedShotJob` (schemas/checkpoint.md).
 
 pub mod asset;
 pub mod bake;
@@ -58,13 +62,37 @@ pub mod yls_scene;
 
 pub use error::{Error, ErrorClass, Retry};
 
+/// One computed frame, for progress lines (`--json`: one JSON object per
+/// frame; the CLI adds `"event": "frame"`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FrameProgress {
+    /// The frame's number (farm frame number).
+    pub frame: i64,
+    /// Frames computed so far by this run, and of how many.
+    pub done: usize,
+    pub total: usize,
+    /// Wall time (ms) since the previous frame.
+    pub ms: f64,
+    /// Largest implicit-Euler residual (N) of the frame's steps (None where
+    /// the stage has none, e.g. the yarn-level simulator).
+    pub residual: Option<f64>,
+    /// Deepest penetration (m) of a free node into a collider at the frame
+    /// (None without colliders).
+    pub penetration_m: Option<f64>,
+}
+
 /// What a stage tells its caller while it runs (the CLI prints it; a
-/// daemon logs it). Both methods default to doing nothing.
+/// daemon logs it). Every method defaults to doing nothing.
 pub trait Observer {
     /// A warning about the inputs (printed as `warning: ...`).
     fn warning(&mut self, _message: &str) {}
     /// `done` of `total` frames are computed.
     fn frames(&mut self, _done: usize, _total: usize) {}
+    /// A frame is computed, with its statistics; defaults to
+    /// [`Observer::frames`].
+    fn frame(&mut self, p: &FrameProgress) {
+        self.frames(p.done, p.total);
+    }
 }
 
 /// An observer that ignores everything.

@@ -11,6 +11,7 @@
 //! pose, is carried into the shot instead of jumping.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use serde::Serialize;
@@ -19,8 +20,9 @@ use super::frames::{FrameSink, YarnFrameWriter};
 use super::shot_setup::{self, Posed};
 use super::sim_scene::{BackendChoice, Scene, SceneError, SimulationSection, SolverChoice};
 use crate::geom::{Asset, NodeSteps, Vec3};
+use crate::io::checkpoint::{self, Checkpoint, CheckpointHeader};
 use crate::io::{self, IoError, WriteOptions};
-use crate::pipeline::{Error, ErrorClass, Observer, Stage};
+use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
 use crate::sim::dd::DdParams;
 use crate::sim::pd::{GlobalSolver, PdParams, PdSolver};
 use crate::sim::shot::{self, LoopError};
@@ -39,6 +41,23 @@ pub enum SimulateError {
     /// A requested backend or solver this build cannot run.
     #[error("{0}")]
     Unavailable(String),
+    /// A request knitvox refuses (the message names the option).
+    #[error("{0}")]
+    Usage(String),
+    /// A run that continues a shot found no checkpoint to continue from.
+    #[error("{message}")]
+    NoCheckpoint { dir: PathBuf, message: String },
+    /// The checkpoint given does not fit the shot or the request.
+    #[error("{path}: {message}", path = path.display())]
+    CheckpointMismatch { path: PathBuf, message: String },
+    /// Stopped on request (SIGTERM) after a step; the checkpoint holds the
+    /// state, `--resume` continues.
+    #[error("interrupted after step {step} (shot time {time:.6} s); the shot's state is saved in {checkpoint}; run the same command with --resume to continue", checkpoint = checkpoint.display())]
+    Interrupted {
+        checkpoint: PathBuf,
+        step: usize,
+        time: f64,
+    },
     /// The simulation diverged.
     #[error("{path}: {source} (shot time {time:.6} s, before frame {frame})", path = path.display())]
     Diverged {
@@ -59,7 +78,24 @@ impl SimulateError {
         match self {
             SimulateError::Io(e) => e.class().into(),
             SimulateError::Unavailable(_) => ErrorClass::Unavailable,
+            SimulateError::Usage(_) | SimulateError::CheckpointMismatch { .. } => ErrorClass::Usage,
+            SimulateError::NoCheckpoint { .. } => ErrorClass::Missing,
+            SimulateError::Interrupted { .. } => ErrorClass::Transient,
             _ => ErrorClass::BadInput,
+        }
+    }
+    /// The file the error is about, where it names one.
+    pub fn file(&self) -> Option<PathBuf> {
+        match self {
+            SimulateError::Io(e) => Some(io_error_path(e)),
+            SimulateError::Invalid { path, .. }
+            | SimulateError::Diverged { path, .. }
+            | SimulateError::CheckpointMismatch { path, .. } => Some(path.clone()),
+            SimulateError::NoCheckpoint { dir, .. } => Some(dir.clone()),
+            SimulateError::Interrupted { checkpoint, .. } => Some(checkpoint.clone()),
+            SimulateError::Scene(_) | SimulateError::Usage(_) | SimulateError::Unavailable(_) => {
+                None
+            }
         }
     }
     /// The PD step that diverged (1-based), if that is what happened.
@@ -71,6 +107,20 @@ impl SimulateError {
             } => Some(*step),
             _ => None,
         }
+    }
+}
+
+/// The file an i/o error names.
+pub fn io_error_path(e: &IoError) -> PathBuf {
+    match e {
+        IoError::Format { path, .. }
+        | IoError::Read { path, .. }
+        | IoError::Write { path, .. }
+        | IoError::Busy { path, .. }
+        | IoError::Unsupported { path, .. }
+        | IoError::Invalid { path, .. }
+        | IoError::UnknownFormat { path, .. }
+        | IoError::OutputIsInput { output: path, .. } => path.clone(),
     }
 }
 
@@ -156,6 +206,13 @@ pub struct SimulateReport {
     pub frames: usize,
     pub first_frame: i64,
     pub last_frame: i64,
+    /// The shot's first frame (shot time 0): `first_frame` unless this run
+    /// continued an earlier chunk.
+    pub shot_start: i64,
+    /// The checkpoint this run continued from.
+    pub resumed_from: Option<PathBuf>,
+    /// The checkpoint this run left at its last frame (for the next chunk).
+    pub checkpoint: Option<PathBuf>,
     pub fps: f64,
     /// Step actually used (s): the frame interval over `steps_per_frame`.
     pub dt: f64,
@@ -302,6 +359,40 @@ fn refuse_input_overwrite(
 /// the fastest step; larger requests are refused before any work starts.
 pub const MAX_TOTAL_STEPS: usize = 10_000_000;
 
+/// How a shot is split into chunks and resumed (`knitvox simulate
+/// --checkpoint-every`, `--resume`, `--shot-start`, `--checkpoint`;
+/// schemas/checkpoint.md). The default is a shot that starts at its first
+/// frame, writes no checkpoint and whose outputs are all or nothing.
+#[derive(Debug, Clone, Default)]
+pub struct ChunkOptions {
+    /// Checkpoint every this many frames of the shot (counted from the shot
+    /// start) and at the request's last frame. 0 (the default): no
+    /// checkpoints and all-or-nothing outputs. Above 0 the shot is
+    /// resumable: each yarn frame file gets its final name as soon as it is
+    /// complete (a killed shot keeps its finished frames); a shot that fails
+    /// for good removes the frame files it wrote.
+    pub checkpoint_every: usize,
+    /// Folder of the checkpoints [default: the output asset's folder].
+    pub checkpoint_dir: Option<PathBuf>,
+    /// Continue from this checkpoint (refused if it is not of this shot, or
+    /// lies past the request's first frame, or past its last with `resume`).
+    pub checkpoint: Option<PathBuf>,
+    /// The shot's first frame (shot time 0; the pre-roll comes before it).
+    /// `None`: the request's first frame, unless the checkpoint folder holds
+    /// a checkpoint of this shot started earlier, before the request's
+    /// first frame (the previous chunk's), which is then continued.
+    pub shot_start: Option<i64>,
+    /// Continue from the latest checkpoint of this shot up to the request's
+    /// last frame (a rerun of a killed chunk); with none, start as usual.
+    pub resume: bool,
+    /// Set from outside (SIGTERM): finish the current step, checkpoint,
+    /// stop with [`SimulateError::Interrupted`].
+    pub stop: Option<&'static AtomicBool>,
+}
+
+/// The default checkpoint interval (frames) of `knitvox simulate`.
+pub const DEFAULT_CHECKPOINT_EVERY: usize = 10;
+
 /// Simulates `asset` (read from `asset_path`) under `scene` and writes the
 /// outputs of `req`: shot setup ([`shot_setup`](super::shot_setup)), the
 /// time loop ([`crate::sim::shot::run`]), and the frame writer, which gets
@@ -313,6 +404,33 @@ pub fn simulate(
     scene: &Scene,
     req: &ShotRequest,
     progress: &mut dyn FnMut(usize, usize),
+) -> Result<SimulateReport, SimulateError> {
+    struct Progress<'a>(&'a mut dyn FnMut(usize, usize));
+    impl Observer for Progress<'_> {
+        fn frames(&mut self, done: usize, total: usize) {
+            (self.0)(done, total)
+        }
+    }
+    simulate_chunk(
+        asset,
+        asset_path,
+        scene,
+        req,
+        &ChunkOptions::default(),
+        &mut Progress(progress),
+    )
+}
+
+/// [`simulate`] as a chunk of a longer shot: starts from rest at the shot
+/// start or continues from a checkpoint ([`ChunkOptions`]), checkpoints as
+/// asked, and reports each frame to `observer`.
+pub fn simulate_chunk(
+    asset: &Asset,
+    asset_path: &Path,
+    scene: &Scene,
+    req: &ShotRequest,
+    chunk: &ChunkOptions,
+    observer: &mut dyn Observer,
 ) -> Result<SimulateReport, SimulateError> {
     let t_total = Instant::now();
     preflight(req)?;
@@ -326,91 +444,262 @@ pub fn simulate(
     };
     let sim = &scene.simulation;
     let mut setup = shot_setup::setup(asset, asset_path, scene, first, last)?;
+    let character_sha = match scene.character_path() {
+        Some(p) => Some(super::asset::sha256_file(&p)?),
+        None => None,
+    };
+    let ctx = ShotKey {
+        key: shot_key(asset_path, scene, &setup.schedule, asset, &character_sha)?,
+        dir: checkpoint_dir(chunk, req),
+        nodes: asset.mesh.num_nodes(),
+        preroll: setup.schedule.preroll_steps,
+        spf: setup.schedule.steps_per_frame,
+    };
+    let resumed = resolve_start(&ctx, chunk, &frames, observer)?;
+    let start = resumed.shot_start;
+    setup.schedule.frame_intervals = usize::try_from(last - start).unwrap_or(usize::MAX);
     let schedule = setup.schedule;
+    if schedule.total_steps().is_none_or(|t| t > MAX_TOTAL_STEPS) {
+        return Err(invalid(
+            asset_path,
+            format!("frames {start}-{last} need more than the limit of {MAX_TOTAL_STEPS} steps"),
+        ));
+    }
     let (mut solver, backend, dd) = build_solver(asset, asset_path, sim, &setup)?;
-    setup.project_start(scene)?;
-
     let mut out = output_asset(
         asset,
         scene,
         req,
-        [first, last],
+        [start, first, last],
         &schedule,
         [solver_name, backend],
+        character_sha,
     )?;
+    let mut x;
+    let mut v;
+    let mut start_step = 0usize;
+    let mut series_frames: Vec<i64> = Vec::new();
+    let resumed_from = resumed.from.as_ref().map(|(p, _)| p.clone());
+    match resumed.from {
+        Some((path, c)) => {
+            solver
+                .set_warm_start(&c.warm_start)
+                .map_err(|e| invalid(&path, format!("checkpoint: {e}")))?;
+            start_step = c.header.step as usize;
+            x = c.x;
+            v = c.v;
+            // Keep the frames of this request (a previous chunk's are its own).
+            let n = x.len();
+            for (i, &f) in c.header.series_frames.iter().enumerate() {
+                if frames.binary_search(&f).is_ok() {
+                    series_frames.push(f);
+                    out.steps.times.push(c.series_times[i]);
+                    out.steps
+                        .positions
+                        .extend_from_slice(&c.series[i * n..(i + 1) * n]);
+                }
+            }
+        }
+        None => {
+            setup.project_start(scene)?;
+            x = std::mem::take(&mut setup.x);
+            v = vec![[0.0; 3]; x.len()];
+        }
+    }
 
-    // All or nothing (issue 13 item 4): each yarn frame is written as it
-    // is computed, but stays a temporary file until the asset is written
-    // too; then all get their names.
+    // A resumable shot names each frame file as it is complete; otherwise
+    // all or nothing (issue 13 item 4): each yarn frame stays a temporary
+    // file until the asset is written too, then all get their names.
+    let resumable = chunk.checkpoint_every > 0;
+    let mut writer = match &req.yarns_out {
+        Some(y) => Some(YarnFrameWriter::create(y, &asset.rest_yarns, &req.write)?),
+        None => None,
+    };
+    let mut adopted = 0;
     let mut measures = Measures::default();
-    let (yarn_files, stats) = io::atomic::all_or_nothing(|| {
-        let mut writer = match &req.yarns_out {
-            Some(y) => Some(YarnFrameWriter::create(y, &asset.rest_yarns, &req.write)?),
-            None => None,
+    let mut last_checkpoint = None;
+    let mut periodic: Option<PathBuf> = None;
+    let mut body = || -> Result<_, SimulateError> {
+        // The frames a resumed run had written: their files stay when
+        // complete, and come back from the checkpoint's node positions when
+        // missing (one HDF5 file is always written whole).
+        if let Some(w) = writer.as_mut() {
+            let n = x.len();
+            for (i, &f) in series_frames.iter().enumerate() {
+                match w.frame_path(f).filter(|p| p.is_file()) {
+                    Some(p) => {
+                        w.adopt(p);
+                        adopted += 1;
+                    }
+                    None => {
+                        let nodes = &out.steps.positions[i * n..(i + 1) * n];
+                        let y = asset.embedding.v2y(&asset.mesh, nodes);
+                        w.push(f, out.steps.times[i], &y)?;
+                    }
+                }
+            }
+        }
+        let mut body_before = setup
+            .body
+            .as_ref()
+            .map(|b| b.positions(schedule.time(start_step)));
+        let mut next_frame = series_frames.len();
+        let stop = || {
+            chunk
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::SeqCst))
         };
-        let mut x = std::mem::take(&mut setup.x);
-        let mut v = vec![[0.0; 3]; x.len()];
-        let mut body_before = setup.body.as_ref().map(|b| b.positions(schedule.t0()));
-        let mut next_frame = 0usize;
-        let stats = shot::run(
+        let result = shot::run(
             &mut solver,
             &mut x,
             &mut v,
             &schedule,
+            start_step,
             |_, t, pins| -> Result<Posed, SimulateError> {
                 let mut posed = setup.pose(scene, t, body_before.as_deref())?;
                 setup.pin_positions(asset_path, t, posed.verts.as_deref(), pins)?;
                 body_before = posed.verts.take();
                 Ok(posed)
             },
-            |k, x, posed| -> Result<(), SimulateError> {
-                let f = first + k as i64;
-                if frames.get(next_frame) != Some(&f) {
-                    return Ok(());
-                }
-                let at_start;
-                let posed = match posed {
-                    Some(p) => p,
-                    None => {
-                        at_start = setup.pose(scene, 0.0, None)?;
-                        &at_start
+            |st| -> Result<(), SimulateError> {
+                let f = start + st.frame as i64;
+                if frames.get(next_frame) == Some(&f) {
+                    let at_start;
+                    let posed = match st.contacts {
+                        Some(p) => p,
+                        None => {
+                            at_start = setup.pose(scene, schedule.time(st.step), None)?;
+                            &at_start
+                        }
+                    };
+                    let time = f as f64 / sim.fps;
+                    let yarns = (writer.is_some() || !posed.set.colliders.is_empty())
+                        .then(|| asset.embedding.v2y(&asset.mesh, st.x));
+                    let pen = measures.add(st.x, yarns.as_deref(), posed, &setup.is_pinned);
+                    out.steps.times.push(time);
+                    out.steps.positions.extend_from_slice(st.x);
+                    series_frames.push(f);
+                    if let (Some(w), Some(y)) = (writer.as_mut(), &yarns) {
+                        w.push(f, time, y)?;
                     }
-                };
-                let time = f as f64 / sim.fps;
-                let yarns = (writer.is_some() || !posed.set.colliders.is_empty())
-                    .then(|| asset.embedding.v2y(&asset.mesh, x));
-                measures.add(x, yarns.as_deref(), posed, &setup.is_pinned);
-                out.steps.times.push(time);
-                out.steps.positions.extend_from_slice(x);
-                if let (Some(w), Some(y)) = (writer.as_mut(), &yarns) {
-                    w.push(f, time, y)?;
+                    next_frame += 1;
+                    observer.frame(&FrameProgress {
+                        frame: f,
+                        done: next_frame,
+                        total: frames.len(),
+                        ms: st.ms,
+                        residual: Some(st.residual).filter(|r| !r.is_nan()),
+                        penetration_m: pen,
+                    });
                 }
-                next_frame += 1;
-                progress(next_frame, frames.len());
+                let every = chunk.checkpoint_every;
+                let due = every > 0 && (st.frame % every == 0 || f == last);
+                if due && st.step > start_step {
+                    let state = State {
+                        step: st.step,
+                        x: st.x,
+                        v: st.v,
+                        frames: &series_frames,
+                        steps: &out.steps,
+                        warm_start: st.solver.warm_start(),
+                    };
+                    let path = save_checkpoint(&ctx, start, &schedule, &state)?;
+                    // Only the latest periodic checkpoint of a run is kept.
+                    if let Some(old) = periodic.replace(path.clone()) {
+                        if old != path {
+                            let _ = std::fs::remove_file(old);
+                        }
+                    }
+                    last_checkpoint = Some(path);
+                }
                 Ok(())
             },
-        )
-        .map_err(|e| match e {
-            LoopError::Diverged {
+            &stop,
+        );
+        let stats = match result {
+            Ok(s) => s,
+            Err(LoopError::Diverged {
                 time,
                 frame,
                 source,
                 ..
-            } => SimulateError::Diverged {
-                path: asset_path.to_path_buf(),
-                frame: first + frame as i64,
-                time,
-                source,
-            },
-            LoopError::Callback(e) => e,
-        })?;
-        let files = match writer {
+            }) => {
+                return Err(SimulateError::Diverged {
+                    path: asset_path.to_path_buf(),
+                    frame: start + frame as i64,
+                    time,
+                    source,
+                })
+            }
+            Err(LoopError::Callback(e)) => return Err(e),
+            Err(LoopError::Stopped { step }) => {
+                let state = State {
+                    step,
+                    x: &x,
+                    v: &v,
+                    frames: &series_frames,
+                    steps: &out.steps,
+                    warm_start: solver.warm_start(),
+                };
+                let path = save_checkpoint(&ctx, start, &schedule, &state)?;
+                if let Some(w) = writer.take() {
+                    // A per-frame sequence keeps its finished frames; one
+                    // HDF5 file comes back whole from the checkpoint.
+                    drop(w);
+                }
+                return Err(SimulateError::Interrupted {
+                    checkpoint: path,
+                    step,
+                    time: schedule.time(step),
+                });
+            }
+        };
+        let files = match writer.take() {
             Some(w) => w.finish()?,
             None => Vec::new(),
         };
         io::vtkhdf::write_asset(&req.output, &out)?;
-        Ok::<_, SimulateError>((files, stats))
-    })?;
+        Ok((files, stats))
+    };
+    let result = if resumable {
+        body()
+    } else {
+        io::atomic::all_or_nothing(&mut body)
+    };
+    let (yarn_files, stats) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            if resumable && e.class() != ErrorClass::Transient {
+                // Failed for good: the frame files this run named go too.
+                if let Some(w) = &writer {
+                    for p in &w.written()[adopted..] {
+                        let _ = std::fs::remove_file(p);
+                    }
+                }
+            }
+            return Err(e);
+        }
+    };
+    // A rerun of a finished request wrote no checkpoint: the one it resumed
+    // from is the final one, for the next chunk.
+    if last_checkpoint.is_none() && Some(start_step) == schedule.total_steps() {
+        last_checkpoint = resumed_from.clone();
+    }
+    // Superseded: the run's own periodic checkpoint, and the one it resumed
+    // from when it lies inside this request (an earlier try of it).
+    let step_first = ctx.step_of(first, start);
+    if let Some(p) = periodic.filter(|p| Some(p) != last_checkpoint.as_ref()) {
+        let _ = std::fs::remove_file(p);
+    }
+    if let Some(p) = resumed_from
+        .as_ref()
+        .filter(|p| Some(*p) != last_checkpoint.as_ref())
+    {
+        if checkpoint::read_header(p).is_ok_and(|h| h.step > step_first) {
+            let _ = std::fs::remove_file(p);
+        }
+    }
 
     let mut report = SimulateReport {
         asset: asset_path.to_path_buf(),
@@ -419,6 +708,9 @@ pub fn simulate(
         frames: out.steps.num_steps(),
         first_frame: first,
         last_frame: last,
+        shot_start: start,
+        resumed_from,
+        checkpoint: last_checkpoint,
         fps: sim.fps,
         dt: schedule.dt,
         steps_per_frame: schedule.steps_per_frame,
@@ -450,6 +742,244 @@ pub fn simulate(
     measures.fill(&mut report);
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
+}
+
+/// What identifies a shot's checkpoints.
+struct ShotKey {
+    /// SHA-256 (hex) of the shot's parameters ([`shot_key`]).
+    key: String,
+    /// Where its checkpoints are.
+    dir: PathBuf,
+    nodes: usize,
+    preroll: usize,
+    spf: usize,
+}
+
+impl ShotKey {
+    /// Steps from the loop start (pre-roll included) to frame `f` of the
+    /// shot starting at frame `start` (`f >= start`).
+    fn step_of(&self, f: i64, start: i64) -> u64 {
+        self.preroll as u64 + (f - start).max(0) as u64 * self.spf as u64
+    }
+}
+
+/// The hash that ties checkpoints to their shot: the asset's and the
+/// character's content, the scene (every parameter), the step schedule and
+/// the node count; not the frame range, so every chunk of a shot shares it.
+fn shot_key(
+    asset_path: &Path,
+    scene: &Scene,
+    schedule: &shot::Schedule,
+    asset: &Asset,
+    character_sha: &Option<String>,
+) -> Result<String, SimulateError> {
+    use sha2::{Digest, Sha256};
+    let material = serde_json::json!({
+        "asset_sha256": super::asset::sha256_file(asset_path)?,
+        "character_sha256": character_sha,
+        "scene": scene,
+        "dt": schedule.dt,
+        "steps_per_frame": schedule.steps_per_frame,
+        "preroll_steps": schedule.preroll_steps,
+        "nodes": asset.mesh.num_nodes(),
+    });
+    let bytes = serde_json::to_vec(&material).map_err(|e| invalid(asset_path, e.to_string()))?;
+    Ok(Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
+}
+
+/// The checkpoint folder of a request: the option's, else the output's.
+fn checkpoint_dir(chunk: &ChunkOptions, req: &ShotRequest) -> PathBuf {
+    chunk.checkpoint_dir.clone().unwrap_or_else(|| {
+        req.output
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+    })
+}
+
+/// Where a run starts: the shot's first frame and, when it continues, the
+/// checkpoint (its path and content).
+struct Resumed {
+    shot_start: i64,
+    from: Option<(PathBuf, Checkpoint)>,
+}
+
+/// Why the checkpoint `h` cannot start a run of `frames` (sorted) of the
+/// shot starting at `start` that may begin no later than step `bound`.
+fn unusable(
+    ctx: &ShotKey,
+    h: &CheckpointHeader,
+    start: i64,
+    bound: u64,
+    frames: &[i64],
+) -> Option<String> {
+    if h.key != ctx.key {
+        return Some(format!(
+            "it is of another shot: its parameters hash {}.. differs from this shot's {}.. \
+             (asset, character, scene, dt, fps and pre-roll must be the same)",
+            h.key.get(..12).unwrap_or(&h.key),
+            &ctx.key[..12]
+        ));
+    }
+    if h.shot_start != start {
+        return Some(format!(
+            "it belongs to the shot starting at frame {}, not {start}",
+            h.shot_start
+        ));
+    }
+    if h.nodes != ctx.nodes as u64 {
+        return Some(format!("it has {} nodes, the asset {}", h.nodes, ctx.nodes));
+    }
+    if h.step > bound {
+        return Some(format!(
+            "it is at step {} of the shot, after step {bound}, where this run must start",
+            h.step
+        ));
+    }
+    // The frames of this request it has passed must be among its frames.
+    let passed: Vec<i64> = frames
+        .iter()
+        .copied()
+        .filter(|&f| ctx.step_of(f, start) <= h.step)
+        .collect();
+    let kept: Vec<i64> = h
+        .series_frames
+        .iter()
+        .copied()
+        .filter(|f| frames.binary_search(f).is_ok())
+        .collect();
+    (passed != kept).then(|| {
+        format!(
+            "it lies after frames {passed:?} of this request but holds the node positions of {kept:?}"
+        )
+    })
+}
+
+/// Decides where the run of `frames` (sorted, deduplicated) starts
+/// ([`ChunkOptions`]): from rest at the shot start, or from a checkpoint.
+/// A request that starts after the shot start needs a checkpoint; none is
+/// an error, never a silent restart from rest.
+fn resolve_start(
+    ctx: &ShotKey,
+    chunk: &ChunkOptions,
+    frames: &[i64],
+    observer: &mut dyn Observer,
+) -> Result<Resumed, SimulateError> {
+    let (first, last) = (frames[0], frames[frames.len() - 1]);
+    if let Some(s) = chunk.shot_start.filter(|&s| s > first) {
+        return Err(SimulateError::Usage(format!(
+            "--shot-start {s} is after the first frame {first} of --frames"
+        )));
+    }
+    let bound = |start| ctx.step_of(if chunk.resume { last } else { first }, start);
+    if let Some(path) = &chunk.checkpoint {
+        let h = checkpoint::read_header(path)?;
+        let start = chunk.shot_start.unwrap_or(h.shot_start);
+        if let Some(why) = unusable(ctx, &h, start, bound(start), frames) {
+            return Err(SimulateError::CheckpointMismatch {
+                path: path.clone(),
+                message: format!("--checkpoint cannot start frames {first}-{last}: {why}"),
+            });
+        }
+        let c = checkpoint::read(path, io::max_memory())?;
+        return Ok(Resumed {
+            shot_start: start,
+            from: Some((path.clone(), c)),
+        });
+    }
+    let mut best: Option<(u64, i64, PathBuf)> = None;
+    for f in checkpoint::list(&ctx.dir, &ctx.key)? {
+        let start = f.shot_start;
+        let start_ok = match chunk.shot_start {
+            Some(s) => start == s,
+            None => start <= first,
+        };
+        // A fresh run of a shot from its start ignores older checkpoints.
+        if !start_ok || (start == first && !chunk.resume) || f.step > bound(start) {
+            continue;
+        }
+        if best.as_ref().is_some_and(|b| (b.0, b.1) >= (f.step, start)) {
+            continue;
+        }
+        match checkpoint::read_header(&f.path) {
+            Ok(h) if unusable(ctx, &h, start, bound(start), frames).is_none() => {
+                best = Some((f.step, start, f.path));
+            }
+            Ok(_) => {}
+            Err(e) => observer.warning(&format!("{e} (skipped)")),
+        }
+    }
+    if let Some((_, start, path)) = best {
+        let c = checkpoint::read(&path, io::max_memory())?;
+        return Ok(Resumed {
+            shot_start: start,
+            from: Some((path, c)),
+        });
+    }
+    let start = chunk.shot_start.unwrap_or(first);
+    if start < first {
+        return Err(SimulateError::NoCheckpoint {
+            dir: ctx.dir.clone(),
+            message: format!(
+                "frames {first}-{last} continue the shot that starts at frame {start}, but {} holds no \
+                 checkpoint of this shot at or before frame {first} (files {}); run the chunk before \
+                 it first (same asset, scene and options, same --checkpoint-dir), or pass \
+                 --checkpoint PATH",
+                ctx.dir.display(),
+                checkpoint::file_name(&ctx.key, start, 0).replace(".0000000000.", ".STEP.")
+            ),
+        });
+    }
+    Ok(Resumed {
+        shot_start: start,
+        from: None,
+    })
+}
+
+/// A loop state to checkpoint.
+struct State<'a> {
+    step: usize,
+    x: &'a [Vec3],
+    v: &'a [Vec3],
+    /// The written frames' numbers and node positions.
+    frames: &'a [i64],
+    steps: &'a NodeSteps,
+    /// The solver's warm start.
+    warm_start: Vec<f64>,
+}
+
+/// Writes the checkpoint of `state` into the shot's folder; returns its path.
+fn save_checkpoint(
+    ctx: &ShotKey,
+    start: i64,
+    schedule: &shot::Schedule,
+    state: &State<'_>,
+) -> Result<PathBuf, SimulateError> {
+    let path = ctx
+        .dir
+        .join(checkpoint::file_name(&ctx.key, start, state.step as u64));
+    let c = Checkpoint {
+        header: CheckpointHeader {
+            key: ctx.key.clone(),
+            shot_start: start,
+            step: state.step as u64,
+            time: schedule.time(state.step),
+            nodes: state.x.len() as u64,
+            series_frames: state.frames.to_vec(),
+            warm_start_len: state.warm_start.len() as u64,
+            knitvox: env!("CARGO_PKG_VERSION").into(),
+        },
+        x: state.x.to_vec(),
+        v: state.v.to_vec(),
+        series_times: state.steps.times.clone(),
+        series: state.steps.positions.clone(),
+        warm_start: state.warm_start.clone(),
+    };
+    checkpoint::write(&path, &c)?;
+    Ok(path)
 }
 
 /// The PD solver of a shot on its backend; with the domain-decomposed
@@ -489,9 +1019,10 @@ fn output_asset(
     asset: &Asset,
     scene: &Scene,
     req: &ShotRequest,
-    [first, last]: [i64; 2],
+    [start, first, last]: [i64; 3],
     schedule: &shot::Schedule,
     [solver_name, backend]: [&str; 2],
+    character_sha: Option<String>,
 ) -> Result<Asset, SimulateError> {
     let mut out = asset.clone();
     out.steps = NodeSteps::default();
@@ -501,6 +1032,7 @@ fn output_asset(
             serde_json::json!({
                 "scene": scene,
                 "frames": [first, last],
+                "shot_start": start,
                 "dt": schedule.dt,
                 "steps_per_frame": schedule.steps_per_frame,
                 "preroll_steps": schedule.preroll_steps,
@@ -510,10 +1042,10 @@ fn output_asset(
         );
     }
     out.provenance.command = format!("{} && {}", out.provenance.command, req.command);
-    if let Some(p) = scene.character_path() {
+    if let (Some(p), Some(sha256)) = (scene.character_path(), character_sha) {
         out.provenance.inputs.push(crate::geom::InputFile {
             path: p.display().to_string(),
-            sha256: super::asset::sha256_file(&p)?,
+            sha256,
         });
     }
     Ok(out)
@@ -567,8 +1099,17 @@ impl Measures {
 
     /// Adds one frame: node positions `x`, their yarn vertices (V2Y; given
     /// whenever there are colliders), the colliders then.
-    fn add(&mut self, x: &[Vec3], yarns: Option<&[Vec3]>, posed: &Posed, is_pinned: &[bool]) {
+    /// Returns the frame's deepest penetration of a free node (m; None
+    /// without colliders).
+    fn add(
+        &mut self,
+        x: &[Vec3],
+        yarns: Option<&[Vec3]>,
+        posed: &Posed,
+        is_pinned: &[bool],
+    ) -> Option<f64> {
         let (set, body_set) = (&posed.set, &posed.body_set);
+        let mut frame_pen: Option<f64> = None;
         if let (false, Some(y)) = (set.colliders.is_empty(), yarns) {
             let pen = set.max_penetration(y);
             self.max_pen_yarns = Some(self.max_pen_yarns.map_or(pen, |m| m.max(pen)));
@@ -584,12 +1125,14 @@ impl Measures {
             if let Some((_, d)) = set.min_signed_distance(*p) {
                 self.min_dist = Some(self.min_dist.map_or(d, |m| m.min(d)));
                 self.max_pen = self.max_pen.max(-d);
+                frame_pen = Some(frame_pen.unwrap_or(0.0).max(-d));
             }
             if let Some(bs) = body_set {
                 let pen = bs.penetration(*p);
                 self.max_pen_body = Some(self.max_pen_body.map_or(pen, |m| m.max(pen)));
             }
         }
+        frame_pen
     }
 }
 
@@ -644,23 +1187,48 @@ impl Stage for ShotJob {
     type Report = SimulateReport;
     const NAME: &'static str = "shot";
     fn run(&self, observer: &mut dyn Observer) -> Result<SimulateReport, Error> {
-        super::asset::check_asset_ext(&self.asset)?;
-        super::asset::check_asset_ext(&self.request.output)?;
-        let asset = io::vtkhdf::read_asset(&self.asset)?;
-        // The asset records how its yarns were read: an assumed unit and an
-        // implausible size are worth a warning before a long shot.
-        if let Some(w) = super::asset::size_warning(&asset) {
-            observer.warning(&format!(
-                "{}: {w} (when embedding its yarns)",
-                self.asset.display()
-            ));
-        }
-        Ok(simulate(
-            &asset,
-            &self.asset,
-            &self.scene,
-            &self.request,
-            &mut |done, total| observer.frames(done, total),
-        )?)
+        run_shot(self, &ChunkOptions::default(), observer)
     }
+}
+
+/// The shot stage as a chunk of a longer shot, with checkpoints and resume
+/// ([`ChunkOptions`]).
+#[derive(Debug, Clone)]
+pub struct ChunkedShotJob {
+    pub shot: ShotJob,
+    pub chunk: ChunkOptions,
+}
+
+impl Stage for ChunkedShotJob {
+    type Report = SimulateReport;
+    const NAME: &'static str = "shot";
+    fn run(&self, observer: &mut dyn Observer) -> Result<SimulateReport, Error> {
+        run_shot(&self.shot, &self.chunk, observer)
+    }
+}
+
+fn run_shot(
+    job: &ShotJob,
+    chunk: &ChunkOptions,
+    observer: &mut dyn Observer,
+) -> Result<SimulateReport, Error> {
+    super::asset::check_asset_ext(&job.asset)?;
+    super::asset::check_asset_ext(&job.request.output)?;
+    let asset = io::vtkhdf::read_asset(&job.asset)?;
+    // The asset records how its yarns were read: an assumed unit and an
+    // implausible size are worth a warning before a long shot.
+    if let Some(w) = super::asset::size_warning(&asset) {
+        observer.warning(&format!(
+            "{}: {w} (when embedding its yarns)",
+            job.asset.display()
+        ));
+    }
+    Ok(simulate_chunk(
+        &asset,
+        &job.asset,
+        &job.scene,
+        &job.request,
+        chunk,
+        observer,
+    )?)
 }

@@ -14,7 +14,7 @@ use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
 use crate::pipeline::simulate::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
-use crate::pipeline::{Error, ErrorClass, Observer, Stage};
+use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
 use crate::sim::collide::{MeshCollider, MeshTopology};
 use crate::yarn::fabric::RelaxParams;
 use crate::yarn::pattern::{Layout, PatternParams};
@@ -250,6 +250,17 @@ pub fn run(
     out: &Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<YlsReport, YlsError> {
+    run_observed(scene, text, file, out, &mut |p| progress(p.done, p.total))
+}
+
+/// [`run`], reporting each frame (number from 1, wall time) to `on_frame`.
+pub fn run_observed(
+    scene: &YlsScene,
+    text: &str,
+    file: &Path,
+    out: &Path,
+    on_frame: &mut dyn FnMut(&FrameProgress),
+) -> Result<YlsReport, YlsError> {
     let t0 = Instant::now();
     // The files the scene names are inputs too (exit 2 if `out` is one).
     let characters = scene.colliders.iter().filter_map(|c| match c {
@@ -360,7 +371,14 @@ pub fn run(
         min_ratio = min_ratio.min(st.min_distance_ratio);
         max_disp = max_disp.max(st.max_displacement_ratio);
         writer.push(sim.time(), sim.positions())?;
-        progress(f, frames);
+        on_frame(&FrameProgress {
+            frame: f as i64,
+            done: f,
+            total: frames,
+            ms: ms[ms.len() - 1],
+            residual: None,
+            penetration_m: None,
+        });
     }
     let output = writer.finish()?;
     Ok(YlsReport {
@@ -409,12 +427,12 @@ impl Stage for YlsJob {
             source,
         })?;
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
-        Ok(run(
+        Ok(run_observed(
             &scene,
             &text,
             &self.scene,
             &self.output,
-            &mut |done, total| observer.frames(done, total),
+            &mut |p| observer.frame(p),
         )?)
     }
 }

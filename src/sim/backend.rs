@@ -35,6 +35,25 @@ pub trait ElasticRhs {
     fn update_materials(&mut self, _model: &ElasticModel) -> Result<bool, SimError> {
         Ok(false)
     }
+    /// State this evaluator carries from one evaluation to the next that
+    /// changes its results (the CPU SVD warm start), flattened; empty when
+    /// none. A shot checkpoints it so a resumed run continues bit for bit.
+    fn warm_start(&self) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Restores what [`Self::warm_start`] returned; a state of the wrong
+    /// length or with a non-finite value is refused.
+    fn set_warm_start(&mut self, state: &[f64]) -> Result<(), SimError> {
+        if state.is_empty() {
+            Ok(())
+        } else {
+            Err(SimError::Inconsistent(format!(
+                "the {} backend keeps no warm start, got {} values",
+                self.name(),
+                state.len()
+            )))
+        }
+    }
 }
 
 /// Statistics of an iterative linear solve.

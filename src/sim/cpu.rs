@@ -207,6 +207,24 @@ impl ElasticRhs for CpuElasticRhs {
         "cpu"
     }
 
+    fn warm_start(&self) -> Vec<f64> {
+        self.warm_v.iter().flat_map(|m| m.iter().copied()).collect()
+    }
+
+    fn set_warm_start(&mut self, state: &[f64]) -> Result<(), SimError> {
+        if state.len() != 9 * self.warm_v.len() || state.iter().any(|v| !v.is_finite()) {
+            return Err(SimError::Inconsistent(format!(
+                "SVD warm start of {} values for {} tets (9 finite values per tet)",
+                state.len(),
+                self.warm_v.len()
+            )));
+        }
+        for (m, c) in self.warm_v.iter_mut().zip(state.chunks_exact(9)) {
+            *m = Matrix3::from_column_slice(c);
+        }
+        Ok(())
+    }
+
     fn update_materials(&mut self, model: &ElasticModel) -> Result<bool, SimError> {
         if model.rest().len() != self.model.rest().len()
             || model.num_nodes() != self.model.num_nodes()

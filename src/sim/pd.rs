@@ -782,6 +782,17 @@ impl PdSolver {
         self.last = None;
     }
 
+    /// State the elastic backend carries between steps that changes the
+    /// results (the CPU SVD warm start; [`ElasticRhs::warm_start`]): with
+    /// positions and velocities, all a resumed shot needs.
+    pub fn warm_start(&self) -> Vec<f64> {
+        self.elastic.warm_start()
+    }
+    /// Restores [`Self::warm_start`] (a checkpoint's).
+    pub fn set_warm_start(&mut self, state: &[f64]) -> Result<(), SimError> {
+        self.elastic.set_warm_start(state)
+    }
+
     /// The parameters in use.
     pub fn params(&self) -> &PdParams {
         &self.params

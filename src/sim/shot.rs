@@ -11,6 +11,7 @@ use super::contact::NodeProjector;
 use super::pd::{PdSolver, StepStats};
 use super::SimError;
 use crate::geom::Vec3;
+use std::time::Instant;
 
 /// When the steps and frames of a shot fall.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -103,22 +104,55 @@ pub enum LoopError<E> {
     },
     /// The update or the frame callback failed.
     Callback(E),
+    /// `stop()` said so after `step` steps: the state passed in holds the
+    /// positions and velocities after that step (checkpoint them).
+    Stopped { step: usize },
 }
 
-/// Runs the shot's steps: before step `s`, `update(s, t, pins)` fills the
-/// pinned nodes' positions at its end time `t` (in the solver's pinned
-/// order) and returns the contacts of the step (VH §8.5, projected in the
-/// PD iterations); after every step that ends on a frame `k`, and before
-/// the first step when the first frame is at the start (no pre-roll),
-/// `on_frame(k, x, contacts)` gets the positions (with the step's contacts;
-/// `None` at the start). Returns the statistics of every step.
+/// What the frame callback of [`run`] gets.
+#[derive(Debug)]
+pub struct FrameState<'a, C> {
+    /// The frame (0-based from the first frame of the schedule).
+    pub frame: usize,
+    /// Steps taken since the start of the loop (pre-roll included).
+    pub step: usize,
+    /// Node positions (m) and velocities (m/s) after `step` steps.
+    pub x: &'a [Vec3],
+    pub v: &'a [Vec3],
+    /// The solver (for its warm start, [`PdSolver::warm_start`]).
+    pub solver: &'a PdSolver,
+    /// The contacts of the last step (`None` when the loop starts on a frame).
+    pub contacts: Option<&'a C>,
+    /// Wall time (ms) since the previous frame (or the start of the loop).
+    pub ms: f64,
+    /// Largest implicit-Euler residual (N) of the steps since the previous
+    /// frame (NaN for none).
+    pub residual: f64,
+}
+
+/// Runs the shot's steps `start_step + 1 ..= total` (0: from the start;
+/// a checkpoint's step to resume): before step `s`, `update(s, t, pins)`
+/// fills the pinned nodes' positions at its end time `t` (in the solver's
+/// pinned order) and returns the contacts of the step (VH §8.5, projected in
+/// the PD iterations); after every step that ends on a frame, and before the
+/// first step when the loop starts on a frame, `on_frame` gets the state.
+/// After every step (and its frame), `stop()` may end the loop with
+/// [`LoopError::Stopped`]. `x`, `v`, `start_step` and the solver's warm
+/// start ([`PdSolver::warm_start`]; its energy cache only saves an
+/// evaluation) are the whole state of the loop: a checkpoint of them
+/// resumes bit for bit. Returns the statistics of every step taken.
+// The state, the schedule, where to start and the three callbacks are
+// each the caller's; a struct of them would only be unpacked again.
+#[allow(clippy::too_many_arguments)]
 pub fn run<C, E>(
     solver: &mut PdSolver,
     x: &mut [Vec3],
     v: &mut [Vec3],
     schedule: &Schedule,
+    start_step: usize,
     mut update: impl FnMut(usize, f64, &mut Vec<Vec3>) -> Result<C, E>,
-    mut on_frame: impl FnMut(usize, &[Vec3], Option<&C>) -> Result<(), E>,
+    mut on_frame: impl FnMut(&FrameState<'_, C>) -> Result<(), E>,
+    stop: &dyn Fn() -> bool,
 ) -> Result<LoopStats, LoopError<E>>
 where
     C: NodeProjector,
@@ -130,14 +164,29 @@ where
         source: SimError::Inconsistent("the shot has more steps than fit in memory".into()),
     })?;
     let mut stats = LoopStats {
-        step_ms: Vec::with_capacity(total.min(1 << 20)),
+        step_ms: Vec::with_capacity(total.saturating_sub(start_step).min(1 << 20)),
         ..LoopStats::default()
     };
-    if schedule.frame_at(0) == Some(0) {
-        on_frame(0, x, None).map_err(LoopError::Callback)?;
+    let mut since = Instant::now();
+    let mut residual = f64::NAN;
+    if let Some(k) = schedule.frame_at(start_step) {
+        let state = FrameState {
+            frame: k,
+            step: start_step,
+            x,
+            v,
+            solver,
+            contacts: None,
+            ms: 0.0,
+            residual,
+        };
+        on_frame(&state).map_err(LoopError::Callback)?;
+    }
+    if stop() {
+        return Err(LoopError::Stopped { step: start_step });
     }
     let mut pins = Vec::new();
-    for s in 1..=total {
+    for s in start_step + 1..=total {
         let t = schedule.time(s);
         pins.clear();
         let contacts = update(s, t, &mut pins).map_err(LoopError::Callback)?;
@@ -150,8 +199,24 @@ where
                 source,
             })?;
         stats.add(&st);
+        residual = residual.max(st.residual);
         if let Some(k) = schedule.frame_at(s) {
-            on_frame(k, x, Some(&contacts)).map_err(LoopError::Callback)?;
+            let state = FrameState {
+                frame: k,
+                step: s,
+                x,
+                v,
+                solver,
+                contacts: Some(&contacts),
+                ms: since.elapsed().as_secs_f64() * 1e3,
+                residual,
+            };
+            on_frame(&state).map_err(LoopError::Callback)?;
+            since = Instant::now();
+            residual = f64::NAN;
+        }
+        if s < total && stop() {
+            return Err(LoopError::Stopped { step: s });
         }
     }
     Ok(stats)
@@ -223,14 +288,16 @@ mod tests {
             &mut x,
             &mut v,
             &schedule,
+            0,
             |s, t, _pins| {
                 updates.push((s, t));
                 Ok::<_, ()>(NoContact)
             },
-            |k, x, c| {
-                frames.push((k, x[0][1], c.is_some()));
+            |f| {
+                frames.push((f.frame, f.x[0][1], f.contacts.is_some()));
                 Ok(())
             },
+            &|| false,
         )
         .unwrap();
         assert_eq!(stats.steps, 6);
@@ -277,6 +344,7 @@ mod tests {
             &mut x,
             &mut v,
             &schedule,
+            0,
             |s, _, _| {
                 if s == 3 {
                     Err("no pose")
@@ -284,14 +352,89 @@ mod tests {
                     Ok(NoContact)
                 }
             },
-            |_, _, _| {
+            |_| {
                 seen += 1;
                 Ok(())
             },
+            &|| false,
         )
         .unwrap_err();
         assert!(matches!(e, LoopError::Callback("no pose")));
         // Frame 0 came after step 2; step 3 never ran.
         assert_eq!(seen, 1);
+    }
+
+    /// A loop stopped after some step and run again from that state (a
+    /// fresh solver given the warm start, as a resumed process has) ends bit
+    /// for bit where the uninterrupted loop ends; the resumed loop starts with the frame the
+    /// state sits on.
+    #[test]
+    fn a_stopped_loop_resumes_bit_for_bit() {
+        let mesh = one_tet();
+        let schedule = Schedule {
+            dt: 1.0 / 150.0,
+            preroll_steps: 2,
+            steps_per_frame: 3,
+            frame_intervals: 3,
+        };
+        let params = PdParams {
+            dt: schedule.dt,
+            ..PdParams::default()
+        };
+        let solver = || PdSolver::new(&mesh, &[1e-3; 4], &[1e3], &[1e3], &[], params).unwrap();
+        let pinless = |_: usize, _: f64, _: &mut Vec<Vec3>| Ok::<_, ()>(NoContact);
+        let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; 4]);
+        run(
+            &mut solver(),
+            &mut x,
+            &mut v,
+            &schedule,
+            0,
+            pinless,
+            |_| Ok(()),
+            &|| false,
+        )
+        .unwrap();
+
+        let (mut y, mut w) = (mesh.nodes.clone(), vec![[0.0; 3]; 4]);
+        let last = std::cell::Cell::new(0);
+        let mut stopped = solver();
+        let e = run(
+            &mut stopped,
+            &mut y,
+            &mut w,
+            &schedule,
+            0,
+            |s, _, _| {
+                last.set(s);
+                Ok::<_, ()>(NoContact)
+            },
+            |_| Ok(()),
+            &|| last.get() == 5,
+        )
+        .unwrap_err();
+        assert!(matches!(e, LoopError::Stopped { step: 5 }), "{e:?}");
+        let mut resumed = solver();
+        resumed.set_warm_start(&stopped.warm_start()).unwrap();
+        let mut frames = Vec::new();
+        let stats = run(
+            &mut resumed,
+            &mut y,
+            &mut w,
+            &schedule,
+            5,
+            pinless,
+            |f| {
+                frames.push((f.frame, f.step, f.contacts.is_some()));
+                Ok(())
+            },
+            &|| false,
+        )
+        .unwrap();
+        assert_eq!(stats.steps, 6);
+        assert_eq!(frames, [(1, 5, false), (2, 8, true), (3, 11, true)]);
+        assert_eq!(x, y);
+        assert_eq!(v, w);
+        assert!(x[0][1] < 0.0);
     }
 }
