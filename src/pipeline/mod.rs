@@ -52,6 +52,7 @@ pub mod pattern;
 pub mod shot_setup;
 pub mod sim_scene;
 pub mod simulate;
+pub mod train;
 pub mod yls;
 pub mod yls_scene;
 
