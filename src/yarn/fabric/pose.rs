@@ -197,8 +197,8 @@ pub struct PoseStep {
     pub amount: f64,
     /// Elastic energy, rods + contact (J).
     pub energy_j: f64,
-    /// Per clamped group ([`PoseDriver::group_vertices`]): the total force
-    /// the group's clamp exerts on the swatch (N, input frame).
+    /// Per clamped band ([`PoseRun::bands`]): the total force the band's
+    /// clamp exerts on the swatch (N, input frame).
     pub clamp_forces_n: Vec<Vec3>,
     /// Largest magnitude of `clamp_forces_n` (N).
     pub force_n: f64,
@@ -219,8 +219,9 @@ pub struct PoseRun {
     pub vertices: usize,
     /// Clamped vertices.
     pub clamped_vertices: usize,
-    /// Clamped groups (vertices under one map of the pose).
-    pub groups: usize,
+    /// Clamped bands: the rest centre (m, input frame) of each, in the
+    /// order of [`PoseStep::clamp_forces_n`].
+    pub bands: Vec<Vec3>,
     pub steps: Vec<PoseStep>,
     /// Smallest contact distance ratio over every step (pull-through < 0.75).
     pub min_distance_ratio: f64,
@@ -258,7 +259,7 @@ pub fn run_pose(
     let mut clamped = vec![false; n];
     first.pinned().iter().for_each(|&v| clamped[v] = true);
     let fixed = fixed_mask(&fabric, &clamped);
-    let group_of = group_index(&first, n);
+    let (band_of, band_centres) = bands(&first, &rest);
 
     let mut steps = Vec::with_capacity(params.steps);
     let mut min_ratio = f64::INFINITY;
@@ -308,9 +309,9 @@ pub fn run_pose(
             .into_iter()
             .map(|f| plane.from_pose(f))
             .collect();
-        let mut clamp_forces = vec![[0.0; 3]; first.num_groups()];
+        let mut clamp_forces = vec![[0.0; 3]; band_centres.len()];
         for (v, f) in reactions.iter().enumerate() {
-            if let Some(gi) = group_of[v] {
+            if let Some(gi) = band_of[v] {
                 (0..3).for_each(|c| clamp_forces[gi][c] += f[c]);
             }
         }
@@ -353,7 +354,7 @@ pub fn run_pose(
         plane,
         vertices: n,
         clamped_vertices: first.pinned().len(),
-        groups: first.num_groups(),
+        bands: band_centres.iter().map(|c| plane.from_pose(*c)).collect(),
         steps,
         min_distance_ratio: min_ratio,
         seconds: t0.elapsed().as_secs_f64(),
@@ -374,15 +375,100 @@ fn fixed_mask(fabric: &Fabric, clamped: &[bool]) -> Vec<bool> {
     fixed
 }
 
-/// Per vertex: the clamped group holding it.
-fn group_index(driver: &PoseDriver, n: usize) -> Vec<Option<usize>> {
-    let mut out = vec![None; n];
+/// The clamped bands: each group of the pose split where its vertices
+/// leave a gap of more than half its extent along an axis (the two end
+/// bands of a bend share one map), and a band that rings the swatch (the
+/// four edges of `biaxial`) split by nearest edge. Returns per vertex its
+/// band and per band its rest centre (pose frame).
+fn bands(driver: &PoseDriver, rest: &[Vec3]) -> (Vec<Option<usize>>, Vec<Vec3>) {
+    let all = crate::geom::bounds_of(rest);
+    let span: Vec3 = all
+        .as_ref()
+        .map_or([0.0; 3], |b| std::array::from_fn(|k| b.max[k] - b.min[k]));
+    let mut parts: Vec<Vec<usize>> = Vec::new();
     for g in 0..driver.num_groups() {
-        driver
-            .group_vertices(g)
-            .iter()
-            .for_each(|&v| out[v] = Some(g));
+        let mut todo = vec![driver.group_vertices(g).to_vec()];
+        for axis in 0..3 {
+            todo = todo
+                .into_iter()
+                .flat_map(|b| split_at_gap(b, rest, axis, span[axis]))
+                .collect();
+        }
+        for b in todo {
+            match &all {
+                Some(box_) if rings(&b, rest, box_) => parts.extend(by_edge(b, rest, box_)),
+                _ => parts.push(b),
+            }
+        }
     }
+    let mut of = vec![None; rest.len()];
+    let mut centres = Vec::with_capacity(parts.len());
+    for (i, b) in parts.iter().enumerate() {
+        let mut c = [0.0; 3];
+        for &v in b {
+            of[v] = Some(i);
+            (0..3).for_each(|k| c[k] += rest[v][k] / b.len() as f64);
+        }
+        centres.push(c);
+    }
+    (of, centres)
+}
+
+/// `band` in two at its largest gap along `axis` when that gap exceeds half
+/// its extent and a quarter of the swatch's `span` along it (not the gaps
+/// between yarn vertices inside a band), else unchanged.
+fn split_at_gap(mut band: Vec<usize>, rest: &[Vec3], axis: usize, span: f64) -> Vec<Vec<usize>> {
+    band.sort_by(|&a, &b| rest[a][axis].total_cmp(&rest[b][axis]).then(a.cmp(&b)));
+    let (Some(&lo), Some(&hi)) = (band.first(), band.last()) else {
+        return vec![band];
+    };
+    let extent = rest[hi][axis] - rest[lo][axis];
+    let gap = band
+        .windows(2)
+        .enumerate()
+        .map(|(i, w)| (rest[w[1]][axis] - rest[w[0]][axis], i))
+        .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a });
+    if extent > 0.0 && gap.0 > 0.5 * extent && gap.0 > 0.25 * span {
+        let high = band.split_off(gap.1 + 1);
+        vec![band, high]
+    } else {
+        vec![band]
+    }
+}
+
+/// Whether `band` spans 90% of the swatch along both in-plane axes (X, Z)
+/// while leaving its middle empty: a ring of edge bands.
+fn rings(band: &[usize], rest: &[Vec3], all: &crate::geom::Bounds) -> bool {
+    let Some(b) = crate::geom::bounds_of(&band.iter().map(|&v| rest[v]).collect::<Vec<_>>()) else {
+        return false;
+    };
+    let spans = [0, 2]
+        .iter()
+        .all(|&k| b.max[k] - b.min[k] >= 0.9 * (all.max[k] - all.min[k]));
+    let c = [0, 2].map(|k| 0.5 * (all.min[k] + all.max[k]));
+    let h = [0, 2].map(|k| 0.25 * (all.max[k] - all.min[k]));
+    let middle_empty = band
+        .iter()
+        .all(|&v| (rest[v][0] - c[0]).abs() > h[0] || (rest[v][2] - c[1]).abs() > h[1]);
+    spans && middle_empty
+}
+
+/// `band` split by the nearest edge of the swatch: left, right (X), back,
+/// front (Z); empty parts dropped.
+fn by_edge(band: Vec<usize>, rest: &[Vec3], all: &crate::geom::Bounds) -> Vec<Vec<usize>> {
+    let mut out = vec![Vec::new(); 4];
+    for v in band {
+        let p = rest[v];
+        let d = [
+            p[0] - all.min[0],
+            all.max[0] - p[0],
+            p[2] - all.min[2],
+            all.max[2] - p[2],
+        ];
+        let e = (0..4).fold(0, |m, i| if d[i] < d[m] { i } else { m });
+        out[e].push(v);
+    }
+    out.retain(|b| !b.is_empty());
     out
 }
 
@@ -565,5 +651,36 @@ mod tests {
         assert!(s[1].force_n > s[0].force_n && s[0].force_n > 0.0, "{s:?}");
         assert!(s[1].energy_j > s[0].energy_j, "{s:?}");
         assert!(r.min_distance_ratio > 0.75, "{}", r.min_distance_ratio);
+    }
+
+    /// The clamped bands the forces are summed over: the two ends of a
+    /// stretch, of a bend (one map) and of a diagonal bend (corners), the
+    /// four edges of a biaxial stretch, one per fold line.
+    #[test]
+    fn bands_split_shared_maps_into_their_ends() {
+        let mut grid = Vec::new();
+        for i in 0..=40 {
+            for j in 0..=20 {
+                grid.push([i as f64 * 0.0025, 0.0, j as f64 * 0.0025]);
+            }
+        }
+        let count = |kind: PoseKind| {
+            let mut p = PoseParams::new(kind, 0.2);
+            p.band = 0.1;
+            let d = PoseDriver::new(&grid, p).unwrap();
+            let (of, centres) = bands(&d, &grid);
+            assert_eq!(
+                of.iter().filter(|b| b.is_some()).count(),
+                d.pinned().len(),
+                "{kind:?}: every clamped vertex in one band"
+            );
+            centres.len()
+        };
+        assert_eq!(count(PoseKind::StretchCourses), 2);
+        assert_eq!(count(PoseKind::BendCentral), 2);
+        assert_eq!(count(PoseKind::BendDiagonal), 2);
+        assert_eq!(count(PoseKind::Twist), 2);
+        assert_eq!(count(PoseKind::Biaxial), 4);
+        assert_eq!(count(PoseKind::MultiFold), 4);
     }
 }
