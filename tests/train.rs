@@ -290,3 +290,49 @@ fn bad_requests_are_usage_errors_and_non_assets_are_named() {
     assert_eq!(code, 66, "{err}");
     assert!(!out.exists());
 }
+
+/// An asset embedded from loose generated yarns (no rest shape) still
+/// trains, from its positions as rest, and says so.
+#[test]
+fn an_asset_without_a_rest_shape_trains_from_its_positions_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let (yarns, asset, out) = (
+        dir.path().join("loose.h5"),
+        dir.path().join("loose.vtkhdf"),
+        dir.path().join("pose.h5"),
+    );
+    let (code, _, err) = run(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "2",
+        "--wales",
+        "4",
+        "--no-relax",
+        "-o",
+        path_str(&yarns),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run(&["embed", path_str(&yarns), "-o", path_str(&asset)]);
+    assert_eq!(code, 0, "{err}");
+    let (code, stdout, err) = run(&[
+        "train",
+        path_str(&asset),
+        "--pose",
+        "shear",
+        "--steps",
+        "1",
+        "-o",
+        path_str(&out),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("no rest shape"),
+        "{err}"
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(r["rest_shape"], "positions");
+    assert_eq!(r["warnings"].as_array().unwrap().len(), 1, "{r}");
+    assert_eq!(r["frames"], 1);
+}

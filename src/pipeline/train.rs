@@ -62,6 +62,8 @@ pub struct TrainReport {
     pub min_distance_ratio: f64,
     pub steps: Vec<PoseStep>,
     pub minutes: f64,
+    /// The warnings also given to the observer.
+    pub warnings: Vec<String>,
 }
 
 impl TrainJob {
@@ -123,10 +125,11 @@ impl Stage for TrainJob {
         let sha = sha256_file(&self.asset)?;
         let asset = io::vtkhdf::read_asset(&self.asset)?;
         let rest = &asset.rest_yarns;
+        let mut warnings = Vec::new();
         let rest_shape = if rest.rest.is_some() {
             "stored"
         } else {
-            observer.warning(&format!(
+            warnings.push(format!(
                 "{}: the rest yarns carry no rest shape (rest lengths, curvatures): the rods take \
                  the relaxed positions as rest, so the swatch is not held by contact as knitted \
                  (embed the HDF5 output of `knitvox pattern` to keep it)",
@@ -134,6 +137,7 @@ impl Stage for TrainJob {
             ));
             "positions"
         };
+        warnings.iter().for_each(|w| observer.warning(w));
         let plane = FabricPlane::of(&rest.points);
         let mut writer = FrameWriter::create(&self.output, rest)?;
         writer.add_text("pose_json", &pose_record(self, &sha, plane, rest_shape))?;
@@ -170,10 +174,12 @@ impl Stage for TrainJob {
         })?;
         let output = writer.finish()?;
         if run.min_distance_ratio < 0.75 {
-            observer.warning(&format!(
+            let w = format!(
                 "yarns came to {:.3} x 2r of each other (below 0.75: a yarn may have pulled through another)",
                 run.min_distance_ratio
-            ));
+            );
+            observer.warning(&w);
+            warnings.push(w);
         }
         let last = run
             .steps
@@ -197,6 +203,7 @@ impl Stage for TrainJob {
             min_distance_ratio: run.min_distance_ratio,
             steps: run.steps.clone(),
             minutes: t0.elapsed().as_secs_f64() / 60.0,
+            warnings,
         })
     }
 }

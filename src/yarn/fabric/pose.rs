@@ -683,4 +683,40 @@ mod tests {
         assert_eq!(count(PoseKind::Biaxial), 4);
         assert_eq!(count(PoseKind::MultiFold), 4);
     }
+
+    /// A step that reaches no equilibrium stops the run with an error
+    /// naming the step; no frame is handed on for it.
+    #[test]
+    fn a_step_without_equilibrium_is_an_error_naming_it() {
+        let y = rib(2, 2);
+        let mut fp = FabricParams::default();
+        fp.solver.max_iterations = 1;
+        let mut p = PoseRunParams::new(PoseKind::StretchCourses);
+        p.steps = 3;
+        p.settle = Settle {
+            max_rounds: 0,
+            tolerance: 1e-12,
+            ..Settle::default()
+        };
+        let mut frames = 0;
+        let e = run_pose(&y, &fp, &p, &mut |_| {
+            frames += 1;
+            Ok(())
+        })
+        .unwrap_err();
+        assert!(
+            matches!(
+                e,
+                PoseRunError::Step {
+                    step: 1,
+                    steps: 3,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("step 1 of 3"), "{e}");
+        assert!(!e.is_usage());
+        assert_eq!(frames, 0);
+    }
 }
