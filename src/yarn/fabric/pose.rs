@@ -252,14 +252,14 @@ pub fn run_pose(
         p.ramp = 0.0;
         PoseDriver::new(&rest, p)
     };
-    let first = driver_at(params.steps)?;
-    let predictor = Predictor::new(&first, &rest);
+    let full = driver_at(params.steps)?;
+    let predictor = Predictor::new(&full, &rest);
     let mut fabric = Fabric::new(&posed, fabric_params).map_err(PoseRunError::Model)?;
     let n = fabric.num_vertices();
     let mut clamped = vec![false; n];
-    first.pinned().iter().for_each(|&v| clamped[v] = true);
+    full.pinned().iter().for_each(|&v| clamped[v] = true);
     let fixed = fixed_mask(&fabric, &clamped);
-    let (band_of, band_centres) = bands(&first, &rest);
+    let (band_of, band_centres) = bands(&full, &rest);
 
     let mut steps = Vec::with_capacity(params.steps);
     let mut min_ratio = f64::INFINITY;
@@ -274,7 +274,7 @@ pub fn run_pose(
             source,
         };
         let driver = driver_at(k)?;
-        if driver.pinned() != first.pinned() {
+        if driver.pinned() != full.pinned() {
             return Err(PoseRunError::Parameter(format!(
                 "the clamped bands change with the amount at step {k} (internal)"
             )));
@@ -353,7 +353,7 @@ pub fn run_pose(
     Ok(PoseRun {
         plane,
         vertices: n,
-        clamped_vertices: first.pinned().len(),
+        clamped_vertices: full.pinned().len(),
         bands: band_centres.iter().map(|c| plane.from_pose(*c)).collect(),
         steps,
         min_distance_ratio: min_ratio,
