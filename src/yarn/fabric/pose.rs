@@ -1,8 +1,8 @@
 //! Training poses of VH 2024 §8.6 (Fig. 19, after the HYLC data protocol)
 //! run quasi-statically at yarn level: the clamped bands of a
 //! [`PoseDriver`] move to their targets in `steps` equal increments of the
-//! pose's amount, and the swatch is brought to equilibrium (rods + contact
-//! + friction, [`Fabric::settle`]) at every increment. Each equilibrium is
+//! pose's amount, and the swatch is brought to equilibrium (rods, contact
+//! and friction, [`Fabric::settle`]) at every increment. Each equilibrium is
 //! one training frame: positions, elastic energy, the reactions of the
 //! clamps and the external forces (none: the poses run without gravity).
 //!
@@ -388,10 +388,10 @@ fn bands(driver: &PoseDriver, rest: &[Vec3]) -> (Vec<Option<usize>>, Vec<Vec3>) 
     let mut parts: Vec<Vec<usize>> = Vec::new();
     for g in 0..driver.num_groups() {
         let mut todo = vec![driver.group_vertices(g).to_vec()];
-        for axis in 0..3 {
+        for (axis, &extent) in span.iter().enumerate() {
             todo = todo
                 .into_iter()
-                .flat_map(|b| split_at_gap(b, rest, axis, span[axis]))
+                .flat_map(|b| split_at_gap(b, rest, axis, extent))
                 .collect();
         }
         for b in todo {
