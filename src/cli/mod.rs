@@ -11,6 +11,7 @@ pub mod guard;
 mod pattern;
 mod run;
 mod simulate;
+mod train;
 mod yls;
 
 use std::path::PathBuf;
@@ -55,6 +56,8 @@ pub enum Command {
     Run(run::RunArgs),
     /// Run a yarn-level scene (schemas/yls-scene.md) and write its frames (knitvox HDF5).
     Yls(yls::YlsArgs),
+    /// Run one training pose (VH §8.6) quasi-statically on an asset's rest yarns (knitvox HDF5 frames for `fit`).
+    Train(train::TrainArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.
@@ -327,6 +330,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         },
         Command::Pattern(a) => pattern::pattern(&a),
         Command::Yls(a) => yls::yls(&a),
+        Command::Train(a) => train::train(&a),
         Command::FabricTest(k) => fabric_test::fabric_test(&k),
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {

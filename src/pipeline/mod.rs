@@ -57,6 +57,7 @@ pub mod shot_setup;
 pub mod sim_scene;
 pub mod simulate;
 pub mod submit;
+pub mod train;
 pub mod yls;
 pub mod yls_scene;
 

@@ -10,6 +10,7 @@ pub mod bend;
 pub mod hang;
 pub mod inertia;
 pub mod model;
+pub mod pose;
 pub mod relax;
 pub mod rig;
 pub mod stretch;

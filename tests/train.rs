@@ -1,0 +1,338 @@
+//! `knitvox train`: training poses (VH 2024 §8.6) run quasi-statically on
+//! an asset's rest yarns, through the real binary, on a small relaxed 1x1
+//! rib embedded once per test process.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use knitvox::io::{self, h5};
+
+/// `(exit code, stdout, stderr)` of the binary with `args`.
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(common::knitvox_bin())
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A 4 x 4 rib relaxed into contact by `knitvox pattern` (rest shape
+/// stored) and embedded by `knitvox embed`: `(dir, yarns.h5, asset)`.
+fn asset() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
+    static ASSET: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    ASSET.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let yarns = dir.path().join("rib.h5");
+        let asset = dir.path().join("rib.vtkhdf");
+        let s = |p: &Path| p.to_str().unwrap().to_string();
+        let (code, _, err) = run(&[
+            "pattern",
+            "rib1x1",
+            "--courses",
+            "4",
+            "--wales",
+            "4",
+            "-o",
+            &s(&yarns),
+        ]);
+        assert_eq!(code, 0, "{err}");
+        let (code, _, err) = run(&["embed", &s(&yarns), "-o", &s(&asset)]);
+        assert_eq!(code, 0, "{err}");
+        (dir, yarns, asset)
+    })
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Runs a pose with `--json` into `out`; returns the report.
+fn train(out: &Path, extra: &[&str]) -> serde_json::Value {
+    let (_, _, a) = asset();
+    let mut args = vec!["train", path_str(a), "-o", path_str(out), "--json"];
+    args.extend_from_slice(extra);
+    let (code, stdout, err) = run(&args);
+    assert_eq!(code, 0, "train {extra:?}: {err}");
+    serde_json::from_str(&stdout).unwrap()
+}
+
+fn dataset(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {
+    h5::read_dataset_f64(path, name).unwrap()
+}
+
+#[test]
+fn stretch_courses_moves_the_band_pulls_back_harder_each_step_and_records_its_mechanics() {
+    let (dir, _, asset_path) = asset();
+    let out = dir.path().join("stretch.h5");
+    let steps = 3;
+    let amount = 0.1;
+    let r = train(
+        &out,
+        &[
+            "--pose",
+            "stretch_courses",
+            "--amount",
+            "0.1",
+            "--steps",
+            "3",
+        ],
+    );
+    assert_eq!(r["frames"], steps);
+    assert_eq!(r["pose"], "stretch_courses");
+    assert_eq!(r["rest_shape"], "stored", "{r}");
+    assert_eq!(r["fabric_plane"], "xy", "{r}");
+
+    // The frames have the asset's topology and the mechanics datasets.
+    let asset = io::vtkhdf::read_asset(asset_path).unwrap();
+    let rest = &asset.rest_yarns;
+    let n = rest.num_points();
+    let back = io::read_path(&out, &Default::default()).unwrap();
+    assert_eq!(back.yarns.num_curves(), rest.num_curves());
+    assert_eq!(back.yarns.num_points(), n);
+    assert_eq!(back.yarns.points, rest.points);
+    assert!(
+        back.yarns.rest.is_some(),
+        "the rest shape travels with the frames"
+    );
+    let (shape, points) = dataset(&out, "frames/points");
+    assert_eq!(shape, vec![steps, n, 3]);
+    let (shape, energy) = dataset(&out, "frames/elastic_energy");
+    assert_eq!(shape, vec![steps]);
+    let (shape, reactions) = dataset(&out, "frames/reaction_forces");
+    assert_eq!(shape, vec![steps, n, 3]);
+    let (shape, external) = dataset(&out, "frames/external_forces");
+    assert_eq!(shape, vec![steps, n, 3]);
+    assert!(external.iter().all(|f| *f == 0.0), "no gravity in a pose");
+    let (_, times) = dataset(&out, "frames/times");
+    for (k, t) in times.iter().enumerate() {
+        assert!(
+            (t - amount * (k + 1) as f64 / steps as f64).abs() < 1e-12,
+            "{times:?}"
+        );
+    }
+
+    // The right band (6% of the width) moved by amount x width along the
+    // courses (+X in the pattern's frame), step by step; it pulls back
+    // harder at every step and the energy rises.
+    let b = rest.bounds().unwrap();
+    let lx = b.max[0] - b.min[0];
+    let right: Vec<usize> = (0..n)
+        .filter(|&v| rest.points[v][0] >= b.max[0] - 0.06 * lx)
+        .collect();
+    assert!(right.len() > 5, "{} vertices in the band", right.len());
+    let mut force = Vec::new();
+    for k in 0..steps {
+        let want = amount * lx * (k + 1) as f64 / steps as f64;
+        for &v in &right {
+            let i = 3 * (k * n + v);
+            let d = [0, 1, 2].map(|c| points[i + c] - rest.points[v][c]);
+            assert!(
+                (d[0] - want).abs() < 1e-12 && d[1].abs() < 1e-12 && d[2].abs() < 1e-12,
+                "step {k} vertex {v}: moved {d:?}, want {want} along x"
+            );
+        }
+        let fx: f64 = right.iter().map(|&v| reactions[3 * (k * n + v)]).sum();
+        let total: f64 = (0..n).map(|v| reactions[3 * (k * n + v)]).sum();
+        assert!(
+            total.abs() <= 0.01 * fx.abs() + 1e-5,
+            "step {k}: clamps do not balance ({total} N of {fx} N)"
+        );
+        force.push(fx);
+    }
+    assert!(force[0] > 0.0, "{force:?}");
+    assert!(force.windows(2).all(|w| w[1] > w[0]), "force {force:?}");
+    assert!(energy.windows(2).all(|w| w[1] > w[0]), "energy {energy:?}");
+    // The report's final force is the right clamp's (its magnitude).
+    let last = r["final_force_n"].as_f64().unwrap();
+    assert!(
+        last >= force[2] && last <= 1.05 * force[2],
+        "{last} vs {force:?}"
+    );
+    assert!(r["min_distance_ratio"].as_f64().unwrap() > 0.75, "{r}");
+
+    // The pose record names the pose and the asset (path and SHA-256).
+    let rec: serde_json::Value =
+        serde_json::from_str(&h5::read_text(&out, "pose_json").unwrap().unwrap()).unwrap();
+    assert_eq!(rec["kind"], "stretch_courses");
+    assert_eq!(rec["amount"], 0.1);
+    assert_eq!(rec["mirror"], false);
+    assert_eq!(rec["steps"], steps);
+    let sha = knitvox::pipeline::asset::sha256_file(asset_path).unwrap();
+    assert_eq!(rec["asset"]["sha256"], sha.as_str());
+    assert_eq!(r["asset_sha256"], sha.as_str());
+    assert_eq!(rec["asset"]["path"], path_str(asset_path));
+}
+
+#[test]
+fn the_same_pose_twice_writes_bit_identical_frames() {
+    let (dir, _, _) = asset();
+    let args = ["--pose", "bend_central", "--steps", "2"];
+    let (a, b) = (dir.path().join("bend-a.h5"), dir.path().join("bend-b.h5"));
+    train(&a, &args);
+    train(&b, &args);
+    for name in [
+        "frames/points",
+        "frames/times",
+        "frames/elastic_energy",
+        "frames/reaction_forces",
+        "frames/external_forces",
+    ] {
+        let (da, db) = (dataset(&a, name), dataset(&b, name));
+        assert_eq!(da.0, db.0, "{name}");
+        assert!(
+            da.1.iter()
+                .zip(&db.1)
+                .all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{name} differs"
+        );
+    }
+}
+
+#[test]
+fn every_training_pose_runs_two_steps_and_stores_energy() {
+    let (dir, _, _) = asset();
+    let kinds = [
+        "stretch_courses",
+        "stretch_wales",
+        "biaxial",
+        "shear",
+        "bend_central",
+        "bend_diagonal",
+        "fan",
+        "twist",
+        "multi_fold",
+    ];
+    for kind in kinds {
+        for mirror in [false, true] {
+            if mirror && !matches!(kind, "bend_central" | "twist") {
+                continue;
+            }
+            let out = dir.path().join(format!("{kind}-{mirror}.h5"));
+            let mut args = vec!["--pose", kind, "--steps", "2"];
+            if mirror {
+                args.push("--mirror");
+            }
+            let r = train(&out, &args);
+            assert_eq!(r["frames"], 2, "{kind}");
+            assert_eq!(r["mirror"], mirror, "{kind}");
+            let (_, energy) = dataset(&out, "frames/elastic_energy");
+            assert!(
+                energy[1] > energy[0] && energy[0] > 0.0,
+                "{kind} mirror {mirror}: energy {energy:?}"
+            );
+            assert!(r["final_force_n"].as_f64().unwrap() > 0.0, "{kind}: {r}");
+        }
+    }
+}
+
+#[test]
+fn bad_requests_are_usage_errors_and_non_assets_are_named() {
+    let (dir, yarns, asset_path) = asset();
+    let out = dir.path().join("bad.h5");
+    let (o, a) = (path_str(&out), path_str(asset_path));
+    for args in [
+        vec!["train", a, "--pose", "nosuch", "-o", o],
+        vec!["train", a, "--pose", "hang", "-o", o],
+        vec![
+            "train",
+            a,
+            "--pose",
+            "multi_fold",
+            "--amount",
+            "0.7",
+            "-o",
+            o,
+        ],
+        vec![
+            "train",
+            a,
+            "--pose",
+            "stretch_courses",
+            "--amount",
+            "-1.5",
+            "-o",
+            o,
+        ],
+        vec!["train", a, "--pose", "twist", "--amount", "nan", "-o", o],
+        vec!["train", a, "--pose", "shear", "--steps", "0", "-o", o],
+        vec!["train", a, "--pose", "shear", "--friction", "-1", "-o", o],
+        vec!["train", a, "--pose", "shear", "-o", "x.ply"],
+    ] {
+        let (code, _, err) = run(&args);
+        assert!(code == 2 || code == 65, "{args:?}: exit {code}: {err}");
+        if !args.contains(&"x.ply") {
+            assert_eq!(code, 2, "{args:?}: {err}");
+        }
+        assert!(err.contains("error"), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} wrote its output");
+    }
+    // A yarn file is not an asset; nor is a text file named like one.
+    let (code, _, err) = run(&["train", path_str(yarns), "--pose", "shear", "-o", o]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("rib.h5") && err.contains(".vtkhdf"), "{err}");
+    let fake = dir.path().join("fake.vtkhdf");
+    std::fs::write(&fake, "not an asset\n").unwrap();
+    let (code, _, err) = run(&["train", path_str(&fake), "--pose", "shear", "-o", o]);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("fake.vtkhdf"), "{err}");
+    // The output may not replace the asset.
+    let (code, _, err) = run(&["train", a, "--pose", "shear", "-o", a]);
+    assert_eq!(code, 2, "{err}");
+    let missing = dir.path().join("missing.vtkhdf");
+    let (code, _, err) = run(&["train", path_str(&missing), "--pose", "shear", "-o", o]);
+    assert_eq!(code, 66, "{err}");
+    assert!(!out.exists());
+}
+
+/// An asset embedded from loose generated yarns (no rest shape) still
+/// trains, from its positions as rest, and says so.
+#[test]
+fn an_asset_without_a_rest_shape_trains_from_its_positions_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let (yarns, asset, out) = (
+        dir.path().join("loose.h5"),
+        dir.path().join("loose.vtkhdf"),
+        dir.path().join("pose.h5"),
+    );
+    let (code, _, err) = run(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "2",
+        "--wales",
+        "4",
+        "--no-relax",
+        "-o",
+        path_str(&yarns),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run(&["embed", path_str(&yarns), "-o", path_str(&asset)]);
+    assert_eq!(code, 0, "{err}");
+    let (code, stdout, err) = run(&[
+        "train",
+        path_str(&asset),
+        "--pose",
+        "shear",
+        "--steps",
+        "1",
+        "-o",
+        path_str(&out),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("no rest shape"),
+        "{err}"
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(r["rest_shape"], "positions");
+    assert_eq!(r["warnings"].as_array().unwrap().len(), 1, "{r}");
+    assert_eq!(r["frames"], 1);
+}
