@@ -45,6 +45,7 @@ pub mod bake;
 pub mod demo;
 pub mod error;
 pub mod fabric_test;
+pub mod fit;
 pub mod frames;
 pub mod inspect;
 pub mod job;
