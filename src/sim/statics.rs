@@ -13,8 +13,8 @@
 //! `Π = E - f_ext·x + Σ m_i |x_i - x̃_i|²/(2Δt²)`.
 //!
 //! Convergence: relative force residual `max_i |r_i| / scale <= tolerance`
-//! (default 1e-6) over free nodes, `scale` = the largest free-node external
-//! force or elastic force at the solution (whichever is larger).
+//! (default 1e-6) over free nodes, `scale` = the largest node external force
+//! or elastic force (pinned nodes included: their reactions) at the solution.
 //! Deterministic: assembly and factorization are sequential in a fixed order;
 //! the energy/gradient sums are in tet order.
 
@@ -238,18 +238,18 @@ impl StaticSolver {
         let inert = x_tilde.as_ref().map(|(xt, k)| (xt.as_slice(), *k));
         let mass_scale = inert.map(|(_, k)| k).unwrap_or(0.0);
         let force_scale = |g: &[Vec3]| {
-            // Largest free-node external and elastic force.
+            // Largest external and elastic node force, pinned nodes included:
+            // without external forces (a pose held by its pins only) the
+            // free-node elastic force is the residual itself, so only the
+            // pins' reactions give the problem its force scale.
             let mut s = 0.0f64;
-            for (i, fi) in self.free_index.iter().enumerate() {
-                if fi.is_some() {
-                    let fe =
-                        (f_ext[i][0].powi(2) + f_ext[i][1].powi(2) + f_ext[i][2].powi(2)).sqrt();
-                    let el = ((g[i][0] + f_ext[i][0]).powi(2)
-                        + (g[i][1] + f_ext[i][1]).powi(2)
-                        + (g[i][2] + f_ext[i][2]).powi(2))
-                    .sqrt();
-                    s = s.max(fe).max(el);
-                }
+            for i in 0..self.free_index.len() {
+                let fe = (f_ext[i][0].powi(2) + f_ext[i][1].powi(2) + f_ext[i][2].powi(2)).sqrt();
+                let el = ((g[i][0] + f_ext[i][0]).powi(2)
+                    + (g[i][1] + f_ext[i][1]).powi(2)
+                    + (g[i][2] + f_ext[i][2]).powi(2))
+                .sqrt();
+                s = s.max(fe).max(el);
             }
             s
         };
