@@ -417,3 +417,116 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     );
     assert!(out.exists());
 }
+
+/// RMS distance (yarn diameters) between two vertex sets of `y`'s topology.
+fn rms_diameters(y: &knitvox::geom::Yarns, a: &[Vec3], b: &[Vec3]) -> f64 {
+    let s: f64 = (0..a.len())
+        .map(|v| (knitvox::geom::dist(a[v], b[v]) / (2.0 * y.radius_at(v))).powi(2))
+        .sum();
+    (s / a.len() as f64).sqrt()
+}
+
+const STRETCH_SCENE: &str = r#"name = "validate-stretch"
+duration = 0.1
+frame_rate = 50
+gravity = [0.0, 0.0, 0.0]
+[pose]
+kind = "stretch_courses"
+amount = 0.05
+ramp = 0.08
+"#;
+
+#[test]
+fn validate_runs_both_levels_and_reports_the_distance() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (asset_path, asset) = asset_in(d);
+    let scene = d.join("stretch.toml");
+    std::fs::write(&scene, STRETCH_SCENE).unwrap();
+    let report = d.join("val");
+
+    // No fit record: --uniform cannot be honoured (bad input, 65).
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--uniform",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(err.contains("a.vtkhdf") && err.contains("fit"), "{err}");
+
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--report",
+        s(&report),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("no fit record"), "{err}");
+    let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    eprintln!("{line}");
+    for key in [
+        "frames",
+        "rms_yarn_diameters",
+        "max_yarn_diameters",
+        "uniform_rms_yarn_diameters",
+        "yarn_level_s",
+        "homogenized_s",
+        "speedup",
+    ] {
+        assert!(line.get(key).is_some(), "{key} missing from {line}");
+    }
+    assert_eq!(line["frames"], 5);
+    assert!(line["uniform_rms_yarn_diameters"].is_null());
+    let (rms, max) = (
+        line["rms_yarn_diameters"].as_f64().unwrap(),
+        line["max_yarn_diameters"].as_f64().unwrap(),
+    );
+    assert!(rms.is_finite() && rms > 0.0 && max >= rms, "{line}");
+    assert!(line["speedup"].as_f64().unwrap() > 0.0);
+
+    // The report: per-frame JSON and curve, both sequences as PLY. The
+    // homogenized yarns follow the yarn-level ones better than the rest
+    // state does (the last frame is 5% stretched).
+    let full: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("validate.json")).unwrap()).unwrap();
+    let last = full["per_frame"]
+        .as_array()
+        .unwrap()
+        .last()
+        .unwrap()
+        .clone();
+    assert_eq!(last["frame"], 5);
+    let png = std::fs::read(report.join("error.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let read = |p: PathBuf| io::read_path(&p, &ReadOptions::default()).unwrap().yarns;
+    let yl = read(report.join("yarn_level.0005.ply"));
+    let hm = read(report.join("homogenized.0005.ply"));
+    assert!(report.join("homogenized.0000.ply").exists());
+    let rest = &asset.rest_yarns;
+    let standing = rms_diameters(rest, &rest.points, &yl.points);
+    let tracked = rms_diameters(rest, &hm.points, &yl.points);
+    eprintln!("last frame: rest vs yarn level {standing:.3}, homogenized vs yarn level {tracked:.3} yarn diameters");
+    assert!((tracked - last["rms"].as_f64().unwrap()).abs() < 1e-3 * standing.max(1e-9) + 1e-6);
+    assert!(tracked < 0.5 * standing, "{tracked} vs {standing}");
+
+    // A scene with a collider: not supported on the homogenized side (65).
+    let col = d.join("col.toml");
+    std::fs::write(
+        &col,
+        format!("{STRETCH_SCENE}[[colliders]]\ntype = \"sphere\"\nradius = 0.01\n"),
+    )
+    .unwrap();
+    let o = knitvox(&["validate", s(&asset_path), "--scene", s(&col)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(
+        err.contains("col.toml") && err.contains("colliders"),
+        "{err}"
+    );
+}

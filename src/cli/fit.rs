@@ -110,3 +110,40 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
     }
     Ok(ExitCode::Success)
 }
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// The asset (.vtkhdf), usually fitted by `knitvox fit`.
+    pub asset: PathBuf,
+    /// The yls scene (schemas/yls-scene.md) run at both levels; without
+    /// `[swatch]` it runs on the asset's rest yarns.
+    #[arg(long, value_name = "SCENE.toml")]
+    pub scene: PathBuf,
+    /// Require the comparison with the best uniform material (the asset's
+    /// fit record); without it the comparison runs when the record exists.
+    #[arg(long)]
+    pub uniform: bool,
+    /// Folder for validate.json, error.png and both yarn sequences (PLY).
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Print the full report as JSON (per-frame errors included).
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
+    let job = crate::pipeline::validate::ValidateJob {
+        asset: a.asset.clone(),
+        scene: a.scene.clone(),
+        uniform: a.uniform,
+        report: a.report.clone(),
+    };
+    let mut console = super::Console::new(false, 0, "");
+    let r = job.run(&mut console)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!("{}", r.summary());
+    }
+    Ok(ExitCode::Success)
+}

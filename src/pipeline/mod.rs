@@ -53,6 +53,7 @@ pub mod pattern;
 pub mod shot_setup;
 pub mod sim_scene;
 pub mod simulate;
+pub mod validate;
 pub mod yls;
 pub mod yls_scene;
 
