@@ -294,15 +294,9 @@ fn read_pose(
         None
     };
     let name = path.display().to_string();
-    // Held vertices per chosen frame.
-    let (held, held_source): (Vec<Vec<bool>>, Source) = match (&reactions, &scene) {
-        (Some(r), _) => (
-            chosen
-                .iter()
-                .map(|&f| r[f].iter().map(|v| v.iter().any(|c| *c != 0.0)).collect())
-                .collect(),
-            Source::File,
-        ),
+    // Held vertices: per frame from the reactions, else one set.
+    let (fixed_held, held_source): (Vec<bool>, Source) = match (&reactions, &scene) {
+        (Some(_), _) => (Vec::new(), Source::File),
         (None, scene) => {
             let params = scene.as_ref().map_or_else(
                 || PoseParams::new(PoseKind::StretchCourses, 0.0),
@@ -321,7 +315,13 @@ fn read_pose(
                 observer.warning(&format!("{name}: no /frames/reaction_forces and no yls scene: assuming the left and right bands (6% of the width along X) are held, as in stretch_courses"));
                 Source::Assumed
             };
-            (vec![h; chosen.len()], src)
+            (h, src)
+        }
+    };
+    let held_at = |f: usize| -> Vec<bool> {
+        match &reactions {
+            Some(r) => r[f].iter().map(|v| v.iter().any(|c| *c != 0.0)).collect(),
+            None => fixed_held.clone(),
         }
     };
     let forces_source = match (&external, &scene) {
@@ -342,17 +342,35 @@ fn read_pose(
     let mut out = Vec::with_capacity(chosen.len());
     let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
         (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
-    for (k, &f) in chosen.iter().enumerate() {
-        let (x_hat, st) = cx
-            .fitter
-            .fit(frames.frame(f))
-            .map_err(|e| invalid(path, format!("frame {f}: shape fit: {e}")))?;
-        if st.inverted_tets > 0 {
-            return Err(invalid(path, format!(
-                "frame {f}: its shape fit inverts {} tets (smallest det F {:.3e}): the homogenized mesh cannot be asked to reach it",
-                st.inverted_tets, st.min_det_f
-            )));
+    let mut used = Vec::with_capacity(chosen.len());
+    for &want in &chosen {
+        // A frame whose shape fit inverts tets cannot be a target: the
+        // nearest earlier frame after the previous choice replaces it.
+        let lowest = used.last().map_or(usize::from(nf > 1), |&u: &usize| u + 1);
+        let mut f = want;
+        let (x_hat, st) = loop {
+            let (x, st) = cx
+                .fitter
+                .fit(frames.frame(f))
+                .map_err(|e| invalid(path, format!("frame {f}: shape fit: {e}")))?;
+            if st.inverted_tets == 0 {
+                break (x, st);
+            }
+            if f <= lowest {
+                return Err(invalid(path, format!(
+                    "frame {want}: its shape fit inverts {} tets (smallest det F {:.3e}), and so do the frames before it down to {f}: the homogenized mesh cannot be asked to reach them",
+                    st.inverted_tets, st.min_det_f
+                )));
+            }
+            f -= 1;
+        };
+        if f != want {
+            observer.warning(&format!(
+                "{name}: frame {want}'s shape fit inverts tets: fitting frame {f} instead"
+            ));
         }
+        used.push(f);
+        let held_f = held_at(f);
         rms_max = rms_max.max(st.rms_error);
         min_det = min_det.min(st.min_det_f);
         let target = FrameTarget::from_nodes(
@@ -363,11 +381,11 @@ fn read_pose(
             asset.grid.h,
         )
         .map_err(|e| invalid(path, format!("frame {f}: loss targets: {e}")))?;
-        let pinned = held_nodes(&asset.mesh, &asset.embedding, &held[k]);
+        let pinned = held_nodes(&asset.mesh, &asset.embedding, &held_f);
         if pinned.is_empty() {
             return Err(invalid(path, format!("frame {f}: no held vertex (all reaction forces are zero): the pose has no boundary condition to fit under")));
         }
-        held_v = held_v.max(held[k].iter().filter(|h| **h).count());
+        held_v = held_v.max(held_f.iter().filter(|h| **h).count());
         held_n = held_n.max(pinned.len());
         let f_ext = match (&external, &scene) {
             (Some(e), _) => node_forces(&asset.mesh, &asset.embedding, &e[f]),
@@ -400,14 +418,14 @@ fn read_pose(
     };
     if !(energy > 0.0 && energy.is_finite()) {
         return Err(invalid(path, format!(
-            "its chosen frames {chosen:?} store no elastic energy ({energy:e} J): is the pose deformed?"
+            "its chosen frames {used:?} store no elastic energy ({energy:e} J): is the pose deformed?"
         )));
     }
     let summary = PoseSummary {
         path: path.to_path_buf(),
         sha256: sha256_file(path)?,
         frames_in_file: nf,
-        frames: chosen,
+        frames: used,
         held_vertices: held_v,
         held_nodes: held_n,
         held_source,
