@@ -372,7 +372,7 @@ pub fn render_field_png(slice: &FieldSlice, size: (u32, u32)) -> Result<Vec<u8>,
     let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let span = if hi > lo { hi - lo } else { 1.0 };
     // Plot area: margins for labels and a colour bar on the right.
-    let (l, t, r, b) = (60i32, TITLE_H + 10, w as i32 - 110, h as i32 - 50);
+    let (l, t, r, b) = (60i32, TITLE_H + 10, w as i32 - 150, h as i32 - 50);
     let cell = (((r - l) as f64 / slice.nx as f64).min((b - t) as f64 / slice.ny as f64)).max(1.0);
     let cw = (cell * slice.nx as f64) as i32;
     let ch = (cell * slice.ny as f64) as i32;

@@ -777,7 +777,8 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
     };
     let json = serde_json::to_vec_pretty(r).map_err(|e| Error::Internal(e.to_string()))?;
     put("fit.json", &json)?;
-    // Loss per accepted iteration, across the stages, per pose (log10).
+    // Loss per accepted iteration, across the stages, per pose, relative to
+    // its start (log10: 0 at the start, -k after a 10^k decrease).
     let series = r
         .fit
         .samples
@@ -797,7 +798,10 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
                 points: losses
                     .iter()
                     .enumerate()
-                    .map(|(i, l)| [i as f64, l.max(1e-300).log10()])
+                    .map(|(i, l)| {
+                        let l0 = losses[0].max(1e-300);
+                        [i as f64, (l / l0).max(1e-300).log10()]
+                    })
                     .collect(),
                 color: plot::PALETTE[k % plot::PALETTE.len()],
             }
@@ -807,7 +811,7 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
         title: "elasticity fit: loss per iteration (all stages)".into(),
         panels: vec![plot::Panel {
             x_label: "iteration".into(),
-            y_label: "log10 loss (m^3)".into(),
+            y_label: "log10(loss / loss at the start)".into(),
             series,
         }],
         size: (900, 500),
