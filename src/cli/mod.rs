@@ -7,6 +7,7 @@ mod bench;
 mod commands;
 pub mod exit;
 mod fabric_test;
+mod fit;
 pub mod guard;
 mod pattern;
 mod run;
@@ -48,6 +49,10 @@ pub enum Command {
     Shapefit(asset::ShapefitArgs),
     /// Export an asset's stored steps as per-frame yarn curves (V2Y).
     Export(asset::ExportArgs),
+    /// Fit per-element materials (VH §6) of an asset to yarn-level training poses.
+    Fit(fit::FitArgs),
+    /// Compare an asset's homogenized motion with the yarn-level run of a yls scene.
+    Validate(fit::ValidateArgs),
     /// Bake a glTF character's animation into an HDF5 character cache (schemas/character-hdf5.md).
     Bake(bake::BakeArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
@@ -319,6 +324,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Embed(a) => asset::embed(&a),
         Command::Shapefit(a) => asset::shapefit(&a),
         Command::Export(a) => asset::export(&a),
+        Command::Fit(a) => fit::fit(&a),
+        Command::Validate(a) => fit::validate(&a),
         Command::Simulate(a) => simulate::simulate(&a),
         Command::Bake(a) => bake::bake(&a),
         Command::Run(a) => run::run(&a),

@@ -73,3 +73,92 @@ pub struct Asset {
     /// Node positions over time.
     pub steps: NodeSteps,
 }
+
+/// The elasticity fit an asset records (`knitvox fit`, VH §6): stored as
+/// the key [`FIT_RECORD_KEY`] of the asset's parameters (`/knitvox/parameters`,
+/// schemas/asset-vtkhdf.md).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FitRecord {
+    /// knitvox version that fitted.
+    pub knitvox_version: String,
+    /// The training poses, in fitting order.
+    pub poses: Vec<FitPose>,
+    /// Frames fitted per pose (`--samples`).
+    pub samples_per_pose: usize,
+    /// Harmonic ranks of the initialization (VH §6.5).
+    pub harmonic_ranks: Vec<usize>,
+    /// Whether the poses were fitted together (VH Eq. 9) rather than one
+    /// by one with the Eq. 22 fold.
+    #[serde(default)]
+    pub joint: bool,
+    /// The best uniform material: the r = 1 harmonic stage, fitted on the
+    /// same poses from the asset's earlier material (Pa).
+    pub uniform: UniformMaterial,
+    /// Loss (m³, VH Eq. 10, summed over each pose's frames) per pose at the
+    /// earlier material, at the uniform one and at the fitted field.
+    pub losses: Vec<PoseLosses>,
+    /// Every fitting parameter (`fit::elastic::ElasticFitParams`), as JSON.
+    pub params: serde_json::Value,
+}
+
+/// One training pose of a [`FitRecord`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FitPose {
+    pub path: String,
+    pub sha256: String,
+    /// 0-based frames of the file that were fitted.
+    pub frames: Vec<usize>,
+    /// Its Eq. 22 weight (J).
+    pub energy: f64,
+}
+
+/// A uniform material (Pa).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct UniformMaterial {
+    pub gamma_s: f64,
+    pub gamma_v: f64,
+}
+
+/// Losses of one pose (m³).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseLosses {
+    pub pose: String,
+    /// At the asset's material before the fit.
+    pub before: f64,
+    /// At the uniform material.
+    pub uniform: f64,
+    /// At the fitted (folded) field.
+    pub fitted: f64,
+    /// Last loss of each stage of this pose's own fit (`harmonic r=N`,
+    /// `full`; with a joint fit, of the joint one).
+    pub stages: Vec<(String, f64)>,
+}
+
+/// Key of the fit record in [`Asset::parameters`].
+pub const FIT_RECORD_KEY: &str = "fit";
+
+impl Asset {
+    /// The recorded fit, `Ok(None)` when the asset was never fitted; an
+    /// error names what is wrong with a malformed record.
+    pub fn fit_record(&self) -> Result<Option<FitRecord>, String> {
+        match self.parameters.get(FIT_RECORD_KEY) {
+            None => Ok(None),
+            Some(v) => serde_json::from_value(v.clone())
+                .map(Some)
+                .map_err(|e| format!("parameters.{FIT_RECORD_KEY}: {e}")),
+        }
+    }
+
+    /// Records `record` (replacing an earlier one). Parameters that are not
+    /// a JSON object are kept under the key `parameters`.
+    pub fn set_fit_record(&mut self, record: &FitRecord) {
+        if !self.parameters.is_object() {
+            let old = std::mem::take(&mut self.parameters);
+            self.parameters = serde_json::json!({ "parameters": old });
+        }
+        let v = serde_json::to_value(record).expect("a fit record is plain data");
+        if let Some(o) = self.parameters.as_object_mut() {
+            o.insert(FIT_RECORD_KEY.to_string(), v);
+        }
+    }
+}

@@ -266,6 +266,183 @@ fn draw_panel<DB: DrawingBackend>(
     Ok(())
 }
 
+/// A histogram of `values` as a step curve over `bins` equal bins between
+/// their smallest and largest value: `(x, count)` points tracing each bar's
+/// top. Non-finite values are refused.
+pub fn histogram_series(
+    label: &str,
+    values: &[f64],
+    bins: usize,
+    color: [u8; 3],
+) -> Result<Series, PlotError> {
+    if values.is_empty() || bins == 0 {
+        return Err(PlotError::Data(format!("{label}: no values or no bins")));
+    }
+    if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+        return Err(PlotError::Data(format!("{label}: non-finite value {v}")));
+    }
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    // A single value gets a bin of width 1% of it (or 1) around it.
+    let (lo, hi) = if hi > lo {
+        (lo, hi)
+    } else {
+        let d = 0.01 * lo.abs().max(1.0);
+        (lo - d, hi + d)
+    };
+    let w = (hi - lo) / bins as f64;
+    let mut counts = vec![0usize; bins];
+    for v in values {
+        let b = (((v - lo) / w) as usize).min(bins - 1);
+        counts[b] += 1;
+    }
+    let mut points = vec![[lo, 0.0]];
+    for (b, &c) in counts.iter().enumerate() {
+        let x0 = lo + b as f64 * w;
+        points.push([x0, c as f64]);
+        points.push([x0 + w, c as f64]);
+    }
+    points.push([hi, 0.0]);
+    Ok(Series {
+        label: label.to_string(),
+        points,
+        color,
+    })
+}
+
+/// A scalar field on a grid of cells (a slice through a voxel field):
+/// `values[j * nx + i]` is cell `(i, j)`, `None` where the slice holds no
+/// cell. Drawn with `i` to the right and `j` up.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldSlice {
+    pub title: String,
+    /// Axis names (e.g. "x (voxels)").
+    pub x_label: String,
+    pub y_label: String,
+    pub nx: usize,
+    pub ny: usize,
+    pub values: Vec<Option<f64>>,
+    /// Unit shown beside the colour bar's values.
+    pub unit: String,
+}
+
+/// Perceptually ordered colour map (viridis, 5 anchors, linear between).
+fn viridis(t: f64) -> [u8; 3] {
+    const C: [[f64; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = t.clamp(0.0, 1.0) * 4.0;
+    let k = (t.floor() as usize).min(3);
+    let f = t - k as f64;
+    std::array::from_fn(|c| (C[k][c] * (1.0 - f) + C[k + 1][c] * f).round() as u8)
+}
+
+/// Renders `slice` as a PNG of `size` pixels: cells coloured by value
+/// (viridis, linear between the slice's smallest and largest value), empty
+/// cells light grey, a colour bar with both ends labelled.
+pub fn render_field_png(slice: &FieldSlice, size: (u32, u32)) -> Result<Vec<u8>, PlotError> {
+    let (w, h) = size;
+    if !(200..=8000).contains(&w) || !(150..=8000).contains(&h) {
+        return Err(PlotError::Data(format!("size {w} x {h} px")));
+    }
+    if slice.nx == 0 || slice.ny == 0 || slice.values.len() != slice.nx * slice.ny {
+        return Err(PlotError::Data(format!(
+            "{}: {} values for {} x {} cells",
+            slice.title,
+            slice.values.len(),
+            slice.nx,
+            slice.ny
+        )));
+    }
+    let vals: Vec<f64> = slice.values.iter().flatten().copied().collect();
+    if vals.is_empty() {
+        return Err(PlotError::Data(format!("{}: no cells", slice.title)));
+    }
+    if let Some(v) = vals.iter().find(|v| !v.is_finite()) {
+        return Err(PlotError::Data(format!(
+            "{}: non-finite value {v}",
+            slice.title
+        )));
+    }
+    let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    // Plot area: margins for labels and a colour bar on the right.
+    let (l, t, r, b) = (60i32, TITLE_H + 10, w as i32 - 150, h as i32 - 50);
+    let cell = (((r - l) as f64 / slice.nx as f64).min((b - t) as f64 / slice.ny as f64)).max(1.0);
+    let cw = (cell * slice.nx as f64) as i32;
+    let ch = (cell * slice.ny as f64) as i32;
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let mut texts = vec![
+        Text {
+            s: slice.title.clone(),
+            x: w as i32 / 2,
+            y: TITLE_H - 8,
+            align: Align::Center,
+        },
+        Text {
+            s: slice.x_label.clone(),
+            x: l + cw / 2,
+            y: t + ch + 30,
+            align: Align::Center,
+        },
+        Text {
+            s: slice.y_label.clone(),
+            x: l,
+            y: t - 4,
+            align: Align::Left,
+        },
+    ];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let err = |e: DrawingAreaErrorKind<_>| PlotError::Draw(e.to_string());
+        for j in 0..slice.ny {
+            for i in 0..slice.nx {
+                let color = match slice.values[j * slice.nx + i] {
+                    Some(v) => rgb(viridis((v - lo) / span)),
+                    None => RGBColor(230, 230, 230),
+                };
+                let x0 = l + (i as f64 * cell) as i32;
+                let y1 = t + ch - (j as f64 * cell) as i32;
+                let x1 = l + ((i + 1) as f64 * cell) as i32;
+                let y0 = t + ch - ((j + 1) as f64 * cell) as i32;
+                root.draw(&Rectangle::new([(x0, y0), (x1, y1)], color.filled()))
+                    .map_err(err)?;
+            }
+        }
+        root.draw(&Rectangle::new([(l, t), (l + cw, t + ch)], BLACK))
+            .map_err(err)?;
+        // Colour bar: bottom = lo, top = hi.
+        let bx = r + 20;
+        let steps = 64;
+        for k in 0..steps {
+            let y1 = t + ch - (k * ch) / steps;
+            let y0 = t + ch - ((k + 1) * ch) / steps;
+            let c = rgb(viridis((k as f64 + 0.5) / steps as f64));
+            root.draw(&Rectangle::new([(bx, y0), (bx + 16, y1)], c.filled()))
+                .map_err(err)?;
+        }
+        root.present().map_err(|e| PlotError::Draw(e.to_string()))?;
+    }
+    for (v, y) in [(hi, t + 12), (lo, t + ch)] {
+        texts.push(Text {
+            s: format!("{v:.3e} {}", slice.unit),
+            x: r + 40,
+            y,
+            align: Align::Left,
+        });
+    }
+    let font = FontRef::try_from_slice(FONT).map_err(|e| PlotError::Draw(e.to_string()))?;
+    for t in &texts {
+        draw_text(&mut buf, (w, h), &font, t);
+    }
+    encode_png(&buf, w, h)
+}
+
 #[derive(Debug, Clone, Copy)]
 enum Align {
     Left,
@@ -373,5 +550,36 @@ mod tests {
         ));
         let png = render_png(&fig(vec![[0.0, 0.0], [1.0, 2.0]])).unwrap();
         assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    }
+
+    #[test]
+    fn histogram_counts_every_value_once() {
+        let v = [1.0, 1.0, 2.0, 3.0, 3.0, 3.0];
+        let s = histogram_series("h", &v, 2, PALETTE[0]).unwrap();
+        // Bars [1, 2) and [2, 3]: 2 and 4 values.
+        assert_eq!(s.points[1], [1.0, 2.0]);
+        assert_eq!(s.points[3], [2.0, 4.0]);
+        assert!(histogram_series("h", &[f64::NAN], 3, PALETTE[0]).is_err());
+    }
+
+    #[test]
+    fn field_slices_render_and_refuse_bad_data() {
+        let mut slice = FieldSlice {
+            title: "gamma_s".into(),
+            x_label: "x".into(),
+            y_label: "z".into(),
+            nx: 3,
+            ny: 2,
+            values: vec![Some(1.0), None, Some(2.0), Some(3.0), Some(4.0), None],
+            unit: "Pa".into(),
+        };
+        let png = render_field_png(&slice, (400, 300)).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+        slice.values[0] = Some(f64::INFINITY);
+        assert!(render_field_png(&slice, (400, 300)).is_err());
+        slice.values.pop();
+        assert!(render_field_png(&slice, (400, 300)).is_err());
+        assert_eq!(viridis(0.0), [68, 1, 84]);
+        assert_eq!(viridis(1.0), [253, 231, 37]);
     }
 }

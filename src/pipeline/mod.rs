@@ -49,6 +49,7 @@ pub mod bake;
 pub mod demo;
 pub mod error;
 pub mod fabric_test;
+pub mod fit;
 pub mod frames;
 pub mod inspect;
 pub mod job;
@@ -58,6 +59,7 @@ pub mod sim_scene;
 pub mod simulate;
 pub mod submit;
 pub mod train;
+pub mod validate;
 pub mod yls;
 pub mod yls_scene;
 

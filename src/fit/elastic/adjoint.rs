@@ -127,7 +127,8 @@ pub fn equilibrium(
 }
 
 /// `g = ∂E/∂x - f_ext` on the free DOFs and its relative size: largest free
-/// node residual over the largest free-node external or elastic force.
+/// node residual over the largest free-node external or elastic force (the
+/// pinned nodes' too when no free node is loaded).
 fn residual(
     model: &ElasticModel,
     frame: &Frame,
@@ -138,13 +139,19 @@ fn residual(
     let mut g = vec![0.0; free.ndof];
     let (mut worst, mut scale) = (0.0f64, 0.0f64);
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let loaded =
+        (0..free.index.len()).any(|i| free.index[i].is_some() && norm(frame.f_ext[i]) > 0.0);
     for (i, fi) in free.index.iter().enumerate() {
+        let f = frame.f_ext[i];
+        // As crate::sim::statics: pinned nodes' elastic forces (reactions)
+        // count only when no free node is loaded.
+        if fi.is_some() || !loaded {
+            scale = scale.max(norm(f)).max(norm(grad[i]));
+        }
         if let Some(d) = fi {
-            let f = frame.f_ext[i];
             let r = [grad[i][0] - f[0], grad[i][1] - f[1], grad[i][2] - f[2]];
             g[*d..*d + 3].copy_from_slice(&r);
             worst = worst.max(norm(r));
-            scale = scale.max(norm(f)).max(norm(grad[i]));
         }
     }
     let rel = if scale > 0.0 { worst / scale } else { worst };

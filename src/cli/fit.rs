@@ -1,0 +1,149 @@
+//! `knitvox fit` (VH §6 elasticity fitting) and `knitvox validate`.
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::asset::command_line;
+use super::ExitCode;
+use crate::fit::elastic::ElasticFitParams;
+use crate::pipeline::fit::{FitJob, DEFAULT_SAMPLES};
+use crate::pipeline::Stage;
+
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// The asset (.vtkhdf) whose materials are fitted.
+    pub asset: PathBuf,
+    /// Training poses: yarn frames with the asset's rest-yarn topology (knitvox
+    /// HDF5 from `knitvox train`, `yls` or `fabric-test`, or any yarn sequence).
+    #[arg(long, required = true, num_args = 1.., value_name = "POSE")]
+    pub train: Vec<PathBuf>,
+    /// Frames fitted per pose, chosen evenly (the last frame always among them).
+    #[arg(long, default_value_t = DEFAULT_SAMPLES, value_name = "N")]
+    pub samples: usize,
+    /// Harmonic initialization ranks (VH §6.5), comma-separated; 0 for none.
+    #[arg(long, default_value = "1,10,30", value_name = "R,R,..", value_parser = parse_ranks)]
+    pub harmonic: Ranks,
+    /// Gradient-descent iterations per stage (VH §6.3: 10-15).
+    #[arg(long, default_value_t = ElasticFitParams::default().gd_iterations, value_name = "N")]
+    pub gd_iterations: u32,
+    /// Gauss-Newton iterations per stage (VH §6.3: 20-30).
+    #[arg(long, default_value_t = ElasticFitParams::default().gn_iterations, value_name = "N")]
+    pub gn_iterations: u32,
+    /// The fitted asset [default: ASSET with .fit.vtkhdf]; must differ from ASSET.
+    #[arg(short, long, value_name = "OUT.vtkhdf")]
+    pub output: Option<PathBuf>,
+    /// Folder for fit.json and PNG plots (loss per iteration, gamma histograms, mid-plane slices).
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Fit all poses' frames together (VH Eq. 9) instead of pose by pose with
+    /// the energy-weighted average of Eq. 22.
+    #[arg(long)]
+    pub joint: bool,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: super::ReadArgs,
+}
+
+/// Harmonic ranks as parsed from `--harmonic`.
+#[derive(Debug, Clone)]
+pub struct Ranks(pub Vec<usize>);
+
+fn parse_ranks(s: &str) -> Result<Ranks, String> {
+    let mut out = Vec::new();
+    for t in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+        let r: usize = t
+            .parse()
+            .map_err(|_| format!("'{t}' is not a rank (a whole number, e.g. 1,10,30)"))?;
+        if r > 10_000 {
+            return Err(format!("rank {r} is above 10000"));
+        }
+        if r > 0 && !out.contains(&r) {
+            out.push(r);
+        }
+    }
+    Ok(Ranks(out))
+}
+
+pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
+    let job = FitJob {
+        asset: a.asset.clone(),
+        train: a.train.clone(),
+        read: a.read.options(),
+        samples: a.samples,
+        params: ElasticFitParams {
+            harmonic_ranks: a.harmonic.0.clone(),
+            gd_iterations: a.gd_iterations,
+            gn_iterations: a.gn_iterations,
+            ..ElasticFitParams::default()
+        },
+        output: a.output.clone(),
+        report: a.report.clone(),
+        joint: a.joint,
+        command: command_line(),
+    };
+    let mut console = super::Console::new(false, 0, "");
+    let r = job.run(&mut console)?;
+    if a.json {
+        let mut v = serde_json::to_value(&r)?;
+        v["warnings"] = serde_json::to_value(&console.warnings)?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{}: fitted {} tets on {} pose(s); loss {:.3e} -> uniform {:.3e} -> fitted {:.3e} m^3; uniform gamma_s {:.4e}, gamma_v {:.4e} Pa; gamma_s {:.3e}..{:.3e}, gamma_v {:.3e}..{:.3e} Pa; {:.1} s",
+            r.output.display(),
+            r.tets,
+            r.poses.len(),
+            r.loss_before,
+            r.loss_uniform,
+            r.loss_fitted,
+            r.uniform.gamma_s,
+            r.uniform.gamma_v,
+            r.gamma_s_range[0],
+            r.gamma_s_range[1],
+            r.gamma_v_range[0],
+            r.gamma_v_range[1],
+            r.wall_s
+        );
+    }
+    Ok(ExitCode::Success)
+}
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// The asset (.vtkhdf), usually fitted by `knitvox fit`.
+    pub asset: PathBuf,
+    /// The yls scene (schemas/yls-scene.md) run at both levels; without
+    /// `[swatch]` it runs on the asset's rest yarns.
+    #[arg(long, value_name = "SCENE.toml")]
+    pub scene: PathBuf,
+    /// Require the comparison with the best uniform material (the asset's
+    /// fit record); without it the comparison runs when the record exists.
+    #[arg(long)]
+    pub uniform: bool,
+    /// Folder for validate.json, error.png and both yarn sequences (PLY).
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Print the full report as JSON (per-frame errors included).
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
+    let job = crate::pipeline::validate::ValidateJob {
+        asset: a.asset.clone(),
+        scene: a.scene.clone(),
+        uniform: a.uniform,
+        report: a.report.clone(),
+    };
+    let mut console = super::Console::new(false, 0, "");
+    let r = job.run(&mut console)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!("{}", r.summary());
+    }
+    Ok(ExitCode::Success)
+}

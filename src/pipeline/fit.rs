@@ -1,0 +1,874 @@
+//! The `fit` stage (VH 2024 §6): yarn-level training poses -> per-element
+//! `γs`, `γv` of the asset's Eq. 7 energy.
+//!
+//! Each pose file becomes one sample of VH §6.4: `--samples` frames chosen
+//! evenly (the last, most loaded frame always among them), each turned into
+//! a [`Frame`]:
+//!
+//! * the loss targets from the Y2V shape fit `x̂` of the yarn frame (VH Eq.
+//!   5-6, [`ShapeFitter`]) and [`FrameTarget::from_nodes`] (α = 0.1);
+//! * Dirichlet nodes: the four nodes of every tet that holds a *held* yarn
+//!   vertex, kept at `x̂`. Held vertices are the rows of
+//!   `/frames/reaction_forces` that are non-zero (schemas/yarns-hdf5.md);
+//!   without that dataset, the clamped bands of the yls scene stored in
+//!   `/metadata/scene_toml`; without either, the left and right bands of a
+//!   `stretch_courses` pose (a warning says which);
+//! * external node forces `Nᵀ f` from `/frames/external_forces` (gravity of
+//!   the yarn-level run), else the scene's gravity on the node masses, else
+//!   none (warned);
+//! * the Eq. 22 weight: the pose's `/frames/elastic_energy` over the chosen
+//!   frames, else the Eq. 7 energy of `x̂` under the asset's material (warned).
+//!
+//! The fit runs twice through [`fit_materials`]: the uniform material (the
+//! r = 1 harmonic stage alone, from the asset's material) that `validate`
+//! compares against, then the harmonic stages and the full field from that
+//! uniform material. Frames are quasi-static (Eq. 14 without the inertia
+//! term of Eq. 13).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::fit::elastic::adjoint::equilibrium;
+use crate::fit::elastic::{
+    fit_materials, ElasticFitError, ElasticFitParams, FitInputs, FitReport, Frame, FrameTarget,
+    MaterialFields, Sample,
+};
+use crate::fit::{ShapeFitParams, ShapeFitter};
+use crate::geom::{
+    Asset, Embedding, FitPose, FitRecord, PoseLosses, TetMesh, UniformMaterial, Vec3,
+};
+use crate::io::{self, plot, IoError, ReadOptions};
+use crate::pipeline::asset::{check_asset_ext, re_embed, sha256_file, StageError};
+use crate::pipeline::yls_scene::YlsScene;
+use crate::pipeline::{Error, Observer, Stage};
+use crate::sim::energy::ElasticModel;
+use crate::yarn::poses::{PoseDriver, PoseKind, PoseParams};
+
+/// Frames fitted per pose when `--samples` is not given.
+pub const DEFAULT_SAMPLES: usize = 2;
+/// Weight α of the loss's position term (VH §5, Eq. 6 and 10).
+pub const LOSS_ALPHA: f64 = 0.1;
+
+/// The `fit` stage.
+#[derive(Debug, Clone)]
+pub struct FitJob {
+    /// The asset (.vtkhdf).
+    pub asset: PathBuf,
+    /// Training poses: yarn frames with the asset's rest-yarn topology, any
+    /// yarn format (knitvox HDF5 carries forces and energies).
+    pub train: Vec<PathBuf>,
+    /// How to read the poses.
+    pub read: ReadOptions,
+    /// Frames fitted per pose (>= 1). Default [`DEFAULT_SAMPLES`].
+    pub samples: usize,
+    /// Fitting parameters (harmonic ranks, iterations, ...).
+    pub params: ElasticFitParams,
+    /// The fitted asset [default: [`default_output`] of `asset`]; never the input.
+    pub output: Option<PathBuf>,
+    /// Folder for `fit.json` and the PNG plots.
+    pub report: Option<PathBuf>,
+    /// Fit every pose's frames together (VH Eq. 9) instead of pose by pose
+    /// with the energy-weighted fold of Eq. 22. Default false.
+    pub joint: bool,
+    /// The command line, for provenance.
+    pub command: String,
+}
+
+/// `NAME.vtkhdf` -> `NAME.fit.vtkhdf` beside it.
+pub fn default_output(asset: &Path) -> PathBuf {
+    let stem = asset
+        .file_stem()
+        .map_or("asset".into(), |s| s.to_string_lossy().into_owned());
+    asset.with_file_name(format!("{stem}.fit.vtkhdf"))
+}
+
+impl FitJob {
+    /// The asset written.
+    pub fn output_path(&self) -> PathBuf {
+        self.output
+            .clone()
+            .unwrap_or_else(|| default_output(&self.asset))
+    }
+}
+
+/// Where a pose's boundary conditions and weight came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Source {
+    /// The pose file's mechanics (`/frames/reaction_forces`, ...).
+    File,
+    /// The yls scene stored in the pose file.
+    Scene,
+    /// knitvox's fallback (stretch_courses bands, no force, material energy).
+    Assumed,
+}
+
+/// What one training pose contributed.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PoseSummary {
+    pub path: PathBuf,
+    pub sha256: String,
+    pub frames_in_file: usize,
+    /// 0-based frames fitted.
+    pub frames: Vec<usize>,
+    /// Held yarn vertices and Dirichlet tet nodes (largest over its frames).
+    pub held_vertices: usize,
+    pub held_nodes: usize,
+    pub held_source: Source,
+    pub forces_source: Source,
+    /// Eq. 22 weight (J) and where it came from.
+    pub energy: f64,
+    pub energy_source: Source,
+    /// Largest Y2V RMS yarn error over its frames (m) and smallest det F.
+    pub y2v_rms_max: f64,
+    pub y2v_min_det_f: f64,
+}
+
+/// What `fit` did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FitJobReport {
+    pub output: PathBuf,
+    pub nodes: usize,
+    pub tets: usize,
+    pub poses: Vec<PoseSummary>,
+    /// Loss (m³) summed over poses at the asset's material, the uniform
+    /// material and the fitted field.
+    pub loss_before: f64,
+    pub loss_uniform: f64,
+    pub loss_fitted: f64,
+    /// The best uniform material (r = 1).
+    pub uniform: UniformMaterial,
+    pub gamma_s_range: [f64; 2],
+    pub gamma_v_range: [f64; 2],
+    /// The fitter's reports: the uniform stage, then the field.
+    pub uniform_fit: FitReport,
+    pub fit: FitReport,
+    /// Files of `--report`.
+    pub report_files: Vec<PathBuf>,
+    pub wall_s: f64,
+}
+
+/// `n` frames of `f` chosen evenly, the last always included: frame
+/// `ceil((k + 1) f / n) - 1` for `k < n` (all of them when `n >= f`).
+pub fn choose_frames(f: usize, n: usize) -> Vec<usize> {
+    let n = n.min(f);
+    (0..n).map(|k| ((k + 1) * f).div_ceil(n) - 1).collect()
+}
+
+/// The nodes of every tet that holds a held yarn vertex, sorted.
+pub fn held_nodes(mesh: &TetMesh, embedding: &Embedding, held: &[bool]) -> Vec<usize> {
+    let mut is = vec![false; mesh.num_nodes()];
+    for (v, _) in held.iter().enumerate().filter(|(_, h)| **h) {
+        for &n in &mesh.tets[embedding.tet[v] as usize] {
+            is[n as usize] = true;
+        }
+    }
+    (0..is.len()).filter(|&i| is[i]).collect()
+}
+
+/// Yarn-vertex forces (N) as node forces `Nᵀ f` (VH Eq. 4 transposed):
+/// the total force and its moment about any point are kept.
+pub fn node_forces(mesh: &TetMesh, embedding: &Embedding, f: &[Vec3]) -> Vec<Vec3> {
+    let mut out = vec![[0.0; 3]; mesh.num_nodes()];
+    for (v, fv) in f.iter().enumerate() {
+        let ids = mesh.tets[embedding.tet[v] as usize];
+        for a in 0..4 {
+            for k in 0..3 {
+                out[ids[a] as usize][k] += embedding.weights[v][a] * fv[k];
+            }
+        }
+    }
+    out
+}
+
+/// `/frames/<name>` of a knitvox HDF5 pose as `[F][N]` vectors (+Y up),
+/// None when the file is not HDF5 or lacks it.
+fn mechanics(
+    path: &Path,
+    name: &str,
+    nf: usize,
+    n: usize,
+    up: crate::geom::UpAxis,
+) -> Result<Option<Vec<Vec<Vec3>>>, IoError> {
+    if io::format_of(path)? != io::Format::Hdf5 {
+        return Ok(None);
+    }
+    let loc = format!("/frames/{name}");
+    if !io::h5::list_datasets(path)?.iter().any(|d| d.path == loc) {
+        return Ok(None);
+    }
+    let (shape, v) = io::h5::read_dataset_f64(path, &loc)?;
+    if shape != [nf, n, 3] || v.iter().any(|x| !x.is_finite()) {
+        return Err(IoError::Unsupported {
+            path: path.to_path_buf(),
+            message: format!(
+                "{loc}: shape {shape:?} or values do not fit {nf} frames of {n} vertices (finite, F x N x 3)"
+            ),
+        });
+    }
+    Ok(Some(
+        v.chunks_exact(3 * n.max(1))
+            .map(|fr| {
+                fr.chunks_exact(3)
+                    .map(|c| up.to_internal([c[0], c[1], c[2]]))
+                    .collect()
+            })
+            .collect(),
+    ))
+}
+
+/// `/frames/elastic_energy` (J per frame) of a knitvox HDF5 pose, if any.
+fn energies_of(path: &Path, nf: usize) -> Result<Option<Vec<f64>>, IoError> {
+    const LOC: &str = "/frames/elastic_energy";
+    if io::format_of(path)? != io::Format::Hdf5
+        || !io::h5::list_datasets(path)?.iter().any(|d| d.path == LOC)
+    {
+        return Ok(None);
+    }
+    let (shape, v) = io::h5::read_dataset_f64(path, LOC)?;
+    if shape != [nf] || v.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+        return Err(IoError::Unsupported {
+            path: path.to_path_buf(),
+            message: format!("{LOC}: shape {shape:?}, expected [{nf}] finite energies >= 0 J"),
+        });
+    }
+    Ok(Some(v))
+}
+
+/// Everything shared by the poses of one fit.
+struct Context<'a> {
+    asset: &'a Asset,
+    asset_path: &'a Path,
+    fitter: ShapeFitter,
+    model: ElasticModel,
+    samples: usize,
+}
+
+fn invalid(path: &Path, message: String) -> Error {
+    StageError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    }
+    .into()
+}
+
+/// Reads one pose file into a sample (see the module documentation).
+fn read_pose(
+    cx: &Context<'_>,
+    path: &Path,
+    read: &ReadOptions,
+    observer: &mut dyn Observer,
+) -> Result<(Sample, PoseSummary), Error> {
+    let asset = cx.asset;
+    let data = io::read_path(path, read)?;
+    let rest = &asset.rest_yarns;
+    if data.yarns.offsets != rest.offsets || data.yarns.closed != rest.closed {
+        return Err(invalid(
+            path,
+            format!(
+                "its yarns ({} curves, {} vertices) do not have the topology of the asset's rest yarns ({} curves, {} vertices; {})",
+                data.yarns.num_curves(),
+                data.yarns.num_points(),
+                rest.num_curves(),
+                rest.num_points(),
+                cx.asset_path.display()
+            ),
+        ));
+    }
+    let Some(frames) = data.frames else {
+        return Err(invalid(path, "holds no frames: a training pose is a knitvox HDF5 file with /frames or a name.####.ext sequence".into()));
+    };
+    let nf = frames.num_frames();
+    let n = rest.num_points();
+    if nf == 0 {
+        return Err(invalid(path, "holds no frames".into()));
+    }
+    let chosen = choose_frames(nf, cx.samples);
+    let up = data.up_axis.0;
+    let reactions = mechanics(path, "reaction_forces", nf, n, up)?;
+    let external = mechanics(path, "external_forces", nf, n, up)?;
+    let energies = energies_of(path, nf)?;
+    let scene = if reactions.is_none() || external.is_none() {
+        scene_of(path)?
+    } else {
+        None
+    };
+    let name = path.display().to_string();
+    // Held vertices: per frame from the reactions, else one set.
+    let (fixed_held, held_source): (Vec<bool>, Source) = match (&reactions, &scene) {
+        (Some(_), _) => (Vec::new(), Source::File),
+        (None, scene) => {
+            let params = scene.as_ref().map_or_else(
+                || PoseParams::new(PoseKind::StretchCourses, 0.0),
+                |s| s.pose_params(),
+            );
+            let driver = PoseDriver::new(&rest.points, params)
+                .map_err(|e| invalid(path, format!("its clamped bands: {e}")))?;
+            let mut h = vec![false; n];
+            for &v in driver.pinned() {
+                h[v] = true;
+            }
+            let src = if scene.is_some() {
+                observer.warning(&format!("{name}: no /frames/reaction_forces: held vertices are the clamped bands of its yls scene"));
+                Source::Scene
+            } else {
+                observer.warning(&format!("{name}: no /frames/reaction_forces and no yls scene: assuming the left and right bands (6% of the width along X) are held, as in stretch_courses"));
+                Source::Assumed
+            };
+            (h, src)
+        }
+    };
+    let held_at = |f: usize| -> Vec<bool> {
+        match &reactions {
+            Some(r) => r[f].iter().map(|v| v.iter().any(|c| *c != 0.0)).collect(),
+            None => fixed_held.clone(),
+        }
+    };
+    let forces_source = match (&external, &scene) {
+        (Some(_), _) => Source::File,
+        (None, Some(_)) => {
+            observer.warning(&format!(
+                "{name}: no /frames/external_forces: using the yls scene's gravity on the node masses"
+            ));
+            Source::Scene
+        }
+        (None, None) => {
+            observer.warning(&format!(
+                "{name}: no /frames/external_forces and no yls scene: no external force (gravity ignored)"
+            ));
+            Source::Assumed
+        }
+    };
+    let mut out = Vec::with_capacity(chosen.len());
+    let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
+        (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
+    let mut used = Vec::with_capacity(chosen.len());
+    for &want in &chosen {
+        // A frame whose shape fit inverts tets cannot be a target: the
+        // nearest earlier frame after the previous choice replaces it.
+        let lowest = used.last().map_or(usize::from(nf > 1), |&u: &usize| u + 1);
+        let mut f = want;
+        let (x_hat, st) = loop {
+            let (x, st) = cx
+                .fitter
+                .fit(frames.frame(f))
+                .map_err(|e| invalid(path, format!("frame {f}: shape fit: {e}")))?;
+            if st.inverted_tets == 0 {
+                break (x, st);
+            }
+            if f <= lowest {
+                return Err(invalid(path, format!(
+                    "frame {want}: its shape fit inverts {} tets (smallest det F {:.3e}), and so do the frames before it down to {f}: the homogenized mesh cannot be asked to reach them",
+                    st.inverted_tets, st.min_det_f
+                )));
+            }
+            f -= 1;
+        };
+        if f != want {
+            observer.warning(&format!(
+                "{name}: frame {want}'s shape fit inverts tets: fitting frame {f} instead"
+            ));
+        }
+        used.push(f);
+        let held_f = held_at(f);
+        rms_max = rms_max.max(st.rms_error);
+        min_det = min_det.min(st.min_det_f);
+        let target = FrameTarget::from_nodes(
+            &cx.model,
+            &x_hat,
+            &asset.node_mass,
+            LOSS_ALPHA,
+            asset.grid.h,
+        )
+        .map_err(|e| invalid(path, format!("frame {f}: loss targets: {e}")))?;
+        let pinned = held_nodes(&asset.mesh, &asset.embedding, &held_f);
+        if pinned.is_empty() {
+            return Err(invalid(path, format!("frame {f}: no held vertex (all reaction forces are zero): the pose has no boundary condition to fit under")));
+        }
+        held_v = held_v.max(held_f.iter().filter(|h| **h).count());
+        held_n = held_n.max(pinned.len());
+        let f_ext = match (&external, &scene) {
+            (Some(e), _) => node_forces(&asset.mesh, &asset.embedding, &e[f]),
+            (None, Some(s)) => asset
+                .node_mass
+                .iter()
+                .map(|m| s.gravity.map(|g| m * g))
+                .collect(),
+            (None, None) => vec![[0.0; 3]; asset.mesh.num_nodes()],
+        };
+        energy += match &energies {
+            Some(e) => e[f],
+            None => cx
+                .model
+                .energy(&x_hat)
+                .map_err(|e| invalid(path, format!("frame {f}: energy of its shape fit: {e}")))?,
+        };
+        out.push(Frame {
+            target,
+            pinned,
+            start: x_hat,
+            f_ext,
+        });
+    }
+    let energy_source = if energies.is_some() {
+        Source::File
+    } else {
+        observer.warning(&format!("{name}: no /frames/elastic_energy: its Eq. 22 weight is the Eq. 7 energy of its shape fit under the asset's material"));
+        Source::Assumed
+    };
+    if !(energy > 0.0 && energy.is_finite()) {
+        return Err(invalid(path, format!(
+            "its chosen frames {used:?} store no elastic energy ({energy:e} J): is the pose deformed?"
+        )));
+    }
+    let summary = PoseSummary {
+        path: path.to_path_buf(),
+        sha256: sha256_file(path)?,
+        frames_in_file: nf,
+        frames: used,
+        held_vertices: held_v,
+        held_nodes: held_n,
+        held_source,
+        forces_source,
+        energy,
+        energy_source,
+        y2v_rms_max: rms_max,
+        y2v_min_det_f: min_det,
+    };
+    Ok((
+        Sample {
+            name,
+            frames: out,
+            energy,
+        },
+        summary,
+    ))
+}
+
+/// The yls scene a pose file stores (`/metadata/scene_toml`), if any.
+fn scene_of(path: &Path) -> Result<Option<YlsScene>, Error> {
+    if io::format_of(path)? != io::Format::Hdf5 {
+        return Ok(None);
+    }
+    let Some(text) = io::h5::read_text(path, "scene_toml")? else {
+        return Ok(None);
+    };
+    YlsScene::parse(&text, path)
+        .map(Some)
+        .map_err(|e| invalid(path, format!("its /metadata/scene_toml: {e}")))
+}
+
+/// Loss (m³) of each sample at material `gamma`: every frame brought to
+/// equilibrium from its start, as the fitter does.
+pub fn sample_losses(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    gamma: &MaterialFields,
+    params: &ElasticFitParams,
+) -> Result<Vec<f64>, ElasticFitError> {
+    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    samples
+        .iter()
+        .map(|s| {
+            s.frames.iter().enumerate().try_fold(0.0, |acc, (i, f)| {
+                let (x, _) = equilibrium(&model, mass, f, &f.start, &params.statics()).map_err(
+                    |message| ElasticFitError::Sample {
+                        sample: s.name.clone(),
+                        frame: i,
+                        message,
+                    },
+                )?;
+                Ok(acc + f.target.loss(&model, &x))
+            })
+        })
+        .collect()
+}
+
+/// What [`fit_samples`] found.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    pub gamma: MaterialFields,
+    pub uniform: UniformMaterial,
+    pub uniform_fit: FitReport,
+    pub fit: FitReport,
+    /// Per sample: loss before, at the uniform material, fitted.
+    pub losses: Vec<[f64; 3]>,
+}
+
+/// All samples as one (the loss of VH Eq. 9 summed over every frame),
+/// named after them, weighted by their total energy.
+pub fn joint_sample(samples: &[Sample]) -> Sample {
+    Sample {
+        name: samples
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect::<Vec<_>>()
+            .join(" + "),
+        frames: samples.iter().flat_map(|s| s.frames.clone()).collect(),
+        energy: samples.iter().map(|s| s.energy).sum(),
+    }
+}
+
+/// The in-memory core of `fit`: the uniform (r = 1) material from `init`,
+/// then the field from it (`params.harmonic_ranks`, full stage), either
+/// sample by sample with the Eq. 22 fold or, with `joint`, all samples as
+/// one ([`joint_sample`]). Losses are reported per sample either way.
+pub fn fit_samples(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    joint: bool,
+    init: &MaterialFields,
+    params: &ElasticFitParams,
+) -> Result<Fitted, ElasticFitError> {
+    let uniform_params = ElasticFitParams {
+        harmonic_ranks: vec![1],
+        full_stage: false,
+        ..params.clone()
+    };
+    let merged = [joint_sample(samples)];
+    let inputs = FitInputs {
+        mesh,
+        mass,
+        samples: if joint { &merged } else { samples },
+        init,
+    };
+    let (u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
+    let (gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let uniform = UniformMaterial {
+        gamma_s: mean(&u.gamma_s),
+        gamma_v: mean(&u.gamma_v),
+    };
+    let before = sample_losses(mesh, mass, samples, init, params)?;
+    let at_u = sample_losses(mesh, mass, samples, &u, params)?;
+    let after = sample_losses(mesh, mass, samples, &gamma, params)?;
+    let losses = (0..samples.len())
+        .map(|k| [before[k], at_u[k], after[k]])
+        .collect();
+    Ok(Fitted {
+        gamma,
+        uniform,
+        uniform_fit,
+        fit,
+        losses,
+    })
+}
+
+fn fit_error(poses: &[PathBuf], e: ElasticFitError) -> Error {
+    match &e {
+        ElasticFitError::Sample { sample, .. } => {
+            let path = poses
+                .iter()
+                .find(|p| p.display().to_string() == *sample)
+                .or_else(|| poses.first().filter(|_| poses.len() == 1))
+                .cloned()
+                .unwrap_or_else(|| PathBuf::from(sample));
+            invalid(&path, format!("cannot be fitted: {e}"))
+        }
+        _ => Error::Internal(format!("elasticity fit: {e}")),
+    }
+}
+
+impl Stage for FitJob {
+    type Report = FitJobReport;
+    const NAME: &'static str = "fit";
+    fn run(&self, observer: &mut dyn Observer) -> Result<FitJobReport, Error> {
+        let t0 = Instant::now();
+        check_asset_ext(&self.asset)?;
+        let output = self.output_path();
+        check_asset_ext(&output)?;
+        if self.train.is_empty() {
+            return Err(Error::Usage("fit needs at least one --train pose".into()));
+        }
+        if self.samples == 0 {
+            return Err(Error::Usage("--samples must be at least 1".into()));
+        }
+        let mut inputs: Vec<&Path> = vec![&self.asset];
+        inputs.extend(self.train.iter().map(PathBuf::as_path));
+        let mut outs: Vec<&Path> = vec![&output];
+        if let Some(r) = &self.report {
+            outs.push(r);
+        }
+        io::overwrite::refuse_inputs(&outs, &inputs)?;
+        let mut asset = io::vtkhdf::read_asset(&self.asset)?;
+        let e = re_embed(&asset, &self.asset)?;
+        let fitter = ShapeFitter::from_embedded(&asset.rest_yarns, &e, &ShapeFitParams::default())
+            .map_err(|source| StageError::Fit {
+                path: self.asset.clone(),
+                source,
+            })?;
+        let model = ElasticModel::new(&asset.mesh, &asset.gamma_s, &asset.gamma_v)
+            .map_err(|e| invalid(&self.asset, format!("its material: {e}")))?;
+        let cx = Context {
+            asset: &asset,
+            asset_path: &self.asset,
+            fitter,
+            model,
+            samples: self.samples,
+        };
+        let mut samples = Vec::new();
+        let mut poses = Vec::new();
+        for p in &self.train {
+            let (s, summary) = read_pose(&cx, p, &self.read, observer)?;
+            samples.push(s);
+            poses.push(summary);
+        }
+        let init = MaterialFields {
+            gamma_s: asset.gamma_s.clone(),
+            gamma_v: asset.gamma_v.clone(),
+        };
+        let fitted = fit_samples(
+            &asset.mesh,
+            &asset.node_mass,
+            &samples,
+            self.joint,
+            &init,
+            &self.params,
+        )
+        .map_err(|e| fit_error(&self.train, e))?;
+        let record = FitRecord {
+            knitvox_version: env!("CARGO_PKG_VERSION").to_string(),
+            poses: poses
+                .iter()
+                .map(|p| FitPose {
+                    path: p.path.display().to_string(),
+                    sha256: p.sha256.clone(),
+                    frames: p.frames.clone(),
+                    energy: p.energy,
+                })
+                .collect(),
+            samples_per_pose: self.samples,
+            harmonic_ranks: self.params.harmonic_ranks.clone(),
+            joint: self.joint,
+            uniform: fitted.uniform,
+            losses: poses
+                .iter()
+                .zip(&fitted.losses)
+                .enumerate()
+                .map(|(k, (p, l))| {
+                    (
+                        p,
+                        l,
+                        &fitted.fit.samples[k.min(fitted.fit.samples.len() - 1)],
+                    )
+                })
+                .map(|(p, l, s)| PoseLosses {
+                    pose: p.path.display().to_string(),
+                    before: l[0],
+                    uniform: l[1],
+                    fitted: l[2],
+                    stages: s
+                        .stages
+                        .iter()
+                        .map(|st| {
+                            (
+                                st.name.clone(),
+                                st.losses.last().copied().unwrap_or(f64::NAN),
+                            )
+                        })
+                        .collect(),
+                })
+                .collect(),
+            params: serde_json::to_value(&self.params)
+                .map_err(|e| Error::Internal(e.to_string()))?,
+        };
+        asset.gamma_s = fitted.gamma.gamma_s.clone();
+        asset.gamma_v = fitted.gamma.gamma_v.clone();
+        asset.set_fit_record(&record);
+        for p in &self.train {
+            asset.provenance.inputs.push(crate::geom::InputFile {
+                path: p.display().to_string(),
+                sha256: poses
+                    .iter()
+                    .find(|s| &s.path == p)
+                    .map_or(String::new(), |s| s.sha256.clone()),
+            });
+        }
+        asset.provenance.command = format!("{} && {}", asset.provenance.command, self.command);
+        let sum = |k: usize| fitted.losses.iter().map(|l| l[k]).sum::<f64>();
+        let mut report = FitJobReport {
+            output: output.clone(),
+            nodes: asset.mesh.num_nodes(),
+            tets: asset.mesh.num_tets(),
+            poses,
+            loss_before: sum(0),
+            loss_uniform: sum(1),
+            loss_fitted: sum(2),
+            uniform: fitted.uniform,
+            gamma_s_range: fitted.fit.gamma_s_range,
+            gamma_v_range: fitted.fit.gamma_v_range,
+            uniform_fit: fitted.uniform_fit,
+            fit: fitted.fit,
+            report_files: Vec::new(),
+            wall_s: 0.0,
+        };
+        io::atomic::all_or_nothing(|| -> Result<(), Error> {
+            io::vtkhdf::write_asset(&output, &asset)?;
+            if let Some(dir) = &self.report {
+                report.report_files = write_report(dir, &asset, &report)?;
+            }
+            Ok(())
+        })?;
+        report.wall_s = t0.elapsed().as_secs_f64();
+        Ok(report)
+    }
+}
+
+/// The mid-plane slice of a per-tet field: voxels of the layer at the
+/// middle of the thinnest axis, each the mean of its tets, over the other
+/// two axes.
+pub fn mid_plane_slice(asset: &Asset, field: &[f64], name: &str) -> plot::FieldSlice {
+    let vox = &asset.grid.voxels;
+    let lo = |k: usize| vox.iter().map(|v| v[k]).min().unwrap_or(0);
+    let hi = |k: usize| vox.iter().map(|v| v[k]).max().unwrap_or(0);
+    let ext: [i64; 3] = std::array::from_fn(|k| (hi(k) - lo(k)) as i64 + 1);
+    let thin = (0..3).min_by_key(|&k| (ext[k], k)).unwrap_or(1);
+    let (a, b) = match thin {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    let mid = lo(thin) + ((ext[thin] - 1) / 2) as i32;
+    let (nx, ny) = (ext[a] as usize, ext[b] as usize);
+    let mut sum = vec![(0.0, 0usize); nx * ny];
+    for (t, &v) in asset.tet_voxel.iter().enumerate() {
+        let p = vox[v as usize];
+        if p[thin] == mid {
+            let c = (p[b] - lo(b)) as usize * nx + (p[a] - lo(a)) as usize;
+            sum[c].0 += field[t];
+            sum[c].1 += 1;
+        }
+    }
+    let axis = ["x", "y", "z"];
+    plot::FieldSlice {
+        title: format!("{name}, voxel layer {} = {mid} (mid-plane)", axis[thin]),
+        x_label: format!("{} (voxels)", axis[a]),
+        y_label: format!("{} (voxels)", axis[b]),
+        nx,
+        ny,
+        values: sum
+            .iter()
+            .map(|&(s, c)| (c > 0).then(|| s / c as f64))
+            .collect(),
+        unit: "Pa".into(),
+    }
+}
+
+fn plot_err(path: &Path, e: plot::PlotError) -> Error {
+    Error::Internal(format!("{}: {e}", path.display()))
+}
+
+/// `fit.json`, `loss.png`, `gamma_hist.png`, `gamma_s_slice.png`,
+/// `gamma_v_slice.png` in `dir`.
+fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathBuf>, Error> {
+    std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut files = Vec::new();
+    let mut put = |name: &str, bytes: &[u8]| -> Result<(), Error> {
+        let p = dir.join(name);
+        io::atomic::write_bytes(&p, bytes)?;
+        files.push(p);
+        Ok(())
+    };
+    let json = serde_json::to_vec_pretty(r).map_err(|e| Error::Internal(e.to_string()))?;
+    put("fit.json", &json)?;
+    // Loss per accepted iteration, across the stages, per pose, relative to
+    // its start (log10: 0 at the start, -k after a 10^k decrease).
+    let series = r
+        .fit
+        .samples
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let losses: Vec<f64> = s
+                .stages
+                .iter()
+                .enumerate()
+                .flat_map(|(i, st)| st.losses.iter().skip(usize::from(i > 0)).copied())
+                .collect();
+            plot::Series {
+                label: Path::new(&s.name)
+                    .file_name()
+                    .map_or(s.name.clone(), |n| n.to_string_lossy().into_owned()),
+                points: losses
+                    .iter()
+                    .enumerate()
+                    .map(|(i, l)| {
+                        let l0 = losses[0].max(1e-300);
+                        [i as f64, (l / l0).max(1e-300).log10()]
+                    })
+                    .collect(),
+                color: plot::PALETTE[k % plot::PALETTE.len()],
+            }
+        })
+        .collect();
+    let fig = plot::Figure {
+        title: "elasticity fit: loss per iteration (all stages)".into(),
+        panels: vec![plot::Panel {
+            x_label: "iteration".into(),
+            y_label: "log10(loss / loss at the start)".into(),
+            series,
+        }],
+        size: (900, 500),
+    };
+    let loss_png = dir.join("loss.png");
+    put(
+        "loss.png",
+        &plot::render_png(&fig).map_err(|e| plot_err(&loss_png, e))?,
+    )?;
+    let hist = |label: &str, v: &[f64], c: usize| {
+        plot::histogram_series(label, v, 40, plot::PALETTE[c]).map(|s| plot::Panel {
+            x_label: format!("{label} (Pa)"),
+            y_label: "tets".into(),
+            series: vec![s],
+        })
+    };
+    let hist_png = dir.join("gamma_hist.png");
+    let fig = plot::Figure {
+        title: "fitted materials".into(),
+        panels: vec![
+            hist("gamma_s", &asset.gamma_s, 0).map_err(|e| plot_err(&hist_png, e))?,
+            hist("gamma_v", &asset.gamma_v, 1).map_err(|e| plot_err(&hist_png, e))?,
+        ],
+        size: (900, 700),
+    };
+    put(
+        "gamma_hist.png",
+        &plot::render_png(&fig).map_err(|e| plot_err(&hist_png, e))?,
+    )?;
+    for (name, field) in [("gamma_s", &asset.gamma_s), ("gamma_v", &asset.gamma_v)] {
+        let file = format!("{name}_slice.png");
+        let slice = mid_plane_slice(asset, field, name);
+        let png = plot::render_field_png(&slice, (900, 600))
+            .map_err(|e| plot_err(&dir.join(&file), e))?;
+        put(&file, &png)?;
+    }
+    Ok(files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_are_chosen_evenly_with_the_last() {
+        assert_eq!(choose_frames(11, 2), vec![5, 10]);
+        assert_eq!(choose_frames(11, 1), vec![10]);
+        assert_eq!(choose_frames(3, 5), vec![0, 1, 2]);
+        assert_eq!(choose_frames(10, 4), vec![2, 4, 7, 9]);
+        assert_eq!(choose_frames(1, 1), vec![0]);
+    }
+
+    #[test]
+    fn default_output_sits_beside_the_input() {
+        assert_eq!(
+            default_output(Path::new("/a/rib.vtkhdf")),
+            PathBuf::from("/a/rib.fit.vtkhdf")
+        );
+    }
+}

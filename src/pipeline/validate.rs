@@ -1,0 +1,427 @@
+//! The `validate` stage (issue 11 item 5): one yls scene run at yarn level
+//! ([`super::yls::run`]) and on the homogenized asset, compared frame by
+//! frame through V2Y (VH Eq. 4).
+//!
+//! The yarn-level run uses the asset's rest yarns: a scene without
+//! `[swatch]` gets them injected (written to a temporary knitvox HDF5 file),
+//! a scene with one must produce the same topology and rest positions (to a
+//! yarn radius). The homogenized run drives the mesh by the same pose: the
+//! four nodes of every tet that holds a clamped yarn vertex follow that
+//! vertex's band map ([`PoseDriver::group_target`] applied to the node's rest
+//! position), gravity acts on the node masses, and each frame is the implicit
+//! (backward-Euler) equilibrium of VH Eq. 13-14 at the frame interval,
+//! solved by Newton ([`StaticSolver`], symbolic factorization once). The
+//! homogenized side has no colliders yet: a scene with colliders is refused.
+//!
+//! Distances are in yarn diameters (`|V2Y(x) - y| / 2 r` per vertex), over
+//! frames 1.. (frame 0 is the rest state on both sides).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::geom::{Asset, Vec3, YarnFrames};
+use crate::io::{self, plot, IoError, WriteOptions};
+use crate::pipeline::asset::check_asset_ext;
+use crate::pipeline::fit::held_nodes;
+use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
+use crate::pipeline::yls::{self, YlsError};
+use crate::pipeline::yls_scene::YlsScene;
+use crate::pipeline::{Error, Observer, Stage};
+use crate::sim::energy::ElasticModel;
+use crate::sim::statics::{Inertia, StaticParams, StaticSolver};
+use crate::yarn::poses::PoseDriver;
+
+/// The `validate` stage.
+#[derive(Debug, Clone)]
+pub struct ValidateJob {
+    /// The asset (.vtkhdf), usually fitted by `knitvox fit`.
+    pub asset: PathBuf,
+    /// The yls scene (schemas/yls-scene.md).
+    pub scene: PathBuf,
+    /// Require the uniform-material comparison (fails without a fit record).
+    /// Without it the comparison runs when the asset records a fit.
+    pub uniform: bool,
+    /// Folder for `validate.json`, `error.png` and both yarn sequences (PLY).
+    pub report: Option<PathBuf>,
+}
+
+/// Error of one frame (yarn diameters).
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct FrameError {
+    pub frame: usize,
+    pub time: f64,
+    pub rms: f64,
+    pub max: f64,
+    pub uniform_rms: Option<f64>,
+}
+
+/// What `validate` measured.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ValidateReport {
+    pub frames: usize,
+    pub rms_yarn_diameters: f64,
+    pub max_yarn_diameters: f64,
+    pub uniform_rms_yarn_diameters: Option<f64>,
+    pub uniform_max_yarn_diameters: Option<f64>,
+    /// Wall time of the yarn-level run and of the homogenized run with the
+    /// asset's material (s), and their ratio.
+    pub yarn_level_s: f64,
+    pub homogenized_s: f64,
+    pub speedup: f64,
+    pub nodes: usize,
+    pub tets: usize,
+    pub yarn_vertices: usize,
+    pub held_nodes: usize,
+    pub newton_iterations: u64,
+    pub per_frame: Vec<FrameError>,
+    pub report_files: Vec<PathBuf>,
+}
+
+impl ValidateReport {
+    /// The one-line summary `validate` prints.
+    pub fn summary(&self) -> serde_json::Value {
+        serde_json::json!({
+            "frames": self.frames,
+            "rms_yarn_diameters": self.rms_yarn_diameters,
+            "max_yarn_diameters": self.max_yarn_diameters,
+            "uniform_rms_yarn_diameters": self.uniform_rms_yarn_diameters,
+            "yarn_level_s": self.yarn_level_s,
+            "homogenized_s": self.homogenized_s,
+            "speedup": self.speedup,
+        })
+    }
+}
+
+fn setup(path: &Path, message: String) -> Error {
+    YlsError::Setup {
+        file: path.to_path_buf(),
+        message,
+    }
+    .into()
+}
+
+/// Homogenized frames at `times` (s; `times[0]` is the rest state): node
+/// positions per frame and the Newton iterations spent. Pure.
+pub fn homogenized_frames(
+    asset: &Asset,
+    gamma: (&[f64], &[f64]),
+    driver: &PoseDriver,
+    gravity: Vec3,
+    times: &[f64],
+) -> Result<(Vec<Vec<Vec3>>, u64), String> {
+    let mesh = &asset.mesh;
+    let n = mesh.num_nodes();
+    // Band of each held node: the first group holding one of its tets' vertices.
+    let mut group = vec![None; n];
+    for g in 0..driver.num_groups() {
+        let mut held = vec![false; asset.embedding.num_vertices()];
+        for &v in driver.group_vertices(g) {
+            held[v] = true;
+        }
+        for i in held_nodes(mesh, &asset.embedding, &held) {
+            group[i].get_or_insert(g);
+        }
+    }
+    let pinned: Vec<usize> = (0..n).filter(|&i| group[i].is_some()).collect();
+    let model = ElasticModel::new(mesh, gamma.0, gamma.1).map_err(|e| e.to_string())?;
+    let mut solver =
+        StaticSolver::new(model, &asset.node_mass, &pinned).map_err(|e| e.to_string())?;
+    let f_ext: Vec<Vec3> = asset
+        .node_mass
+        .iter()
+        .map(|m| gravity.map(|g| m * g))
+        .collect();
+    let params = StaticParams::default();
+    let mut out = vec![mesh.nodes.clone()];
+    let (mut x_pp, mut x_p) = (mesh.nodes.clone(), mesh.nodes.clone());
+    let mut newton = 0u64;
+    for k in 1..times.len() {
+        let (t, dt) = (times[k], times[k] - times[k - 1]);
+        let mut x0 = x_p.clone();
+        for &i in &pinned {
+            x0[i] = driver.group_target(group[i].unwrap_or(0), mesh.nodes[i], t);
+        }
+        let inertia = (dt > 0.0).then_some(Inertia {
+            x_prev: &x_p,
+            x_prevprev: &x_pp,
+            dt,
+        });
+        let (x, st) = solver
+            .solve(&x0, &f_ext, inertia, &params)
+            .map_err(|e| format!("frame {k} (t = {t} s): {e}"))?;
+        newton += st.iterations as u64;
+        x_pp = std::mem::replace(&mut x_p, x.clone());
+        out.push(x);
+    }
+    Ok((out, newton))
+}
+
+/// Per-vertex distances in yarn diameters between V2Y of `nodes` and `yarn`.
+fn distances(asset: &Asset, nodes: &[Vec3], yarn: &[Vec3]) -> Vec<f64> {
+    let y = asset.embedding.v2y(&asset.mesh, nodes);
+    y.iter()
+        .zip(yarn)
+        .enumerate()
+        .map(|(v, (a, b))| crate::geom::dist(*a, *b) / (2.0 * asset.rest_yarns.radius_at(v)))
+        .collect()
+}
+
+fn rms_max(d: &[f64]) -> (f64, f64) {
+    let n = d.len().max(1) as f64;
+    (
+        (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        d.iter().copied().fold(0.0, f64::max),
+    )
+}
+
+/// The scene's text with `[swatch]` naming `swatch_file` when it has none.
+fn with_swatch(text: &str, scene: &Path, swatch_file: &Path) -> Result<(String, bool), Error> {
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e| setup(scene, format!("not a TOML scene: {e}")))?;
+    if table.contains_key("swatch") {
+        return Ok((text.to_string(), false));
+    }
+    let p = swatch_file.display().to_string();
+    if p.contains('\'') || p.contains('\n') {
+        return Err(Error::Internal(format!(
+            "temporary path {p} cannot be quoted"
+        )));
+    }
+    Ok((format!("{text}\n[swatch]\nfile = '{p}'\n"), true))
+}
+
+impl Stage for ValidateJob {
+    type Report = ValidateReport;
+    const NAME: &'static str = "validate";
+    fn run(&self, observer: &mut dyn Observer) -> Result<ValidateReport, Error> {
+        check_asset_ext(&self.asset)?;
+        if let Some(r) = &self.report {
+            io::overwrite::refuse_inputs(&[r], &[&self.asset, &self.scene])?;
+        }
+        let asset = io::vtkhdf::read_asset(&self.asset)?;
+        let record =
+            asset
+                .fit_record()
+                .map_err(|m| crate::pipeline::asset::StageError::Invalid {
+                    path: self.asset.clone(),
+                    message: m,
+                })?;
+        let uniform = match (&record, self.uniform) {
+            (Some(r), _) => Some(r.uniform),
+            (None, true) => {
+                return Err(crate::pipeline::asset::StageError::Invalid {
+                    path: self.asset.clone(),
+                    message: "--uniform: the asset records no fit (run `knitvox fit` first)".into(),
+                }
+                .into())
+            }
+            (None, false) => {
+                observer.warning(&format!(
+                    "{}: no fit record: no uniform-material comparison",
+                    self.asset.display()
+                ));
+                None
+            }
+        };
+        let text = std::fs::read_to_string(&self.scene).map_err(|source| IoError::Read {
+            path: self.scene.clone(),
+            source,
+        })?;
+        let tmp = tempfile::tempdir().map_err(|source| IoError::Write {
+            path: std::env::temp_dir(),
+            source,
+        })?;
+        let swatch_file = tmp.path().join("rest.h5");
+        let (text, injected) = with_swatch(&text, &self.scene, &swatch_file)?;
+        if injected {
+            io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
+        }
+        let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
+        if !scene.colliders.is_empty() {
+            return Err(setup(&self.scene, "validate: the homogenized run has no colliders yet; give a scene with pose handles and gravity only".into()));
+        }
+        // Yarn level.
+        let yarn_out = tmp.path().join("yarn_level.h5");
+        let yr = yls::run(&scene, &text, &self.scene, &yarn_out, &mut |d, t| {
+            observer.frames(d, 2 * t)
+        })?;
+        let yd = io::read_path(&yarn_out, &Default::default())?;
+        let rest = &asset.rest_yarns;
+        let same_rest = yd.yarns.offsets == rest.offsets
+            && yd.yarns.closed == rest.closed
+            && yd
+                .yarns
+                .points
+                .iter()
+                .zip(&rest.points)
+                .enumerate()
+                .all(|(v, (a, b))| crate::geom::dist(*a, *b) <= rest.radius_at(v));
+        if !same_rest {
+            return Err(setup(
+                &self.scene,
+                format!(
+                    "its [swatch] is not the asset's rest yarns ({}): omit [swatch] to use them",
+                    self.asset.display()
+                ),
+            ));
+        }
+        let frames: YarnFrames = yd
+            .frames
+            .ok_or_else(|| Error::Internal("the yarn-level run wrote no frames".into()))?;
+        let driver = PoseDriver::new(&rest.points, scene.pose_params())
+            .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
+        // Homogenized, with the asset's material, then the uniform one.
+        let t = Instant::now();
+        let (xs, newton) = homogenized_frames(
+            &asset,
+            (&asset.gamma_s, &asset.gamma_v),
+            &driver,
+            scene.gravity,
+            &frames.times,
+        )
+        .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
+        let homogenized_s = t.elapsed().as_secs_f64();
+        let xu = match uniform {
+            Some(u) => {
+                let ne = asset.mesh.num_tets();
+                let (gs, gv) = (vec![u.gamma_s; ne], vec![u.gamma_v; ne]);
+                Some(
+                    homogenized_frames(&asset, (&gs, &gv), &driver, scene.gravity, &frames.times)
+                        .map_err(|m| setup(&self.scene, format!("uniform run: {m}")))?
+                        .0,
+                )
+            }
+            None => None,
+        };
+        let nf = frames.num_frames();
+        let (mut all, mut all_u) = (Vec::new(), Vec::new());
+        let mut per_frame = Vec::with_capacity(nf.saturating_sub(1));
+        for k in 1..nf {
+            let d = distances(&asset, &xs[k], frames.frame(k));
+            let (rms, max) = rms_max(&d);
+            all.extend(d);
+            let uniform_rms = xu.as_ref().map(|xu| {
+                let du = distances(&asset, &xu[k], frames.frame(k));
+                let r = rms_max(&du).0;
+                all_u.extend(du);
+                r
+            });
+            per_frame.push(FrameError {
+                frame: k,
+                time: frames.times[k],
+                rms,
+                max,
+                uniform_rms,
+            });
+        }
+        let (rms, max) = rms_max(&all);
+        let (urms, umax) = rms_max(&all_u);
+        let mut report = ValidateReport {
+            frames: per_frame.len(),
+            rms_yarn_diameters: rms,
+            max_yarn_diameters: max,
+            uniform_rms_yarn_diameters: xu.as_ref().map(|_| urms),
+            uniform_max_yarn_diameters: xu.as_ref().map(|_| umax),
+            yarn_level_s: yr.wall_s,
+            homogenized_s,
+            speedup: yr.wall_s / homogenized_s.max(1e-9),
+            nodes: asset.mesh.num_nodes(),
+            tets: asset.mesh.num_tets(),
+            yarn_vertices: rest.num_points(),
+            held_nodes: xs.first().map_or(0, |_| {
+                let mut h = vec![false; rest.num_points()];
+                for &v in driver.pinned() {
+                    h[v] = true;
+                }
+                held_nodes(&asset.mesh, &asset.embedding, &h).len()
+            }),
+            newton_iterations: newton,
+            per_frame,
+            report_files: Vec::new(),
+        };
+        if let Some(dir) = &self.report {
+            report.report_files =
+                io::atomic::all_or_nothing(|| write_report(dir, &asset, &frames, &xs, &report))?;
+        }
+        Ok(report)
+    }
+}
+
+/// `validate.json`, `error.png`, `yarn_level.####.ply`, `homogenized.####.ply`.
+fn write_report(
+    dir: &Path,
+    asset: &Asset,
+    frames: &YarnFrames,
+    xs: &[Vec<Vec3>],
+    r: &ValidateReport,
+) -> Result<Vec<PathBuf>, Error> {
+    std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut files = Vec::new();
+    let json = dir.join("validate.json");
+    let text = serde_json::to_vec_pretty(r).map_err(|e| Error::Internal(e.to_string()))?;
+    io::atomic::write_bytes(&json, &text)?;
+    files.push(json);
+    let pts = |f: &dyn Fn(&FrameError) -> Option<f64>| -> Vec<[f64; 2]> {
+        r.per_frame
+            .iter()
+            .filter_map(|e| f(e).map(|v| [e.frame as f64, v]))
+            .collect()
+    };
+    let mut series = vec![
+        plot::Series {
+            label: "RMS, fitted".into(),
+            points: pts(&|e| Some(e.rms)),
+            color: plot::PALETTE[0],
+        },
+        plot::Series {
+            label: "max, fitted".into(),
+            points: pts(&|e| Some(e.max)),
+            color: plot::PALETTE[1],
+        },
+    ];
+    if r.uniform_rms_yarn_diameters.is_some() {
+        series.push(plot::Series {
+            label: "RMS, uniform".into(),
+            points: pts(&|e| e.uniform_rms),
+            color: plot::PALETTE[2],
+        });
+    }
+    let png = dir.join("error.png");
+    let fig = plot::Figure {
+        title: "homogenized vs yarn-level: V2Y distance per frame".into(),
+        panels: vec![plot::Panel {
+            x_label: "frame".into(),
+            y_label: "distance (yarn diameters)".into(),
+            series,
+        }],
+        size: (900, 500),
+    };
+    let bytes =
+        plot::render_png(&fig).map_err(|e| Error::Internal(format!("{}: {e}", png.display())))?;
+    io::atomic::write_bytes(&png, &bytes)?;
+    files.push(png);
+    let rest = &asset.rest_yarns;
+    for name in ["yarn_level", "homogenized"] {
+        let pattern = io::sequence::Pattern {
+            dir: dir.to_path_buf(),
+            prefix: format!("{name}."),
+            width: 4,
+            suffix: ".ply".into(),
+        };
+        let mut w = YarnFrameWriter::per_frame(pattern, rest, &WriteOptions::default());
+        for k in 0..frames.num_frames() {
+            let p = if name == "yarn_level" {
+                frames.frame(k).to_vec()
+            } else {
+                asset.embedding.v2y(&asset.mesh, &xs[k])
+            };
+            w.push(k as i64, frames.times[k], &p)?;
+        }
+        files.extend(w.finish()?);
+    }
+    Ok(files)
+}

@@ -1,0 +1,571 @@
+//! `knitvox fit` through the real binary on synthetic training poses: an
+//! embedded swatch with a known stiffer band, homogenized equilibria of that
+//! truth under clamps and loads (forward static solver), V2Y'd into yarn
+//! frames with their mechanics (reaction and external forces, energy).
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use knitvox::embed::EmbedParams;
+use knitvox::fit::elastic::adjoint::equilibrium;
+use knitvox::fit::elastic::{Frame, FrameTarget};
+use knitvox::geom::{Asset, Vec3};
+use knitvox::io::{self, h5::FrameWriter, ReadOptions, WriteOptions};
+use knitvox::pipeline::asset::build_asset;
+use knitvox::pipeline::fit::{held_nodes, node_forces};
+use knitvox::sim::energy::ElasticModel;
+use knitvox::sim::statics::StaticParams;
+use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+
+const VOXEL: f64 = 2.5e-3;
+
+fn swatch(courses: usize, wales: usize) -> knitvox::geom::Yarns {
+    knit_swatch(&SwatchParams {
+        courses,
+        wales,
+        points_per_loop: 12,
+        with_ring: false,
+        ..SwatchParams::default()
+    })
+}
+
+/// Embeds a 4 x 5 swatch into `dir/a.vtkhdf`.
+fn asset_in(dir: &Path) -> (PathBuf, Asset) {
+    let y = swatch(4, 5);
+    let yarns = dir.join("sw.ply");
+    io::write_path(&yarns, &y, None, &WriteOptions::default()).unwrap();
+    let params = EmbedParams {
+        voxel_size: Some(VOXEL),
+        ..EmbedParams::default()
+    };
+    let (asset, _) = build_asset(&yarns, &ReadOptions::default(), &params, "test").unwrap();
+    let path = dir.join("a.vtkhdf");
+    io::vtkhdf::write_asset(&path, &asset).unwrap();
+    (path, asset)
+}
+
+fn centroid_x(a: &Asset, e: usize) -> f64 {
+    a.mesh.tets[e]
+        .iter()
+        .map(|&i| a.mesh.nodes[i as usize][0])
+        .sum::<f64>()
+        / 4.0
+}
+
+fn x_extent(a: &Asset) -> (f64, f64) {
+    a.rest_yarns
+        .points
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |m, p| {
+            (m.0.min(p[0]), m.1.max(p[0]))
+        })
+}
+
+/// The truth: 2e4 / 6e3 Pa, 5x stiffer on the middle third along x.
+fn truth(a: &Asset) -> (Vec<f64>, Vec<f64>) {
+    let (x0, x1) = x_extent(a);
+    let (mut gs, mut gv) = (vec![2e4; a.mesh.num_tets()], vec![6e3; a.mesh.num_tets()]);
+    for e in 0..a.mesh.num_tets() {
+        let c = (centroid_x(a, e) - x0) / (x1 - x0);
+        if (1.0 / 3.0..=2.0 / 3.0).contains(&c) {
+            gs[e] *= 5.0;
+            gv[e] *= 5.0;
+        }
+    }
+    (gs, gv)
+}
+
+/// A pose file: the left band (x within 12% of the width) held, the right
+/// band loaded by `load` (N in total, spread over its vertices), at 50% and
+/// 100% of the load. Returns the largest yarn displacement (m).
+fn write_pose(a: &Asset, gs: &[f64], gv: &[f64], load: Vec3, path: &Path) -> f64 {
+    let model = ElasticModel::new(&a.mesh, gs, gv).unwrap();
+    let (x0, x1) = x_extent(a);
+    let band = 0.12 * (x1 - x0);
+    let pts = &a.rest_yarns.points;
+    let held: Vec<bool> = pts.iter().map(|p| p[0] < x0 + band).collect();
+    let loaded: Vec<usize> = (0..pts.len()).filter(|&v| pts[v][0] > x1 - band).collect();
+    let pinned = held_nodes(&a.mesh, &a.embedding, &held);
+    let mut w = FrameWriter::create(path, &a.rest_yarns).unwrap();
+    let mut largest = 0.0f64;
+    for (t, s) in [(0.5, 0.5), (1.0, 1.0)] {
+        let mut f_y = vec![[0.0; 3]; pts.len()];
+        for &v in &loaded {
+            f_y[v] = load.map(|c| s * c / loaded.len() as f64);
+        }
+        let frame = Frame {
+            target: FrameTarget {
+                f_target: Vec::new(),
+                alpha: 0.0,
+                positions: Vec::new(),
+            },
+            pinned: pinned.clone(),
+            start: a.mesh.nodes.clone(),
+            f_ext: node_forces(&a.mesh, &a.embedding, &f_y),
+        };
+        let tight = StaticParams {
+            tolerance: 1e-8,
+            max_iterations: 200,
+        };
+        let (x, _) = equilibrium(&model, &a.node_mass, &frame, &a.mesh.nodes, &tight).unwrap();
+        let y = a.embedding.v2y(&a.mesh, &x);
+        largest = y
+            .iter()
+            .zip(pts)
+            .map(|(p, q)| knitvox::geom::dist(*p, *q))
+            .fold(largest, f64::max);
+        // The clamp balances the load; only which rows are non-zero matters.
+        let nh = held.iter().filter(|h| **h).count() as f64;
+        let reactions: Vec<Vec3> = held
+            .iter()
+            .map(|&h| {
+                if h {
+                    load.map(|c| -s * c / nh)
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
+        w.push(t, &y).unwrap();
+        w.push_mechanics(model.energy(&x).unwrap(), &reactions, &f_y)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    largest
+}
+
+fn knitvox(args: &[&str]) -> Output {
+    Command::new(common::knitvox_bin())
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Fixture: an asset and two poses (stretch along x, bend along z).
+struct Case {
+    _dir: tempfile::TempDir,
+    dir: PathBuf,
+    asset_path: PathBuf,
+    asset: Asset,
+    truth: (Vec<f64>, Vec<f64>),
+    poses: Vec<PathBuf>,
+}
+
+fn case() -> Case {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().to_path_buf();
+    let (asset_path, asset) = asset_in(&dir);
+    let truth = truth(&asset);
+    let mut poses = Vec::new();
+    for (name, load) in [
+        ("stretch.h5", [0.3, 0.0, 0.0]),
+        ("bend.h5", [0.0, 0.0, 1.2e-2]),
+    ] {
+        let p = dir.join(name);
+        let d = write_pose(&asset, &truth.0, &truth.1, load, &p);
+        eprintln!("{name}: largest yarn displacement {d:.3e} m");
+        assert!(d > 0.2 * VOXEL, "{name}: the pose hardly deforms ({d:e} m)");
+        poses.push(p);
+    }
+    Case {
+        _dir: tmp,
+        dir,
+        asset_path,
+        asset,
+        truth,
+        poses,
+    }
+}
+
+fn fit_args<'a>(c: &'a Case, out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut v = vec!["fit", s(&c.asset_path), "--train"];
+    v.extend(c.poses.iter().map(|p| s(p)));
+    v.extend([
+        "--samples",
+        "1",
+        "--harmonic",
+        "1,10",
+        "--gd-iterations",
+        "4",
+        "--gn-iterations",
+        "8",
+        "-o",
+        s(out),
+    ]);
+    v.extend_from_slice(extra);
+    v
+}
+
+/// Volume-weighted mean of log(gamma) over the tets `keep` selects.
+fn log_mean(a: &Asset, g: &[f64], keep: impl Fn(usize) -> bool) -> f64 {
+    let model = ElasticModel::new(&a.mesh, &a.gamma_s, &a.gamma_v).unwrap();
+    let (mut num, mut den) = (0.0, 0.0);
+    for (e, r) in model.rest().iter().enumerate().filter(|(e, _)| keep(*e)) {
+        num += r.volume * g[e].ln();
+        den += r.volume;
+    }
+    num / den
+}
+
+#[test]
+fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
+    let c = case();
+    let out = c.dir.join("fitted.vtkhdf");
+    let report = c.dir.join("report");
+    // Joint fit (VH Eq. 9 over both poses), with the report.
+    let o = knitvox(&fit_args(
+        &c,
+        &out,
+        &["--joint", "--report", s(&report), "--json"],
+    ));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    // Full mechanics in the files: no warning.
+    assert!(!stderr.contains("warning"), "{stderr}");
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let loss = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap();
+    let (before, uniform, fitted) = (
+        loss(&r, "loss_before"),
+        loss(&r, "loss_uniform"),
+        loss(&r, "loss_fitted"),
+    );
+    let a = io::vtkhdf::read_asset(&out).unwrap();
+    let rec = a.fit_record().unwrap().expect("a fit record");
+    assert!(a
+        .gamma_s
+        .iter()
+        .chain(&a.gamma_v)
+        .all(|g| g.is_finite() && *g > 0.0));
+    // Toward the truth: the uniform material's log-mean moves toward the
+    // truth's, and the fitted field makes the band stiffer than the rest.
+    let all = |_: usize| true;
+    let (x0, x1) = x_extent(&a);
+    let in_band = |e: usize| {
+        let t = (centroid_x(&a, e) - x0) / (x1 - x0);
+        (1.0 / 3.0..=2.0 / 3.0).contains(&t)
+    };
+    let contrast = |g: &[f64]| log_mean(&a, g, in_band) - log_mean(&a, g, |e| !in_band(e));
+    let truth_s = log_mean(&a, &c.truth.0, all);
+    let truth_v = log_mean(&a, &c.truth.1, all);
+    let (u_s, u_v) = (rec.uniform.gamma_s.ln(), rec.uniform.gamma_v.ln());
+    let (p_s, p_v) = (c.asset.gamma_s[0].ln(), c.asset.gamma_v[0].ln());
+    eprintln!(
+        "joint: loss {before:.3e} -> uniform {uniform:.3e} -> fitted {fitted:.3e} m^3; log-mean gamma_s {p_s:.2} -> {u_s:.2} (truth {truth_s:.2}), gamma_v {p_v:.2} -> {u_v:.2} (truth {truth_v:.2}); band contrast (log) gamma_s {:.2}, gamma_v {:.2} (truth {:.2})",
+        contrast(&a.gamma_s),
+        contrast(&a.gamma_v),
+        contrast(&c.truth.0)
+    );
+    assert!(
+        fitted <= uniform && uniform < before,
+        "{before:e} {uniform:e} {fitted:e}"
+    );
+    assert!(
+        fitted < 0.1 * before,
+        "loss fell only {:.2}x",
+        before / fitted
+    );
+    // Distance in (log gamma_s, log gamma_v) from the truth's log-means.
+    let d_uniform = (u_s - truth_s).hypot(u_v - truth_v);
+    let d_placeholder = (p_s - truth_s).hypot(p_v - truth_v);
+    assert!(
+        d_uniform < 0.5 * d_placeholder,
+        "uniform material {d_uniform:.3} from the truth, placeholder {d_placeholder:.3}"
+    );
+    assert!(contrast(&a.gamma_s) > 0.0 && contrast(&a.gamma_v) > 0.0);
+
+    // The fit record: poses with their hashes, losses, the uniform material.
+    assert_eq!(rec.poses.len(), 2);
+    assert!(rec.joint);
+    assert_eq!(
+        rec.poses[0].sha256,
+        knitvox::pipeline::asset::sha256_file(&c.poses[0]).unwrap()
+    );
+    assert_eq!(rec.poses[0].frames, vec![1]);
+    assert_eq!(rec.losses.len(), 2);
+    assert!(rec.losses.iter().all(|l| l.fitted < l.before));
+    assert_eq!(a.mesh, c.asset.mesh);
+
+    // The report: valid JSON and PNGs.
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("fit.json")).unwrap()).unwrap();
+    assert_eq!(json["poses"].as_array().unwrap().len(), 2);
+    for png in [
+        "loss.png",
+        "gamma_hist.png",
+        "gamma_s_slice.png",
+        "gamma_v_slice.png",
+    ] {
+        let bytes = std::fs::read(report.join(png)).unwrap();
+        let dec = png::Decoder::new(std::io::Cursor::new(&bytes));
+        let info = dec.read_info().unwrap().info().clone();
+        assert!(info.width >= 200 && info.height >= 150, "{png}");
+    }
+
+    // The paper's pose-by-pose fit with the Eq. 22 fold (the default): the
+    // loss falls too, and two runs give the same bits.
+    let runs: Vec<(serde_json::Value, Asset)> = ["d1.vtkhdf", "d2.vtkhdf"]
+        .iter()
+        .map(|name| {
+            let out = c.dir.join(name);
+            let o = knitvox(&fit_args(&c, &out, &["--json"]));
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            (
+                serde_json::from_slice(&o.stdout).unwrap(),
+                io::vtkhdf::read_asset(&out).unwrap(),
+            )
+        })
+        .collect();
+    let r = &runs[0].0;
+    eprintln!(
+        "pose by pose: loss {:.3e} -> uniform {:.3e} -> fitted {:.3e} m^3",
+        loss(r, "loss_before"),
+        loss(r, "loss_uniform"),
+        loss(r, "loss_fitted")
+    );
+    assert!(loss(r, "loss_fitted") < 0.1 * loss(r, "loss_before"));
+    assert_eq!(runs[0].1.gamma_s, runs[1].1.gamma_s);
+    assert_eq!(runs[0].1.gamma_v, runs[1].1.gamma_v);
+}
+
+#[test]
+fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (asset_path, asset) = asset_in(d);
+    let (gs, gv) = truth(&asset);
+    let pose = d.join("stretch.h5");
+    write_pose(&asset, &gs, &gv, [0.3, 0.0, 0.0], &pose);
+    let out = d.join("out.vtkhdf");
+
+    // -o equal to the input: usage, exit 2, nothing written.
+    let o = knitvox(&[
+        "fit",
+        s(&asset_path),
+        "--train",
+        s(&pose),
+        "-o",
+        s(&asset_path),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+
+    // A missing pose file: exit 66, named.
+    let missing = d.join("nope.h5");
+    let o = knitvox(&["fit", s(&asset_path), "--train", s(&missing), "-o", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(66), "{err}");
+    assert!(err.contains("nope.h5"), "{err}");
+
+    // A pose of another swatch: bad input (65), naming the pose.
+    let other = d.join("other.h5");
+    let y = swatch(3, 5);
+    let mut frames = knitvox::geom::YarnFrames::new(y.num_points());
+    frames.push_frame(0.0, &y.points).unwrap();
+    io::h5::write_file(&other, &y, Some(&frames)).unwrap();
+    let o = knitvox(&[
+        "fit",
+        s(&asset_path),
+        "--train",
+        s(&pose),
+        s(&other),
+        "-o",
+        s(&out),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(
+        err.contains("other.h5") && err.contains("topology"),
+        "{err}"
+    );
+    assert!(!out.exists());
+
+    // A pose file without mechanics is fitted under the assumed clamps with
+    // warnings saying so.
+    let bare = d.join("bare.h5");
+    let data = io::read_path(&pose, &ReadOptions::default()).unwrap();
+    io::h5::write_file(&bare, &data.yarns, data.frames.as_ref()).unwrap();
+    let o = knitvox(&[
+        "fit",
+        s(&asset_path),
+        "--train",
+        s(&bare),
+        "--samples",
+        "1",
+        "--harmonic",
+        "0",
+        "--gd-iterations",
+        "1",
+        "--gn-iterations",
+        "2",
+        "-o",
+        s(&out),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("reaction_forces"),
+        "{err}"
+    );
+    assert!(out.exists());
+}
+
+/// RMS distance (yarn diameters) between two vertex sets of `y`'s topology.
+fn rms_diameters(y: &knitvox::geom::Yarns, a: &[Vec3], b: &[Vec3]) -> f64 {
+    let s: f64 = (0..a.len())
+        .map(|v| (knitvox::geom::dist(a[v], b[v]) / (2.0 * y.radius_at(v))).powi(2))
+        .sum();
+    (s / a.len() as f64).sqrt()
+}
+
+const STRETCH_SCENE: &str = r#"name = "validate-stretch"
+duration = 0.1
+frame_rate = 50
+gravity = [0.0, 0.0, 0.0]
+[pose]
+kind = "stretch_courses"
+amount = 0.05
+ramp = 0.08
+"#;
+
+#[test]
+fn validate_runs_both_levels_and_reports_the_distance() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    // A swatch relaxed into contact (with its rod rest shape), so that the
+    // yarn-level run starts at rest.
+    let sw = d.join("sw.h5");
+    let asset_path = d.join("a.vtkhdf");
+    for args in [
+        vec![
+            "pattern",
+            "stockinette",
+            "--courses",
+            "4",
+            "--wales",
+            "4",
+            "-o",
+            s(&sw),
+        ],
+        vec!["embed", s(&sw), "-o", s(&asset_path)],
+    ] {
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let asset = io::vtkhdf::read_asset(&asset_path).unwrap();
+    let scene = d.join("stretch.toml");
+    std::fs::write(&scene, STRETCH_SCENE).unwrap();
+    let report = d.join("val");
+
+    // No fit record: --uniform cannot be honoured (bad input, 65).
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--uniform",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(err.contains("a.vtkhdf") && err.contains("fit"), "{err}");
+
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--report",
+        s(&report),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("no fit record"), "{err}");
+    let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    eprintln!("{line}");
+    for key in [
+        "frames",
+        "rms_yarn_diameters",
+        "max_yarn_diameters",
+        "uniform_rms_yarn_diameters",
+        "yarn_level_s",
+        "homogenized_s",
+        "speedup",
+    ] {
+        assert!(line.get(key).is_some(), "{key} missing from {line}");
+    }
+    assert_eq!(line["frames"], 5);
+    assert!(line["uniform_rms_yarn_diameters"].is_null());
+    let (rms, max) = (
+        line["rms_yarn_diameters"].as_f64().unwrap(),
+        line["max_yarn_diameters"].as_f64().unwrap(),
+    );
+    assert!(rms.is_finite() && rms > 0.0 && max >= rms, "{line}");
+    assert!(line["speedup"].as_f64().unwrap() > 0.0);
+
+    // The report: per-frame JSON and curve, both sequences as PLY.
+    let full: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("validate.json")).unwrap()).unwrap();
+    let last = full["per_frame"]
+        .as_array()
+        .unwrap()
+        .last()
+        .unwrap()
+        .clone();
+    assert_eq!(last["frame"], 5);
+    let png = std::fs::read(report.join("error.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let read = |p: PathBuf| io::read_path(&p, &ReadOptions::default()).unwrap().yarns;
+    let yl = read(report.join("yarn_level.0005.ply"));
+    let hm = read(report.join("homogenized.0005.ply"));
+    assert!(report.join("homogenized.0000.ply").exists());
+    let rest = &asset.rest_yarns;
+    let tracked = rms_diameters(rest, &hm.points, &yl.points);
+    assert!((tracked - last["rms"].as_f64().unwrap()).abs() < 1e-3 * tracked + 1e-6);
+    // Both levels are driven by the same pose: the clamped yarn vertices
+    // (V2Y of the driven tet nodes, exact for the bands' rigid maps) agree
+    // with the yarn-level ones, which moved by about a yarn diameter.
+    let text = format!("{STRETCH_SCENE}[swatch]\npattern = \"stockinette\"\n");
+    let sc = knitvox::pipeline::yls_scene::YlsScene::parse(&text, &scene).unwrap();
+    let driver = knitvox::yarn::poses::PoseDriver::new(&rest.points, sc.pose_params()).unwrap();
+    let diam = |v: usize, a: &[Vec3], b: &[Vec3]| {
+        knitvox::geom::dist(a[v], b[v]) / (2.0 * rest.radius_at(v))
+    };
+    let held = driver.pinned();
+    let moved = held
+        .iter()
+        .map(|&v| diam(v, &rest.points, &yl.points))
+        .fold(0.0, f64::max);
+    let apart = held
+        .iter()
+        .map(|&v| diam(v, &hm.points, &yl.points))
+        .fold(0.0, f64::max);
+    eprintln!("last frame: {tracked:.3} yarn diameters RMS; clamped vertices moved up to {moved:.3}, differ by up to {apart:.2e}");
+    assert!(moved > 0.5, "the pose hardly moved the bands: {moved}");
+    assert!(
+        apart < 0.02,
+        "clamped vertices differ by {apart} yarn diameters"
+    );
+
+    // A scene with a collider: not supported on the homogenized side (65).
+    let col = d.join("col.toml");
+    std::fs::write(
+        &col,
+        format!("{STRETCH_SCENE}[[colliders]]\ntype = \"sphere\"\nradius = 0.01\n"),
+    )
+    .unwrap();
+    let o = knitvox(&["validate", s(&asset_path), "--scene", s(&col)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(
+        err.contains("col.toml") && err.contains("colliders"),
+        "{err}"
+    );
+}
