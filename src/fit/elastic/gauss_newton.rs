@@ -144,6 +144,19 @@ pub fn gn_solve(
     kappa: f64,
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
+    gn_solve_damped(lins, basis, ne, grad, &vec![kappa; grad.len()], fixed)
+}
+
+/// [`gn_solve`] with a damping of its own per parameter: solves
+/// `(Σ_i P_i + diag(damping)) d = grad`.
+pub fn gn_solve_damped(
+    lins: &[FrameLinearization],
+    basis: &Basis,
+    ne: usize,
+    grad: &[f64],
+    damping: &[f64],
+    fixed: &[bool],
+) -> Result<Vec<f64>, String> {
     let m = grad.len();
     let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
     let dcol = total - m;
@@ -165,7 +178,7 @@ pub fn gn_solve(
         off += 2 * n;
     }
     for (j, &fx) in fixed.iter().enumerate() {
-        t.push((dcol + j, dcol + j, if fx { 1.0 } else { kappa }));
+        t.push((dcol + j, dcol + j, if fx { 1.0 } else { damping[j] }));
     }
     // The blocks differ by many orders of magnitude (G ~ m, K ~ Pa m,
     // C ~ m², κ tiny): equilibrate symmetrically before the LU.
@@ -395,7 +408,26 @@ impl SampleFit<'_> {
             let grad = basis.pull(&grad_gamma, ne);
             let gamma_rms =
                 (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
-            let mut dir: Vec<f64> = if gn {
+            let logmode = full && p.full_stage_log;
+            let mut dir: Vec<f64> = if gn && logmode {
+                let kappa = p.kappa * lm * ev.loss / (m as f64 * gamma_rms * gamma_rms);
+                let damping: Vec<f64> = ev
+                    .gamma
+                    .iter()
+                    .map(|g| kappa * (gamma_rms / g).powi(2))
+                    .collect();
+                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &fixed)
+                    .map_err(|e| self.error(0, e))?;
+                // In log space: dθ = dγ / γ.
+                d.iter().zip(&ev.gamma).map(|(v, g)| -v / g).collect()
+            } else if logmode {
+                let mut d: Vec<f64> = grad.iter().zip(&ev.gamma).map(|(v, g)| -v * g).collect();
+                let big = d.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                if big > 0.0 {
+                    d.iter_mut().for_each(|v| *v /= big);
+                }
+                d
+            } else if gn {
                 let kappa = p.kappa * lm * ev.loss / (m as f64 * gamma_rms * gamma_rms);
                 let raw = self.gn_direction(&lins, basis, &grad, kappa, &fixed)?;
                 let mut d = raw.clone();
@@ -433,14 +465,31 @@ impl SampleFit<'_> {
                     dir[j] = 0.0;
                 }
             }
-            if !(dot(&grad, &dir) < 0.0) {
+            // In log mode `dir` is dθ (γ = e^θ): descent iff Σ g γ dθ < 0.
+            let slope = if logmode {
+                grad.iter()
+                    .zip(&ev.gamma)
+                    .zip(&dir)
+                    .map(|((g, x), d)| g * x * d)
+                    .sum::<f64>()
+            } else {
+                dot(&grad, &dir)
+            };
+            if !(slope < 0.0) {
                 break;
             }
             let mut step = if gn { p.gn_step } else { p.gd_step };
             let mut accepted = None;
             let mut halved = 0;
             for _ in 0..=p.max_halvings {
-                let qt: Vec<f64> = q.iter().zip(&dir).map(|(a, b)| a + step * b).collect();
+                let qt: Vec<f64> = if logmode {
+                    q.iter()
+                        .zip(&dir)
+                        .map(|(a, b)| a * (step * b).clamp(-30.0, 30.0).exp())
+                        .collect()
+                } else {
+                    q.iter().zip(&dir).map(|(a, b)| a + step * b).collect()
+                };
                 let mut gt = basis.expand(&qt, ne);
                 let mut newly = Vec::new();
                 let feasible = if full {
