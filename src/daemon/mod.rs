@@ -322,7 +322,11 @@ fn hint_watcher(
 ) -> Option<notify::RecommendedWatcher> {
     use notify::Watcher;
     let tx = Mutex::new(tx);
-    let handler = move |_: notify::Result<notify::Event>| {
+    let handler = move |e: notify::Result<notify::Event>| {
+        // Our own scans open files and folders (access events): no news.
+        if matches!(&e, Ok(ev) if ev.kind.is_access() && !ev.need_rescan()) {
+            return;
+        }
         if let Ok(tx) = tx.lock() {
             let _ = tx.send(Msg::Wake);
         }
@@ -390,25 +394,29 @@ fn main_loop(
                 break;
             }
         }
-        let wait = next_scan
-            .min(next_beat)
-            .min(now + Duration::from_millis(250));
-        match rx.recv_timeout(wait.saturating_duration_since(Instant::now())) {
-            Ok(Msg::Wake) => {
-                // Coalesce a burst of events into one scan.
-                while let Ok(Msg::Wake) = rx.try_recv() {}
-                next_scan = next_scan.min(Instant::now());
-            }
-            Ok(Msg::Finished(name, end)) => {
-                claims.remove(&name);
-                match end {
-                    JobEnd::Done => summary.done += 1,
-                    JobEnd::Failed => summary.failed += 1,
-                    JobEnd::Interrupted => summary.interrupted += 1,
+        // No scans while stopping: only heartbeats and finished jobs matter.
+        let mut wake = next_beat.min(now + Duration::from_millis(250));
+        if stopping.is_none() {
+            wake = wake.min(next_scan);
+        }
+        let first = rx.recv_timeout(wake.saturating_duration_since(Instant::now()));
+        // Handle everything queued: a burst of events makes one scan.
+        for msg in first
+            .into_iter()
+            .chain(std::iter::from_fn(|| rx.try_recv().ok()))
+        {
+            match msg {
+                Msg::Wake => next_scan = next_scan.min(Instant::now()),
+                Msg::Finished(name, end) => {
+                    claims.remove(&name);
+                    match end {
+                        JobEnd::Done => summary.done += 1,
+                        JobEnd::Failed => summary.failed += 1,
+                        JobEnd::Interrupted => summary.interrupted += 1,
+                    }
+                    next_scan = Instant::now(); // a worker is free
                 }
-                next_scan = Instant::now(); // a slot is free
             }
-            Err(_) => {}
         }
     }
     summary

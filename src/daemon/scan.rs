@@ -174,7 +174,12 @@ pub type Signature = BTreeMap<PathBuf, (u64, SystemTime)>;
 pub fn signature(path: &Path) -> Option<Signature> {
     let mut sig = Signature::new();
     fn walk(base: &Path, rel: &Path, sig: &mut Signature) -> std::io::Result<()> {
-        let p = base.join(rel);
+        // `base.join("")` would add a '/', which a plain file refuses.
+        let p = if rel.as_os_str().is_empty() {
+            base.to_path_buf()
+        } else {
+            base.join(rel)
+        };
         let m = std::fs::symlink_metadata(&p)?;
         if m.is_dir() {
             // A folder's own mtime changes when files are added or renamed.
@@ -411,6 +416,8 @@ mod tests {
         let s2 = signature(&d).unwrap();
         assert_ne!(s1, s2);
         assert_eq!(s2.len(), 2);
+        let file = signature(&d.join("a.bcc")).unwrap();
+        assert_eq!(file[Path::new("")].0, 2);
         assert!(signature(&dir.path().join("gone")).is_none());
     }
 }

@@ -176,44 +176,33 @@ fn parse_manifest(
             Some(shown.into()),
         )
     })?;
+    let bad = |m: String| {
+        failure(
+            job,
+            ErrorClass::BadInput,
+            format!("{shown}: {m}"),
+            Some(shown.into()),
+        )
+    };
+    let Some(yarns) = yarns else {
+        // Checked again by `knitvox run`; here so the error names the dropped file.
+        return toml::from_str::<Manifest>(&text)
+            .map_err(|e| bad(crate::pipeline::sim_scene::toml_error_line(&e, &text)));
+    };
+    // A sidecar: its yarn file is the drop's.
     let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-        let m = crate::pipeline::sim_scene::toml_error_line(&e, &text);
-        failure(
-            job,
-            ErrorClass::BadInput,
-            format!("{shown}: {m}"),
-            Some(shown.into()),
-        )
+        bad(crate::pipeline::sim_scene::toml_error_line(&e, &text))
     })?;
-    if let Some(y) = yarns {
-        // A sidecar: its yarn file is the drop's.
-        let g = table
-            .entry("garment")
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        match g.as_table_mut() {
-            Some(g) => {
-                g.insert("yarns".into(), toml::Value::String(y.into()));
-            }
-            None => {
-                return Err(failure(
-                    job,
-                    ErrorClass::BadInput,
-                    format!("{shown}: key 'garment' must be a table"),
-                    Some(shown.into()),
-                ))
-            }
-        }
-    }
-    // Checked again by `knitvox run`; here so the error names the dropped file.
-    toml::from_str::<Manifest>(&toml::to_string(&table).unwrap_or_default()).map_err(|e| {
-        let m = e.message().to_string();
-        failure(
-            job,
-            ErrorClass::BadInput,
-            format!("{shown}: {m}"),
-            Some(shown.into()),
-        )
-    })
+    let garment = table
+        .entry("garment")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let Some(garment) = garment.as_table_mut() else {
+        return Err(bad("key 'garment' must be a table".into()));
+    };
+    garment.insert("yarns".into(), toml::Value::String(yarns.into()));
+    toml::Value::Table(table)
+        .try_into::<Manifest>()
+        .map_err(|e| bad(e.message().trim().to_string()))
 }
 
 /// Writes `work/NAME/job.toml`: the drop's manifest (or the default job of
