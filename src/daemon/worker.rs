@@ -327,6 +327,11 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
     use std::os::unix::process::ExitStatusExt;
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
+    // Whatever a child this daemon signalled says (a checkpointing shot
+    // exits 75), the job is interrupted, not failed.
+    if signalled && !out.status.success() {
+        return RunResult::Signalled;
+    }
     if out.status.success() {
         let stages = serde_json::from_str::<serde_json::Value>(stdout.trim())
             .ok()
@@ -334,11 +339,11 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
             .unwrap_or_default();
         return RunResult::Done(stages);
     }
-    let class = match (out.status.code(), out.status.signal()) {
-        (Some(c), _) => class_of_exit_code(c).unwrap_or(ErrorClass::Internal),
-        (None, _) if signalled => return RunResult::Signalled,
-        (None, _) => ErrorClass::Internal,
-    };
+    let class = out
+        .status
+        .code()
+        .and_then(class_of_exit_code)
+        .unwrap_or(ErrorClass::Internal);
     // `run --json` may print its error as a JSON object on stdout.
     let json = stdout
         .lines()
@@ -508,6 +513,11 @@ mod tests {
             (f.message.as_str(), f.file.as_deref()),
             ("b.ply: truncated", Some("b.ply"))
         );
+        // A child this daemon signalled was interrupted, whatever it exits with.
+        assert!(matches!(
+            result_of("b", &output(75, "", ""), true),
+            RunResult::Signalled
+        ));
         let ok = output(
             0,
             r#"{"stages":[{"name":"embed","status":"ran","key":"k","outputs":[],"ms":5.0}],"ran":1}"#,
