@@ -36,7 +36,7 @@ struct Daemon {
 }
 
 /// Fast timings for tests: scans every 0.5 s, heartbeats every 0.5 s.
-const FAST: [&str; 6] = ["--poll", "0.5", "--heartbeat", "0.5", "--stale-after", "2"];
+const FAST: [&str; 4] = ["--poll", "0.5", "--heartbeat", "0.5"];
 
 impl Daemon {
     fn start(root: &Path, extra: &[&str]) -> Daemon {
@@ -523,4 +523,68 @@ fn once_processes_the_inbox_and_exits_and_status_prints_the_queue() {
     assert!(text.contains("inbox: 1 (1 stable)"), "{text}");
     assert!(text.contains("later") && text.contains("sidecar"), "{text}");
     assert!(text.contains("done: 1  failed: 2"), "{text}");
+}
+
+#[test]
+fn sigterm_stops_a_running_job_and_the_next_start_takes_it_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let (root, staging) = (dir.path().join("root"), dir.path().join("staging"));
+    shot_folder(&staging, "shot", "1-24");
+    // No grace: the running child gets SIGTERM at once.
+    let mut d = Daemon::start(&root, &["--grace", "0", "--stale-after", "3600"]);
+    assert!(d.wait_for(Duration::from_secs(20), |d| !d.events("started").is_empty()));
+    drop_in(&staging, &root, "shot");
+    let out = root.join("out/shot");
+    assert!(
+        d.wait_for(Duration::from_secs(120), |_| out
+            .join(".knitvox/embed.json")
+            .is_file()),
+        "{}",
+        d.dump()
+    );
+    d.signal(libc::SIGTERM);
+    assert_eq!(
+        d.wait_exit(Duration::from_secs(30)),
+        Some(0),
+        "{}",
+        d.dump()
+    );
+    assert!(
+        !out.join(".knitvox/shot.json").exists(),
+        "the shot finished before SIGTERM: make it longer"
+    );
+    assert_eq!(
+        per_job(&d.events("interrupted")).get("shot"),
+        Some(&1),
+        "{}",
+        d.dump()
+    );
+    assert!(d.events("done").is_empty() && d.events("failed").is_empty());
+    // The claim is released: the next daemon takes it without waiting for
+    // the hour-long stale time.
+    let st = Command::new(common::knitvox_bin())
+        .args(["watch", "--status", "--json"])
+        .arg(&root)
+        .output()
+        .unwrap();
+    let st: Value = serde_json::from_slice(&st.stdout).unwrap();
+    assert_eq!(st["work"][0]["state"], "released", "{st}");
+    let mut d = Daemon::start(&root, &["--once", "--stale-after", "3600"]);
+    assert_eq!(
+        d.wait_exit(Duration::from_secs(300)),
+        Some(0),
+        "{}",
+        d.dump()
+    );
+    let takeover = d.events("takeover");
+    assert_eq!(takeover.len(), 1, "{}", d.dump());
+    assert_eq!(takeover[0]["released"], true);
+    assert_eq!(
+        per_job(&d.events("done")).get("shot"),
+        Some(&1),
+        "{}",
+        d.dump()
+    );
+    assert!(out.join("shot.vtkhdf").is_file());
+    assert_eq!(names(&root.join("done")), ["shot"]);
 }
