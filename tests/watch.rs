@@ -516,6 +516,8 @@ fn once_processes_the_inbox_and_exits_and_status_prints_the_queue() {
         ]
     );
     assert_eq!(names(&root.join("done")), ["plain.bcc"]);
+    // Failed jobs leave no empty output folder.
+    assert_eq!(names(&root.join("out")), ["plain"]);
     assert!(root.join("out/plain/garment.vtkhdf").is_file());
     // What stays: the lone sidecar and the hidden file.
     assert_eq!(names(&inbox), [".hidden.bcc", "later.job.toml"]);

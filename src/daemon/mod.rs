@@ -435,20 +435,23 @@ fn signal_children(sh: &Shared, sig: libc::c_int) {
 }
 
 /// Refreshes every held claim; a lost one's child is stopped.
-fn heartbeat(sh: &Shared, claims: &HashMap<String, Claim>) {
+fn heartbeat(sh: &Shared, claims: &Claims) {
     for (name, c) in claims {
-        if let Ok(false) = c.heartbeat() {
-            (sh.log)(&Event::Lost { job: name.clone() });
-            if let Ok(mut r) = sh.running.lock() {
-                if let Some(run) = r.get_mut(name) {
-                    run.signalled = true;
-                    if let Some(pid) = run.child {
-                        // SAFETY: as in signal_children.
-                        unsafe { libc::kill(pid as libc::pid_t, libc::SIGTERM) };
-                    }
-                }
-            }
+        if !matches!(c.heartbeat(), Ok(false)) {
+            continue;
         }
+        let Ok(mut r) = sh.running.lock() else {
+            continue;
+        };
+        let Some(run) = r.get_mut(name).filter(|run| !run.signalled) else {
+            continue; // told already
+        };
+        run.signalled = true;
+        if let Some(pid) = run.child {
+            // SAFETY: as in signal_children.
+            unsafe { libc::kill(pid as libc::pid_t, libc::SIGTERM) };
+        }
+        (sh.log)(&Event::Lost { job: name.clone() });
     }
 }
 
@@ -467,6 +470,28 @@ fn owner_dead_here(owner: &Owner, me: &Owner) -> bool {
     !alive
 }
 
+/// Hands a claimed job to the workers.
+fn dispatch(
+    sh: &Shared,
+    tasks: &mpsc::Sender<Task>,
+    claims: &mut Claims,
+    claim: Claim,
+    drop: Option<Drop>,
+) {
+    let name = claim
+        .dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    claims.insert(name.clone(), claim.clone());
+    if let Ok(mut r) = sh.running.lock() {
+        r.insert(name.clone(), Running::default());
+    }
+    let _ = tasks.send(Task { name, claim, drop });
+}
+
+type Claims = HashMap<String, Claim>;
+
 /// One full scan: takes over abandoned jobs in work/, then claims the
 /// stable drops of the inbox, while workers are free. Returns when to look
 /// again for drops still settling.
@@ -474,35 +499,33 @@ fn scan(
     sh: &Shared,
     me: &Owner,
     stability: &mut Stability,
-    claims: &mut HashMap<String, Claim>,
+    claims: &mut Claims,
     tasks: &mpsc::Sender<Task>,
 ) -> Option<Instant> {
-    let cfg = sh.cfg;
-    let free = |claims: &HashMap<String, Claim>| claims.len() < cfg.workers.max(1);
-    let dispatch = |claims: &mut HashMap<String, Claim>, name: &str, claim: Claim, drop| {
-        claims.insert(name.to_string(), claim.clone());
-        if let Ok(mut r) = sh.running.lock() {
-            r.insert(name.to_string(), Running::default());
-        }
-        let _ = tasks.send(Task {
-            name: name.to_string(),
-            claim,
-            drop,
-        });
-    };
     // Abandoned jobs first: they were taken in before anything new.
+    take_over_abandoned(sh, me, claims, tasks);
+    take_new_drops(sh, me, stability, claims, tasks)
+}
+
+fn free(sh: &Shared, claims: &Claims) -> bool {
+    claims.len() < sh.cfg.workers.max(1)
+}
+
+/// Takes over the jobs in work/ whose claim is stale, released, or held by
+/// a dead process on this host.
+fn take_over_abandoned(sh: &Shared, me: &Owner, claims: &mut Claims, tasks: &mpsc::Sender<Task>) {
     for (name, is_dir) in scan::list(&sh.paths.work).unwrap_or_default() {
-        if !is_dir || !free(claims) {
+        if !is_dir || !free(sh, claims) {
             continue;
         }
+        let dir = sh.paths.work.join(&name);
         if name.starts_with('.') {
-            clean_removing(&sh.paths.work.join(&name), cfg.stale_after);
+            clean_removing(&dir, sh.cfg.stale_after);
             continue;
         }
         if claims.contains_key(&name) {
             continue;
         }
-        let dir = sh.paths.work.join(&name);
         let dead = claims::current(&dir)
             .ok()
             .flatten()
@@ -511,7 +534,7 @@ fn scan(
         let stale = if dead {
             Duration::ZERO
         } else {
-            cfg.stale_after
+            sh.cfg.stale_after
         };
         if let Ok(Some((claim, prev))) = claims::take_over(&dir, me, stale) {
             let owner = prev.as_ref().and_then(|p| p.owner.clone());
@@ -523,20 +546,31 @@ fn scan(
                 heartbeat_age_s: prev.as_ref().map(|p| p.age.as_secs_f64()),
                 released: owner.is_some_and(|o| o.released),
             });
-            dispatch(claims, &name, claim, None);
+            dispatch(sh, tasks, claims, claim, None);
         }
     }
-    let entries = match scan::list(&sh.paths.inbox) {
+}
+
+/// Claims the inbox's drops that held still across two scans; returns when
+/// to look again at those still settling.
+fn take_new_drops(
+    sh: &Shared,
+    me: &Owner,
+    stability: &mut Stability,
+    claims: &mut Claims,
+    tasks: &mpsc::Sender<Task>,
+) -> Option<Instant> {
+    let inbox = &sh.paths.inbox;
+    let entries = match scan::list(inbox) {
         Ok(e) => e,
         Err(e) => {
             (sh.log)(&Event::Warning {
-                message: format!("cannot list {}: {e}", sh.paths.inbox.display()),
+                message: format!("cannot list {}: {e}", inbox.display()),
             });
             return None;
         }
     };
     stability.retain(&entries);
-    let inbox = &sh.paths.inbox;
     let drops = scan::classify(&entries, |n| std::fs::read_to_string(inbox.join(n)).ok());
     let now = Instant::now();
     let mut pending: Option<Instant> = None;
@@ -548,7 +582,8 @@ fn scan(
         for e in d.entries() {
             match scan::signature(&inbox.join(&e)) {
                 Some(sig) => {
-                    if let Readiness::Settling(at) = stability.observe(&e, sig, now, cfg.settle) {
+                    if let Readiness::Settling(at) = stability.observe(&e, sig, now, sh.cfg.settle)
+                    {
                         ready = false;
                         pending = Some(pending.map_or(at, |p: Instant| p.min(at)));
                     }
@@ -556,7 +591,7 @@ fn scan(
                 None => ready = false,
             }
         }
-        if !ready || !free(claims) {
+        if !ready || !free(sh, claims) {
             continue;
         }
         match claims::claim_new(&sh.paths.work, &d.name, me) {
@@ -565,8 +600,7 @@ fn scan(
                     job: d.name.clone(),
                     entries: d.entries(),
                 });
-                let name = d.name.clone();
-                dispatch(claims, &name, claim, Some(d));
+                dispatch(sh, tasks, claims, claim, Some(d));
             }
             Ok(None) => {}
             Err(e) => (sh.log)(&Event::Warning {

@@ -435,6 +435,10 @@ pub fn finish(paths: &Paths, dir: &Path, job: &str, outcome: &Outcome) -> Result
         }
     };
     file_away(dir, dest)?;
+    if matches!(outcome, Outcome::Failed(_)) {
+        // A job that failed before writing anything leaves no empty out/NAME.
+        let _ = std::fs::remove_dir(paths.out.join(job));
+    }
     remove_tree(dir)
 }
 
