@@ -590,3 +590,36 @@ fn sigterm_stops_a_running_job_and_the_next_start_takes_it_at_once() {
     assert!(out.join("shot.vtkhdf").is_file());
     assert_eq!(names(&root.join("done")), ["shot"]);
 }
+
+#[test]
+fn two_daemons_share_one_folder_and_run_each_drop_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let (root, staging) = (dir.path().join("root"), dir.path().join("staging"));
+    std::fs::create_dir_all(&staging).unwrap();
+    let a = Daemon::start(&root, &[]);
+    let b = Daemon::start(&root, &[]);
+    let up = |d: &Daemon| !d.events("started").is_empty();
+    assert!(a.wait_for(Duration::from_secs(20), up) && b.wait_for(Duration::from_secs(20), up));
+    let jobs: Vec<String> = (0..8).map(|i| format!("j{i}")).collect();
+    for (i, j) in jobs.iter().enumerate() {
+        std::fs::write(staging.join(format!("{j}.bcc")), swatch_bytes(2 + i % 2)).unwrap();
+        drop_in(&staging, &root, &format!("{j}.bcc"));
+    }
+    let total = |a: &Daemon, b: &Daemon| a.events("done").len() + b.events("done").len();
+    assert!(
+        a.wait_for(Duration::from_secs(120), |a| total(a, &b) >= 8),
+        "{}\n{}",
+        a.dump(),
+        b.dump()
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let mut done = per_job(&a.events("done"));
+    for (j, n) in per_job(&b.events("done")) {
+        *done.entry(j).or_default() += n;
+    }
+    let want: BTreeMap<String, usize> = jobs.iter().map(|j| (j.clone(), 1)).collect();
+    assert_eq!(done, want, "{}\n{}", a.dump(), b.dump());
+    assert!(a.events("failed").is_empty() && b.events("failed").is_empty());
+    assert!(a.events("takeover").is_empty() && b.events("takeover").is_empty());
+    assert_eq!(names(&root.join("done")).len(), 8);
+}
