@@ -713,6 +713,12 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
                     delay_s: delay.as_secs_f64(),
                 });
                 worker::sleep_unless(delay, || sh.stop.load(Ordering::SeqCst) > 0);
+                if sh.stop.load(Ordering::SeqCst) > 0 {
+                    // Stopping: no new attempt; the next owner retries.
+                    let _ = task.claim.release();
+                    (sh.log)(&Event::Interrupted { job: name.clone() });
+                    return Ok(JobEnd::Interrupted);
+                }
             }
             RunResult::Failed(mut f) => {
                 f.attempts = attempt;
