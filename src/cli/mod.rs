@@ -13,6 +13,7 @@ mod pattern;
 mod run;
 mod simulate;
 mod train;
+mod watch;
 mod yls;
 
 use std::path::PathBuf;
@@ -59,6 +60,8 @@ pub enum Command {
     Simulate(simulate::SimulateArgs),
     /// Run a job manifest's stages (embed, shot, export), skipping cached ones (schemas/job.md).
     Run(run::RunArgs),
+    /// Watch a folder: run the job manifests and yarn files dropped into ROOT/inbox (schemas/watch.md).
+    Watch(watch::WatchArgs),
     /// Run a yarn-level scene (schemas/yls-scene.md) and write its frames (knitvox HDF5).
     Yls(yls::YlsArgs),
     /// Run one training pose (VH §8.6) quasi-statically on an asset's rest yarns (knitvox HDF5 frames for `fit`).
@@ -329,6 +332,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Simulate(a) => simulate::simulate(&a),
         Command::Bake(a) => bake::bake(&a),
         Command::Run(a) => run::run(&a),
+        Command::Watch(a) => watch::watch(&a),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),

@@ -41,6 +41,42 @@ pub struct Manifest {
     pub export: Option<ExportSection>,
 }
 
+impl Manifest {
+    /// The default job of a bare yarn file (a watch-folder drop without a
+    /// sidecar): embed only. `[export]` needs a `[shot]`, which needs a
+    /// scene or character that a bare yarn file does not name.
+    pub fn for_yarns(yarns: PathBuf) -> Manifest {
+        Manifest {
+            garment: Garment {
+                yarns,
+                ..Garment::default()
+            },
+            ..Manifest::default()
+        }
+    }
+
+    /// Rewrites every path the manifest names (output, garment yarns,
+    /// scene, character file) with `f`: a manifest moved to another folder
+    /// (the watch daemon's `work/NAME/job.toml`) keeps naming the same files.
+    pub fn map_paths(&mut self, f: impl Fn(&Path) -> PathBuf) {
+        if let Some(o) = &mut self.output {
+            *o = f(o);
+        }
+        self.garment.yarns = f(&self.garment.yarns);
+        if let Some(s) = self.shot.as_mut().and_then(|s| s.scene.as_mut()) {
+            *s = f(s);
+        }
+        if let Some(c) = &mut self.character {
+            c.file = f(&c.file);
+        }
+    }
+
+    /// The manifest as TOML text (what [`Job::load`] reads back).
+    pub fn to_toml(&self) -> Result<String, Error> {
+        toml::to_string(self).map_err(|e| Error::Internal(format!("manifest as TOML: {e}")))
+    }
+}
+
 /// The garment's yarns.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -676,6 +712,25 @@ mod tests {
         let with_out =
             Job::load(&write(&sub, "o.toml", &format!("output = \"x\"\n{text}"))).unwrap();
         assert_eq!(with_out.output, sub.join("x"));
+    }
+
+    #[test]
+    fn a_mapped_manifest_round_trips_through_toml() {
+        let dir = tempfile::tempdir().unwrap();
+        let text = "frames = \"1\"\n[garment]\nyarns = \"y.bcc\"\nunits = \"mm\"\n[character]\nfile = \"c.glb\"\n[shot]\ngarment_offset = [0.0, 1.0, 0.0]\n";
+        let mut m = Job::load(&write(dir.path(), "j.toml", text))
+            .unwrap()
+            .manifest;
+        m.map_paths(|p| Path::new("in").join(p));
+        m.output = Some("../out".into());
+        let back = Job::load(&write(dir.path(), "k.toml", &m.to_toml().unwrap())).unwrap();
+        assert_eq!(back.manifest, m);
+        assert_eq!(back.manifest.garment.yarns, Path::new("in/y.bcc"));
+        assert_eq!(back.manifest.character.unwrap().file, Path::new("in/c.glb"));
+        assert_eq!(back.output, dir.path().join("../out"));
+        let bare = Manifest::for_yarns("a.ply".into());
+        let job = Job::load(&write(dir.path(), "b.toml", &bare.to_toml().unwrap())).unwrap();
+        assert_eq!(job.stages(), vec!["embed"]);
     }
 
     #[test]
