@@ -29,6 +29,11 @@ fn help_on_every_subcommand() {
         &["bench", "io", "--help"],
         &["demo", "--help"],
         &["completions", "--help"],
+        &["run", "--help"],
+        &["watch", "--help"],
+        &["train", "--help"],
+        &["fit", "--help"],
+        &["validate", "--help"],
     ] {
         let o = knitvox(args);
         assert!(o.status.success(), "{args:?}: {}", stderr(&o));
