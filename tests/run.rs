@@ -230,6 +230,16 @@ fit_joint = "j"
 voxel_size = 0.001
 max_voxels = 10
 density = 1000.0
+[[train]]
+kind = "shear"
+amount = 0.1
+mirror = true
+steps = 3
+friction = 0.2
+[fit]
+samples = 2
+harmonic = [1, 10]
+joint = true
 [shot]
 scene = "s.toml"
 dt = 0.01
@@ -255,7 +265,12 @@ name = "n"
         k
     };
     assert_eq!(names(&schema), keys(&v), "top level");
-    for section in ["garment", "character", "embed", "shot", "export"] {
+    assert_eq!(
+        names(&schema["properties"]["train"]["items"]),
+        keys(&v["train"][0]),
+        "[[train]]"
+    );
+    for section in ["garment", "character", "embed", "fit", "shot", "export"] {
         assert_eq!(
             names(&schema["properties"][section]),
             keys(&v[section]),
@@ -318,4 +333,73 @@ format = "obj"
         statuses(&run(&job, &["--json"])),
         pairs(&[("embed", "cached"), ("shot", "ran"), ("export", "ran")])
     );
+}
+
+#[test]
+fn training_poses_are_tasks_and_the_fit_follows_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = common::job::training_job_dir(dir.path());
+    // One farm array task: embed, then pose 1 alone.
+    let one = run(&job, &["--stage", "train", "--task", "1", "--json"]);
+    assert_eq!(
+        statuses(&one),
+        pairs(&[("embed", "ran"), ("train.1", "ran")])
+    );
+    let out = dir.path().join("job.out");
+    assert!(out.join("train/01-bend_central.h5").is_file());
+    assert!(!out.join("train/00-stretch_courses.h5").exists());
+    // A task past the last is a usage error naming the stage.
+    let bad = run(&job, &["--stage", "train", "--task", "2"]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("2 task(s)"));
+    // The whole job: pose 0 runs, pose 1 is cached, the fit follows.
+    let all = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&all),
+        pairs(&[
+            ("embed", "cached"),
+            ("train.0", "ran"),
+            ("train.1", "cached"),
+            ("fit", "ran")
+        ])
+    );
+    assert!(out.join("fitted.vtkhdf").is_file());
+    // A changed pose reruns that pose and the fit, not the other pose.
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace("amount = 0.3", "amount = 0.2");
+    std::fs::write(&job, text).unwrap();
+    assert_eq!(
+        statuses(&run(&job, &["--json"])),
+        pairs(&[
+            ("embed", "cached"),
+            ("train.0", "cached"),
+            ("train.1", "ran"),
+            ("fit", "ran")
+        ])
+    );
+    // The farm plan: train is an array of two tasks, the fit after it.
+    let plan = run(&job, &["--plan", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&plan.stdout).unwrap();
+    assert_eq!(v["stages"][1]["name"], "train");
+    assert_eq!(v["stages"][1]["tasks"], 2);
+    assert_eq!(v["stages"][2]["after"][0], "train");
+}
+
+#[test]
+fn a_bad_training_pose_is_refused_naming_its_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    write_garment(&dir.path().join("swatch.bcc"), 3);
+    for (body, key) in [
+        ("[[train]]\nkind = \"wiggle\"\n", "train[0].kind"),
+        ("[[train]]\nkind = \"shear\"\nsteps = 0\n", "train[0].steps"),
+        ("[fit]\n", "[fit] needs at least one [[train]]"),
+    ] {
+        std::fs::write(&job, format!("[garment]\nyarns = \"swatch.bcc\"\n{body}")).unwrap();
+        let out = run(&job, &[]);
+        assert_eq!(out.status.code(), Some(65), "{body}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(key), "{body}: {err}");
+    }
 }

@@ -514,3 +514,81 @@ fn the_deadline_and_opencue_submitters_read_the_plan() {
     );
     assert!(plugin.contains("--stage shot --json"), "{plugin}");
 }
+
+#[test]
+fn training_poses_run_as_an_array_job_and_the_fit_after_them() {
+    let _one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
+    if !have_slurm() {
+        return;
+    }
+    let cluster = Cluster::start();
+    let dir = tempfile::tempdir().unwrap();
+    let job = common::job::training_job_dir(dir.path());
+    let ids = submit(&cluster, &job, &[]);
+    let names: Vec<&str> = ids.iter().map(|(s, _)| s.as_str()).collect();
+    assert_eq!(names, ["embed", "train", "fit"]);
+    let script = std::fs::read_to_string(
+        dir.path()
+            .join("job.out/.knitvox/submit/slurm/train.sbatch"),
+    )
+    .unwrap();
+    assert!(
+        script.contains("--task \"$SLURM_ARRAY_TASK_ID\""),
+        "{script}"
+    );
+    // Every task of the array job, one line each.
+    let states = |id: &str| -> Vec<String> {
+        let out = cluster
+            .command("scontrol")
+            .args(["show", "job", "-o", id])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .filter_map(|l| {
+                l.split_whitespace()
+                    .find_map(|kv| kv.strip_prefix("JobState="))
+                    .map(str::to_string)
+            })
+            .collect()
+    };
+    let start = Instant::now();
+    loop {
+        let all: Vec<String> = ids.iter().flat_map(|(_, id)| states(id)).collect();
+        assert!(
+            !all.iter()
+                .any(|s| matches!(s.as_str(), "FAILED" | "CANCELLED" | "TIMEOUT")),
+            "{all:?}"
+        );
+        if all.len() >= 4 && all.iter().all(|s| s == "COMPLETED") {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(600), "{all:?}");
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let out = dir.path().join("job.out");
+    for f in [
+        "train/00-stretch_courses.h5",
+        "train/01-bend_central.h5",
+        "fitted.vtkhdf",
+        ".knitvox/train.0.json",
+        ".knitvox/train.1.json",
+        ".knitvox/fit.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    // Two array tasks ran, each with its own log.
+    let logs = std::fs::read_dir(out.join(".knitvox/submit/slurm"))
+        .unwrap()
+        .filter(|e| {
+            let n = e
+                .as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .into_owned();
+            n.starts_with("train-") && n.ends_with(".log")
+        })
+        .count();
+    assert_eq!(logs, 2);
+}

@@ -12,9 +12,13 @@ use crate::pipeline::submit::{self, SlurmOptions};
 pub struct RunArgs {
     /// Job manifest (TOML; schemas/job.md).
     pub job: PathBuf,
-    /// Run this stage and the stages it needs (embed, shot, export) [default: all].
+    /// Run this stage and the stages it needs (embed, train, fit, shot, export) [default: all].
     #[arg(long, value_name = "NAME")]
     pub stage: Option<String>,
+    /// With --stage: only this task of the stage (0-based; `train` has one
+    /// task per [[train]] pose), as a farm array task runs it.
+    #[arg(long, value_name = "N", requires = "stage")]
+    pub task: Option<usize>,
     /// Print one JSON line per computed frame and the report as the last line (errors as JSON too).
     #[arg(long)]
     pub json: bool,
@@ -97,9 +101,10 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     if a.plan || a.submit.is_some() {
         return farm(a, &job);
     }
-    let r = job::run(
+    let r = job::run_tasks(
         &job,
         a.stage.as_deref(),
+        a.task,
         &super::asset::command_line(),
         &mut super::Console::with_mode(super::ProgressMode::of(a.json), 0, "run"),
     )?;

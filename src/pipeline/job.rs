@@ -16,15 +16,20 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::asset::{sha256_file, EmbedJob, ExportJob};
+use super::fit::FitJob;
 use super::sim_scene::{CharacterSection, Scene, Seconds};
 use super::simulate::{read_scene, ShotJob, ShotRequest};
+use super::train::TrainJob;
 use super::{Error, Observer, Stage};
 use crate::embed::EmbedParams;
+use crate::fit::elastic::ElasticFitParams;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
 use crate::io::{self, IoError, ReadOptions, WriteOptions};
+use crate::yarn::fabric::pose::PoseRunParams;
+use crate::yarn::fabric::FabricParams;
 
 /// The stages a job may hold, in run order.
-pub const STAGES: [&str; 3] = ["embed", "shot", "export"];
+pub const STAGES: [&str; 5] = ["embed", "train", "fit", "shot", "export"];
 
 /// A job manifest as written (schemas/job.md, schemas/job.schema.json).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -37,8 +42,42 @@ pub struct Manifest {
     pub garment: Garment,
     pub character: Option<Character>,
     pub embed: Option<EmbedSection>,
+    /// Training poses (`knitvox train`), one farm task each.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub train: Vec<TrainSection>,
+    /// Fit the asset's materials to the training poses (`knitvox fit`); the
+    /// shot then simulates the fitted asset.
+    pub fit: Option<FitSection>,
     pub shot: Option<ShotSection>,
     pub export: Option<ExportSection>,
+}
+
+/// `[[train]]`: one VH §8.6 training pose at yarn level (`knitvox train`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSection {
+    /// Pose kind (`stretch_courses`, `bend_central`, ...; schemas/yls-scene.md).
+    pub kind: String,
+    /// Strain, or rad for bends and twist [default: `train`'s per kind].
+    pub amount: Option<f64>,
+    /// The mirrored counterpart [default false].
+    pub mirror: Option<bool>,
+    /// Load steps [default 10].
+    pub steps: Option<usize>,
+    /// Yarn-on-yarn friction coefficient [default `train`'s].
+    pub friction: Option<f64>,
+}
+
+/// `[fit]`: per-element materials from the training poses (`knitvox fit`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FitSection {
+    /// Frames fitted per pose [default `fit`'s].
+    pub samples: Option<usize>,
+    /// Harmonic ranks before the full field [default [1, 10, 30]].
+    pub harmonic: Option<Vec<usize>>,
+    /// Fit every pose's frames together (VH Eq. 9) [default false].
+    pub joint: Option<bool>,
 }
 
 impl Manifest {
@@ -254,6 +293,17 @@ impl Job {
         if let Some(f) = &m.frames {
             parse_key::<FrameSpec>(p, "frames", &Some(f.clone()))?;
         }
+        for (i, t) in m.train.iter().enumerate() {
+            self.pose_params(i, t)?;
+        }
+        if let Some(f) = &m.fit {
+            if m.train.is_empty() {
+                return Err(bad(p, "[fit] needs at least one [[train]] pose".into()));
+            }
+            if f.samples == Some(0) {
+                return Err(bad(p, "key 'fit.samples': must be at least 1".into()));
+            }
+        }
         if m.export.is_some() && m.shot.is_none() {
             return Err(bad(
                 p,
@@ -309,10 +359,17 @@ impl Job {
         self.base.join(p)
     }
 
-    /// The stages this job holds, in run order.
+    /// The stages this job holds, in run order (`train` is one stage of
+    /// [`Job::tasks`] independent poses).
     pub fn stages(&self) -> Vec<&'static str> {
         let m = &self.manifest;
         let mut v = vec!["embed"];
+        if !m.train.is_empty() {
+            v.push("train");
+        }
+        if m.fit.is_some() {
+            v.push("fit");
+        }
         if m.shot.is_some() {
             v.push("shot");
         }
@@ -320,6 +377,58 @@ impl Job {
             v.push("export");
         }
         v
+    }
+
+    /// Independent tasks of a stage (a farm array job): one per training
+    /// pose for `train`, else 1.
+    pub fn tasks(&self, stage: &str) -> usize {
+        if stage == "train" {
+            self.manifest.train.len().max(1)
+        } else {
+            1
+        }
+    }
+
+    /// Pose `i` as `knitvox train` runs it (exit 65 naming the key).
+    fn pose_params(
+        &self,
+        i: usize,
+        t: &TrainSection,
+    ) -> Result<(PoseRunParams, FabricParams), Error> {
+        let key = |k: &str| format!("key 'train[{i}].{k}'");
+        let kind = super::train::parse_kind(&t.kind)
+            .map_err(|e| bad(&self.path, format!("{}: {e}", key("kind"))))?;
+        let mut pose = PoseRunParams::new(kind);
+        if let Some(a) = t.amount {
+            if !a.is_finite() {
+                return Err(bad(
+                    &self.path,
+                    format!("{}: must be finite", key("amount")),
+                ));
+            }
+            pose.pose.amount = a;
+        }
+        pose.pose.mirror = t.mirror.unwrap_or(false);
+        if let Some(n) = t.steps {
+            if !(1..=1000).contains(&n) {
+                return Err(bad(
+                    &self.path,
+                    format!("{}: must be 1 to 1000", key("steps")),
+                ));
+            }
+            pose.steps = n;
+        }
+        let mut fabric = FabricParams::default();
+        if let Some(mu) = t.friction {
+            if !(mu.is_finite() && mu >= 0.0) {
+                return Err(bad(
+                    &self.path,
+                    format!("{}: must be >= 0", key("friction")),
+                ));
+            }
+            fabric.friction.mu = mu;
+        }
+        Ok((pose, fabric))
     }
 
     fn read_options(&self) -> Result<ReadOptions, Error> {
@@ -519,6 +628,18 @@ pub fn run(
     command: &str,
     observer: &mut dyn Observer,
 ) -> Result<RunReport, Error> {
+    run_tasks(job, until, None, command, observer)
+}
+
+/// [`run`], and with `task` only that task of the last stage (a farm array
+/// task: one training pose).
+pub fn run_tasks(
+    job: &Job,
+    until: Option<&str>,
+    task: Option<usize>,
+    command: &str,
+    observer: &mut dyn Observer,
+) -> Result<RunReport, Error> {
     let stages = job.stages();
     let last = match until {
         None => stages.len() - 1,
@@ -531,55 +652,125 @@ pub fn run(
             ))
         })?,
     };
+    if let Some(t) = task {
+        let n = job.tasks(stages[last]);
+        if t >= n {
+            return Err(Error::Usage(format!(
+                "--task {t}: stage '{}' of {} has {n} task(s), numbered from 0",
+                stages[last],
+                job.path.display()
+            )));
+        }
+    }
     let out = &job.output;
     // knitvox never overwrites an input (an `output` folder holding one).
     let yarns = job.resolve(&job.manifest.garment.yarns);
-    let (garment, shot) = (job.garment_asset(), job.shot_asset());
-    io::overwrite::refuse_inputs(&[&garment, &shot], &[&yarns])?;
+    let mut outputs = vec![job.garment_asset(), job.shot_asset(), job.fitted_asset()];
+    outputs.extend((0..job.manifest.train.len()).map(|i| job.pose_file(i)));
+    let refs: Vec<&Path> = outputs.iter().map(PathBuf::as_path).collect();
+    io::overwrite::refuse_inputs(&refs, &[&yarns])?;
     let mut report = RunReport {
         stages: Vec::new(),
         ran: 0,
     };
-    let mut upstream: Option<String> = None;
-    for name in &stages[..=last] {
-        let up = upstream.as_deref();
-        let (key, run_it) = match *name {
-            "embed" => job.plan_embed(command)?,
-            "shot" => job.plan_shot(up, command)?,
-            _ => job.plan_export(up)?,
-        };
-        let mut outcome = StageOutcome {
-            name: name.to_string(),
-            status: "cached".into(),
-            key: key.clone(),
-            outputs: Vec::new(),
-            ms: 0.0,
-        };
-        match cached(out, name, &key) {
-            Some(outputs) => outcome.outputs = outputs,
-            None => {
-                std::fs::create_dir_all(out).map_err(|source| IoError::Write {
-                    path: out.clone(),
-                    source,
-                })?;
-                // Invalidate first: a run killed after writing new outputs
-                // must not leave an old record vouching for them.
-                let stale = invalidate(out, name)?;
-                let t = Instant::now();
-                let written = run_it(observer)?;
-                outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
-                // The record only after every output exists.
-                write_record(out, name, &key, &outcome.outputs)?;
-                remove_stale(out, &stale, &outcome.outputs);
-                outcome.status = "ran".into();
-                outcome.ms = t.elapsed().as_secs_f64() * 1e3;
-                report.ran += 1;
+    // Each stage's key chains its upstream's: train after embed, fit after
+    // every pose, the shot after the fit (or embed), export after the shot.
+    let mut keys: std::collections::HashMap<&str, String> = Default::default();
+    let mut units: Vec<(String, String, StageRun)> = Vec::new();
+    for (si, name) in stages[..=last].iter().enumerate() {
+        units.clear();
+        match *name {
+            "embed" => {
+                let (k, r) = job.plan_embed(command)?;
+                units.push(("embed".into(), k, r));
+            }
+            "train" => {
+                let up = keys.get("embed").cloned();
+                let mut all = Sha256::new();
+                for i in 0..job.manifest.train.len() {
+                    let (k, r) = job.plan_train(i, up.as_deref(), command)?;
+                    all.update(&k);
+                    let only = task.is_none() || si != last || task == Some(i);
+                    if only {
+                        units.push((format!("train.{i}"), k, r));
+                    }
+                }
+                keys.insert("train", hex(&all.finalize()));
+            }
+            "fit" => {
+                let (k, r) = job.plan_fit(keys.get("train").map(String::as_str), command)?;
+                units.push(("fit".into(), k, r));
+            }
+            "shot" => {
+                let up = keys.get("fit").or(keys.get("embed")).cloned();
+                let (k, r) = job.plan_shot(up.as_deref(), command)?;
+                units.push(("shot".into(), k, r));
+            }
+            _ => {
+                let (k, r) = job.plan_export(keys.get("shot").map(String::as_str))?;
+                units.push(("export".into(), k, r));
             }
         }
-        report.stages.push(outcome);
-        upstream = Some(key);
+        for (unit, key, run_it) in units.drain(..) {
+            if *name != "train" {
+                keys.insert(name, key.clone());
+            }
+            report.stages.push(run_unit(
+                out,
+                &unit,
+                key,
+                run_it,
+                observer,
+                &mut report.ran,
+            )?);
+        }
     }
     Ok(report)
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Runs one stage (or one task of it) unless its record vouches for its
+/// outputs.
+fn run_unit(
+    out: &Path,
+    name: &str,
+    key: String,
+    run_it: StageRun,
+    observer: &mut dyn Observer,
+    ran: &mut usize,
+) -> Result<StageOutcome, Error> {
+    let mut outcome = StageOutcome {
+        name: name.to_string(),
+        status: "cached".into(),
+        key: key.clone(),
+        outputs: Vec::new(),
+        ms: 0.0,
+    };
+    match cached(out, name, &key) {
+        Some(outputs) => outcome.outputs = outputs,
+        None => {
+            std::fs::create_dir_all(out).map_err(|source| IoError::Write {
+                path: out.to_path_buf(),
+                source,
+            })?;
+            // Invalidate first: a run killed after writing new outputs
+            // must not leave an old record vouching for them.
+            let stale = invalidate(out, name)?;
+            let t = Instant::now();
+            let written = run_it(observer)?;
+            outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
+            // The record only after every output exists.
+            write_record(out, name, &key, &outcome.outputs)?;
+            remove_stale(out, &stale, &outcome.outputs);
+            outcome.status = "ran".into();
+            outcome.ms = t.elapsed().as_secs_f64() * 1e3;
+            *ran += 1;
+        }
+    }
+    Ok(outcome)
 }
 
 impl Job {
@@ -589,6 +780,89 @@ impl Job {
 
     fn shot_asset(&self) -> PathBuf {
         self.output.join("shot.vtkhdf")
+    }
+
+    fn fitted_asset(&self) -> PathBuf {
+        self.output.join("fitted.vtkhdf")
+    }
+
+    /// Training pose `i`'s frames: `OUT/train/NN-KIND.h5`.
+    fn pose_file(&self, i: usize) -> PathBuf {
+        let kind = &self.manifest.train[i].kind;
+        let safe: String = kind
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '_' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        self.output.join("train").join(format!("{i:02}-{safe}.h5"))
+    }
+
+    /// The asset the shot simulates: the fitted one when the job fits.
+    fn shot_input(&self) -> PathBuf {
+        if self.manifest.fit.is_some() {
+            self.fitted_asset()
+        } else {
+            self.garment_asset()
+        }
+    }
+
+    /// Training pose `i`'s key (its parameters and the embed key) and job.
+    fn plan_train(
+        &self,
+        i: usize,
+        upstream: Option<&str>,
+        _command: &str,
+    ) -> Result<(String, StageRun), Error> {
+        let t = &self.manifest.train[i];
+        let key = stage_key("train", &(i, t), &[], upstream)?;
+        let (pose, fabric) = self.pose_params(i, t)?;
+        let output = self.pose_file(i);
+        let stage = TrainJob {
+            asset: self.garment_asset(),
+            output: output.clone(),
+            pose,
+            fabric,
+        };
+        let run = move |o: &mut dyn Observer| {
+            if let Some(dir) = output.parent() {
+                std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+                    path: dir.to_path_buf(),
+                    source,
+                })?;
+            }
+            stage.run(o)?;
+            Ok(vec![output.clone()])
+        };
+        Ok((key, Box::new(run)))
+    }
+
+    /// The fit's key (its parameters and every pose's key) and job.
+    fn plan_fit(&self, upstream: Option<&str>, command: &str) -> Result<(String, StageRun), Error> {
+        let f = self.manifest.fit.clone().unwrap_or_default();
+        let key = stage_key("fit", &f, &[], upstream)?;
+        let mut params = ElasticFitParams::default();
+        if let Some(h) = &f.harmonic {
+            params.harmonic_ranks = h.clone();
+        }
+        let stage = FitJob {
+            asset: self.garment_asset(),
+            train: (0..self.manifest.train.len())
+                .map(|i| self.pose_file(i))
+                .collect(),
+            read: ReadOptions::default(),
+            samples: f.samples.unwrap_or(super::fit::DEFAULT_SAMPLES),
+            params,
+            output: Some(self.fitted_asset()),
+            report: None,
+            joint: f.joint.unwrap_or(false),
+            command: command.into(),
+        };
+        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))
     }
 
     /// The embed stage's key and job (keyed by the garment file's content).
@@ -626,7 +900,7 @@ impl Job {
         let key = stage_key("shot", &params, &inputs, upstream)?;
         let frames: Option<FrameSpec> = parse_key(&self.path, "frames", &m.frames)?;
         let stage = ShotJob {
-            asset: self.garment_asset(),
+            asset: self.shot_input(),
             scene,
             request: ShotRequest {
                 frames: frames.map(|f| f.frames()).unwrap_or_default(),

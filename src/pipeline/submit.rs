@@ -134,7 +134,7 @@ pub fn plan(job: &Job, exe: &Path) -> Result<Plan, Error> {
         stages.push(PlanStage {
             name: s.to_string(),
             after,
-            tasks: 1,
+            tasks: job.tasks(s),
             argv: vec![
                 exe.display().to_string(),
                 "run".into(),

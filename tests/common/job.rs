@@ -54,3 +54,41 @@ pub fn job_dir(dir: &Path) -> PathBuf {
     std::fs::write(&job, manifest("m")).unwrap();
     job
 }
+
+/// A job folder that trains two poses on a relaxed 4 x 4 rib (made by
+/// `knitvox pattern`) and fits the asset to them: stages embed, train (2
+/// tasks), fit. Returns the manifest path.
+pub fn training_job_dir(dir: &Path) -> PathBuf {
+    let out = std::process::Command::new(super::knitvox_bin())
+        .args(["pattern", "rib1x1", "--courses", "4", "--wales", "4", "-o"])
+        .arg(dir.join("rib.h5"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let job = dir.join("job.toml");
+    std::fs::write(
+        &job,
+        r#"
+[garment]
+yarns = "rib.h5"
+[[train]]
+kind = "stretch_courses"
+amount = 0.1
+steps = 2
+[[train]]
+kind = "bend_central"
+amount = 0.3
+steps = 2
+[fit]
+samples = 1
+harmonic = [1]
+joint = true
+"#,
+    )
+    .unwrap();
+    job
+}
