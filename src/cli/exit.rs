@@ -80,7 +80,7 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
 /// The file an error is about: the first cause in its chain that names
 /// one (a pipeline error, a shot error, an i/o error).
 pub fn error_file(err: &anyhow::Error) -> Option<std::path::PathBuf> {
-    use crate::pipeline::simulate::{io_error_path, SimulateError};
+    use crate::pipeline::simulate::SimulateError;
     err.chain().find_map(|c| {
         if let Some(e) = c.downcast_ref::<crate::pipeline::Error>() {
             match e {
@@ -90,7 +90,8 @@ pub fn error_file(err: &anyhow::Error) -> Option<std::path::PathBuf> {
         } else if let Some(e) = c.downcast_ref::<SimulateError>() {
             e.file()
         } else {
-            c.downcast_ref::<crate::io::IoError>().map(io_error_path)
+            c.downcast_ref::<crate::io::IoError>()
+                .map(|e| e.path().to_path_buf())
         }
     })
 }

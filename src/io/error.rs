@@ -135,6 +135,20 @@ pub enum IoError {
 }
 
 impl IoError {
+    /// The file the error names.
+    pub fn path(&self) -> &std::path::Path {
+        match self {
+            IoError::Format { path, .. }
+            | IoError::Read { path, .. }
+            | IoError::Write { path, .. }
+            | IoError::Busy { path, .. }
+            | IoError::Unsupported { path, .. }
+            | IoError::Invalid { path, .. }
+            | IoError::UnknownFormat { path, .. }
+            | IoError::OutputIsInput { output: path, .. } => path,
+        }
+    }
+
     pub fn class(&self) -> ErrorClass {
         match self {
             IoError::Format { .. }

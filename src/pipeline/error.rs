@@ -166,10 +166,10 @@ impl Error {
     /// The file the error is about, where it names one.
     pub fn file(&self) -> Option<PathBuf> {
         match self {
-            Error::Io(e) => Some(io_path(e)),
+            Error::Io(e) => Some(e.path().to_path_buf()),
             Error::Asset(super::asset::StageError::Io(e))
             | Error::Shot(super::simulate::SimulateError::Io(e))
-            | Error::Yls(super::yls::YlsError::Io(e)) => Some(io_path(e)),
+            | Error::Yls(super::yls::YlsError::Io(e)) => Some(e.path().to_path_buf()),
             Error::Asset(super::asset::StageError::Embed { path, .. })
             | Error::Asset(super::asset::StageError::Fit { path, .. })
             | Error::Asset(super::asset::StageError::Invalid { path, .. })
@@ -225,19 +225,6 @@ fn fabric_class(e: &super::fabric_test::FabricTestError) -> ErrorClass {
         super::fabric_test::FabricTestError::Pattern(p) => p.class(),
         _ if e.is_usage() => ErrorClass::Usage,
         _ => e.class().into(),
-    }
-}
-
-fn io_path(e: &IoError) -> PathBuf {
-    match e {
-        IoError::Format { path, .. }
-        | IoError::Read { path, .. }
-        | IoError::Write { path, .. }
-        | IoError::Busy { path, .. }
-        | IoError::Unsupported { path, .. }
-        | IoError::Invalid { path, .. }
-        | IoError::UnknownFormat { path, .. }
-        | IoError::OutputIsInput { output: path, .. } => path.clone(),
     }
 }
 

@@ -87,7 +87,7 @@ impl SimulateError {
     /// The file the error is about, where it names one.
     pub fn file(&self) -> Option<PathBuf> {
         match self {
-            SimulateError::Io(e) => Some(io_error_path(e)),
+            SimulateError::Io(e) => Some(e.path().to_path_buf()),
             SimulateError::Invalid { path, .. }
             | SimulateError::Diverged { path, .. }
             | SimulateError::CheckpointMismatch { path, .. } => Some(path.clone()),
@@ -107,20 +107,6 @@ impl SimulateError {
             } => Some(*step),
             _ => None,
         }
-    }
-}
-
-/// The file an i/o error names.
-pub fn io_error_path(e: &IoError) -> PathBuf {
-    match e {
-        IoError::Format { path, .. }
-        | IoError::Read { path, .. }
-        | IoError::Write { path, .. }
-        | IoError::Busy { path, .. }
-        | IoError::Unsupported { path, .. }
-        | IoError::Invalid { path, .. }
-        | IoError::UnknownFormat { path, .. }
-        | IoError::OutputIsInput { output: path, .. } => path.clone(),
     }
 }
 
