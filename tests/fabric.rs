@@ -426,7 +426,7 @@ fn pear_loop_elongates_as_the_clamps_close_and_is_rounder_when_stiffer() {
         relax: RelaxParams::default(),
         output_dir: None,
     };
-    let (relaxed, _, _) = knitvox::pipeline::fabric_test::swatch(&job).unwrap();
+    let (relaxed, _, _, _) = knitvox::pipeline::fabric_test::swatch(&job).unwrap();
     let mut up = Vec::new();
     let stiff = bend_test(&relaxed, &fp, &bp, &mut |f| {
         up.push(f.reactions.iter().map(|r| r[2]).sum::<f64>());
