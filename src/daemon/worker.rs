@@ -333,9 +333,12 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
         return RunResult::Signalled;
     }
     if out.status.success() {
-        let stages = serde_json::from_str::<serde_json::Value>(stdout.trim())
-            .ok()
-            .and_then(|v| serde_json::from_value::<Vec<StageLine>>(v["stages"].clone()).ok())
+        // `run --json` prints a line per computed frame, the report last.
+        let stages = stdout
+            .lines()
+            .rev()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .find_map(|v| serde_json::from_value::<Vec<StageLine>>(v["stages"].clone()).ok())
             .unwrap_or_default();
         return RunResult::Done(stages);
     }
@@ -344,15 +347,20 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
         .code()
         .and_then(class_of_exit_code)
         .unwrap_or(ErrorClass::Internal);
-    // `run --json` may print its error as a JSON object on stdout.
+    // `run --json` prints its error as a JSON object on stdout
+    // (`{"event":"error","message","file",..}`; older: `{"error":{..}}`).
     let json = stdout
         .lines()
         .rev()
-        .find_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-        .filter(|v| v.get("error").is_some());
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .find(|v| v.get("error").is_some() || v["event"] == "error");
     let (mut message, mut file) = match &json {
         Some(v) => {
-            let e = &v["error"];
+            let e = if v["event"] == "error" {
+                v
+            } else {
+                &v["error"]
+            };
             let msg = e
                 .get("message")
                 .and_then(|m| m.as_str())
@@ -507,7 +515,20 @@ mod tests {
         assert_eq!(f.message, "a.bcc: line 3: expected a count");
         assert_eq!(f.file.as_deref(), Some("a.bcc"));
         assert_eq!(f.place.as_deref(), Some("line 3"));
-        // A JSON error on stdout wins over stderr.
+        // A JSON error on stdout wins over stderr: as `run --json` prints it
+        // after its frame lines, and the older nested form.
+        let json = concat!(
+            r#"{"event":"frame","frame":1,"done":1,"total":2,"ms":2.0}"#,
+            "\n",
+            r#"{"event":"error","class":"transient","exit_code":75,"message":"input/c.h5: busy","file":"input/c.h5"}"#,
+        );
+        let RunResult::Failed(f) = result_of("c", &output(75, json, "noise"), false) else {
+            panic!("not a failure")
+        };
+        assert_eq!(
+            (f.message.as_str(), f.file.as_deref()),
+            ("c.h5: busy", Some("c.h5"))
+        );
         let json = r#"{"error":{"message":"input/b.ply: truncated","file":"input/b.ply"}}"#;
         let RunResult::Failed(f) = result_of("b", &output(75, json, "noise"), false) else {
             panic!("not a failure")
@@ -524,7 +545,12 @@ mod tests {
         ));
         let ok = output(
             0,
-            r#"{"stages":[{"name":"embed","status":"ran","key":"k","outputs":[],"ms":5.0}],"ran":1}"#,
+            concat!(
+                r#"{"event":"frame","frame":1,"done":1,"total":1,"ms":2.0}"#,
+                "\n",
+                r#"{"event":"report","stages":[{"name":"embed","status":"ran","key":"k","outputs":[],"ms":5.0}],"ran":1}"#,
+                "\n"
+            ),
             "",
         );
         let RunResult::Done(s) = result_of("c", &ok, false) else {
