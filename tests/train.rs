@@ -60,7 +60,11 @@ fn train(out: &Path, extra: &[&str]) -> serde_json::Value {
     args.extend_from_slice(extra);
     let (code, stdout, err) = run(&args);
     assert_eq!(code, 0, "train {extra:?}: {err}");
-    serde_json::from_str(&stdout).unwrap()
+    // One line, the report (as simulate, yls and run end theirs).
+    assert_eq!(stdout.trim_end().lines().count(), 1, "{stdout}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["event"], "report");
+    v
 }
 
 fn dataset(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {

@@ -68,7 +68,8 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
     drop(console);
     let r = result?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        // One line, as simulate/yls/run print theirs (farm logs read the last line).
+        super::print_json_report(&r, &[])?;
     } else {
         println!(
             "{}: {}{} (amount {}) on {} ({} vertices, {} clamped, rest shape {}): {} frames, \
