@@ -148,6 +148,16 @@ impl Drop for Cluster {
     }
 }
 
+/// This test's private cluster, the tests taking turns; `None` (skipped
+/// loudly, a failure under CI) where Slurm cannot run.
+fn private_cluster() -> Option<(std::sync::MutexGuard<'static, ()>, Cluster)> {
+    let one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
+    if !have_slurm() {
+        return None;
+    }
+    Some((one, Cluster::start()))
+}
+
 /// Submits `job` and returns the job id of each stage, in order.
 fn submit(cluster: &Cluster, job: &Path, extra: &[&str]) -> Vec<(String, String)> {
     let out = cluster
@@ -203,11 +213,9 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 
 #[test]
 fn a_job_runs_on_slurm_as_chained_stages_like_a_local_run() {
-    let _one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
-    if !have_slurm() {
+    let Some((_one, cluster)) = private_cluster() else {
         return;
-    }
-    let cluster = Cluster::start();
+    };
     let dir = tempfile::tempdir().unwrap();
     let job = job_dir(dir.path());
     let ids = submit(&cluster, &job, &[]);
@@ -303,11 +311,9 @@ fn attempts(dir: &Path, stage: &str) -> u32 {
 
 #[test]
 fn transient_failures_requeue_and_fix_needed_failures_hold_the_chain() {
-    let _one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
-    if !have_slurm() {
+    let Some((_one, cluster)) = private_cluster() else {
         return;
-    }
-    let cluster = Cluster::start();
+    };
     let dir = tempfile::tempdir().unwrap();
     let job = job_dir(dir.path());
     let fake = fake_knitvox(dir.path());
@@ -357,11 +363,9 @@ fn transient_failures_requeue_and_fix_needed_failures_hold_the_chain() {
 
 #[test]
 fn a_bad_input_fails_its_stage_and_cancels_the_rest() {
-    let _one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
-    if !have_slurm() {
+    let Some((_one, cluster)) = private_cluster() else {
         return;
-    }
-    let cluster = Cluster::start();
+    };
     let dir = tempfile::tempdir().unwrap();
     let job = job_dir(dir.path());
     // A garment that is not a yarn file: exit 65, not retryable.
@@ -517,11 +521,9 @@ fn the_deadline_and_opencue_submitters_read_the_plan() {
 
 #[test]
 fn training_poses_run_as_an_array_job_and_the_fit_after_them() {
-    let _one = CLUSTER.lock().unwrap_or_else(|e| e.into_inner());
-    if !have_slurm() {
+    let Some((_one, cluster)) = private_cluster() else {
         return;
-    }
-    let cluster = Cluster::start();
+    };
     let dir = tempfile::tempdir().unwrap();
     let job = common::job::training_job_dir(dir.path());
     let ids = submit(&cluster, &job, &[]);
