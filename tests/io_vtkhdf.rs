@@ -229,6 +229,24 @@ fn round_trip_with_steps_is_bit_identical() {
     assert_eq!(read_asset(&p).unwrap(), c);
 }
 
+/// The same asset written twice, more than a second apart (libhdf5 stores
+/// object times in whole seconds), is the same bytes: a farm compares a
+/// rerun's outputs with `cmp`. So are the yarn and character HDF5 files,
+/// written through the same `create_h5`.
+#[test]
+fn the_same_asset_written_twice_is_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = box_asset(2, 1, 1, 3);
+    let (p, q) = (dir.path().join("a.vtkhdf"), dir.path().join("b.vtkhdf"));
+    write_asset(&p, &a).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1100));
+    write_asset(&q, &a).unwrap();
+    let (x, y) = (std::fs::read(&p).unwrap(), std::fs::read(&q).unwrap());
+    assert_eq!(x.len(), y.len());
+    let first = x.iter().zip(&y).position(|(u, v)| u != v);
+    assert_eq!(first, None, "files differ from byte {first:?}");
+}
+
 #[test]
 fn empty_asset_round_trips() {
     let dir = tempfile::tempdir().unwrap();

@@ -201,7 +201,7 @@ pub fn write_character_cache(path: &Path, cache: &BodyCache) -> Result<(), IoErr
             "generator",
             &format!("knitvox {}", env!("CARGO_PKG_VERSION")),
         )?;
-        let g = file.create_group("character")?;
+        let g = super::h5::new_group(&file, "character")?;
         let tri: Vec<u32> = cache.triangles.iter().flatten().copied().collect();
         g.new_dataset::<u32>()
             .shape([cache.triangles.len(), 3])

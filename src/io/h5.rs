@@ -1122,7 +1122,19 @@ pub(crate) fn create_h5(path: &Path) -> hdf5::Result<hdf5::File> {
             p.libver_bounds(LibraryVersion::V110, LibraryVersion::V110)
                 .file_locking(false)
         })
+        // No object times (root group here, the others in `new_group`;
+        // hdf5-metno's datasets already go without): the same content gives
+        // the same bytes, so a farm can compare a rerun with `cmp`.
+        .with_fcpl(|p| p.obj_track_times(false))
         .create(path)
+}
+
+/// A child group without object times (see `create_h5`).
+pub(crate) fn new_group(parent: &hdf5::Group, name: &str) -> hdf5::Result<hdf5::Group> {
+    parent
+        .create_group_builder()
+        .obj_track_times(false)
+        .create(name)
 }
 
 /// Root attributes and `/yarns` (coordinates already in metres, +Y up).
@@ -1139,7 +1151,7 @@ fn write_yarns(file: &hdf5::File, y: &Yarns) -> hdf5::Result<()> {
         "generator",
         &format!("knitvox {}", env!("CARGO_PKG_VERSION")),
     )?;
-    write_yarns_group(&file.create_group("yarns")?, y)
+    write_yarns_group(&new_group(&file, "yarns")?, y)
 }
 
 /// The datasets of a yarns group (`points`, `offsets`, `closed`, `radius`, and
@@ -1209,7 +1221,7 @@ fn read_rest_group(rg: &Group, gp: &str, y: &Yarns) -> Result<RestShape, FormatE
 
 /// Writes a rest shape as `<yarns>/rest` (lengths in metres).
 fn write_rest_group(g: &Group, rest: &RestShape) -> hdf5::Result<()> {
-    let rg = g.create_group("rest")?;
+    let rg = new_group(&g, "rest")?;
     write_1d(&rg, "lengths", &rest.lengths, Some("m"))?;
     let dirs = rg
         .new_dataset::<f64>()
@@ -1275,7 +1287,7 @@ impl MechanicsOut {
 
 impl FramesOut {
     fn create(file: &hdf5::File, n: usize) -> hdf5::Result<FramesOut> {
-        let g = file.create_group("frames")?;
+        let g = new_group(&file, "frames")?;
         // Frames grow along the first axis; with no vertices the vertex axis must be
         // resizable too, since a chunk may not exceed a fixed extent of 0.
         let vert_extent = if n == 0 {
@@ -1589,7 +1601,7 @@ impl FrameWriter {
         let write = || -> hdf5::Result<()> {
             let g = match file.group("metadata") {
                 Ok(g) => g,
-                Err(_) => file.create_group("metadata")?,
+                Err(_) => new_group(&file, "metadata")?,
             };
             let ds = g.new_dataset::<u8>().shape([text.len()]).create(name)?;
             if !text.is_empty() {

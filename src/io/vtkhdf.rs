@@ -235,7 +235,7 @@ fn i64_of(x: usize) -> i64 {
 
 /// `/VTKHDF`: what VTK reads.
 fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
-    let g = file.create_group("VTKHDF")?;
+    let g = h5::new_group(&file, "VTKHDF")?;
     g.new_attr::<i64>()
         .shape([2])
         .create("Version")?
@@ -270,14 +270,14 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
     let offsets: Vec<i64> = (0..=t).map(|i| i64_of(4 * i)).collect();
     h5::write_1d(&g, "Offsets", &offsets, None)?;
     h5::write_1d(&g, "Types", &vec![VTK_TETRA; t], None)?;
-    let cd = g.create_group("CellData")?;
+    let cd = h5::new_group(&g, "CellData")?;
     h5::write_1d(&cd, "gamma_s", &a.gamma_s, Some("Pa"))?;
     h5::write_1d(&cd, "gamma_v", &a.gamma_v, Some("Pa"))?;
     h5::write_1d(&cd, "domain", &a.domain, None)?;
-    let pd = g.create_group("PointData")?;
+    let pd = h5::new_group(&g, "PointData")?;
     h5::write_1d(&pd, "mass", &a.node_mass, Some("kg"))?;
     if s > 0 {
-        let st = g.create_group("Steps")?;
+        let st = h5::new_group(&g, "Steps")?;
         st.new_attr::<i64>()
             .shape(())
             .create("NSteps")?
@@ -290,11 +290,11 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
         h5::write_1d(&st, "NumberOfParts", &vec![1i64; s], None)?;
         write_2d(&st, "CellOffsets", &zeros, 1, None)?;
         write_2d(&st, "ConnectivityIdOffsets", &zeros, 1, None)?;
-        let cdo = st.create_group("CellDataOffsets")?;
+        let cdo = h5::new_group(&st, "CellDataOffsets")?;
         for name in ["gamma_s", "gamma_v", "domain"] {
             h5::write_1d(&cdo, name, &zeros, None)?;
         }
-        let pdo = st.create_group("PointDataOffsets")?;
+        let pdo = h5::new_group(&st, "PointDataOffsets")?;
         h5::write_1d(&pdo, "mass", &zeros, None)?;
     }
     Ok(())
@@ -307,7 +307,7 @@ fn write_knitvox(
     parameters: &[u8],
     provenance: &[u8],
 ) -> hdf5::Result<()> {
-    let g = file.create_group("knitvox")?;
+    let g = h5::new_group(&file, "knitvox")?;
     h5::write_str_attr(&g, "knitvox_format", FORMAT_NAME)?;
     g.new_attr::<i64>()
         .shape(())
@@ -322,16 +322,16 @@ fn write_knitvox(
     )?;
     write_2d(&g, "rest_nodes", a.mesh.nodes.as_flattened(), 3, Some("m"))?;
     h5::write_1d(&g, "tet_voxel", &a.tet_voxel, None)?;
-    let grid = g.create_group("grid")?;
+    let grid = h5::new_group(&g, "grid")?;
     h5::write_1d(&grid, "origin", &a.grid.origin, Some("m"))?;
     let h = grid.new_dataset::<f64>().shape(()).create("h")?;
     h.write_scalar(&a.grid.h)?;
     h5::write_str_attr(&h, "units", "m")?;
     write_2d(&grid, "voxels", a.grid.voxels.as_flattened(), 3, None)?;
-    let emb = g.create_group("embedding")?;
+    let emb = h5::new_group(&g, "embedding")?;
     h5::write_1d(&emb, "tet", &a.embedding.tet, None)?;
     write_2d(&emb, "weights", a.embedding.weights.as_flattened(), 4, None)?;
-    h5::write_yarns_group(&g.create_group("rest_yarns")?, &a.rest_yarns)?;
+    h5::write_yarns_group(&h5::new_group(&g, "rest_yarns")?, &a.rest_yarns)?;
     for (name, json) in [("parameters", parameters), ("provenance", provenance)] {
         h5::write_1d(&g, name, json, None)?;
         let ds = g.dataset(name)?;
