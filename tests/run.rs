@@ -249,6 +249,7 @@ backend = "cpu"
 solver = "direct"
 garment_rotate = [0.0, 0.0, 0.0]
 garment_offset = [0.0, 0.0, 0.0]
+checkpoint_every = 5
 [export]
 format = "ply"
 steps = "0"
@@ -402,4 +403,174 @@ fn a_bad_training_pose_is_refused_naming_its_key() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(key), "{body}: {err}");
     }
+}
+
+/// Every file under `dir` (relative path -> bytes).
+fn files(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    fn walk(
+        root: &Path,
+        d: &Path,
+        m: &mut std::collections::BTreeMap<std::path::PathBuf, Vec<u8>>,
+    ) {
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(root, &p, m);
+            } else {
+                let rel = p.strip_prefix(root).unwrap().to_path_buf();
+                m.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut m = Default::default();
+    walk(dir, dir, &mut m);
+    m
+}
+
+/// A job whose shot takes 24 frames, run on one thread (bitwise results).
+fn long_shot_job(dir: &Path) -> std::path::PathBuf {
+    let job = job_dir(dir);
+    let text = manifest("m").replace("frames = \"1-2\"", "frames = \"1-24\"");
+    std::fs::write(&job, text).unwrap();
+    job
+}
+
+/// SIGTERM during `run`'s shot: the shot checkpoints and the run exits 75;
+/// the next run resumes from the checkpoint (it computes only the frames
+/// after it) and leaves the same bytes as an uninterrupted run, with the
+/// checkpoint gone.
+#[test]
+fn sigterm_checkpoints_the_shot_and_the_next_run_resumes_it() {
+    use std::io::BufRead;
+    // Both runs in one folder with one command line: the assets record
+    // their inputs' paths and the command.
+    let dir = tempfile::tempdir().unwrap();
+    let job = long_shot_job(dir.path());
+    let clean = std::process::Command::new(common::knitvox_bin())
+        .env("RAYON_NUM_THREADS", "1")
+        .args(["run", "--json"])
+        .arg(&job)
+        .output()
+        .unwrap();
+    assert!(
+        clean.status.success(),
+        "{}",
+        String::from_utf8_lossy(&clean.stderr)
+    );
+    let out = dir.path().join("job.out");
+    let reference = files(&out);
+    assert!(!reference.keys().any(|p| p.starts_with("checkpoints")));
+    std::fs::remove_dir_all(&out).unwrap();
+
+    let mut child = std::process::Command::new(common::knitvox_bin())
+        .env("RAYON_NUM_THREADS", "1")
+        .args(["run", "--json"])
+        .arg(&job)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // SIGTERM once the shot has computed frame 3.
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    for line in lines.by_ref() {
+        let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
+        if v["event"] == "frame" && v["frame"] == 3 {
+            break;
+        }
+    }
+    // SAFETY: signalling our own child process.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let rest: Vec<String> = lines.map(Result::unwrap).collect();
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(75), "{err}");
+    let last: serde_json::Value = serde_json::from_str(rest.last().unwrap()).unwrap();
+    assert_eq!(last["event"], "error", "{last}");
+    assert_eq!(last["class"], "transient", "{last}");
+    assert!(!out.join("shot.vtkhdf").exists());
+    assert!(!out.join(".knitvox/shot.json").exists());
+    let ckpts: Vec<_> = std::fs::read_dir(out.join("checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "ckpt"))
+        .collect();
+    assert_eq!(ckpts.len(), 1, "{ckpts:?}");
+
+    let again = std::process::Command::new(common::knitvox_bin())
+        .env("RAYON_NUM_THREADS", "1")
+        .args(["run", "--json"])
+        .arg(&job)
+        .output()
+        .unwrap();
+    assert_eq!(
+        statuses(&again),
+        pairs(&[("embed", "cached"), ("shot", "ran"), ("export", "ran")])
+    );
+    let text = String::from_utf8_lossy(&again.stdout);
+    let frames: Vec<i64> = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|v| v["event"] == "frame")
+        .map(|v| v["frame"].as_i64().unwrap())
+        .collect();
+    assert!(
+        frames.first().is_some_and(|&f| f > 3),
+        "did not resume: {frames:?}"
+    );
+    assert_eq!(frames.last(), Some(&24));
+    let after = files(&out);
+    assert_eq!(
+        after.keys().collect::<Vec<_>>(),
+        reference.keys().collect::<Vec<_>>()
+    );
+    for (p, bytes) in &reference {
+        assert!(
+            &after[p] == bytes,
+            "{} differs from the clean run",
+            p.display()
+        );
+    }
+}
+
+/// A second `run` of a job while the first runs its shot waits for it: exit
+/// 75 (transient, retry later) naming the lock and its holder; the first
+/// finishes undisturbed and the second, run again, finds everything cached.
+#[test]
+fn a_concurrent_run_of_the_same_job_is_refused_as_busy() {
+    use std::io::BufRead;
+    let dir = tempfile::tempdir().unwrap();
+    let job = long_shot_job(dir.path());
+    let mut first = std::process::Command::new(common::knitvox_bin())
+        .args(["run", "--json"])
+        .arg(&job)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(first.stdout.take().unwrap()).lines();
+    for line in lines.by_ref() {
+        let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
+        if v["event"] == "frame" && v["frame"] == 2 {
+            break;
+        }
+    }
+    let second = run(&job, &[]);
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(75), "{err}");
+    assert!(err.contains("shot.lock"), "{err}");
+    assert!(err.contains(&first.id().to_string()), "{err}");
+    let rest: Vec<String> = lines.map(Result::unwrap).collect();
+    assert!(first.wait().unwrap().success());
+    let last: serde_json::Value = serde_json::from_str(rest.last().unwrap()).unwrap();
+    assert_eq!(last["ran"], 3, "{last}");
+    let third = run(&job, &["--json"]);
+    assert_eq!(
+        statuses(&third),
+        pairs(&[
+            ("embed", "cached"),
+            ("shot", "cached"),
+            ("export", "cached")
+        ])
+    );
+    assert!(!dir.path().join("job.out/.knitvox/shot.lock").exists());
 }

@@ -168,6 +168,7 @@ pub fn export(a: &ExportArgs) -> anyhow::Result<ExitCode> {
             up_axis: a.out_up_axis,
             first_frame: 0,
         },
+        rest_if_static: false,
     };
     let r = job.run(&mut Quiet)?;
     if a.json {

@@ -65,16 +65,7 @@ pub fn unix_now() -> f64 {
 }
 
 /// This machine's host name.
-pub fn host_name() -> String {
-    let mut buf = [0u8; 256];
-    // SAFETY: gethostname writes at most buf.len() bytes into buf.
-    let rc = unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) };
-    if rc != 0 {
-        return "unknown".into();
-    }
-    let end = buf.iter().position(|b| *b == 0).unwrap_or(buf.len());
-    String::from_utf8_lossy(&buf[..end]).into_owned()
-}
+pub use crate::io::lock::host_name;
 
 fn claim_file(dir: &Path, generation: u64) -> PathBuf {
     dir.join(format!("claim.{generation}.json"))

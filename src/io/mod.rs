@@ -15,6 +15,7 @@ mod error;
 pub mod gltf;
 pub mod gltf_skin;
 pub mod h5;
+pub mod lock;
 pub mod obj;
 pub mod overwrite;
 pub mod plot;

@@ -500,6 +500,10 @@ pub struct ExportJob {
     pub name: Option<String>,
     /// Units and up axis of bcc, obj and ply files.
     pub write: WriteOptions,
+    /// An asset without steps (only embedded) exports its rest shape as
+    /// step 0 instead of being refused [default false; a job's export
+    /// without a shot sets it].
+    pub rest_if_static: bool,
 }
 
 /// What `export` did.
@@ -514,7 +518,11 @@ impl Stage for ExportJob {
     const NAME: &'static str = "export";
     fn run(&self, _observer: &mut dyn Observer) -> Result<ExportReport, Error> {
         check_asset_ext(&self.asset)?;
-        let asset = io::vtkhdf::read_asset(&self.asset)?;
+        let mut asset = io::vtkhdf::read_asset(&self.asset)?;
+        if asset.steps.num_steps() == 0 && self.rest_if_static {
+            asset.steps.times.push(0.0);
+            asset.steps.positions = asset.mesh.nodes.clone();
+        }
         if asset.steps.num_steps() == 0 {
             return Err(IoError::Unsupported {
                 path: self.asset.clone(),
@@ -595,6 +603,7 @@ mod tests {
             output: d.join("out"),
             name: None,
             write: WriteOptions::default(),
+            rest_if_static: false,
         };
         // A fresh asset has no steps: the input cannot be exported.
         let e = export.run(&mut Quiet).unwrap_err();

@@ -18,7 +18,9 @@ use sha2::{Digest, Sha256};
 use super::asset::{sha256_file, EmbedJob, ExportJob};
 use super::fit::FitJob;
 use super::sim_scene::{CharacterSection, Scene, Seconds};
-use super::simulate::{read_scene, ShotJob, ShotRequest};
+use super::simulate::{
+    read_scene, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest, DEFAULT_CHECKPOINT_EVERY,
+};
 use super::train::TrainJob;
 use super::{Error, Observer, Stage};
 use crate::embed::EmbedParams;
@@ -82,14 +84,16 @@ pub struct FitSection {
 
 impl Manifest {
     /// The default job of a bare yarn file (a watch-folder drop without a
-    /// sidecar): embed only. `[export]` needs a `[shot]`, which needs a
-    /// scene or character that a bare yarn file does not name.
+    /// sidecar): embed, and export of the embedded rest shape (the yarns as
+    /// the asset carries them, `export/garment.0000.ply`). A shot needs a
+    /// scene or character, which a bare yarn file does not name.
     pub fn for_yarns(yarns: PathBuf) -> Manifest {
         Manifest {
             garment: Garment {
                 yarns,
                 ..Garment::default()
             },
+            export: Some(ExportSection::default()),
             ..Manifest::default()
         }
     }
@@ -176,6 +180,11 @@ pub struct ShotSection {
     pub garment_rotate: Option<Vec3>,
     /// Garment translation (m).
     pub garment_offset: Option<Vec3>,
+    /// Checkpoint the shot every this many frames (and on SIGTERM), so a
+    /// stopped or killed run resumes instead of starting over [default 10;
+    /// 0: only on SIGTERM]. Not part of the shot's key.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint_every: Option<usize>,
 }
 
 /// `[export]`: per-frame files of the shot (or of the embedded asset).
@@ -223,6 +232,10 @@ pub struct Job {
     pub manifest: Manifest,
     pub base: PathBuf,
     pub output: PathBuf,
+    /// SIGTERM as the CLI relays it: a running shot checkpoints under
+    /// `OUT/checkpoints/` and stops (exit 75); the next run resumes it.
+    /// `None` [the default of `load`]: signals are not this job's business.
+    pub interrupt: Option<&'static super::Interrupt>,
 }
 
 impl Job {
@@ -249,6 +262,7 @@ impl Job {
             manifest,
             base,
             output,
+            interrupt: None,
         };
         job.check()?;
         Ok(job)
@@ -303,12 +317,6 @@ impl Job {
             if f.samples == Some(0) {
                 return Err(bad(p, "key 'fit.samples': must be at least 1".into()));
             }
-        }
-        if m.export.is_some() && m.shot.is_none() {
-            return Err(bad(
-                p,
-                "[export] needs a [shot]: the embedded asset alone has no frames to export".into(),
-            ));
         }
         if let Some(e) = &m.export {
             parse_key::<FrameSpec>(p, "export.steps", &e.steps)?;
@@ -707,7 +715,8 @@ pub fn run_tasks(
                 units.push(("shot".into(), k, r));
             }
             _ => {
-                let (k, r) = job.plan_export(keys.get("shot").map(String::as_str))?;
+                let up = keys.get("shot").or(keys.get("fit")).or(keys.get("embed"));
+                let (k, r) = job.plan_export(up.map(String::as_str))?;
                 units.push(("export".into(), k, r));
             }
         }
@@ -742,20 +751,55 @@ fn run_unit(
     observer: &mut dyn Observer,
     ran: &mut usize,
 ) -> Result<StageOutcome, Error> {
-    let mut outcome = StageOutcome {
+    let outcome = StageOutcome {
         name: name.to_string(),
         status: "cached".into(),
         key: key.clone(),
         outputs: Vec::new(),
         ms: 0.0,
     };
+    // Look, lock, look again: another run of this job (a farm task, a
+    // second shell) may be running the stage or have just finished it.
+    let records = record_path(out, name);
+    let records_dir = records.parent().unwrap_or(out);
+    let lock = match cached(out, name, &key) {
+        Some(_) => None,
+        None => {
+            std::fs::create_dir_all(records_dir).map_err(|source| IoError::Write {
+                path: records_dir.to_path_buf(),
+                source,
+            })?;
+            Some(io::lock::Lock::acquire(
+                &records_dir.join(format!("{name}.lock")),
+            )?)
+        }
+    };
+    let result = run_locked(out, name, key, run_it, observer, outcome);
+    match &result {
+        Ok(o) if o.status == "ran" => *ran += 1,
+        Ok(_) => {}
+        Err(_) => {
+            // A first stage that failed leaves no folder behind.
+            drop(lock);
+            let _ = std::fs::remove_dir(records_dir);
+            let _ = std::fs::remove_dir(out);
+        }
+    }
+    result
+}
+
+/// [`run_unit`] with the stage's lock held.
+fn run_locked(
+    out: &Path,
+    name: &str,
+    key: String,
+    run_it: StageRun,
+    observer: &mut dyn Observer,
+    mut outcome: StageOutcome,
+) -> Result<StageOutcome, Error> {
     match cached(out, name, &key) {
         Some(outputs) => outcome.outputs = outputs,
         None => {
-            std::fs::create_dir_all(out).map_err(|source| IoError::Write {
-                path: out.to_path_buf(),
-                source,
-            })?;
             // Invalidate first: a run killed after writing new outputs
             // must not leave an old record vouching for them.
             let stale = invalidate(out, name)?;
@@ -767,7 +811,6 @@ fn run_unit(
             remove_stale(out, &stale, &outcome.outputs);
             outcome.status = "ran".into();
             outcome.ms = t.elapsed().as_secs_f64() * 1e3;
-            *ran += 1;
         }
     }
     Ok(outcome)
@@ -780,6 +823,11 @@ impl Job {
 
     fn shot_asset(&self) -> PathBuf {
         self.output.join("shot.vtkhdf")
+    }
+
+    /// Where a stopped shot's checkpoints wait for the next run.
+    fn checkpoint_dir(&self) -> PathBuf {
+        self.output.join("checkpoints")
     }
 
     fn fitted_asset(&self) -> PathBuf {
@@ -889,6 +937,10 @@ impl Job {
     }
 
     /// The shot stage's key and job (scene and character files' contents).
+    /// The shot checkpoints every `[shot] checkpoint_every` frames and on
+    /// SIGTERM, and continues from its latest checkpoint when a run was
+    /// stopped or killed; the checkpoint is removed once the asset is
+    /// written.
     fn plan_shot(
         &self,
         upstream: Option<&str>,
@@ -896,31 +948,66 @@ impl Job {
     ) -> Result<(String, StageRun), Error> {
         let m = &self.manifest;
         let (scene, inputs) = self.scene()?;
-        let params = (&m.frames, &m.shot, &m.character, &scene);
+        // How often it checkpoints does not change the shot's outputs.
+        let every = m.shot.as_ref().and_then(|s| s.checkpoint_every);
+        let shot = m.shot.clone().map(|s| ShotSection {
+            checkpoint_every: None,
+            ..s
+        });
+        let params = (&m.frames, &shot, &m.character, &scene);
         let key = stage_key("shot", &params, &inputs, upstream)?;
         let frames: Option<FrameSpec> = parse_key(&self.path, "frames", &m.frames)?;
-        let stage = ShotJob {
-            asset: self.shot_input(),
-            scene,
-            request: ShotRequest {
-                frames: frames.map(|f| f.frames()).unwrap_or_default(),
-                output: self.shot_asset(),
-                yarns_out: None,
-                write: WriteOptions::default(),
-                command: command.into(),
+        let interrupt = self.interrupt;
+        let stage = ChunkedShotJob {
+            shot: ShotJob {
+                asset: self.shot_input(),
+                scene,
+                request: ShotRequest {
+                    frames: frames.map(|f| f.frames()).unwrap_or_default(),
+                    output: self.shot_asset(),
+                    yarns_out: None,
+                    write: WriteOptions::default(),
+                    command: command.into(),
+                },
+            },
+            chunk: ChunkOptions {
+                checkpoint_every: every.unwrap_or(DEFAULT_CHECKPOINT_EVERY),
+                checkpoint_dir: Some(self.checkpoint_dir()),
+                resume: true,
+                stop: interrupt.map(|i| i.flag()),
+                ..ChunkOptions::default()
             },
         };
-        Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))
+        let dir = self.checkpoint_dir();
+        let run = move |o: &mut dyn Observer| {
+            let _armed = interrupt.map(|i| i.arm());
+            let r = stage.run(o)?;
+            // Done: the record vouches for the asset, nothing to resume.
+            if let Some(c) = &r.checkpoint {
+                let _ = std::fs::remove_file(c);
+            }
+            let _ = std::fs::remove_dir(&dir); // only when empty
+            Ok(vec![r.output])
+        };
+        Ok((key, Box::new(run)))
     }
 
-    /// The export stage's key and job (its parameters and the shot's key).
+    /// The export stage's key and job (its parameters and the shot's key):
+    /// the shot's frames, or without a shot the rest shape of the fitted
+    /// (or embedded) asset as step 0.
     fn plan_export(&self, upstream: Option<&str>) -> Result<(String, StageRun), Error> {
         let e = self.manifest.export.clone().unwrap_or_default();
         let key = stage_key("export", &e, &[], upstream)?;
         let d = WriteOptions::default();
         let dir = self.output.join("export");
+        let asset = match (&self.manifest.shot, &self.manifest.fit) {
+            (Some(_), _) => self.shot_asset(),
+            (None, Some(_)) => self.fitted_asset(),
+            (None, None) => self.garment_asset(),
+        };
         let stage = ExportJob {
-            asset: self.shot_asset(),
+            rest_if_static: self.manifest.shot.is_none(),
+            asset,
             selection: parse_key(&self.path, "export.steps", &e.steps)?,
             format: self.export_format()?,
             output: dir.clone(),
@@ -1004,7 +1091,7 @@ mod tests {
         assert_eq!(back.output, dir.path().join("../out"));
         let bare = Manifest::for_yarns("a.ply".into());
         let job = Job::load(&write(dir.path(), "b.toml", &bare.to_toml().unwrap())).unwrap();
-        assert_eq!(job.stages(), vec!["embed"]);
+        assert_eq!(job.stages(), vec!["embed", "export"]);
     }
 
     #[test]

@@ -84,6 +84,67 @@ pub struct FrameProgress {
     pub penetration_m: Option<f64>,
 }
 
+/// A stop request from outside the process (SIGTERM) for the stages that
+/// can honour it: a resumable shot finishes its current step, checkpoints
+/// and stops with exit 75. The CLI's signal handler calls
+/// [`Interrupt::request`]; outside such a stage the request is refused and
+/// the handler ends the process as SIGTERM normally does (a half-done embed
+/// or fit has nothing to save).
+#[derive(Debug)]
+pub struct Interrupt {
+    requested: std::sync::atomic::AtomicBool,
+    armed: std::sync::atomic::AtomicBool,
+}
+
+impl Interrupt {
+    pub const fn new() -> Interrupt {
+        Interrupt {
+            requested: std::sync::atomic::AtomicBool::new(false),
+            armed: std::sync::atomic::AtomicBool::new(false),
+        }
+    }
+
+    /// Asks the running stage to stop; `false` when no stage can (the
+    /// caller then ends the process). Async-signal-safe (atomics only).
+    pub fn request(&self) -> bool {
+        use std::sync::atomic::Ordering::SeqCst;
+        if self.armed.load(SeqCst) {
+            self.requested.store(true, SeqCst);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// The flag a resumable shot polls after every step.
+    pub fn flag(&self) -> &std::sync::atomic::AtomicBool {
+        &self.requested
+    }
+
+    /// Honours requests while the returned guard lives.
+    pub fn arm(&self) -> InterruptArmed<'_> {
+        self.armed.store(true, std::sync::atomic::Ordering::SeqCst);
+        InterruptArmed(self)
+    }
+}
+
+impl Default for Interrupt {
+    fn default() -> Self {
+        Interrupt::new()
+    }
+}
+
+/// See [`Interrupt::arm`].
+pub struct InterruptArmed<'a>(&'a Interrupt);
+
+impl Drop for InterruptArmed<'_> {
+    fn drop(&mut self) {
+        self.0
+            .armed
+            .store(false, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
 /// What a stage tells its caller while it runs (the CLI prints it; a
 /// daemon logs it). Every method defaults to doing nothing.
 pub trait Observer {

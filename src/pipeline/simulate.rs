@@ -964,6 +964,10 @@ fn save_checkpoint(
         series: state.steps.positions.clone(),
         warm_start: state.warm_start.clone(),
     };
+    std::fs::create_dir_all(&ctx.dir).map_err(|source| IoError::Write {
+        path: ctx.dir.clone(),
+        source,
+    })?;
     checkpoint::write(&path, &c)?;
     Ok(path)
 }
