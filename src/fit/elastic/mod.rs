@@ -126,18 +126,22 @@ pub struct ElasticFitParams {
     /// `γ ← γ e^{t dθ}`, gradient `γ ∂ε/∂γ`, Gauss-Newton damping scaled by
     /// `(γ_rms/γ_j)²`, i.e. Eq. 21 with Marquardt's diagonal in θ) instead
     /// of VH §6.3's additive steps with projection to the floor and
-    /// pivoting. Default false. At high contrast (a 100x band) the additive
-    /// steps drive hundreds of soft elements to the floor and the loss
-    /// stalls ~9e2x down, where θ clamps none and the loss falls ~5e8x;
-    /// but on a 10x band θ also follows directions the poses barely see
-    /// (loss 1e8x down, fewer elements within 10% of the truth than the
-    /// additive fit's). Measured in `tests.rs` (synthetic recovery).
+    /// pivoting. Default true: positivity without clamping, and at high
+    /// contrast the additive steps drive hundreds of soft elements to the
+    /// floor and stall (100x band: loss ~9e2x down, 236 elements clamped)
+    /// where θ clamps none and the loss falls ~5e8x. Both recover the
+    /// elements the poses determine; elsewhere (directions the Eq. 19
+    /// matrix barely sees) the result follows the path, and on a 10x band
+    /// the additive path stays closer to the truth (measured in `tests.rs`,
+    /// synthetic recovery).
     pub full_stage_log: bool,
     /// Gradient-descent iterations at the start of every stage (VH §6.3:
     /// 10-15). Default 12.
     pub gd_iterations: u32,
     /// Gauss-Newton iterations after them, per stage (VH §6.3: 20-30).
-    /// Default 25.
+    /// Default 50: a stage ends earlier once the loss stops falling or
+    /// reaches `loss_stop`, and the full stage of a 100x band needs ~45
+    /// (measured in `tests.rs`, synthetic recovery).
     pub gn_iterations: u32,
     /// First trial step of gradient descent (dimensionless): the direction
     /// is scaled so that a step of 1 changes the most sensitive `γ` by the
@@ -175,9 +179,9 @@ impl Default for ElasticFitParams {
         ElasticFitParams {
             harmonic_ranks: vec![1, 10, 30],
             full_stage: true,
-            full_stage_log: false,
+            full_stage_log: true,
             gd_iterations: 12,
-            gn_iterations: 25,
+            gn_iterations: 50,
             gd_step: 0.01,
             gn_step: 1.0,
             max_halvings: 10,
