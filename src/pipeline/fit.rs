@@ -24,6 +24,15 @@
 //! compares against, then the harmonic stages and the full field from that
 //! uniform material. Frames are quasi-static (Eq. 14 without the inertia
 //! term of Eq. 13).
+//!
+//! The scale of γ: Eq. 7 is linear in γ, so a pose held only by Dirichlet
+//! nodes (no external force) has the same equilibrium under `s γ` for every
+//! `s > 0`, and its loss cannot see the scale. The recorded clamp reactions
+//! can: [`force_scale`] matches the homogenized clamp forces of the held
+//! bands to the yarn-level ones (resultant force and moment per band) and
+//! scales the uniform material, and again the fitted field, by the
+//! least-squares factor. Poses with external forces (gravity) see the scale
+//! in their loss; when any frame has them the final field is not rescaled.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -138,6 +147,10 @@ pub struct FitJobReport {
     pub loss_fitted: f64,
     /// The best uniform material (r = 1).
     pub uniform: UniformMaterial,
+    /// The reaction-matched γ scale applied to the uniform material and to
+    /// the fitted field ([`force_scale`]; null where not applied).
+    pub uniform_force_scale: Option<ForceScale>,
+    pub field_force_scale: Option<ForceScale>,
     pub gamma_s_range: [f64; 2],
     pub gamma_v_range: [f64; 2],
     /// The fitter's reports: the uniform stage, then the field.
@@ -258,7 +271,7 @@ fn read_pose(
     path: &Path,
     read: &ReadOptions,
     observer: &mut dyn Observer,
-) -> Result<(Sample, PoseSummary), Error> {
+) -> Result<(Sample, PoseSummary, Vec<Option<Vec<Vec3>>>), Error> {
     let asset = cx.asset;
     let data = io::read_path(path, read)?;
     let rest = &asset.rest_yarns;
@@ -340,6 +353,7 @@ fn read_pose(
         }
     };
     let mut out = Vec::with_capacity(chosen.len());
+    let mut node_reactions = Vec::with_capacity(chosen.len());
     let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
         (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
     let mut used = Vec::with_capacity(chosen.len());
@@ -403,6 +417,11 @@ fn read_pose(
                 .energy(&x_hat)
                 .map_err(|e| invalid(path, format!("frame {f}: energy of its shape fit: {e}")))?,
         };
+        node_reactions.push(
+            reactions
+                .as_ref()
+                .map(|r| node_forces(&asset.mesh, &asset.embedding, &r[f])),
+        );
         out.push(Frame {
             target,
             pinned,
@@ -442,6 +461,7 @@ fn read_pose(
             energy,
         },
         summary,
+        node_reactions,
     ))
 }
 
@@ -486,6 +506,156 @@ pub fn sample_losses(
         .collect()
 }
 
+/// The uniform γ scale that the clamp reactions call for.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ForceScale {
+    /// Least-squares factor `s` (dimensionless) applied to γ.
+    pub scale: f64,
+    /// Held bands matched (over all frames with reactions).
+    pub bands: usize,
+    /// `|s C - R| / |R|` over the stacked band resultants after scaling.
+    pub relative_misfit: f64,
+}
+
+/// Connected groups of `pinned` nodes (joined by the tets they share).
+fn bands_of(mesh: &TetMesh, pinned: &[usize]) -> Vec<Vec<usize>> {
+    let n = mesh.num_nodes();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut is = vec![false; n];
+    pinned.iter().for_each(|&i| is[i] = true);
+    for t in &mesh.tets {
+        let held: Vec<usize> = t.iter().map(|&i| i as usize).filter(|&i| is[i]).collect();
+        for w in held.windows(2) {
+            let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[1]));
+            parent[a.max(b)] = a.min(b);
+        }
+    }
+    let mut groups: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for &i in pinned {
+        let r = root(&mut parent, i);
+        groups.entry(r).or_default().push(i);
+    }
+    groups.into_values().collect()
+}
+
+/// Resultant force and moment (about the band's centroid, divided by
+/// `length`) of `f` over `band` at positions `x`, as one 6-vector.
+fn wrench(band: &[usize], x: &[Vec3], f: &[Vec3], length: f64) -> [f64; 6] {
+    let k = band.len().max(1) as f64;
+    let c: Vec3 = std::array::from_fn(|d| band.iter().map(|&i| x[i][d]).sum::<f64>() / k);
+    let mut w = [0.0; 6];
+    for &i in band {
+        let r: Vec3 = std::array::from_fn(|d| x[i][d] - c[d]);
+        let m = crate::geom::vec3::cross(r, f[i]);
+        for d in 0..3 {
+            w[d] += f[i][d];
+            w[3 + d] += m[d] / length;
+        }
+    }
+    w
+}
+
+/// The least-squares γ scale matching the homogenized clamp forces to the
+/// yarn-level reactions (module documentation). `reactions[s][f]` are the
+/// node reactions `Nᵀ r` of frame `f` of sample `s` (None without them);
+/// frames with a free-node external force are skipped (their held
+/// equilibrium depends on the scale). None when no frame qualifies or the
+/// factor is not positive.
+pub fn force_scale(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
+    gamma: &MaterialFields,
+    params: &ElasticFitParams,
+) -> Result<Option<ForceScale>, ElasticFitError> {
+    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
+    });
+    let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
+    let mut pairs = Vec::new();
+    for (s, rs) in samples.iter().zip(reactions) {
+        for (i, (f, r)) in s.frames.iter().zip(rs).enumerate() {
+            let Some(r) = r else { continue };
+            let mut pinned = vec![false; mesh.num_nodes()];
+            f.pinned.iter().for_each(|&p| pinned[p] = true);
+            let loaded = f
+                .f_ext
+                .iter()
+                .enumerate()
+                .any(|(k, v)| !pinned[k] && v.iter().any(|c| *c != 0.0));
+            if loaded {
+                continue;
+            }
+            let (x, _) =
+                equilibrium(&model, mass, f, &f.start, &params.statics()).map_err(|message| {
+                    ElasticFitError::Sample {
+                        sample: s.name.clone(),
+                        frame: i,
+                        message,
+                    }
+                })?;
+            let g = model
+                .gradient(&x)
+                .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+            // Clamp force on a held node: ∇E - f_ext (the free nodes are at rest).
+            let clamp: Vec<Vec3> = g
+                .iter()
+                .zip(&f.f_ext)
+                .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
+                .collect();
+            for band in bands_of(mesh, &f.pinned) {
+                let c = wrench(&band, &x, &clamp, length);
+                let y = wrench(&band, &x, r, length);
+                cc += c.iter().map(|v| v * v).sum::<f64>();
+                cr += c.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>();
+                rr += y.iter().map(|v| v * v).sum::<f64>();
+                pairs.push((c, y));
+                bands += 1;
+            }
+        }
+    }
+    if !(cc > 0.0 && rr > 0.0) {
+        return Ok(None);
+    }
+    let scale = cr / cc;
+    if !(scale > 0.0 && scale.is_finite()) {
+        return Ok(None);
+    }
+    let misfit: f64 = pairs
+        .iter()
+        .map(|(c, y)| (0..6).map(|d| (scale * c[d] - y[d]).powi(2)).sum::<f64>())
+        .sum();
+    Ok(Some(ForceScale {
+        scale,
+        bands,
+        relative_misfit: (misfit / rr).sqrt(),
+    }))
+}
+
+fn range(v: &[f64]) -> [f64; 2] {
+    v.iter()
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], x| {
+            [lo.min(*x), hi.max(*x)]
+        })
+}
+
+fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
+    MaterialFields {
+        gamma_s: g.gamma_s.iter().map(|v| v * s).collect(),
+        gamma_v: g.gamma_v.iter().map(|v| v * s).collect(),
+    }
+}
+
 /// What [`fit_samples`] found.
 #[derive(Debug, Clone)]
 pub struct Fitted {
@@ -495,6 +665,10 @@ pub struct Fitted {
     pub fit: FitReport,
     /// Per sample: loss before, at the uniform material, fitted.
     pub losses: Vec<[f64; 3]>,
+    /// The reaction-matched scale applied to the uniform material, then to
+    /// the fitted field (None: no reactions, or not applied).
+    pub uniform_force_scale: Option<ForceScale>,
+    pub field_force_scale: Option<ForceScale>,
 }
 
 /// All samples as one (the loss of VH Eq. 9 summed over every frame),
@@ -512,13 +686,17 @@ pub fn joint_sample(samples: &[Sample]) -> Sample {
 }
 
 /// The in-memory core of `fit`: the uniform (r = 1) material from `init`,
-/// then the field from it (`params.harmonic_ranks`, full stage), either
-/// sample by sample with the Eq. 22 fold or, with `joint`, all samples as
-/// one ([`joint_sample`]). Losses are reported per sample either way.
+/// scaled to the clamp reactions ([`force_scale`]; `reactions[s][f]` per
+/// sample and frame, may be empty), then the field from it
+/// (`params.harmonic_ranks`, full stage), rescaled the same way when no
+/// frame carries an external force; either sample by sample with the Eq.
+/// 22 fold or, with `joint`, all samples as one ([`joint_sample`]). Losses
+/// are reported per sample either way.
 pub fn fit_samples(
     mesh: &TetMesh,
     mass: &[f64],
     samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
     joint: bool,
     init: &MaterialFields,
     params: &ElasticFitParams,
@@ -535,8 +713,24 @@ pub fn fit_samples(
         samples: if joint { &merged } else { samples },
         init,
     };
-    let (u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
-    let (gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
+    let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, params)?;
+    if let Some(fs) = uniform_force_scale {
+        u = scaled(&u, fs.scale);
+    }
+    let (mut gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let loaded = samples
+        .iter()
+        .flat_map(|s| &s.frames)
+        .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
+    let field_force_scale = if loaded {
+        None
+    } else {
+        force_scale(mesh, mass, samples, reactions, &gamma, params)?
+    };
+    if let Some(fs) = field_force_scale {
+        gamma = scaled(&gamma, fs.scale);
+    }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let uniform = UniformMaterial {
         gamma_s: mean(&u.gamma_s),
@@ -554,6 +748,8 @@ pub fn fit_samples(
         uniform_fit,
         fit,
         losses,
+        uniform_force_scale,
+        field_force_scale,
     })
 }
 
@@ -611,10 +807,12 @@ impl Stage for FitJob {
         };
         let mut samples = Vec::new();
         let mut poses = Vec::new();
+        let mut reactions = Vec::new();
         for p in &self.train {
-            let (s, summary) = read_pose(&cx, p, &self.read, observer)?;
+            let (s, summary, r) = read_pose(&cx, p, &self.read, observer)?;
             samples.push(s);
             poses.push(summary);
+            reactions.push(r);
         }
         let init = MaterialFields {
             gamma_s: asset.gamma_s.clone(),
@@ -624,11 +822,21 @@ impl Stage for FitJob {
             &asset.mesh,
             &asset.node_mass,
             &samples,
+            &reactions,
             self.joint,
             &init,
             &self.params,
         )
         .map_err(|e| fit_error(&self.train, e))?;
+        let loaded = samples
+            .iter()
+            .flat_map(|s| &s.frames)
+            .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
+        if fitted.uniform_force_scale.is_none() && !loaded {
+            observer.warning(
+                "no clamp reactions set the material scale (a loss without external forces does not see it)",
+            );
+        }
         let record = FitRecord {
             knitvox_version: env!("CARGO_PKG_VERSION").to_string(),
             poses: poses
@@ -698,8 +906,10 @@ impl Stage for FitJob {
             loss_uniform: sum(1),
             loss_fitted: sum(2),
             uniform: fitted.uniform,
-            gamma_s_range: fitted.fit.gamma_s_range,
-            gamma_v_range: fitted.fit.gamma_v_range,
+            uniform_force_scale: fitted.uniform_force_scale,
+            field_force_scale: fitted.field_force_scale,
+            gamma_s_range: range(&fitted.gamma.gamma_s),
+            gamma_v_range: range(&fitted.gamma.gamma_v),
             uniform_fit: fitted.uniform_fit,
             fit: fitted.fit,
             report_files: Vec::new(),
@@ -862,6 +1072,65 @@ mod tests {
         assert_eq!(choose_frames(3, 5), vec![0, 1, 2]);
         assert_eq!(choose_frames(10, 4), vec![2, 4, 7, 9]);
         assert_eq!(choose_frames(1, 1), vec![0]);
+    }
+
+    /// A slab held at both ends and stretched 20 %: the clamp forces at a
+    /// true material γ* are the "reactions"; from γ*/7 the force scale is 7
+    /// (the held equilibrium does not depend on the scale).
+    #[test]
+    fn force_scale_recovers_the_material_scale_from_reactions() {
+        let h = 0.01;
+        let (mesh, mass) = crate::sim::pd::box_mesh([6, 2, 2], h, 120.0);
+        let nt = mesh.num_tets();
+        let truth = MaterialFields {
+            gamma_s: vec![2e4; nt],
+            gamma_v: vec![5e4; nt],
+        };
+        let lx = 6.0 * h;
+        let mut pinned = Vec::new();
+        let mut start = mesh.nodes.clone();
+        for (i, p) in mesh.nodes.iter().enumerate() {
+            if p[0] < 1e-9 || p[0] > lx - 1e-9 {
+                pinned.push(i);
+                start[i][0] *= 1.2;
+            }
+        }
+        let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
+        let frame = Frame {
+            target: FrameTarget::from_nodes(&model, &start, &mass, LOSS_ALPHA, h).unwrap(),
+            pinned: pinned.clone(),
+            start: start.clone(),
+            f_ext: vec![[0.0; 3]; mesh.num_nodes()],
+        };
+        let params = ElasticFitParams::default();
+        let (x, _) = equilibrium(&model, &mass, &frame, &start, &params.statics()).unwrap();
+        let g = model.gradient(&x).unwrap();
+        let mut r = vec![[0.0; 3]; g.len()];
+        for &i in &pinned {
+            r[i] = g[i];
+        }
+        let samples = [Sample {
+            name: "stretch".into(),
+            frames: vec![frame],
+            energy: 1.0,
+        }];
+        let reactions = vec![vec![Some(r)]];
+        let fs = force_scale(
+            &mesh,
+            &mass,
+            &samples,
+            &reactions,
+            &scaled(&truth, 1.0 / 7.0),
+            &params,
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(fs.bands, 2);
+        assert!((fs.scale - 7.0).abs() < 1e-4 * 7.0, "{fs:?}");
+        assert!(fs.relative_misfit < 1e-4, "{fs:?}");
+        // Without reactions there is nothing to match.
+        let none = force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &params).unwrap();
+        assert!(none.is_none());
     }
 
     #[test]
