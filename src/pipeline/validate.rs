@@ -104,6 +104,9 @@ pub struct ValidateReport {
     /// most yarn vertices in contact in one frame.
     pub max_penetration_m: f64,
     pub max_contacts: usize,
+    /// Most backward-Euler substeps a homogenized frame needed (a frame
+    /// whose Newton solve fails is retried in 2, 4, .. 16 substeps).
+    pub max_substeps: usize,
     /// Total node mass of the asset and the yarn-level mass (kg).
     pub mesh_mass_kg: f64,
     pub yarn_mass_kg: f64,
@@ -162,6 +165,69 @@ pub struct HomogenizedRun {
     pub max_penetration_m: f64,
     /// Most yarn vertices in contact in one frame.
     pub max_contacts: usize,
+    /// Most backward-Euler substeps a frame needed (1: none).
+    pub substeps: usize,
+}
+
+/// One frame interval `(t0, t1)` in `sub` backward-Euler steps from
+/// positions `x` and velocities `v`: pinned node `i` at `target(i, t)`,
+/// colliders from `contact_at(t)`. Returns the end positions and
+/// velocities, the Newton iterations, and the most contacts and deepest
+/// penetration (m) seen.
+#[allow(clippy::too_many_arguments)]
+fn frame_steps(
+    solver: &mut StaticSolver,
+    x: &[Vec3],
+    v: &[Vec3],
+    (t0, t1, sub): (f64, f64, usize),
+    target: &dyn Fn(usize, f64) -> Vec3,
+    pinned: &[usize],
+    f_ext: &[Vec3],
+    params: &StaticParams,
+    contact_at: &dyn Fn(f64) -> Option<ContactPenalty>,
+) -> Result<(Vec<Vec3>, Vec<Vec3>, u64, (usize, f64)), String> {
+    let dt = (t1 - t0) / sub as f64;
+    let (mut x, mut v) = (x.to_vec(), v.to_vec());
+    let (mut iterations, mut contacts, mut depth) = (0u64, 0usize, 0.0f64);
+    for j in 1..=sub {
+        let t = t0 + dt * j as f64;
+        let mut x0 = x.clone();
+        for &i in pinned {
+            x0[i] = target(i, t);
+        }
+        solver
+            .set_contact(contact_at(t))
+            .map_err(|e| e.to_string())?;
+        // Eq. 13's x̃ = 2 x_prev - x_prevprev with x_prevprev = x - v Δt.
+        let back: Vec<Vec3> = x
+            .iter()
+            .zip(&v)
+            .map(|(p, w)| std::array::from_fn(|c| p[c] - w[c] * dt))
+            .collect();
+        let inertia = (dt > 0.0).then_some(Inertia {
+            x_prev: &x,
+            x_prevprev: &back,
+            dt,
+        });
+        let (xn, st) = solver
+            .solve(&x0, f_ext, inertia, params)
+            .map_err(|e| e.to_string())?;
+        iterations += st.iterations as u64;
+        if let Some(c) = solver.contact() {
+            let (count, d) = c.penetration(&xn);
+            contacts = contacts.max(count);
+            depth = depth.max(d);
+        }
+        if dt > 0.0 {
+            v = xn
+                .iter()
+                .zip(&x)
+                .map(|(a, b)| std::array::from_fn(|c| (a[c] - b[c]) / dt))
+                .collect();
+        }
+        x = xn;
+    }
+    Ok((x, v, iterations, (contacts, depth)))
 }
 
 /// Homogenized frames at `times` (s; `times[0]` is the rest state) under
@@ -217,16 +283,12 @@ pub fn homogenized_frames(
         newton_iterations: 0,
         max_penetration_m: 0.0,
         max_contacts: 0,
+        substeps: 1,
     };
-    let (mut x_pp, mut x_p) = (mesh.nodes.clone(), mesh.nodes.clone());
-    for k in 1..times.len() {
-        let (t, dt) = (times[k], times[k] - times[k - 1]);
-        let mut x0 = x_p.clone();
-        for &i in &pinned {
-            x0[i] = driver.group_target(group[i].unwrap_or(0), mesh.nodes[i], t);
-        }
-        if !colliders.is_empty() {
-            let at_t = colliders
+    let contact_at = |t: f64| -> Option<ContactPenalty> {
+        (!colliders.is_empty()).then(|| ContactPenalty {
+            points: points.clone(),
+            colliders: colliders
                 .iter()
                 .map(|c| {
                     Box::new(AtTime {
@@ -234,30 +296,44 @@ pub fn homogenized_frames(
                         t,
                     }) as Box<dyn SignedDistance>
                 })
-                .collect();
-            solver
-                .set_contact(Some(ContactPenalty {
-                    points: points.clone(),
-                    colliders: at_t,
-                    stiffness,
-                }))
-                .map_err(|e| e.to_string())?;
-        }
-        let inertia = (dt > 0.0).then_some(Inertia {
-            x_prev: &x_p,
-            x_prevprev: &x_pp,
-            dt,
-        });
-        let (x, st) = solver
-            .solve(&x0, &f_ext, inertia, &params)
-            .map_err(|e| format!("frame {k} (t = {t} s): {e}"))?;
-        run.newton_iterations += st.iterations as u64;
-        if let Some(c) = solver.contact() {
-            let (count, depth) = c.penetration(&x);
-            run.max_contacts = run.max_contacts.max(count);
-            run.max_penetration_m = run.max_penetration_m.max(depth);
-        }
-        x_pp = std::mem::replace(&mut x_p, x.clone());
+                .collect(),
+            stiffness,
+        })
+    };
+    // State: positions and velocity (m/s). A frame whose Newton solve fails
+    // is retried in 2, 4, ... 16 backward-Euler substeps (pins and colliders
+    // at the substep times): contact active sets and large motions
+    // converge in smaller steps.
+    let mut x_p = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; n];
+    for k in 1..times.len() {
+        let (t0, t1) = (times[k - 1], times[k]);
+        let mut sub = 1usize;
+        let (x, vel, iterations, contacts) = loop {
+            match frame_steps(
+                &mut solver,
+                &x_p,
+                &v,
+                (t0, t1, sub),
+                &|i, t| driver.group_target(group[i].unwrap_or(0), mesh.nodes[i], t),
+                &pinned,
+                &f_ext,
+                &params,
+                &contact_at,
+            ) {
+                Ok(r) => break r,
+                Err(e) if sub >= 16 => {
+                    return Err(format!("frame {k} (t = {t1} s, {sub} substeps): {e}"))
+                }
+                Err(_) => sub *= 2,
+            }
+        };
+        run.newton_iterations += iterations;
+        run.max_contacts = run.max_contacts.max(contacts.0);
+        run.max_penetration_m = run.max_penetration_m.max(contacts.1);
+        run.substeps = run.substeps.max(sub);
+        v = vel;
+        x_p = x.clone();
         run.frames.push(x);
     }
     Ok(run)
@@ -580,6 +656,7 @@ impl Stage for ValidateJob {
             colliders: colliders.len(),
             max_penetration_m: hr.max_penetration_m,
             max_contacts: hr.max_contacts,
+            max_substeps: hr.substeps,
             mesh_mass_kg,
             yarn_mass_kg,
             y2v_floor_rms_yarn_diameters: frms,
