@@ -9,7 +9,10 @@
 //!   5-6, [`ShapeFitter`]) and [`FrameTarget::from_nodes`] (α = 0.1);
 //! * Dirichlet nodes: the four nodes of every tet that holds a *held* yarn
 //!   vertex, kept at `x̂`. Held vertices are the rows of
-//!   `/frames/reaction_forces` that are non-zero (schemas/yarns-hdf5.md);
+//!   `/frames/reaction_forces` that are non-zero (schemas/yarns-hdf5.md),
+//!   with the clamped bands of the pose record `/metadata/pose_json` of
+//!   `knitvox train` when present (inside a band that moves rigidly a
+//!   clamped vertex can have an exactly zero reaction);
 //!   without that dataset, the clamped bands of the yls scene stored in
 //!   `/metadata/scene_toml`; without either, the left and right bands of a
 //!   `stretch_courses` pose (a warning says which);
@@ -51,6 +54,7 @@ use crate::pipeline::asset::{check_asset_ext, re_embed, sha256_file, StageError}
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::energy::ElasticModel;
+use crate::yarn::fabric::pose::FabricPlane;
 use crate::yarn::poses::{PoseDriver, PoseKind, PoseParams};
 
 /// Frames fitted per pose when `--samples` is not given.
@@ -331,9 +335,22 @@ fn read_pose(
             (h, src)
         }
     };
+    // A clamped vertex whose neighbours are clamped too can have an exactly
+    // zero reaction (its band moves rigidly): the pose record's bands
+    // (`knitvox train`) count as held with the non-zero rows.
+    let recorded = match &reactions {
+        Some(_) => recorded_bands(path, &rest.points)?,
+        None => None,
+    };
     let held_at = |f: usize| -> Vec<bool> {
         match &reactions {
-            Some(r) => r[f].iter().map(|v| v.iter().any(|c| *c != 0.0)).collect(),
+            Some(r) => r[f]
+                .iter()
+                .enumerate()
+                .map(|(v, x)| {
+                    x.iter().any(|c| *c != 0.0) || recorded.as_ref().is_some_and(|b| b[v])
+                })
+                .collect(),
             None => fixed_held.clone(),
         }
     };
@@ -463,6 +480,38 @@ fn read_pose(
         summary,
         node_reactions,
     ))
+}
+
+/// The clamped vertices of the pose a `knitvox train` file records
+/// (`/metadata/pose_json`: kind, amount, mirror, folds, band), found on the
+/// rest yarns turned into the pose frame as the run did; None without it.
+fn recorded_bands(path: &Path, rest: &[Vec3]) -> Result<Option<Vec<bool>>, Error> {
+    if io::format_of(path)? != io::Format::Hdf5 {
+        return Ok(None);
+    }
+    let Some(text) = io::h5::read_text(path, "pose_json")? else {
+        return Ok(None);
+    };
+    let bad = |m: String| invalid(path, format!("its /metadata/pose_json: {m}"));
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let kind = v["kind"]
+        .as_str()
+        .ok_or_else(|| bad("no kind".into()))
+        .and_then(|k| super::train::parse_kind(k).map_err(bad))?;
+    let mut params = PoseParams::new(kind, v["amount"].as_f64().unwrap_or(0.0));
+    params.mirror = v["mirror"].as_bool().unwrap_or(false);
+    if let Some(f) = v["folds"].as_u64() {
+        params.folds = f as u32;
+    }
+    if let Some(b) = v["band"].as_f64() {
+        params.band = b;
+    }
+    let plane = FabricPlane::of(rest);
+    let posed: Vec<Vec3> = rest.iter().map(|p| plane.to_pose(*p)).collect();
+    let driver = PoseDriver::new(&posed, params).map_err(|e| bad(format!("its bands: {e}")))?;
+    let mut held = vec![false; rest.len()];
+    driver.pinned().iter().for_each(|&i| held[i] = true);
+    Ok(Some(held))
 }
 
 /// The yls scene a pose file stores (`/metadata/scene_toml`), if any.
@@ -1131,6 +1180,45 @@ mod tests {
         // Without reactions there is nothing to match.
         let none = force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &params).unwrap();
         assert!(none.is_none());
+    }
+
+    /// The pose record's bands: a stretch_courses file gives its left and
+    /// right bands (both ends of the swatch along X), whatever its reactions.
+    #[test]
+    fn recorded_bands_are_the_clamped_bands_of_the_pose() {
+        let n = 40;
+        let points: Vec<Vec3> = (0..n)
+            .map(|i| [0.001 * i as f64, 0.0, 0.0005 * (i % 4) as f64])
+            .collect();
+        let mut yarns = crate::geom::Yarns::new();
+        yarns.push_curve(&points, false, 0.0005);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pose.h5");
+        let mut w = io::h5::FrameWriter::create(&path, &yarns).unwrap();
+        w.add_text(
+            "pose_json",
+            r#"{"kind":"stretch_courses","amount":0.1,"mirror":false,"folds":3,"band":0.1}"#,
+        )
+        .unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let held = recorded_bands(&path, &points).unwrap().unwrap();
+        let lx = 0.001 * (n - 1) as f64;
+        for (v, p) in points.iter().enumerate() {
+            let edge = p[0] <= 0.1 * lx + 1e-12 || p[0] >= 0.9 * lx - 1e-12;
+            assert_eq!(held[v], edge, "vertex {v} at x = {}", p[0]);
+        }
+        // No record: None; a broken record: an error naming the file.
+        let bare = dir.path().join("bare.h5");
+        io::h5::write_file(&bare, &yarns, None).unwrap();
+        assert!(recorded_bands(&bare, &points).unwrap().is_none());
+        let broken = dir.path().join("broken.h5");
+        let mut w = io::h5::FrameWriter::create(&broken, &yarns).unwrap();
+        w.add_text("pose_json", r#"{"kind":"sideways"}"#).unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let e = recorded_bands(&broken, &points).unwrap_err().to_string();
+        assert!(e.contains("broken.h5") && e.contains("pose_json"), "{e}");
     }
 
     #[test]
