@@ -554,18 +554,5 @@ fn validate_runs_both_levels_and_reports_the_distance() {
         "clamped vertices differ by {apart} yarn diameters"
     );
 
-    // A scene with a collider: not supported on the homogenized side (65).
-    let col = d.join("col.toml");
-    std::fs::write(
-        &col,
-        format!("{STRETCH_SCENE}[[colliders]]\ntype = \"sphere\"\nradius = 0.01\n"),
-    )
-    .unwrap();
-    let o = knitvox(&["validate", s(&asset_path), "--scene", s(&col)]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(65), "{err}");
-    assert!(
-        err.contains("col.toml") && err.contains("colliders"),
-        "{err}"
-    );
+    // Scenes with colliders: tests/validate_gravity.rs.
 }

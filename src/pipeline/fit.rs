@@ -9,7 +9,10 @@
 //!   5-6, [`ShapeFitter`]) and [`FrameTarget::from_nodes`] (α = 0.1);
 //! * Dirichlet nodes: the four nodes of every tet that holds a *held* yarn
 //!   vertex, kept at `x̂`. Held vertices are the rows of
-//!   `/frames/reaction_forces` that are non-zero (schemas/yarns-hdf5.md);
+//!   `/frames/reaction_forces` that are non-zero (schemas/yarns-hdf5.md),
+//!   with the clamped bands of the pose record `/metadata/pose_json` of
+//!   `knitvox train` when present (inside a band that moves rigidly a
+//!   clamped vertex can have an exactly zero reaction);
 //!   without that dataset, the clamped bands of the yls scene stored in
 //!   `/metadata/scene_toml`; without either, the left and right bands of a
 //!   `stretch_courses` pose (a warning says which);
@@ -24,6 +27,15 @@
 //! compares against, then the harmonic stages and the full field from that
 //! uniform material. Frames are quasi-static (Eq. 14 without the inertia
 //! term of Eq. 13).
+//!
+//! The scale of γ: Eq. 7 is linear in γ, so a pose held only by Dirichlet
+//! nodes (no external force) has the same equilibrium under `s γ` for every
+//! `s > 0`, and its loss cannot see the scale. The recorded clamp reactions
+//! can: [`force_scale`] matches the homogenized clamp forces of the held
+//! bands to the yarn-level ones (resultant force and moment per band) and
+//! scales the uniform material, and again the fitted field, by the
+//! least-squares factor. Poses with external forces (gravity) see the scale
+//! in their loss; when any frame has them the final field is not rescaled.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -42,6 +54,7 @@ use crate::pipeline::asset::{check_asset_ext, re_embed, sha256_file, StageError}
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::energy::ElasticModel;
+use crate::yarn::fabric::pose::FabricPlane;
 use crate::yarn::poses::{PoseDriver, PoseKind, PoseParams};
 
 /// Frames fitted per pose when `--samples` is not given.
@@ -138,6 +151,10 @@ pub struct FitJobReport {
     pub loss_fitted: f64,
     /// The best uniform material (r = 1).
     pub uniform: UniformMaterial,
+    /// The reaction-matched γ scale applied to the uniform material and to
+    /// the fitted field ([`force_scale`]; null where not applied).
+    pub uniform_force_scale: Option<ForceScale>,
+    pub field_force_scale: Option<ForceScale>,
     pub gamma_s_range: [f64; 2],
     pub gamma_v_range: [f64; 2],
     /// The fitter's reports: the uniform stage, then the field.
@@ -258,7 +275,7 @@ fn read_pose(
     path: &Path,
     read: &ReadOptions,
     observer: &mut dyn Observer,
-) -> Result<(Sample, PoseSummary), Error> {
+) -> Result<(Sample, PoseSummary, Vec<Option<Vec<Vec3>>>), Error> {
     let asset = cx.asset;
     let data = io::read_path(path, read)?;
     let rest = &asset.rest_yarns;
@@ -318,9 +335,22 @@ fn read_pose(
             (h, src)
         }
     };
+    // A clamped vertex whose neighbours are clamped too can have an exactly
+    // zero reaction (its band moves rigidly): the pose record's bands
+    // (`knitvox train`) count as held with the non-zero rows.
+    let recorded = match &reactions {
+        Some(_) => recorded_bands(path, &rest.points)?,
+        None => None,
+    };
     let held_at = |f: usize| -> Vec<bool> {
         match &reactions {
-            Some(r) => r[f].iter().map(|v| v.iter().any(|c| *c != 0.0)).collect(),
+            Some(r) => r[f]
+                .iter()
+                .enumerate()
+                .map(|(v, x)| {
+                    x.iter().any(|c| *c != 0.0) || recorded.as_ref().is_some_and(|b| b[v])
+                })
+                .collect(),
             None => fixed_held.clone(),
         }
     };
@@ -340,6 +370,7 @@ fn read_pose(
         }
     };
     let mut out = Vec::with_capacity(chosen.len());
+    let mut node_reactions = Vec::with_capacity(chosen.len());
     let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
         (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
     let mut used = Vec::with_capacity(chosen.len());
@@ -403,6 +434,11 @@ fn read_pose(
                 .energy(&x_hat)
                 .map_err(|e| invalid(path, format!("frame {f}: energy of its shape fit: {e}")))?,
         };
+        node_reactions.push(
+            reactions
+                .as_ref()
+                .map(|r| node_forces(&asset.mesh, &asset.embedding, &r[f])),
+        );
         out.push(Frame {
             target,
             pinned,
@@ -442,7 +478,40 @@ fn read_pose(
             energy,
         },
         summary,
+        node_reactions,
     ))
+}
+
+/// The clamped vertices of the pose a `knitvox train` file records
+/// (`/metadata/pose_json`: kind, amount, mirror, folds, band), found on the
+/// rest yarns turned into the pose frame as the run did; None without it.
+fn recorded_bands(path: &Path, rest: &[Vec3]) -> Result<Option<Vec<bool>>, Error> {
+    if io::format_of(path)? != io::Format::Hdf5 {
+        return Ok(None);
+    }
+    let Some(text) = io::h5::read_text(path, "pose_json")? else {
+        return Ok(None);
+    };
+    let bad = |m: String| invalid(path, format!("its /metadata/pose_json: {m}"));
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let kind = v["kind"]
+        .as_str()
+        .ok_or_else(|| bad("no kind".into()))
+        .and_then(|k| super::train::parse_kind(k).map_err(bad))?;
+    let mut params = PoseParams::new(kind, v["amount"].as_f64().unwrap_or(0.0));
+    params.mirror = v["mirror"].as_bool().unwrap_or(false);
+    if let Some(f) = v["folds"].as_u64() {
+        params.folds = f as u32;
+    }
+    if let Some(b) = v["band"].as_f64() {
+        params.band = b;
+    }
+    let plane = FabricPlane::of(rest);
+    let posed: Vec<Vec3> = rest.iter().map(|p| plane.to_pose(*p)).collect();
+    let driver = PoseDriver::new(&posed, params).map_err(|e| bad(format!("its bands: {e}")))?;
+    let mut held = vec![false; rest.len()];
+    driver.pinned().iter().for_each(|&i| held[i] = true);
+    Ok(Some(held))
 }
 
 /// The yls scene a pose file stores (`/metadata/scene_toml`), if any.
@@ -486,6 +555,156 @@ pub fn sample_losses(
         .collect()
 }
 
+/// The uniform γ scale that the clamp reactions call for.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ForceScale {
+    /// Least-squares factor `s` (dimensionless) applied to γ.
+    pub scale: f64,
+    /// Held bands matched (over all frames with reactions).
+    pub bands: usize,
+    /// `|s C - R| / |R|` over the stacked band resultants after scaling.
+    pub relative_misfit: f64,
+}
+
+/// Connected groups of `pinned` nodes (joined by the tets they share).
+fn bands_of(mesh: &TetMesh, pinned: &[usize]) -> Vec<Vec<usize>> {
+    let n = mesh.num_nodes();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut is = vec![false; n];
+    pinned.iter().for_each(|&i| is[i] = true);
+    for t in &mesh.tets {
+        let held: Vec<usize> = t.iter().map(|&i| i as usize).filter(|&i| is[i]).collect();
+        for w in held.windows(2) {
+            let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[1]));
+            parent[a.max(b)] = a.min(b);
+        }
+    }
+    let mut groups: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for &i in pinned {
+        let r = root(&mut parent, i);
+        groups.entry(r).or_default().push(i);
+    }
+    groups.into_values().collect()
+}
+
+/// Resultant force and moment (about the band's centroid, divided by
+/// `length`) of `f` over `band` at positions `x`, as one 6-vector.
+fn wrench(band: &[usize], x: &[Vec3], f: &[Vec3], length: f64) -> [f64; 6] {
+    let k = band.len().max(1) as f64;
+    let c: Vec3 = std::array::from_fn(|d| band.iter().map(|&i| x[i][d]).sum::<f64>() / k);
+    let mut w = [0.0; 6];
+    for &i in band {
+        let r: Vec3 = std::array::from_fn(|d| x[i][d] - c[d]);
+        let m = crate::geom::vec3::cross(r, f[i]);
+        for d in 0..3 {
+            w[d] += f[i][d];
+            w[3 + d] += m[d] / length;
+        }
+    }
+    w
+}
+
+/// The least-squares γ scale matching the homogenized clamp forces to the
+/// yarn-level reactions (module documentation). `reactions[s][f]` are the
+/// node reactions `Nᵀ r` of frame `f` of sample `s` (None without them);
+/// frames with a free-node external force are skipped (their held
+/// equilibrium depends on the scale). None when no frame qualifies or the
+/// factor is not positive.
+pub fn force_scale(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
+    gamma: &MaterialFields,
+    params: &ElasticFitParams,
+) -> Result<Option<ForceScale>, ElasticFitError> {
+    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
+    });
+    let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
+    let mut pairs = Vec::new();
+    for (s, rs) in samples.iter().zip(reactions) {
+        for (i, (f, r)) in s.frames.iter().zip(rs).enumerate() {
+            let Some(r) = r else { continue };
+            let mut pinned = vec![false; mesh.num_nodes()];
+            f.pinned.iter().for_each(|&p| pinned[p] = true);
+            let loaded = f
+                .f_ext
+                .iter()
+                .enumerate()
+                .any(|(k, v)| !pinned[k] && v.iter().any(|c| *c != 0.0));
+            if loaded {
+                continue;
+            }
+            let (x, _) =
+                equilibrium(&model, mass, f, &f.start, &params.statics()).map_err(|message| {
+                    ElasticFitError::Sample {
+                        sample: s.name.clone(),
+                        frame: i,
+                        message,
+                    }
+                })?;
+            let g = model
+                .gradient(&x)
+                .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+            // Clamp force on a held node: ∇E - f_ext (the free nodes are at rest).
+            let clamp: Vec<Vec3> = g
+                .iter()
+                .zip(&f.f_ext)
+                .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
+                .collect();
+            for band in bands_of(mesh, &f.pinned) {
+                let c = wrench(&band, &x, &clamp, length);
+                let y = wrench(&band, &x, r, length);
+                cc += c.iter().map(|v| v * v).sum::<f64>();
+                cr += c.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>();
+                rr += y.iter().map(|v| v * v).sum::<f64>();
+                pairs.push((c, y));
+                bands += 1;
+            }
+        }
+    }
+    if !(cc > 0.0 && rr > 0.0) {
+        return Ok(None);
+    }
+    let scale = cr / cc;
+    if !(scale > 0.0 && scale.is_finite()) {
+        return Ok(None);
+    }
+    let misfit: f64 = pairs
+        .iter()
+        .map(|(c, y)| (0..6).map(|d| (scale * c[d] - y[d]).powi(2)).sum::<f64>())
+        .sum();
+    Ok(Some(ForceScale {
+        scale,
+        bands,
+        relative_misfit: (misfit / rr).sqrt(),
+    }))
+}
+
+fn range(v: &[f64]) -> [f64; 2] {
+    v.iter()
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], x| {
+            [lo.min(*x), hi.max(*x)]
+        })
+}
+
+fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
+    MaterialFields {
+        gamma_s: g.gamma_s.iter().map(|v| v * s).collect(),
+        gamma_v: g.gamma_v.iter().map(|v| v * s).collect(),
+    }
+}
+
 /// What [`fit_samples`] found.
 #[derive(Debug, Clone)]
 pub struct Fitted {
@@ -495,6 +714,10 @@ pub struct Fitted {
     pub fit: FitReport,
     /// Per sample: loss before, at the uniform material, fitted.
     pub losses: Vec<[f64; 3]>,
+    /// The reaction-matched scale applied to the uniform material, then to
+    /// the fitted field (None: no reactions, or not applied).
+    pub uniform_force_scale: Option<ForceScale>,
+    pub field_force_scale: Option<ForceScale>,
 }
 
 /// All samples as one (the loss of VH Eq. 9 summed over every frame),
@@ -512,13 +735,17 @@ pub fn joint_sample(samples: &[Sample]) -> Sample {
 }
 
 /// The in-memory core of `fit`: the uniform (r = 1) material from `init`,
-/// then the field from it (`params.harmonic_ranks`, full stage), either
-/// sample by sample with the Eq. 22 fold or, with `joint`, all samples as
-/// one ([`joint_sample`]). Losses are reported per sample either way.
+/// scaled to the clamp reactions ([`force_scale`]; `reactions[s][f]` per
+/// sample and frame, may be empty), then the field from it
+/// (`params.harmonic_ranks`, full stage), rescaled the same way when no
+/// frame carries an external force; either sample by sample with the Eq.
+/// 22 fold or, with `joint`, all samples as one ([`joint_sample`]). Losses
+/// are reported per sample either way.
 pub fn fit_samples(
     mesh: &TetMesh,
     mass: &[f64],
     samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
     joint: bool,
     init: &MaterialFields,
     params: &ElasticFitParams,
@@ -535,8 +762,24 @@ pub fn fit_samples(
         samples: if joint { &merged } else { samples },
         init,
     };
-    let (u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
-    let (gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
+    let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, params)?;
+    if let Some(fs) = uniform_force_scale {
+        u = scaled(&u, fs.scale);
+    }
+    let (mut gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let loaded = samples
+        .iter()
+        .flat_map(|s| &s.frames)
+        .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
+    let field_force_scale = if loaded {
+        None
+    } else {
+        force_scale(mesh, mass, samples, reactions, &gamma, params)?
+    };
+    if let Some(fs) = field_force_scale {
+        gamma = scaled(&gamma, fs.scale);
+    }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let uniform = UniformMaterial {
         gamma_s: mean(&u.gamma_s),
@@ -554,6 +797,8 @@ pub fn fit_samples(
         uniform_fit,
         fit,
         losses,
+        uniform_force_scale,
+        field_force_scale,
     })
 }
 
@@ -611,10 +856,12 @@ impl Stage for FitJob {
         };
         let mut samples = Vec::new();
         let mut poses = Vec::new();
+        let mut reactions = Vec::new();
         for p in &self.train {
-            let (s, summary) = read_pose(&cx, p, &self.read, observer)?;
+            let (s, summary, r) = read_pose(&cx, p, &self.read, observer)?;
             samples.push(s);
             poses.push(summary);
+            reactions.push(r);
         }
         let init = MaterialFields {
             gamma_s: asset.gamma_s.clone(),
@@ -624,11 +871,21 @@ impl Stage for FitJob {
             &asset.mesh,
             &asset.node_mass,
             &samples,
+            &reactions,
             self.joint,
             &init,
             &self.params,
         )
         .map_err(|e| fit_error(&self.train, e))?;
+        let loaded = samples
+            .iter()
+            .flat_map(|s| &s.frames)
+            .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
+        if fitted.uniform_force_scale.is_none() && !loaded {
+            observer.warning(
+                "no clamp reactions set the material scale (a loss without external forces does not see it)",
+            );
+        }
         let record = FitRecord {
             knitvox_version: env!("CARGO_PKG_VERSION").to_string(),
             poses: poses
@@ -698,8 +955,10 @@ impl Stage for FitJob {
             loss_uniform: sum(1),
             loss_fitted: sum(2),
             uniform: fitted.uniform,
-            gamma_s_range: fitted.fit.gamma_s_range,
-            gamma_v_range: fitted.fit.gamma_v_range,
+            uniform_force_scale: fitted.uniform_force_scale,
+            field_force_scale: fitted.field_force_scale,
+            gamma_s_range: range(&fitted.gamma.gamma_s),
+            gamma_v_range: range(&fitted.gamma.gamma_v),
             uniform_fit: fitted.uniform_fit,
             fit: fitted.fit,
             report_files: Vec::new(),
@@ -862,6 +1121,104 @@ mod tests {
         assert_eq!(choose_frames(3, 5), vec![0, 1, 2]);
         assert_eq!(choose_frames(10, 4), vec![2, 4, 7, 9]);
         assert_eq!(choose_frames(1, 1), vec![0]);
+    }
+
+    /// A slab held at both ends and stretched 20 %: the clamp forces at a
+    /// true material γ* are the "reactions"; from γ*/7 the force scale is 7
+    /// (the held equilibrium does not depend on the scale).
+    #[test]
+    fn force_scale_recovers_the_material_scale_from_reactions() {
+        let h = 0.01;
+        let (mesh, mass) = crate::sim::pd::box_mesh([6, 2, 2], h, 120.0);
+        let nt = mesh.num_tets();
+        let truth = MaterialFields {
+            gamma_s: vec![2e4; nt],
+            gamma_v: vec![5e4; nt],
+        };
+        let lx = 6.0 * h;
+        let mut pinned = Vec::new();
+        let mut start = mesh.nodes.clone();
+        for (i, p) in mesh.nodes.iter().enumerate() {
+            if p[0] < 1e-9 || p[0] > lx - 1e-9 {
+                pinned.push(i);
+                start[i][0] *= 1.2;
+            }
+        }
+        let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
+        let frame = Frame {
+            target: FrameTarget::from_nodes(&model, &start, &mass, LOSS_ALPHA, h).unwrap(),
+            pinned: pinned.clone(),
+            start: start.clone(),
+            f_ext: vec![[0.0; 3]; mesh.num_nodes()],
+        };
+        let params = ElasticFitParams::default();
+        let (x, _) = equilibrium(&model, &mass, &frame, &start, &params.statics()).unwrap();
+        let g = model.gradient(&x).unwrap();
+        let mut r = vec![[0.0; 3]; g.len()];
+        for &i in &pinned {
+            r[i] = g[i];
+        }
+        let samples = [Sample {
+            name: "stretch".into(),
+            frames: vec![frame],
+            energy: 1.0,
+        }];
+        let reactions = vec![vec![Some(r)]];
+        let fs = force_scale(
+            &mesh,
+            &mass,
+            &samples,
+            &reactions,
+            &scaled(&truth, 1.0 / 7.0),
+            &params,
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(fs.bands, 2);
+        assert!((fs.scale - 7.0).abs() < 1e-4 * 7.0, "{fs:?}");
+        assert!(fs.relative_misfit < 1e-4, "{fs:?}");
+        // Without reactions there is nothing to match.
+        let none = force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &params).unwrap();
+        assert!(none.is_none());
+    }
+
+    /// The pose record's bands: a stretch_courses file gives its left and
+    /// right bands (both ends of the swatch along X), whatever its reactions.
+    #[test]
+    fn recorded_bands_are_the_clamped_bands_of_the_pose() {
+        let n = 40;
+        let points: Vec<Vec3> = (0..n)
+            .map(|i| [0.001 * i as f64, 0.0, 0.0005 * (i % 4) as f64])
+            .collect();
+        let mut yarns = crate::geom::Yarns::new();
+        yarns.push_curve(&points, false, 0.0005);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pose.h5");
+        let mut w = io::h5::FrameWriter::create(&path, &yarns).unwrap();
+        w.add_text(
+            "pose_json",
+            r#"{"kind":"stretch_courses","amount":0.1,"mirror":false,"folds":3,"band":0.1}"#,
+        )
+        .unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let held = recorded_bands(&path, &points).unwrap().unwrap();
+        let lx = 0.001 * (n - 1) as f64;
+        for (v, p) in points.iter().enumerate() {
+            let edge = p[0] <= 0.1 * lx + 1e-12 || p[0] >= 0.9 * lx - 1e-12;
+            assert_eq!(held[v], edge, "vertex {v} at x = {}", p[0]);
+        }
+        // No record: None; a broken record: an error naming the file.
+        let bare = dir.path().join("bare.h5");
+        io::h5::write_file(&bare, &yarns, None).unwrap();
+        assert!(recorded_bands(&bare, &points).unwrap().is_none());
+        let broken = dir.path().join("broken.h5");
+        let mut w = io::h5::FrameWriter::create(&broken, &yarns).unwrap();
+        w.add_text("pose_json", r#"{"kind":"sideways"}"#).unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let e = recorded_bands(&broken, &points).unwrap_err().to_string();
+        assert!(e.contains("broken.h5") && e.contains("pose_json"), "{e}");
     }
 
     #[test]

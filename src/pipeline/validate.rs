@@ -8,18 +8,25 @@
 //! yarn radius). The homogenized run drives the mesh by the same pose: the
 //! four nodes of every tet that holds a clamped yarn vertex follow that
 //! vertex's band map ([`PoseDriver::group_target`] applied to the node's rest
-//! position), gravity acts on the node masses, and each frame is the implicit
-//! (backward-Euler) equilibrium of VH Eq. 13-14 at the frame interval,
-//! solved by Newton ([`StaticSolver`], symbolic factorization once). The
-//! homogenized side has no colliders yet: a scene with colliders is refused.
+//! position), gravity acts on the node masses (VH Eq. 2: the asset's mass
+//! must be the yarn-level mass; a difference over 1% is warned), and each
+//! frame is the implicit (backward-Euler) equilibrium of VH Eq. 13-14 at the
+//! frame interval, solved by Newton ([`StaticSolver`], symbolic factorization
+//! once). The scene's colliders (plane, sphere, character; the same objects
+//! as the yarn-level run, at the frame's time) act on the homogenized mesh
+//! through its yarn vertices: each V2Y yarn vertex is kept its yarn radius
+//! outside by a penalty ([`ContactPenalty`], stiffness
+//! [`CONTACT_STIFFNESS_FACTOR`] x the stiffest tet's `(γs + γv) h`).
 //!
 //! Distances are in yarn diameters (`|V2Y(x) - y| / 2 r` per vertex), over
-//! frames 1.. (frame 0 is the rest state on both sides).
+//! frames 1.. (frame 0 is the rest state on both sides). The report also
+//! gives the Y2V floor: the distance of `V2Y(Y2V(y))` from each yarn frame
+//! `y` (VH Eq. 5-6), which no material can beat.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::geom::{Asset, Vec3, YarnFrames};
+use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
 use crate::pipeline::asset::check_asset_ext;
 use crate::pipeline::fit::held_nodes;
@@ -27,9 +34,22 @@ use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
+use std::sync::Arc;
+
+use crate::fit::{ShapeFitParams, ShapeFitter};
+use crate::pipeline::asset::re_embed;
+use crate::pipeline::yls_scene::ColliderSpec;
 use crate::sim::energy::ElasticModel;
-use crate::sim::statics::{Inertia, StaticParams, StaticSolver};
+use crate::sim::statics::{
+    ContactPenalty, EmbeddedPoint, Inertia, SignedDistance, StaticParams, StaticSolver,
+};
 use crate::yarn::poses::PoseDriver;
+use crate::yarn::sim::{PlaneCollider, PointCollider, SphereCollider};
+
+/// Collider penalty stiffness per yarn vertex, in units of the stiffest
+/// tet's `(γs + γv) h` (N/m): 100 keeps the penetration about 1% of the
+/// elastic deflection pressing the mesh into the collider.
+pub const CONTACT_STIFFNESS_FACTOR: f64 = 100.0;
 
 /// The `validate` stage.
 #[derive(Debug, Clone)]
@@ -53,6 +73,8 @@ pub struct FrameError {
     pub rms: f64,
     pub max: f64,
     pub uniform_rms: Option<f64>,
+    /// RMS distance of `V2Y(Y2V(y))` from this yarn frame.
+    pub y2v_floor_rms: f64,
 }
 
 /// What `validate` measured.
@@ -63,6 +85,9 @@ pub struct ValidateReport {
     pub max_yarn_diameters: f64,
     pub uniform_rms_yarn_diameters: Option<f64>,
     pub uniform_max_yarn_diameters: Option<f64>,
+    /// The same for the placeholder material every asset starts with
+    /// (`DEFAULT_GAMMA_S`, `DEFAULT_GAMMA_V`), when the asset's differs.
+    pub placeholder_rms_yarn_diameters: Option<f64>,
     /// Wall time of the yarn-level run and of the homogenized run with the
     /// asset's material (s), and their ratio.
     pub yarn_level_s: f64,
@@ -73,6 +98,22 @@ pub struct ValidateReport {
     pub yarn_vertices: usize,
     pub held_nodes: usize,
     pub newton_iterations: u64,
+    /// Colliders acting on both runs.
+    pub colliders: usize,
+    /// Deepest collider penetration of a homogenized yarn vertex (m) and the
+    /// most yarn vertices in contact in one frame.
+    pub max_penetration_m: f64,
+    pub max_contacts: usize,
+    /// Most backward-Euler substeps a homogenized frame needed (a frame
+    /// whose Newton solve fails is retried in 2, 4, .. 16 substeps).
+    pub max_substeps: usize,
+    /// Total node mass of the asset and the yarn-level mass (kg).
+    pub mesh_mass_kg: f64,
+    pub yarn_mass_kg: f64,
+    /// The Y2V floor: RMS and max distance of `V2Y(Y2V(y))` from the yarn
+    /// frames (yarn diameters); no material gets closer on average.
+    pub y2v_floor_rms_yarn_diameters: f64,
+    pub y2v_floor_max_yarn_diameters: f64,
     pub per_frame: Vec<FrameError>,
     pub report_files: Vec<PathBuf>,
 }
@@ -88,6 +129,8 @@ impl ValidateReport {
             "yarn_level_s": self.yarn_level_s,
             "homogenized_s": self.homogenized_s,
             "speedup": self.speedup,
+            "y2v_floor_rms_yarn_diameters": self.y2v_floor_rms_yarn_diameters,
+            "placeholder_rms_yarn_diameters": self.placeholder_rms_yarn_diameters,
         })
     }
 }
@@ -100,15 +143,104 @@ fn setup(path: &Path, message: String) -> Error {
     .into()
 }
 
-/// Homogenized frames at `times` (s; `times[0]` is the rest state): node
-/// positions per frame and the Newton iterations spent. Pure.
+/// A yarn-level collider queried at one time.
+struct AtTime {
+    collider: Arc<dyn PointCollider>,
+    t: f64,
+}
+
+impl SignedDistance for AtTime {
+    fn signed_distance(&self, p: Vec3) -> (f64, Vec3) {
+        self.collider.signed_distance(p, self.t)
+    }
+}
+
+/// What [`homogenized_frames`] computed.
+#[derive(Debug, Clone)]
+pub struct HomogenizedRun {
+    /// Node positions per frame (m); frame 0 is the rest state.
+    pub frames: Vec<Vec<Vec3>>,
+    pub newton_iterations: u64,
+    /// Deepest penetration of a yarn vertex into a collider (m).
+    pub max_penetration_m: f64,
+    /// Most yarn vertices in contact in one frame.
+    pub max_contacts: usize,
+    /// Most backward-Euler substeps a frame needed (1: none).
+    pub substeps: usize,
+}
+
+/// One frame interval `(t0, t1)` in `sub` backward-Euler steps from
+/// positions `x` and velocities `v`: pinned node `i` at `target(i, t)`,
+/// colliders from `contact_at(t)`. Returns the end positions and
+/// velocities, the Newton iterations, and the most contacts and deepest
+/// penetration (m) seen.
+#[allow(clippy::too_many_arguments)]
+fn frame_steps(
+    solver: &mut StaticSolver,
+    x: &[Vec3],
+    v: &[Vec3],
+    (t0, t1, sub): (f64, f64, usize),
+    target: &dyn Fn(usize, f64) -> Vec3,
+    pinned: &[usize],
+    f_ext: &[Vec3],
+    params: &StaticParams,
+    contact_at: &dyn Fn(f64) -> Option<ContactPenalty>,
+) -> Result<(Vec<Vec3>, Vec<Vec3>, u64, (usize, f64)), String> {
+    let dt = (t1 - t0) / sub as f64;
+    let (mut x, mut v) = (x.to_vec(), v.to_vec());
+    let (mut iterations, mut contacts, mut depth) = (0u64, 0usize, 0.0f64);
+    for j in 1..=sub {
+        let t = t0 + dt * j as f64;
+        let mut x0 = x.clone();
+        for &i in pinned {
+            x0[i] = target(i, t);
+        }
+        solver
+            .set_contact(contact_at(t))
+            .map_err(|e| e.to_string())?;
+        // Eq. 13's x̃ = 2 x_prev - x_prevprev with x_prevprev = x - v Δt.
+        let back: Vec<Vec3> = x
+            .iter()
+            .zip(&v)
+            .map(|(p, w)| std::array::from_fn(|c| p[c] - w[c] * dt))
+            .collect();
+        let inertia = (dt > 0.0).then_some(Inertia {
+            x_prev: &x,
+            x_prevprev: &back,
+            dt,
+        });
+        let (xn, st) = solver
+            .solve(&x0, f_ext, inertia, params)
+            .map_err(|e| e.to_string())?;
+        iterations += st.iterations as u64;
+        if let Some(c) = solver.contact() {
+            let (count, d) = c.penetration(&xn);
+            contacts = contacts.max(count);
+            depth = depth.max(d);
+        }
+        if dt > 0.0 {
+            v = xn
+                .iter()
+                .zip(&x)
+                .map(|(a, b)| std::array::from_fn(|c| (a[c] - b[c]) / dt))
+                .collect();
+        }
+        x = xn;
+    }
+    Ok((x, v, iterations, (contacts, depth)))
+}
+
+/// Homogenized frames at `times` (s; `times[0]` is the rest state) under
+/// `gravity` (m/s²) and `colliders` (acting on the V2Y yarn vertices, see
+/// the module documentation). Pure.
 pub fn homogenized_frames(
     asset: &Asset,
     gamma: (&[f64], &[f64]),
     driver: &PoseDriver,
     gravity: Vec3,
     times: &[f64],
-) -> Result<(Vec<Vec<Vec3>>, u64), String> {
+    colliders: &[Arc<dyn PointCollider>],
+) -> Result<HomogenizedRun, String> {
     let mesh = &asset.mesh;
     let n = mesh.num_nodes();
     // Band of each held node: the first group holding one of its tets' vertices.
@@ -126,34 +258,158 @@ pub fn homogenized_frames(
     let model = ElasticModel::new(mesh, gamma.0, gamma.1).map_err(|e| e.to_string())?;
     let mut solver =
         StaticSolver::new(model, &asset.node_mass, &pinned).map_err(|e| e.to_string())?;
+    let stiffest = gamma
+        .0
+        .iter()
+        .zip(gamma.1)
+        .map(|(s, v)| s + v)
+        .fold(0.0, f64::max);
+    let stiffness = CONTACT_STIFFNESS_FACTOR * stiffest * asset.grid.h;
+    let points: Vec<EmbeddedPoint> = (0..asset.embedding.num_vertices())
+        .map(|v| EmbeddedPoint {
+            nodes: mesh.tets[asset.embedding.tet[v] as usize].map(|i| i as usize),
+            weights: asset.embedding.weights[v],
+            thickness: asset.rest_yarns.radius_at(v),
+        })
+        .collect();
     let f_ext: Vec<Vec3> = asset
         .node_mass
         .iter()
         .map(|m| gravity.map(|g| m * g))
         .collect();
     let params = StaticParams::default();
-    let mut out = vec![mesh.nodes.clone()];
-    let (mut x_pp, mut x_p) = (mesh.nodes.clone(), mesh.nodes.clone());
-    let mut newton = 0u64;
+    let mut run = HomogenizedRun {
+        frames: vec![mesh.nodes.clone()],
+        newton_iterations: 0,
+        max_penetration_m: 0.0,
+        max_contacts: 0,
+        substeps: 1,
+    };
+    let contact_at = |t: f64| -> Option<ContactPenalty> {
+        (!colliders.is_empty()).then(|| ContactPenalty {
+            points: points.clone(),
+            colliders: colliders
+                .iter()
+                .map(|c| {
+                    Box::new(AtTime {
+                        collider: c.clone(),
+                        t,
+                    }) as Box<dyn SignedDistance>
+                })
+                .collect(),
+            stiffness,
+        })
+    };
+    // State: positions and velocity (m/s). A frame whose Newton solve fails
+    // is retried in 2, 4, ... 16 backward-Euler substeps (pins and colliders
+    // at the substep times): contact active sets and large motions
+    // converge in smaller steps.
+    let mut x_p = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; n];
     for k in 1..times.len() {
-        let (t, dt) = (times[k], times[k] - times[k - 1]);
-        let mut x0 = x_p.clone();
-        for &i in &pinned {
-            x0[i] = driver.group_target(group[i].unwrap_or(0), mesh.nodes[i], t);
-        }
-        let inertia = (dt > 0.0).then_some(Inertia {
-            x_prev: &x_p,
-            x_prevprev: &x_pp,
-            dt,
-        });
-        let (x, st) = solver
-            .solve(&x0, &f_ext, inertia, &params)
-            .map_err(|e| format!("frame {k} (t = {t} s): {e}"))?;
-        newton += st.iterations as u64;
-        x_pp = std::mem::replace(&mut x_p, x.clone());
-        out.push(x);
+        let (t0, t1) = (times[k - 1], times[k]);
+        let mut sub = 1usize;
+        let (x, vel, iterations, contacts) = loop {
+            match frame_steps(
+                &mut solver,
+                &x_p,
+                &v,
+                (t0, t1, sub),
+                &|i, t| driver.group_target(group[i].unwrap_or(0), mesh.nodes[i], t),
+                &pinned,
+                &f_ext,
+                &params,
+                &contact_at,
+            ) {
+                Ok(r) => break r,
+                Err(e) if sub >= 16 => {
+                    return Err(format!("frame {k} (t = {t1} s, {sub} substeps): {e}"))
+                }
+                Err(_) => sub *= 2,
+            }
+        };
+        run.newton_iterations += iterations;
+        run.max_contacts = run.max_contacts.max(contacts.0);
+        run.max_penetration_m = run.max_penetration_m.max(contacts.1);
+        run.substeps = run.substeps.max(sub);
+        v = vel;
+        x_p = x.clone();
+        run.frames.push(x);
     }
-    Ok((out, newton))
+    Ok(run)
+}
+
+/// The scene's colliders as the yarn-level run builds them
+/// ([`super::yls::run`]): a sphere without `center` sits under the centre
+/// of `rest`, its top one yarn diameter below the lowest yarn point.
+pub fn scene_colliders(
+    specs: &[ColliderSpec],
+    rest: &crate::geom::Yarns,
+) -> Result<Vec<Arc<dyn PointCollider>>, Error> {
+    let (lo, hi) = rest
+        .bounds()
+        .map_or(([0.0; 3], [0.0; 3]), |b| (b.min, b.max));
+    let r_max = (0..rest.num_points())
+        .map(|v| rest.radius_at(v))
+        .fold(0.0, f64::max);
+    let mut out: Vec<Arc<dyn PointCollider>> = Vec::with_capacity(specs.len());
+    for c in specs {
+        out.push(match c {
+            ColliderSpec::Plane { point, normal } => Arc::new(PlaneCollider {
+                point: *point,
+                normal: *normal,
+                friction: 0.0,
+            }),
+            ColliderSpec::Sphere { center, radius } => Arc::new(SphereCollider {
+                center: center.unwrap_or([
+                    0.5 * (lo[0] + hi[0]),
+                    lo[1] - 2.0 * r_max - radius,
+                    0.5 * (lo[2] + hi[2]),
+                ]),
+                radius: *radius,
+                velocity: [0.0; 3],
+                friction: 0.0,
+            }),
+            ColliderSpec::Character {
+                file,
+                animation,
+                scale,
+                offset,
+            } => {
+                let ch = io::gltf_skin::read_character(file)?;
+                Arc::new(
+                    yls::CharacterCollider::new(
+                        ch,
+                        animation.as_deref(),
+                        scale.unwrap_or(1.0),
+                        offset.unwrap_or([0.0; 3]),
+                    )
+                    .map_err(|m| setup(file, m))?,
+                )
+            }
+        });
+    }
+    Ok(out)
+}
+
+/// Yarn mass (kg) as the yarn-level simulator lumps it: per curve its
+/// linear density when the yarns carry one, else `density π r²`, times
+/// the segment lengths.
+pub fn yarn_mass(yarns: &crate::geom::Yarns, density: f64) -> f64 {
+    (0..yarns.num_curves())
+        .map(|c| {
+            yarns
+                .segments_of(c)
+                .map(|[a, b]| {
+                    let ld = yarns.linear_density.as_ref().map_or_else(
+                        || density * std::f64::consts::PI * yarns.radius_at(a).powi(2),
+                        |d| d[c],
+                    );
+                    ld * crate::geom::dist(yarns.points[a], yarns.points[b])
+                })
+                .sum::<f64>()
+        })
+        .sum()
 }
 
 /// Per-vertex distances in yarn diameters between V2Y of `nodes` and `yarn`.
@@ -238,8 +494,15 @@ impl Stage for ValidateJob {
             io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
         }
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
-        if !scene.colliders.is_empty() {
-            return Err(setup(&self.scene, "validate: the homogenized run has no colliders yet; give a scene with pose handles and gravity only".into()));
+        let colliders = scene_colliders(&scene.colliders, &asset.rest_yarns)?;
+        let density = yls::scene_params(&scene, &self.scene)?.density;
+        let mesh_mass_kg: f64 = asset.node_mass.iter().sum();
+        let yarn_mass_kg = yarn_mass(&asset.rest_yarns, density);
+        if (mesh_mass_kg - yarn_mass_kg).abs() > 0.01 * yarn_mass_kg {
+            observer.warning(&format!(
+                "{}: the asset's mass {mesh_mass_kg:.4e} kg differs from the yarn-level mass {yarn_mass_kg:.4e} kg: gravity and inertia differ between the runs",
+                self.asset.display()
+            ));
         }
         // Yarn level.
         let yarn_out = tmp.path().join("yarn_level.h5");
@@ -273,28 +536,72 @@ impl Stage for ValidateJob {
             .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
         // Homogenized, with the asset's material, then the uniform one.
         let t = Instant::now();
-        let (xs, newton) = homogenized_frames(
+        let hr = homogenized_frames(
             &asset,
             (&asset.gamma_s, &asset.gamma_v),
             &driver,
             scene.gravity,
             &frames.times,
+            &colliders,
         )
         .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
+        let xs = &hr.frames;
         let xu = match uniform {
             Some(u) => {
                 let ne = asset.mesh.num_tets();
                 let (gs, gv) = (vec![u.gamma_s; ne], vec![u.gamma_v; ne]);
                 Some(
-                    homogenized_frames(&asset, (&gs, &gv), &driver, scene.gravity, &frames.times)
-                        .map_err(|m| setup(&self.scene, format!("uniform run: {m}")))?
-                        .0,
+                    homogenized_frames(
+                        &asset,
+                        (&gs, &gv),
+                        &driver,
+                        scene.gravity,
+                        &frames.times,
+                        &colliders,
+                    )
+                    .map_err(|m| setup(&self.scene, format!("uniform run: {m}")))?
+                    .frames,
                 )
             }
             None => None,
         };
+        // The Y2V floor (VH Eq. 5-6) of every yarn frame.
+        let e = re_embed(&asset, &self.asset)?;
+        let fitter =
+            ShapeFitter::from_embedded(rest, &e, &ShapeFitParams::default()).map_err(|source| {
+                crate::pipeline::asset::StageError::Fit {
+                    path: self.asset.clone(),
+                    source,
+                }
+            })?;
+        let ne = asset.mesh.num_tets();
+        let placeholder = (asset.gamma_s.iter().any(|g| *g != DEFAULT_GAMMA_S)
+            || asset.gamma_v.iter().any(|g| *g != DEFAULT_GAMMA_V))
+        .then(|| {
+            let (gs, gv) = (vec![DEFAULT_GAMMA_S; ne], vec![DEFAULT_GAMMA_V; ne]);
+            homogenized_frames(
+                &asset,
+                (&gs, &gv),
+                &driver,
+                scene.gravity,
+                &frames.times,
+                &colliders,
+            )
+            .map_err(|m| setup(&self.scene, format!("placeholder run: {m}")))
+        })
+        .transpose()?;
         let nf = frames.num_frames();
+        let mut floor = Vec::new();
+        let mut floor_rms = Vec::with_capacity(nf);
+        for k in 1..nf {
+            let (x_hat, _) = fitter
+                .fit(frames.frame(k))
+                .map_err(|e| setup(&self.scene, format!("frame {k}: Y2V: {e}")))?;
+            let d = distances(&asset, &x_hat, frames.frame(k));
+            floor_rms.push(rms_max(&d).0);
+            floor.extend(d);
+        }
         let (mut all, mut all_u) = (Vec::new(), Vec::new());
         let mut per_frame = Vec::with_capacity(nf.saturating_sub(1));
         for k in 1..nf {
@@ -313,16 +620,25 @@ impl Stage for ValidateJob {
                 rms,
                 max,
                 uniform_rms,
+                y2v_floor_rms: floor_rms[k - 1],
             });
         }
         let (rms, max) = rms_max(&all);
         let (urms, umax) = rms_max(&all_u);
+        let (frms, fmax) = rms_max(&floor);
+        let placeholder_rms = placeholder.map(|p| {
+            let d: Vec<f64> = (1..nf)
+                .flat_map(|k| distances(&asset, &p.frames[k], frames.frame(k)))
+                .collect();
+            rms_max(&d).0
+        });
         let mut report = ValidateReport {
             frames: per_frame.len(),
             rms_yarn_diameters: rms,
             max_yarn_diameters: max,
             uniform_rms_yarn_diameters: xu.as_ref().map(|_| urms),
             uniform_max_yarn_diameters: xu.as_ref().map(|_| umax),
+            placeholder_rms_yarn_diameters: placeholder_rms,
             yarn_level_s: yr.wall_s,
             homogenized_s,
             speedup: yr.wall_s / homogenized_s.max(1e-9),
@@ -336,13 +652,21 @@ impl Stage for ValidateJob {
                 }
                 held_nodes(&asset.mesh, &asset.embedding, &h).len()
             }),
-            newton_iterations: newton,
+            newton_iterations: hr.newton_iterations,
+            colliders: colliders.len(),
+            max_penetration_m: hr.max_penetration_m,
+            max_contacts: hr.max_contacts,
+            max_substeps: hr.substeps,
+            mesh_mass_kg,
+            yarn_mass_kg,
+            y2v_floor_rms_yarn_diameters: frms,
+            y2v_floor_max_yarn_diameters: fmax,
             per_frame,
             report_files: Vec::new(),
         };
         if let Some(dir) = &self.report {
             report.report_files =
-                io::atomic::all_or_nothing(|| write_report(dir, &asset, &frames, &xs, &report))?;
+                io::atomic::all_or_nothing(|| write_report(dir, &asset, &frames, xs, &report))?;
         }
         Ok(report)
     }
@@ -383,6 +707,11 @@ fn write_report(
             color: plot::PALETTE[1],
         },
     ];
+    series.push(plot::Series {
+        label: "RMS, Y2V floor".into(),
+        points: pts(&|e| Some(e.y2v_floor_rms)),
+        color: plot::PALETTE[3 % plot::PALETTE.len()],
+    });
     if r.uniform_rms_yarn_diameters.is_some() {
         series.push(plot::Series {
             label: "RMS, uniform".into(),
