@@ -35,6 +35,9 @@ pub struct ContactTerm {
     pub stiffness: f64,
     weights: Vec<f64>,
     samples: Vec<f64>,
+    /// The position coordinates the candidate set was last built at (a
+    /// rebuild at the same positions would find the same pairs).
+    built_at: Vec<f64>,
 }
 
 /// Contact figures at a state.
@@ -97,6 +100,7 @@ impl ContactTerm {
             stiffness: params.contact_stiffness,
             weights: simpson(ns),
             samples: (0..ns).map(|k| k as f64 / (ns - 1) as f64).collect(),
+            built_at: yarns.points.iter().flatten().copied().collect(),
             model,
             set,
         })
@@ -332,8 +336,14 @@ impl EnergyTerm for ContactTerm {
     }
 
     fn begin_iteration(&mut self, q: &[f64]) {
+        let n = 3 * self.model.n_real;
+        if q[..n] == self.built_at[..] {
+            return;
+        }
         let x = points_of(q, self.model.n_real);
         self.set.build(&self.model, &x);
+        self.built_at.clear();
+        self.built_at.extend_from_slice(&q[..n]);
     }
 
     /// Each vertex of a candidate pair moves less than 0.45 of the pair's
