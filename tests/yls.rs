@@ -281,3 +281,59 @@ fn bench_yls_prints_its_figures_and_refuses_unknown_patterns() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("rib1x1"), "lists the known patterns: {err}");
 }
+
+#[test]
+fn bench_yls_times_a_relaxed_file_stretched_into_contact() {
+    let dir = tempfile::tempdir().unwrap();
+    let swatch = dir.path().join("rib.h5");
+    let swatch = swatch.to_str().unwrap();
+    let (code, _, err) = run(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "4",
+        "--wales",
+        "4",
+        "-o",
+        swatch,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let bench = |extra: &[&str]| {
+        let mut args = vec![
+            "bench", "yls", "--input", swatch, "--steps", "3", "--warmup", "0", "--json",
+        ];
+        args.extend_from_slice(extra);
+        let (code, stdout, err) = run(&args);
+        assert_eq!(code, 0, "{err}");
+        serde_json::from_str::<serde_json::Value>(&stdout).unwrap()
+    };
+    let rest = bench(&[]);
+    assert_eq!(rest["relaxed"], true, "{rest}");
+    assert!(rest["prestretch"].is_null(), "{rest}");
+    let pulled = bench(&["--prestretch", "0.3", "--prestretch-steps", "3"]);
+    let pre = &pulled["prestretch"];
+    assert_eq!(pre["stretch"].as_f64(), Some(0.3), "{pulled}");
+    assert!(pre["force_n"].as_f64().unwrap() > 0.0, "{pulled}");
+    assert!(pre["newton_iterations"].as_u64().unwrap() > 0, "{pulled}");
+    // The stretch presses the yarns together: more contacts per vertex in
+    // the timed steps than at rest, and no pull-through.
+    let (c0, c1) = (
+        rest["contacts_per_vertex"].as_f64().unwrap(),
+        pulled["contacts_per_vertex"].as_f64().unwrap(),
+    );
+    assert!(c1 > c0, "stretched {c1} vs rest {c0} contacts per vertex");
+    assert!(pulled["min_distance_ratio"].as_f64().unwrap() >= 0.75);
+    assert_eq!(pulled["vertices"], rest["vertices"]);
+    // A loose swatch has no rest shape to stretch from.
+    let (code, _, err) = run(&[
+        "bench",
+        "yls",
+        "--vertices",
+        "600",
+        "--prestretch",
+        "0.3",
+        "--json",
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("rest shape"), "{err}");
+}

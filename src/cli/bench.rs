@@ -376,34 +376,19 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// `bench yls`: the yarn-level simulator on a generated swatch of about
-/// `--vertices` vertices (courses along x), both x ends clamped and pulled
-/// 30% apart over 1 s ([`crate::yarn::sim::stretch_scene`]).
+/// `--vertices` vertices (courses along x) or on `--input`, optionally
+/// relaxed into contact and stretched quasi-statically first, then both x
+/// ends clamped and pulled 30% further apart over 1 s
+/// ([`crate::yarn::sim::stretch_scene`]).
 pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
-    use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
-    use crate::yarn::pattern::{Layout, PatternParams};
-    use crate::yarn::sim::{bench_yarns, BenchOptions, BENCH_FRAME};
-    let job = |n: usize| PatternJob {
-        source: PatternSource::Builtin(a.pattern.clone()),
-        layout: Layout {
-            courses: n,
-            wales: n,
-            tube_radius: None,
-            helix: false,
-            separate_courses: false,
-        },
-        params: PatternParams::default(),
-        relax: None,
+    let (mut yarns, input) = match &a.input {
+        Some(path) => {
+            let d = io::read_path(path, &ReadOptions::default())?;
+            (d.yarns, path.display().to_string())
+        }
+        None => generated_swatch(a)?,
     };
-    // About 32 vertices per stitch for the knits; one correction from the
-    // first swatch's count.
-    let mut n = ((a.vertices.max(64) as f64 / 32.0).sqrt().round() as usize).max(2);
-    let (mut yarns, mut report) = generate(&job(n))?;
-    let ratio = a.vertices as f64 / yarns.num_points().max(1) as f64;
-    if !(0.9..=1.1).contains(&ratio) {
-        n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
-        (yarns, report) = generate(&job(n))?;
-    }
-    if a.relax {
+    if a.relax && yarns.rest.is_none() {
         let (relaxed, _) = crate::yarn::fabric::relax_into_contact(
             &yarns,
             &Default::default(),
@@ -411,25 +396,31 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         )?;
         yarns = relaxed;
     }
-    let opts = BenchOptions {
+    let prestretch = if a.prestretch > 0.0 {
+        Some(prestretch(&mut yarns, a.prestretch, a.prestretch_steps)?)
+    } else {
+        None
+    };
+    let opts = crate::yarn::sim::BenchOptions {
         vertices: yarns.num_points(),
         steps: a.steps.max(1),
         warmup: a.warmup,
         frames: a.frames,
-        ..BenchOptions::default()
+        ..Default::default()
     };
-    let r = bench_yarns(&yarns, false, &opts)?;
+    let r = crate::yarn::sim::bench_yarns(&yarns, false, &opts)?;
     let out = serde_json::json!({
         "bench": "yls",
-        "input": format!("built-in {} swatch, {n} courses x {n} wales ({} curves)", a.pattern, report.curves),
+        "input": input,
         "scene": "stretch: both x ends clamped, pulled 30% apart over 1 s, no gravity",
-        "frame_s": BENCH_FRAME,
+        "frame_s": crate::yarn::sim::BENCH_FRAME,
         "vertices": r.vertices,
         "us_per_vertex_step": r.us_per_vertex_step,
         "ms_per_frame": r.ms_per_frame,
         "steps_per_frame": r.steps_per_frame,
         "dt_median": r.dt_median,
-        "relaxed": a.relax,
+        "relaxed": yarns.rest.is_some(),
+        "prestretch": prestretch,
         "contact_pairs": r.contact_pairs,
         "contacts_per_vertex": r.contacts_per_vertex,
         "candidate_pairs": r.candidate_pairs,
@@ -451,6 +442,86 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::Success)
+}
+
+/// The built-in pattern swatch of about `--vertices` vertices and its name.
+fn generated_swatch(a: &super::BenchYlsArgs) -> anyhow::Result<(crate::geom::Yarns, String)> {
+    use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
+    use crate::yarn::pattern::{Layout, PatternParams};
+    let job = |n: usize| PatternJob {
+        source: PatternSource::Builtin(a.pattern.clone()),
+        layout: Layout {
+            courses: n,
+            wales: n,
+            tube_radius: None,
+            helix: false,
+            separate_courses: false,
+        },
+        params: PatternParams::default(),
+        relax: None,
+    };
+    // About 32 vertices per stitch for the knits; one correction from the
+    // first swatch's count.
+    let mut n = ((a.vertices.max(64) as f64 / 32.0).sqrt().round() as usize).max(2);
+    let (mut yarns, mut report) = generate(&job(n))?;
+    let ratio = a.vertices as f64 / yarns.num_points().max(1) as f64;
+    if !(0.9..=1.1).contains(&ratio) {
+        n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
+        (yarns, report) = generate(&job(n))?;
+    }
+    let name = format!(
+        "built-in {} swatch, {n} courses x {n} wales ({} curves)",
+        a.pattern, report.curves
+    );
+    Ok((yarns, name))
+}
+
+/// What the quasi-static pre-stretch did (the bench's JSON `prestretch`).
+#[derive(Serialize)]
+struct PrestretchReport {
+    stretch: f64,
+    steps: usize,
+    force_n: f64,
+    contacts_per_vertex: f64,
+    newton_iterations: usize,
+    seconds: f64,
+}
+
+/// Stretches `yarns` (which carry a rest shape) quasi-statically along x by
+/// `stretch` in `steps` load steps (the weft stretch test without its
+/// hold) and leaves them at the last equilibrium, rest shape kept.
+fn prestretch(
+    yarns: &mut crate::geom::Yarns,
+    stretch: f64,
+    steps: usize,
+) -> anyhow::Result<PrestretchReport> {
+    use crate::yarn::fabric::{stretch_test, Direction, StretchParams};
+    anyhow::ensure!(
+        yarns.rest.is_some(),
+        "--prestretch needs a swatch with a rest shape (--relax, or a relaxed --input)"
+    );
+    let params = StretchParams {
+        direction: Direction::Weft,
+        max_stretch: stretch,
+        steps,
+        hold_steps: 0,
+        ..StretchParams::default()
+    };
+    let mut last = None;
+    let r = stretch_test(yarns, &Default::default(), &params, &mut |f| {
+        last = Some(f.points.to_vec());
+        Ok(())
+    })?;
+    yarns.points = last.ok_or_else(|| anyhow::anyhow!("the pre-stretch gave no frame"))?;
+    let end = r.points.last().expect("at least the rest point");
+    Ok(PrestretchReport {
+        stretch,
+        steps,
+        force_n: end.force_n,
+        contacts_per_vertex: end.contacts_per_vertex,
+        newton_iterations: r.points.iter().map(|p| p.newton_iterations).sum(),
+        seconds: r.seconds,
+    })
 }
 
 #[cfg(test)]

@@ -302,6 +302,20 @@ pub struct BenchYlsArgs {
     /// touching) instead of timing the loose generated curves.
     #[arg(long)]
     pub relax: bool,
+    /// Time this yarn file (e.g. a swatch relaxed by `knitvox pattern`)
+    /// instead of a generated pattern (`--vertices`, `--pattern` unused).
+    #[arg(long)]
+    pub input: Option<std::path::PathBuf>,
+    /// Stretch the relaxed swatch quasi-statically by this much along x
+    /// (the weft stretch test, clamps 8 mm deep) before timing, so the
+    /// contacts are engaged (a relaxed rib has ~0.6 contacts per vertex at
+    /// rest, ~2 at 30%). 0: none. Needs a rest shape (`--relax` or a
+    /// relaxed `--input`).
+    #[arg(long, default_value_t = 0.0)]
+    pub prestretch: f64,
+    /// Load steps of the `--prestretch`.
+    #[arg(long, default_value_t = 6)]
+    pub prestretch_steps: usize,
     /// Print a JSON object.
     #[arg(long)]
     pub json: bool,

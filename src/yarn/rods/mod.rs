@@ -45,6 +45,7 @@ pub use topology::{Hinge, RodTopology};
 
 use crate::geom::vec3::{dot, norm, scale, sub};
 use crate::geom::{GeomError, Vec3};
+use crate::yarn::statics::term::BlockSink;
 use crate::yarn::statics::{EnergyTerm, Triplets};
 use dual::{Real, D1, D2};
 use frame::{
@@ -240,19 +241,30 @@ pub struct RodEnergy {
 struct ChunkOut {
     energy: RodEnergies,
     grad: Vec<(u32, f64)>,
-    hess: Triplets,
 }
 
 /// Runs `f` on fixed chunks of `0..n` in parallel; results in chunk order.
-fn chunks<F>(n: usize, f: F) -> Vec<ChunkOut>
+/// With a sink, each chunk gets its own `per` entries per element of it, in
+/// element order.
+fn chunks<F>(n: usize, per: usize, sink: Option<&mut BlockSink>, f: F) -> Vec<ChunkOut>
 where
-    F: Fn(std::ops::Range<usize>) -> ChunkOut + Sync,
+    F: Fn(std::ops::Range<usize>, Option<&mut BlockSink>) -> ChunkOut + Sync,
 {
     let nc = n.div_ceil(CHUNK);
-    (0..nc)
-        .into_par_iter()
-        .map(|c| f(c * CHUNK..((c + 1) * CHUNK).min(n)))
-        .collect()
+    let range = |c: usize| c * CHUNK..((c + 1) * CHUNK).min(n);
+    match sink {
+        Some(sink) => {
+            let parts: Vec<BlockSink> = (0..nc)
+                .map(|c| sink.split_off_front(per * range(c).len()))
+                .collect();
+            parts
+                .into_par_iter()
+                .enumerate()
+                .map(|(c, mut part)| f(range(c), Some(&mut part)))
+                .collect()
+        }
+        None => (0..nc).into_par_iter().map(|c| f(range(c), None)).collect(),
+    }
 }
 
 /// Local dof -> (edge-variable, coefficient) map of a hinge (edge vectors
@@ -375,11 +387,15 @@ impl RodEnergy {
         ]
     }
 
-    fn stretch_chunk(&self, q: &[f64], r: std::ops::Range<usize>, want_h: bool) -> ChunkOut {
+    fn stretch_chunk(
+        &self,
+        q: &[f64],
+        r: std::ops::Range<usize>,
+        mut sink: Option<&mut BlockSink>,
+    ) -> ChunkOut {
         let mut out = ChunkOut {
             energy: RodEnergies::default(),
             grad: Vec::with_capacity(6 * r.len()),
-            hess: triplets_with_capacity(if want_h { 36 * r.len() } else { 0 }),
         };
         for e in r {
             let [a, b] = self.topo.edges[e];
@@ -389,6 +405,11 @@ impl RodEnergy {
             let strain = l / l0 - 1.0;
             out.energy.stretch += 0.5 * k * l0 * strain * strain;
             if !(l > 0.0) {
+                if let Some(sink) = sink.as_deref_mut() {
+                    // Keep every element's place in the sink: a zero block.
+                    let dofs = [3 * a, 3 * a + 1, 3 * a + 2, 3 * b, 3 * b + 1, 3 * b + 2];
+                    sink.block(&dofs, &[0.0; 36]);
+                }
                 continue;
             }
             let t = scale(d, 1.0 / l);
@@ -397,7 +418,7 @@ impl RodEnergy {
                 out.grad.push(((3 * a + i) as u32, -ge[i]));
                 out.grad.push(((3 * b + i) as u32, ge[i]));
             }
-            if want_h {
+            if let Some(sink) = sink.as_deref_mut() {
                 // d2E/de2 = k/l0 t t^T + k (1/l0 - 1/l) (I - t t^T); the
                 // transverse part is negative when compressed: dropped.
                 let axial = k / l0;
@@ -420,7 +441,7 @@ impl RodEnergy {
                         block[i * 6 + j] = s * he[i % 3][j % 3];
                     }
                 }
-                out.hess.push_block(&dofs, &block);
+                sink.block(&dofs, &block);
             }
         }
         out
@@ -438,11 +459,16 @@ impl RodEnergy {
         )
     }
 
-    fn hinge_chunk(&self, q: &[f64], r: std::ops::Range<usize>, want_h: bool) -> ChunkOut {
+    fn hinge_chunk(
+        &self,
+        q: &[f64],
+        r: std::ops::Range<usize>,
+        mut sink: Option<&mut BlockSink>,
+    ) -> ChunkOut {
+        let want_h = sink.is_some();
         let mut out = ChunkOut {
             energy: RodEnergies::default(),
             grad: Vec::with_capacity(11 * r.len()),
-            hess: triplets_with_capacity(if want_h { 121 * r.len() } else { 0 }),
         };
         for k in r {
             let c = self.hinge_const(k);
@@ -476,7 +502,7 @@ impl RodEnergy {
                 let g: f64 = HINGE_J[i].iter().map(|&(p, a)| a * g8[p]).sum();
                 out.grad.push((d as u32, g));
             }
-            if let Some(h8) = h8 {
+            if let (Some(h8), Some(sink)) = (h8, sink.as_deref_mut()) {
                 let mut block = [0.0; 121];
                 for i in 0..11 {
                     for j in 0..11 {
@@ -489,7 +515,7 @@ impl RodEnergy {
                         block[i * 11 + j] = s;
                     }
                 }
-                out.hess.push_block(&dofs, &block);
+                sink.block(&dofs, &block);
             }
         }
         out
@@ -502,17 +528,14 @@ impl RodEnergy {
             "rods: q has the wrong length"
         );
         assert_eq!(grad.len(), q.len(), "rods: grad has the wrong length");
-        let want_h = hess.is_some();
-        let s = chunks(self.topo.num_edges(), |r| self.stretch_chunk(q, r, want_h));
-        let h = chunks(self.topo.num_hinges(), |r| self.hinge_chunk(q, r, want_h));
+        let (ne, nh) = (self.topo.num_edges(), self.topo.num_hinges());
+        // Hessian blocks go straight to their fixed places in `hess`: 36
+        // entries per edge, then 121 per hinge.
+        let mut sink = hess.map(|t| t.reserve_sink(36 * ne + 121 * nh));
+        let s = chunks(ne, 36, sink.as_mut(), |r, k| self.stretch_chunk(q, r, k));
+        let h = chunks(nh, 121, sink.as_mut(), |r, k| self.hinge_chunk(q, r, k));
+        debug_assert!(sink.as_ref().is_none_or(|k| k.remaining() == 0));
         let mut total = RodEnergies::default();
-        let mut hess = hess;
-        if let Some(t) = hess.as_deref_mut() {
-            let n: usize = s.iter().chain(&h).map(|c| c.hess.len()).sum();
-            t.rows.reserve(n);
-            t.cols.reserve(n);
-            t.vals.reserve(n);
-        }
         for c in s.iter().chain(&h) {
             total.stretch += c.energy.stretch;
             total.bend += c.energy.bend;
@@ -520,19 +543,8 @@ impl RodEnergy {
             for &(d, g) in &c.grad {
                 grad[d as usize] += g;
             }
-            if let Some(t) = hess.as_deref_mut() {
-                t.extend(&c.hess);
-            }
         }
         total
-    }
-}
-
-fn triplets_with_capacity(n: usize) -> Triplets {
-    Triplets {
-        rows: Vec::with_capacity(n),
-        cols: Vec::with_capacity(n),
-        vals: Vec::with_capacity(n),
     }
 }
 

@@ -173,52 +173,71 @@ impl ContactSet {
             .map(|(i, m)| (cell_key(cell_of(m.0)), i as u32))
             .collect();
         keys.par_sort_unstable();
+        // Occupied cells (runs of one key) and, once per cell, the key
+        // ranges of its 3 x 3 neighbour columns (the three z-neighbours are
+        // contiguous in key order): every segment of a cell shares them.
+        let mut cell_start: Vec<usize> = Vec::new();
+        let mut seg_cell = vec![0u32; keys.len()];
+        for (k, &(key, seg)) in keys.iter().enumerate() {
+            if k == 0 || key != keys[k - 1].0 {
+                cell_start.push(k);
+            }
+            seg_cell[seg as usize] = (cell_start.len() - 1) as u32;
+        }
+        let neighbour_ranges: Vec<[(usize, usize); 9]> = cell_start
+            .par_iter()
+            .map(|&k| {
+                let c = cell_of(mids[keys[k].1 as usize].0);
+                let mut out = [(0, 0); 9];
+                for (slot, (dx, dy)) in (-1..=1)
+                    .flat_map(|dx| (-1..=1).map(move |dy| (dx, dy)))
+                    .enumerate()
+                {
+                    let k0 = cell_key([c[0] + dx, c[1] + dy, c[2] - 1]);
+                    let k1 = cell_key([c[0] + dx, c[1] + dy, c[2] + 1]);
+                    let start = keys.partition_point(|e| e.0 < k0);
+                    let end = start + keys[start..].partition_point(|e| e.0 <= k1);
+                    out[slot] = (start, end);
+                }
+                out
+            })
+            .collect();
         let skin = self.skin;
         let n_real_segs = cs.iter().take_while(|c| c.real).count();
         let lists: Vec<Vec<Pair>> = (0..n_real_segs)
             .into_par_iter()
             .map(|i| {
                 let ci = &cs[i];
-                let c = cell_of(mids[i].0);
                 let mut out = Vec::new();
-                for dx in -1..=1 {
-                    for dy in -1..=1 {
-                        // The three z-neighbours are contiguous in key order.
-                        let k0 = cell_key([c[0] + dx, c[1] + dy, c[2] - 1]);
-                        let k1 = cell_key([c[0] + dx, c[1] + dy, c[2] + 1]);
-                        let start = keys.partition_point(|e| e.0 < k0);
-                        for &(kk, j) in &keys[start..] {
-                            if kk > k1 {
-                                break;
-                            }
-                            let cj = &cs[j as usize];
-                            if cj.real && j as usize <= i {
-                                continue;
-                            }
-                            // Midpoints farther than the reach plus the half
-                            // lengths: the segments are farther than the reach.
-                            let (mi, mj) = (&mids[i], &mids[j as usize]);
-                            let lim = ci.radius + cj.radius + 2.0 * skin + 0.5 * (mi.1 + mj.1);
-                            let dm = sub(mi.0, mj.0);
-                            if dot(dm, dm) >= lim * lim {
-                                continue;
-                            }
-                            if model.excluded(ci, cj) {
-                                continue;
-                            }
-                            let d = segment_distance(
-                                x[ci.v[0] as usize],
-                                x[ci.v[1] as usize],
-                                x[cj.v[0] as usize],
-                                x[cj.v[1] as usize],
-                            );
-                            if d < ci.radius + cj.radius + 2.0 * skin {
-                                out.push(Pair {
-                                    a: i as u32,
-                                    b: j,
-                                    w: if cj.real { 1.0 } else { 0.5 },
-                                });
-                            }
+                for &(start, end) in &neighbour_ranges[seg_cell[i] as usize] {
+                    for &(_, j) in &keys[start..end] {
+                        let cj = &cs[j as usize];
+                        if cj.real && j as usize <= i {
+                            continue;
+                        }
+                        // Midpoints farther than the reach plus the half
+                        // lengths: the segments are farther than the reach.
+                        let (mi, mj) = (&mids[i], &mids[j as usize]);
+                        let lim = ci.radius + cj.radius + 2.0 * skin + 0.5 * (mi.1 + mj.1);
+                        let dm = sub(mi.0, mj.0);
+                        if dot(dm, dm) >= lim * lim {
+                            continue;
+                        }
+                        if model.excluded(ci, cj) {
+                            continue;
+                        }
+                        let d = segment_distance(
+                            x[ci.v[0] as usize],
+                            x[ci.v[1] as usize],
+                            x[cj.v[0] as usize],
+                            x[cj.v[1] as usize],
+                        );
+                        if d < ci.radius + cj.radius + 2.0 * skin {
+                            out.push(Pair {
+                                a: i as u32,
+                                b: j,
+                                w: if cj.real { 1.0 } else { 0.5 },
+                            });
                         }
                     }
                 }

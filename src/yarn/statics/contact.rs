@@ -35,6 +35,9 @@ pub struct ContactTerm {
     pub stiffness: f64,
     weights: Vec<f64>,
     samples: Vec<f64>,
+    /// The position coordinates the candidate set was last built at (a
+    /// rebuild at the same positions would find the same pairs).
+    built_at: Vec<f64>,
 }
 
 /// Contact figures at a state.
@@ -97,6 +100,7 @@ impl ContactTerm {
             stiffness: params.contact_stiffness,
             weights: simpson(ns),
             samples: (0..ns).map(|k| k as f64 / (ns - 1) as f64).collect(),
+            built_at: yarns.points.iter().flatten().copied().collect(),
             model,
             set,
         })
@@ -183,19 +187,30 @@ impl ContactTerm {
     pub fn active_pair_gradients(&self, q: &[f64]) -> Vec<([usize; 4], [f64; 12])> {
         let x = points_of(q, self.model.n_real);
         (0..self.set.pairs.len())
-            .filter_map(|i| self.pair(i, &x, false))
-            .filter(|(_, ids, _, _)| ids.iter().all(|&v| v < self.model.n_real))
-            .map(|(_, ids, g, _)| (ids, g))
+            .filter_map(|i| self.pair(i, &x, None))
+            .filter(|(_, ids, _)| ids.iter().all(|&v| v < self.model.n_real))
+            .map(|(_, ids, g)| (ids, g))
             .collect()
     }
 
-    /// Energy, the 12 gradient entries and the 12x12 PSD Hessian of one pair.
+    /// Whether pair `pi` is in contact at `x` (what [`Self::pair`] tests first).
+    fn touching(&self, pi: usize, x: &[Vec3]) -> bool {
+        let p = self.set.pairs[pi];
+        let cs = &self.model.csegs;
+        let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
+        let v = [a.v[0], a.v[1], b.v[0], b.v[1]].map(|v| x[v as usize]);
+        crate::yarn::sim::contact::segment_distance(v[0], v[1], v[2], v[3]) < a.radius + b.radius
+    }
+
+    /// Energy and the 12 gradient entries of one pair in contact (`None`
+    /// when it is not), and with `h` its 12x12 PSD Hessian (row-major,
+    /// overwritten).
     fn pair(
         &self,
         pi: usize,
         x: &[Vec3],
-        want_h: bool,
-    ) -> Option<(f64, [usize; 4], [f64; 12], Vec<f64>)> {
+        mut h: Option<&mut [f64; 144]>,
+    ) -> Option<(f64, [usize; 4], [f64; 12])> {
         let p = self.set.pairs[pi];
         let cs = &self.model.csegs;
         let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
@@ -215,7 +230,9 @@ impl ContactTerm {
         let cw = self.stiffness * p.w * a.l0 * b.l0;
         let mut e = 0.0;
         let mut g = [0.0; 12];
-        let mut h = if want_h { vec![0.0; 144] } else { Vec::new() };
+        if let Some(h) = h.as_deref_mut() {
+            h.fill(0.0);
+        }
         for (k, &sk) in self.samples.iter().enumerate() {
             let pa = [a0[0] + sk * da[0], a0[1] + sk * da[1], a0[2] + sk * da[2]];
             for (m, &tm) in self.samples.iter().enumerate() {
@@ -241,7 +258,7 @@ impl ContactTerm {
                         g[3 * j + c] += s * gu * nrm[c];
                     }
                 }
-                if want_h {
+                if let Some(h) = h.as_deref_mut() {
                     for (j1, &s1) in sh.iter().enumerate() {
                         for (j2, &s2) in sh.iter().enumerate() {
                             let f = s1 * s2 * hu;
@@ -255,7 +272,7 @@ impl ContactTerm {
                 }
             }
         }
-        Some((e, ids, g, h))
+        Some((e, ids, g))
     }
 }
 
@@ -266,16 +283,48 @@ impl EnergyTerm for ContactTerm {
 
     fn eval(&self, q: &[f64], grad: &mut [f64], hess: Option<&mut Triplets>) -> f64 {
         let x = points_of(q, self.model.n_real);
-        let want_h = hess.is_some();
         // Per pair in pair order (collect keeps it), then summed in order:
         // the same result for any thread count.
-        let outs: Vec<_> = (0..self.set.pairs.len())
-            .into_par_iter()
-            .with_min_len(256)
-            .filter_map(|i| self.pair(i, &x, want_h))
-            .collect();
+        let outs: Vec<_> = match hess {
+            None => (0..self.set.pairs.len())
+                .into_par_iter()
+                .with_min_len(256)
+                .filter_map(|i| self.pair(i, &x, None))
+                .collect(),
+            Some(t) => {
+                // The pairs in contact first, then their Hessian blocks
+                // straight into their places in `t` (144 entries each).
+                let active: Vec<usize> = (0..self.set.pairs.len())
+                    .into_par_iter()
+                    .with_min_len(256)
+                    .filter(|&i| self.touching(i, &x))
+                    .collect();
+                let mut sink = t.reserve_sink(144 * active.len());
+                let parts: Vec<_> = active
+                    .chunks(256)
+                    .map(|c| (c, sink.split_off_front(144 * c.len())))
+                    .collect();
+                let chunks: Vec<Vec<_>> = parts
+                    .into_par_iter()
+                    .map(|(c, mut part)| {
+                        let mut h = [0.0; 144];
+                        c.iter()
+                            .map(|&i| {
+                                let out = self.pair(i, &x, Some(&mut h));
+                                let (_, ids, _) = out.expect("a touching pair is in contact");
+                                let dofs: [usize; 12] =
+                                    std::array::from_fn(|k| 3 * ids[k / 3] + k % 3);
+                                part.block(&dofs, &h);
+                                out.expect("checked above")
+                            })
+                            .collect()
+                    })
+                    .collect();
+                chunks.concat()
+            }
+        };
         let mut e = 0.0;
-        for (pe, ids, g, _) in &outs {
+        for (pe, ids, g) in &outs {
             e += pe;
             for (j, &v) in ids.iter().enumerate() {
                 for c in 0..3 {
@@ -283,21 +332,18 @@ impl EnergyTerm for ContactTerm {
                 }
             }
         }
-        if let Some(t) = hess {
-            for (_, ids, _, h) in &outs {
-                let dofs: Vec<usize> = ids
-                    .iter()
-                    .flat_map(|&v| [3 * v, 3 * v + 1, 3 * v + 2])
-                    .collect();
-                t.push_block(&dofs, h);
-            }
-        }
         e
     }
 
     fn begin_iteration(&mut self, q: &[f64]) {
+        let n = 3 * self.model.n_real;
+        if q[..n] == self.built_at[..] {
+            return;
+        }
         let x = points_of(q, self.model.n_real);
         self.set.build(&self.model, &x);
+        self.built_at.clear();
+        self.built_at.extend_from_slice(&q[..n]);
     }
 
     /// Each vertex of a candidate pair moves less than 0.45 of the pair's
@@ -320,5 +366,104 @@ impl EnergyTerm for ContactTerm {
                 caps[v] = caps[v].min(MOVE_FRACTION * d);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two 3 x 3 grids of straight yarns crossing at right angles, the
+    /// upper layer pressed `overlap` (fraction of 2r) into the lower one.
+    fn pressed_grid(overlap: f64) -> Yarns {
+        let r = 1e-3;
+        let mut y = Yarns::new();
+        for layer in 0..2 {
+            for k in 0..3 {
+                let pts: Vec<Vec3> = (0..25)
+                    .map(|i| {
+                        let s = (i as f64 - 12.0) * 0.5 * r;
+                        let o = (k as f64 - 1.0) * 4.0 * r;
+                        let z = layer as f64 * 2.0 * r * (1.0 - overlap);
+                        if layer == 0 {
+                            [s, o, z]
+                        } else {
+                            [o, s + 0.1 * r, z]
+                        }
+                    })
+                    .collect();
+                y.push_curve(&pts, false, r);
+            }
+        }
+        y
+    }
+
+    /// The Hessian path (blocks written straight into the triplets) gives
+    /// the gradient-only path's energy and gradient bit for bit, and a
+    /// symmetric PSD matrix supported exactly on the touching pairs' vertices.
+    #[test]
+    fn hessian_blocks_land_on_the_touching_pairs() {
+        let y = pressed_grid(0.1);
+        let term = ContactTerm::new(&y, &YarnSimParams::default(), 0.5e-3).unwrap();
+        let q: Vec<f64> = y.points.iter().flatten().copied().collect();
+        let n = q.len();
+        let (mut g0, mut g1) = (vec![0.0; n], vec![0.0; n]);
+        let e0 = term.eval(&q, &mut g0, None);
+        let mut t = Triplets::new();
+        let e1 = term.eval(&q, &mut g1, Some(&mut t));
+        assert!(e0 > 0.0);
+        assert_eq!(e0.to_bits(), e1.to_bits());
+        assert_eq!(g0, g1);
+        let touching = term.active_pair_gradients(&q);
+        assert!(touching.len() >= 9, "{} pairs touch", touching.len());
+        assert_eq!(t.len(), 144 * touching.len());
+        let mut h = vec![vec![0.0; n]; n];
+        for ((&r, &c), &v) in t.rows.iter().zip(&t.cols).zip(&t.vals) {
+            h[r as usize][c as usize] += v;
+        }
+        let mut in_contact = vec![false; n / 3];
+        for (ids, _) in &touching {
+            for &v in ids {
+                in_contact[v] = true;
+            }
+        }
+        for i in 0..n {
+            for j in 0..n {
+                assert!((h[i][j] - h[j][i]).abs() <= 1e-9 * h[i][i].abs().max(1.0));
+                if !(in_contact[i / 3] && in_contact[j / 3]) {
+                    assert_eq!(h[i][j], 0.0, "entry ({i}, {j}) off the touching pairs");
+                }
+            }
+            if in_contact[i / 3] {
+                assert!(h[i][i] >= 0.0);
+            }
+        }
+        // PSD: x^T H x >= 0 for the gradient and a few pseudo-random vectors.
+        let mut seed = 3u64;
+        let mut dirs = vec![g0.clone()];
+        for _ in 0..8 {
+            dirs.push(
+                (0..n)
+                    .map(|_| {
+                        seed = seed
+                            .wrapping_mul(6364136223846793005)
+                            .wrapping_add(1442695040888963407);
+                        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                    })
+                    .collect(),
+            );
+        }
+        for x in &dirs {
+            let xhx: f64 = (0..n)
+                .map(|i| x[i] * (0..n).map(|j| h[i][j] * x[j]).sum::<f64>())
+                .sum();
+            let scale: f64 = (0..n).map(|i| h[i][i] * x[i] * x[i]).sum();
+            assert!(xhx >= -1e-9 * scale.abs(), "x^T H x = {xhx}");
+        }
+        // The Hessian sees the contact: along the gradient it is positive.
+        let ghg: f64 = (0..n)
+            .map(|i| g0[i] * (0..n).map(|j| h[i][j] * g0[j]).sum::<f64>())
+            .sum();
+        assert!(ghg > 0.0);
     }
 }

@@ -8,6 +8,7 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+pub mod assemble;
 pub mod contact;
 pub mod external;
 pub mod friction;

@@ -17,9 +17,9 @@
 use std::time::Instant;
 
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
-use faer::sparse::{SparseColMat, Triplet};
 use faer::Mat;
 
+use super::assemble::LowerCsc;
 use super::term::{EnergyTerm, Triplets};
 use crate::sim::cholesky::SparseCholesky;
 
@@ -212,6 +212,7 @@ pub fn solve_static(
     let mut trial_grad = vec![0.0; n];
     let mut trip = Triplets::new();
     let mut trial = q.to_vec();
+    let mut lower = LowerCsc::new();
     for it in 0..=params.max_iterations {
         for t in terms.iter_mut() {
             t.begin_iteration(q);
@@ -255,50 +256,24 @@ pub fn solve_static(
                 tolerance: params.force_tolerance,
             });
         }
-        // Free-free lower triangle.
+        // Free-free lower triangle (every diagonal entry present, so
+        // shifts keep the pattern).
         let t1 = Instant::now();
-        let mut lower: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(trip.len() / 2 + nf);
-        let mut diag_sum = 0.0;
-        for ((&r, &c), &v) in trip.rows.iter().zip(&trip.cols).zip(&trip.vals) {
-            let (fr, fc) = (index[r as usize], index[c as usize]);
-            if fr == usize::MAX || fc == usize::MAX || fr < fc {
-                continue;
-            }
-            if fr == fc {
-                diag_sum += v;
-            }
-            lower.push(Triplet::new(fr, fc, v));
-        }
-        // Every diagonal entry present (zeros where no term reaches), so
-        // shifts keep the pattern.
-        for k in 0..nf {
-            lower.push(Triplet::new(k, k, 0.0));
-        }
+        let diag_sum = lower.assemble(&trip, &index, nf);
         let mean_diag = (diag_sum / nf as f64).max(f64::MIN_POSITIVE);
-        let build = |shift: f64| -> Result<SparseColMat<usize, f64>, String> {
-            let mut l = lower.clone();
-            if shift > 0.0 {
-                for k in 0..nf {
-                    l.push(Triplet::new(k, k, shift));
-                }
-            }
-            SparseColMat::try_new_from_triplets(nf, nf, &l).map_err(|e| format!("{e:?}"))
-        };
         let mut shift = 0.0;
         let factor = loop {
-            let mat = build(shift).map_err(|message| StaticError::Factorization {
-                iteration: it,
-                message,
-            })?;
-            let key = (
-                mat.symbolic().col_ptr().to_vec(),
-                mat.symbolic().row_idx().to_vec(),
-            );
-            let symbolic = match (cache.key.as_ref() == Some(&key), cache.symbolic.take()) {
+            let same = cache
+                .key
+                .as_ref()
+                .is_some_and(|(cp, ri)| (cp.as_slice(), ri.as_slice()) == lower.pattern());
+            let symbolic = match (same, cache.symbolic.take()) {
                 (true, Some(s)) => s,
                 _ => {
                     stats.symbolic_factorizations += 1;
-                    SparseCholesky::symbolic(mat.as_ref()).map_err(|message| {
+                    let (cp, ri) = lower.pattern();
+                    cache.key = Some((cp.to_vec(), ri.to_vec()));
+                    SparseCholesky::symbolic(lower.as_ref()).map_err(|message| {
                         StaticError::Factorization {
                             iteration: it,
                             message,
@@ -306,25 +281,26 @@ pub fn solve_static(
                     })?
                 }
             };
-            cache.key = Some(key);
             stats.numeric_factorizations += 1;
             // A failed numeric factorization consumes the analysis (rare:
             // the next try redoes it).
-            match SparseCholesky::numeric(symbolic, mat.as_ref()) {
+            match SparseCholesky::numeric(symbolic, lower.as_ref()) {
                 Ok(f) => break f,
                 Err(message) => {
                     cache.key = None;
-                    shift = if shift == 0.0 {
+                    let next = if shift == 0.0 {
                         1e-10 * mean_diag
                     } else {
                         shift * 10.0
                     };
-                    if shift > 1e6 * mean_diag {
+                    if next > 1e6 * mean_diag {
                         return Err(StaticError::Factorization {
                             iteration: it,
                             message,
                         });
                     }
+                    lower.shift_diagonal(next);
+                    shift = next;
                 }
             }
         };

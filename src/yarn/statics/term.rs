@@ -51,11 +51,82 @@ impl Triplets {
         }
     }
 
+    /// Appends `n` zero entries and returns them as a sink that parallel
+    /// element loops fill in disjoint, fixed places (no per-chunk buffers,
+    /// no copying; the order of the entries is the order of the elements).
+    pub fn reserve_sink(&mut self, n: usize) -> BlockSink<'_> {
+        let base = self.len();
+        self.rows.resize(base + n, 0);
+        self.cols.resize(base + n, 0);
+        self.vals.resize(base + n, 0.0);
+        BlockSink {
+            rows: &mut self.rows[base..],
+            cols: &mut self.cols[base..],
+            vals: &mut self.vals[base..],
+            at: 0,
+        }
+    }
+
     /// Appends another set of entries.
     pub fn extend(&mut self, other: &Triplets) {
         self.rows.extend_from_slice(&other.rows);
         self.cols.extend_from_slice(&other.cols);
         self.vals.extend_from_slice(&other.vals);
+    }
+}
+
+/// A fixed-size region of [`Triplets`] written block by block (every entry
+/// of a block, zeros included, so each element's place is known in
+/// advance).
+#[derive(Debug)]
+pub struct BlockSink<'a> {
+    rows: &'a mut [u32],
+    cols: &'a mut [u32],
+    vals: &'a mut [f64],
+    at: usize,
+}
+
+impl<'a> BlockSink<'a> {
+    /// Splits off the first `n` entries (for one parallel work item).
+    pub fn split_off_front(&mut self, n: usize) -> BlockSink<'a> {
+        let rows = std::mem::take(&mut self.rows);
+        let cols = std::mem::take(&mut self.cols);
+        let vals = std::mem::take(&mut self.vals);
+        let (r0, r1) = rows.split_at_mut(n);
+        let (c0, c1) = cols.split_at_mut(n);
+        let (v0, v1) = vals.split_at_mut(n);
+        self.rows = r1;
+        self.cols = c1;
+        self.vals = v1;
+        BlockSink {
+            rows: r0,
+            cols: c0,
+            vals: v0,
+            at: 0,
+        }
+    }
+
+    /// Entries not yet written.
+    pub fn remaining(&self) -> usize {
+        self.vals.len() - self.at
+    }
+
+    /// Writes the dense symmetric block `block` (row-major, `dofs.len()`
+    /// squared) at the global indices `dofs`.
+    #[inline]
+    pub fn block(&mut self, dofs: &[usize], block: &[f64]) {
+        let n = dofs.len();
+        debug_assert_eq!(block.len(), n * n);
+        let at = self.at;
+        for (a, &ra) in dofs.iter().enumerate() {
+            for (b, &cb) in dofs.iter().enumerate() {
+                let k = at + a * n + b;
+                self.rows[k] = ra as u32;
+                self.cols[k] = cb as u32;
+                self.vals[k] = block[a * n + b];
+            }
+        }
+        self.at += n * n;
     }
 }
 
