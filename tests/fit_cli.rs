@@ -227,7 +227,25 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     assert!(o.status.success(), "{stderr}");
     // Full mechanics in the files: no warning.
     assert!(!stderr.contains("warning"), "{stderr}");
-    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // One JSON line per iteration, then the report (farm logs, issue 12 item 7).
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let (r, progress) = lines.split_last().unwrap();
+    assert_eq!(r["event"], "report", "{r}");
+    assert!(progress.len() >= 2, "{} progress lines", progress.len());
+    for p in progress {
+        assert_eq!(p["event"], "iteration", "{p}");
+        assert!(
+            p["loss"]
+                .as_f64()
+                .is_some_and(|l| l.is_finite() && l >= 0.0),
+            "{p}"
+        );
+        assert!(p["iteration"].as_u64().is_some_and(|i| i >= 1), "{p}");
+    }
+    let r = r.clone();
     let loss = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap();
     let (before, uniform, fitted) = (
         loss(&r, "loss_before"),
@@ -314,8 +332,9 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
             let out = c.dir.join(name);
             let o = knitvox(&fit_args(&c, &out, &["--json"]));
             assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let text = String::from_utf8_lossy(&o.stdout).into_owned();
             (
-                serde_json::from_slice(&o.stdout).unwrap(),
+                serde_json::from_str(text.lines().last().unwrap()).unwrap(),
                 io::vtkhdf::read_asset(&out).unwrap(),
             )
         })

@@ -279,12 +279,38 @@ fn print_demo_fabric(f: &crate::pipeline::fabric_test::FabricTestReport) {
     }
 }
 
+fn print_demo_fit(f: &demo::FitDemo) {
+    let r = &f.fit;
+    println!(
+        "homogenization: fitted {} ({} tets) to {} yarn-level training poses ({}): loss {:.3e} -> {:.3e} (uniform {:.3e}), gamma_s {:.3e}-{:.3e} Pa, gamma_v {:.3e}-{:.3e} Pa",
+        f.fitted.display(),
+        r.tets,
+        r.poses.len(),
+        f.job.display(),
+        r.loss_before,
+        r.loss_fitted,
+        r.loss_uniform,
+        r.gamma_s_range[0],
+        r.gamma_s_range[1],
+        r.gamma_v_range[0],
+        r.gamma_v_range[1]
+    );
+    let v = &f.validate;
+    println!(
+        "held-out fidelity ({}): {}",
+        f.held_out.display(),
+        v.summary()
+    );
+    println!("  fit and validation took {:.1} s", f.wall_s);
+}
+
 pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     let r = demo::run(&a.out, &super::asset::command_line()).map_err(|e| match e {
         demo::DemoError::Stage(s) => anyhow::Error::new(s),
         demo::DemoError::Shot(s) => anyhow::Error::new(s),
         demo::DemoError::YarnLevel(s) => anyhow::Error::new(s),
         demo::DemoError::Fabric(s) => anyhow::Error::new(s),
+        demo::DemoError::Pipeline(s) => anyhow::Error::new(s),
     })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
@@ -344,6 +370,7 @@ pub fn demo(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             y.min_distance_ratio
         );
         print_demo_fabric(&r.fabric);
+        print_demo_fit(&r.fit);
     }
     Ok(ExitCode::Success)
 }

@@ -84,12 +84,18 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         joint: a.joint,
         command: command_line(),
     };
-    let mut console = super::Console::new(false, 0, "");
-    let r = job.run(&mut console)?;
+    // A bar has no length to show here: plain lines without --json.
+    let mode = match super::ProgressMode::of(a.json) {
+        super::ProgressMode::Bar => super::ProgressMode::Lines,
+        m => m,
+    };
+    let mut console = super::Console::with_mode(mode, 0, "fit");
+    let result = job.run(&mut console);
+    let warnings = std::mem::take(&mut console.warnings);
+    drop(console);
+    let r = result?;
     if a.json {
-        let mut v = serde_json::to_value(&r)?;
-        v["warnings"] = serde_json::to_value(&console.warnings)?;
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        super::print_json_report(&r, &[("warnings", warnings.into())])?;
     } else {
         println!(
             "{}: fitted {} tets on {} pose(s); loss {:.3e} -> uniform {:.3e} -> fitted {:.3e} m^3; uniform gamma_s {:.4e}, gamma_v {:.4e} Pa; gamma_s {:.3e}..{:.3e}, gamma_v {:.3e}..{:.3e} Pa; {:.1} s",

@@ -460,19 +460,10 @@ impl crate::pipeline::Observer for Console {
         }
     }
     fn frame(&mut self, p: &crate::pipeline::FrameProgress) {
-        use std::io::Write;
         match self.mode {
             ProgressMode::Off => {}
             ProgressMode::Bar => self.frames(p.done, p.total),
-            ProgressMode::Json => {
-                let mut v = serde_json::to_value(p).unwrap_or_default();
-                if let Some(o) = v.as_object_mut() {
-                    o.insert("event".into(), "frame".into());
-                }
-                let mut out = std::io::stdout().lock();
-                let _ = writeln!(out, "{v}");
-                let _ = out.flush();
-            }
+            ProgressMode::Json => print_event("frame", p),
             ProgressMode::Lines => {
                 let opt = |x: Option<f64>, unit: &str| {
                     x.map_or("-".to_string(), |x| format!("{x:.3e} {unit}"))
@@ -490,6 +481,28 @@ impl crate::pipeline::Observer for Console {
             }
         }
     }
+    fn iteration(&mut self, p: &crate::fit::elastic::FitProgress) {
+        match self.mode {
+            ProgressMode::Off | ProgressMode::Bar => {}
+            ProgressMode::Json => print_event("iteration", p),
+            ProgressMode::Lines => eprintln!(
+                "{}: {} {} iteration {} ({}) loss {:.4e} m^3, {:.0} ms",
+                self.label, p.sample, p.stage, p.iteration, p.method, p.loss, p.ms
+            ),
+        }
+    }
+}
+
+/// One progress object as a JSON line on stdout with its `event` name.
+fn print_event(event: &str, p: &impl serde::Serialize) {
+    use std::io::Write;
+    let mut v = serde_json::to_value(p).unwrap_or_default();
+    if let Some(o) = v.as_object_mut() {
+        o.insert("event".into(), event.into());
+    }
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{v}");
+    let _ = out.flush();
 }
 
 /// Prints a `--json` report as the last line of stdout (after any

@@ -37,7 +37,52 @@ pub struct DemoReport {
     /// The fabric stretch test (Sperl 2022 §4) of a small 1x1 rib relaxed
     /// into contact: clamp force and compression at 10% to 50%.
     pub fabric: super::fabric_test::FabricTestReport,
+    /// Homogenization: a small rib's material fitted to two yarn-level
+    /// training poses and its fidelity on a held-out pose.
+    pub fit: FitDemo,
 }
+
+/// The demo's fitting stage (VH §6): `fit-demo/job.toml` (embed, train a
+/// 10% course stretch and a central bend), a joint fit, then `validate` on
+/// a held-out shear.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FitDemo {
+    pub job: PathBuf,
+    pub fitted: PathBuf,
+    pub fit: super::fit::FitJobReport,
+    /// The held-out scene and what `validate` measured on it.
+    pub held_out: PathBuf,
+    pub validate: super::validate::ValidateReport,
+    /// Wall time of the whole stage (s).
+    pub wall_s: f64,
+}
+
+/// The demo's training job: a 4 x 4 rib relaxed into contact, two
+/// training poses of two load steps (the fit follows, with its report).
+const FIT_JOB: &str = r#"# knitvox demo: fit a small rib to two yarn-level poses (schemas/job.md)
+[garment]
+yarns = "rib.h5"
+[[train]]
+kind = "stretch_courses"
+amount = 0.1
+steps = 2
+[[train]]
+kind = "bend_central"
+amount = 0.3
+steps = 2
+"#;
+
+/// The held-out motion: a shear, a pose family the fit never saw.
+const HELD_OUT_SCENE: &str = r#"# knitvox demo: held-out pose for `validate` (schemas/yls-scene.md)
+name = "held-out-shear"
+duration = 0.1
+frame_rate = 50
+gravity = [0.0, 0.0, 0.0]
+[pose]
+kind = "shear"
+amount = 0.1
+ramp = 0.08
+"#;
 
 /// The demo scenes and character, compiled in so the demo runs from any
 /// folder (they are written next to the demo's outputs).
@@ -146,7 +191,9 @@ pub fn run(out_dir: &Path, command: &str) -> Result<DemoReport, DemoError> {
         &mut |_, _| {},
     )?;
     let fabric = fabric_stretch(out_dir)?;
+    let fit = fit_demo(&out_dir.join("fit-demo"), command)?;
     Ok(DemoReport {
+        fit,
         fabric,
         drape,
         fox,
@@ -183,6 +230,76 @@ fn fabric_stretch(out_dir: &Path) -> Result<super::fabric_test::FabricTestReport
     Ok(run(&job)?)
 }
 
+/// Generates a 4 x 4 rib relaxed into contact (`fit-demo/rib.h5`), runs
+/// [`FIT_JOB`] (embed, two training poses, joint fit) and validates the
+/// fitted asset on [`HELD_OUT_SCENE`].
+fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
+    use super::pattern::{generate, PatternJob, PatternSource};
+    use super::Stage;
+    let t = std::time::Instant::now();
+    std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let pattern = PatternJob {
+        source: PatternSource::Builtin("rib1x1".into()),
+        layout: crate::yarn::pattern::Layout {
+            courses: 4,
+            wales: 4,
+            tube_radius: None,
+            helix: false,
+            separate_courses: false,
+        },
+        params: Default::default(),
+        relax: Some(Default::default()),
+    };
+    let (rib, _) = generate(&pattern).map_err(super::Error::from)?;
+    io::write_path(&dir.join("rib.h5"), &rib, None, &WriteOptions::default())?;
+    let job_path = dir.join("job.toml");
+    atomic_write(&job_path, FIT_JOB.as_bytes())?;
+    let job = super::job::Job::load(&job_path)?;
+    let trained = super::job::run(&job, None, command, &mut super::Quiet)?;
+    let poses: Vec<PathBuf> = trained
+        .stages
+        .iter()
+        .filter(|s| s.name.starts_with("train"))
+        .flat_map(|s| s.outputs.iter().map(|o| job.output.join(o)))
+        .collect();
+    let fitted = job.output.join("fitted.vtkhdf");
+    let fit = super::fit::FitJob {
+        asset: job.output.join("garment.vtkhdf"),
+        train: poses,
+        read: ReadOptions::default(),
+        samples: 1,
+        params: crate::fit::elastic::ElasticFitParams {
+            harmonic_ranks: vec![1, 10],
+            ..Default::default()
+        },
+        output: Some(fitted.clone()),
+        report: Some(dir.join("fit-report")),
+        joint: true,
+        command: command.into(),
+    }
+    .run(&mut super::Quiet)?;
+    let held_out = dir.join("held-out-shear.toml");
+    atomic_write(&held_out, HELD_OUT_SCENE.as_bytes())?;
+    let validate = super::validate::ValidateJob {
+        asset: fitted.clone(),
+        scene: held_out.clone(),
+        uniform: true,
+        report: Some(dir.join("validate")),
+    }
+    .run(&mut super::Quiet)?;
+    Ok(FitDemo {
+        job: job_path,
+        fitted,
+        fit,
+        held_out,
+        validate,
+        wall_s: t.elapsed().as_secs_f64(),
+    })
+}
+
 /// Errors of the demo: a stage's or a shot's.
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
@@ -194,6 +311,8 @@ pub enum DemoError {
     YarnLevel(#[from] super::yls::YlsError),
     #[error(transparent)]
     Fabric(#[from] super::fabric_test::FabricTestError),
+    #[error(transparent)]
+    Pipeline(#[from] super::Error),
 }
 
 impl From<IoError> for DemoError {

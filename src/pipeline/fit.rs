@@ -749,6 +749,7 @@ pub fn fit_samples(
     joint: bool,
     init: &MaterialFields,
     params: &ElasticFitParams,
+    progress: Option<&dyn Fn(&crate::fit::elastic::FitProgress)>,
 ) -> Result<Fitted, ElasticFitError> {
     let uniform_params = ElasticFitParams {
         harmonic_ranks: vec![1],
@@ -761,6 +762,7 @@ pub fn fit_samples(
         mass,
         samples: if joint { &merged } else { samples },
         init,
+        progress,
     };
     let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
     let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, params)?;
@@ -867,15 +869,20 @@ impl Stage for FitJob {
             gamma_s: asset.gamma_s.clone(),
             gamma_v: asset.gamma_v.clone(),
         };
-        let fitted = fit_samples(
-            &asset.mesh,
-            &asset.node_mass,
-            &samples,
-            &reactions,
-            self.joint,
-            &init,
-            &self.params,
-        )
+        let fitted = {
+            let cell = std::cell::RefCell::new(&mut *observer);
+            let progress = |p: &crate::fit::elastic::FitProgress| cell.borrow_mut().iteration(p);
+            fit_samples(
+                &asset.mesh,
+                &asset.node_mass,
+                &samples,
+                &reactions,
+                self.joint,
+                &init,
+                &self.params,
+                Some(&progress),
+            )
+        }
         .map_err(|e| fit_error(&self.train, e))?;
         let loaded = samples
             .iter()

@@ -157,6 +157,8 @@ pub trait Observer {
     fn frame(&mut self, p: &FrameProgress) {
         self.frames(p.done, p.total);
     }
+    /// An iteration of a material fit is done.
+    fn iteration(&mut self, _p: &crate::fit::elastic::FitProgress) {}
 }
 
 /// An observer that ignores everything.

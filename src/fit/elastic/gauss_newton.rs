@@ -272,6 +272,7 @@ struct SampleFit<'a> {
     mass: &'a [f64],
     sample: &'a Sample,
     params: &'a ElasticFitParams,
+    progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
 }
 
 impl SampleFit<'_> {
@@ -402,6 +403,7 @@ impl SampleFit<'_> {
             if ev.loss <= loss_goal {
                 break;
             }
+            let t_it = Instant::now();
             rep.iterations += 1;
             let gn = it >= p.gd_iterations;
             let (lins, grad_gamma) = self.linearize(&ev)?;
@@ -542,6 +544,16 @@ impl SampleFit<'_> {
             ev = t;
             rep.losses.push(ev.loss);
             rep.methods.push(if gn { "gn" } else { "gd" }.into());
+            if let Some(report) = self.progress {
+                report(&super::samples::FitProgress {
+                    sample: self.sample.name.clone(),
+                    stage: rep.name.clone(),
+                    iteration: rep.iterations,
+                    method: if gn { "gn" } else { "gd" }.into(),
+                    loss: ev.loss,
+                    ms: t_it.elapsed().as_secs_f64() * 1e3,
+                });
+            }
             if decrease < p.min_decrease {
                 break;
             }
@@ -641,6 +653,19 @@ pub fn fit_sample(
     harmonic: &DMatrix<f64>,
     params: &ElasticFitParams,
 ) -> Result<(MaterialFields, Vec<StageReport>, f64), ElasticFitError> {
+    fit_sample_observed(mesh, mass, sample, init, harmonic, params, None)
+}
+
+/// [`fit_sample`], calling `progress` after every iteration.
+pub fn fit_sample_observed(
+    mesh: &TetMesh,
+    mass: &[f64],
+    sample: &Sample,
+    init: &MaterialFields,
+    harmonic: &DMatrix<f64>,
+    params: &ElasticFitParams,
+    progress: Option<&dyn Fn(&super::samples::FitProgress)>,
+) -> Result<(MaterialFields, Vec<StageReport>, f64), ElasticFitError> {
     params.check()?;
     let ne = mesh.num_tets();
     let model = ElasticModel::new(mesh, &init.gamma_s, &init.gamma_v)
@@ -656,6 +681,7 @@ pub fn fit_sample(
         mass,
         sample,
         params,
+        progress,
     };
     validate(mesh, mass, sample, &model).map_err(|(i, e)| fit.error(i, e))?;
     let starts: Vec<Vec<Vec3>> = sample.frames.iter().map(|f| f.start.clone()).collect();

@@ -31,7 +31,7 @@ use crate::sim::statics::StaticParams;
 
 pub use gauss_newton::{fit_sample, StageReport};
 pub use loss::{FrameTarget, PositionTerm};
-pub use samples::{fit_materials, FitInputs, FitReport, SampleReport};
+pub use samples::{fit_materials, FitInputs, FitProgress, FitReport, SampleReport};
 
 /// Errors of elasticity fitting. Every error about a sample names it.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -10,13 +10,13 @@
 
 use std::time::Instant;
 
-use super::gauss_newton::{fit_sample, StageReport};
+use super::gauss_newton::StageReport;
 use super::harmonic::harmonic_basis;
 use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
 use crate::geom::TetMesh;
 
 /// Inputs of [`fit_materials`].
-#[derive(Debug, Clone, Copy)]
+#[derive(Clone, Copy)]
 pub struct FitInputs<'a> {
     /// The tet mesh (rest positions in m).
     pub mesh: &'a TetMesh,
@@ -26,6 +26,35 @@ pub struct FitInputs<'a> {
     pub samples: &'a [Sample],
     /// Initial material (Pa per tet), e.g. the uniform placeholder 1e4 Pa.
     pub init: &'a MaterialFields,
+    /// Called after every iteration of every stage (progress lines).
+    pub progress: Option<&'a dyn Fn(&FitProgress)>,
+}
+
+impl std::fmt::Debug for FitInputs<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FitInputs")
+            .field("tets", &self.mesh.num_tets())
+            .field("samples", &self.samples.len())
+            .field("progress", &self.progress.is_some())
+            .finish()
+    }
+}
+
+/// One iteration of a fit, for progress lines (`fit --json`: one JSON
+/// object per iteration; the CLI adds `"event": "iteration"`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FitProgress {
+    /// The sample's name (a pose file, or all of them for a joint fit).
+    pub sample: String,
+    /// The stage (`harmonic r=10`, `full`).
+    pub stage: String,
+    /// Iterations of this stage so far (1-based) and the step taken (`gd`, `gn`).
+    pub iteration: u32,
+    pub method: String,
+    /// Loss (m³) after the iteration.
+    pub loss: f64,
+    /// Wall time (ms) of the iteration.
+    pub ms: f64,
 }
 
 /// What the fit of one sample did.
@@ -116,13 +145,14 @@ pub fn fit_materials(
     let mut w = 0.0f64;
     for sample in inputs.samples {
         let ts = Instant::now();
-        let (gk, stages, loss0) = fit_sample(
+        let (gk, stages, loss0) = super::gauss_newton::fit_sample_observed(
             inputs.mesh,
             inputs.mass,
             sample,
             inputs.init,
             &basis,
             params,
+            inputs.progress,
         )?;
         let final_loss = stages
             .last()

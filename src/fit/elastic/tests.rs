@@ -326,6 +326,7 @@ fn recovery_on(
         mass: &mass,
         samples: std::slice::from_ref(&sample),
         init: &init,
+        progress: None,
     };
     let (fit, report) = fit_materials(&inputs, params).unwrap();
     assert!(fit
@@ -763,6 +764,7 @@ fn an_unfittable_sample_is_named() {
             mass: &mass,
             samples: &samples,
             init: &init,
+            progress: None,
         };
         let err = fit_materials(&inputs, &params).unwrap_err();
         match &err {
@@ -841,6 +843,7 @@ fn rib_size_fit_time() {
         mass: &mass,
         samples: &samples,
         init: &init,
+        progress: None,
     };
     let t = std::time::Instant::now();
     let (_, report) = fit_materials(&inputs, &ElasticFitParams::default()).unwrap();
