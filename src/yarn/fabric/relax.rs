@@ -41,6 +41,18 @@ pub struct RelaxParams {
     pub max_rounds: usize,
     /// Static force residual (N) that ends the last stage. Default 1e-5.
     pub force_tolerance: f64,
+    /// Fraction of the generated curves' curvature the yarn keeps as its
+    /// rest curvature (dimensionless, 0 = a straight yarn, 1 = the
+    /// generated loops are its rest shape). HYLC §5.1 (Fig. 10): a yarn
+    /// taken out of a knit keeps a bent rest shape, but not all of it; the
+    /// part it does not keep is the bending stress that curls a stockinette
+    /// swatch's edges (the loops' bending is asymmetric through the fabric)
+    /// and draws a rib in. Default 0.8: an 8x8 stockinette then rolls its
+    /// course ends to the back and its top and bottom to the front, a rib
+    /// stays flat, garter shortens, and a 6 x 10 cm rib stretched 30% along
+    /// the courses narrows by 5% (at 1: none of that, and 3%; at 0.5 the
+    /// stockinette rolls into a tube and garter buckles).
+    pub rest_curvature: f64,
 }
 
 impl Default for RelaxParams {
@@ -51,6 +63,7 @@ impl Default for RelaxParams {
             dt: 0.05,
             max_rounds: 30,
             force_tolerance: 1e-5,
+            rest_curvature: 0.8,
         }
     }
 }
@@ -89,12 +102,14 @@ impl RelaxParams {
             && self.dt > 0.0
             && self.max_rounds >= 1
             && self.force_tolerance.is_finite()
-            && self.force_tolerance > 0.0;
+            && self.force_tolerance > 0.0
+            && self.rest_curvature.is_finite()
+            && (0.0..=1.0).contains(&self.rest_curvature);
         if ok {
             Ok(())
         } else {
             Err(FabricError::Setup(format!(
-                "relaxation parameters out of range (length_scale in (0.5, 1], stages 1-100, dt > 0, rounds >= 1, tolerance > 0): {self:?}"
+                "relaxation parameters out of range (length_scale in (0.5, 1], stages 1-100, dt > 0, rounds >= 1, tolerance > 0, rest_curvature in [0, 1]): {self:?}"
             )))
         }
     }
@@ -127,8 +142,14 @@ pub fn relax_into_contact(
     let mut residual = f64::INFINITY;
     for stage in 1..=params.stages {
         let s = 1.0 - (1.0 - params.length_scale) * stage as f64 / params.stages as f64;
+        // Lengths and curvatures reach their final values together.
+        let f = stage as f64 / params.stages as f64;
+        let kappa = 1.0 - (1.0 - params.rest_curvature) * f;
         let mut rest = generated.clone();
         rest.scale_lengths(&vec![s; topo.num_edges()])?;
+        for k in &mut rest.kappa_bar {
+            k.iter_mut().for_each(|x| *x *= kappa);
+        }
         fabric.set_rest(rest)?;
         let last = stage == params.stages;
         let tol = if last {
@@ -157,7 +178,7 @@ pub fn relax_into_contact(
         }
     }
     // The rest the relaxed state is an equilibrium of: scaled lengths, the
-    // generated curvatures and twists, expressed in the relaxed material
+    // generated curvatures (times `rest_curvature`) and twists, expressed in the relaxed material
     // frames (stored as rest directors, so a reload with zero twist angles
     // has the same frames and energy). Replacing the curvatures by the
     // relaxed ones would drop the bending that holds the loops against
