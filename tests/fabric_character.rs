@@ -8,8 +8,9 @@ use knitvox::pipeline::pattern::{generate, PatternJob, PatternReport, PatternSou
 use knitvox::yarn::fabric::RelaxParams;
 use knitvox::yarn::pattern::{Character, Layout, PatternParams};
 
-/// A flat `courses` x `wales` swatch of a built-in, relaxed with the
-/// defaults, as `knitvox pattern` makes it.
+/// A flat `courses` x `wales` swatch of a built-in through the `knitvox
+/// pattern` stage, relaxed keeping `RelaxParams::CHARACTER_REST_CURVATURE`
+/// of the generated curvature as rest curvature.
 fn relaxed(pattern: &str, courses: usize, wales: usize) -> PatternReport {
     let job = PatternJob {
         source: PatternSource::Builtin(pattern.into()),
@@ -21,7 +22,7 @@ fn relaxed(pattern: &str, courses: usize, wales: usize) -> PatternReport {
             separate_courses: false,
         },
         params: PatternParams::default(),
-        relax: Some(RelaxParams::default()),
+        relax: Some(RelaxParams::with_character()),
     };
     generate(&job).unwrap().1
 }
@@ -38,6 +39,7 @@ fn stockinette_curls_rib_stays_flat_and_draws_in_garter_shortens() {
     let rib = relaxed("rib1x1", 6, 6);
     let garter = relaxed("garter", 6, 6);
     let (s, r, g) = (character(&stock), character(&rib), character(&garter));
+    println!("stockinette {s:?}\nrib {r:?}\ngarter {g:?}");
     // Stockinette: the course ends roll to the back by more than two yarn
     // diameters, the top and bottom edges rise to the front.
     assert!(s.side_curl_m < -2.0 * d, "stockinette {s:?}");

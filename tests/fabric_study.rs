@@ -173,7 +173,7 @@ fn stretch_step_diagnostic() {
 /// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset, FC_DIRS=bias for the
 /// bias-cut piece, FC_HANG=0 to skip hanging; FC_MU sets the yarn friction
 /// coefficient, 0 for none; FC_WIDTH/FC_LENGTH (m) and FC_STEPS a smaller
-/// swatch or fewer steps).
+/// swatch or fewer steps; FC_KAPPA the relaxation's rest curvature fraction).
 #[test]
 #[ignore]
 fn fabric_checks() {
@@ -202,7 +202,10 @@ fn fabric_checks() {
             },
             test,
             fabric: fabric.clone(),
-            relax: RelaxParams::default(),
+            relax: RelaxParams {
+                rest_curvature: env_f("FC_KAPPA", RelaxParams::default().rest_curvature),
+                ..RelaxParams::default()
+            },
             output_dir: None,
         };
         for dir in list("FC_DIRS", "weft,warp") {
@@ -374,7 +377,7 @@ fn character_study() {
     let fp = FabricParams::default();
     let rp = RelaxParams {
         length_scale: env_f("FK_SCALE", RelaxParams::default().length_scale),
-        rest_curvature: env_f("FK_KAPPA", RelaxParams::default().rest_curvature),
+        rest_curvature: env_f("FK_KAPPA", RelaxParams::CHARACTER_REST_CURVATURE),
         stages: env_f("FK_STAGES", RelaxParams::default().stages as f64) as usize,
         ..RelaxParams::default()
     };

@@ -25,6 +25,8 @@ use crate::yarn::rods::RodRest;
 use crate::yarn::statics::{ContactStats, EnergyTerm, FrictionParams};
 
 /// Controls of [`relax_into_contact`].
+/// [`RelaxParams::CHARACTER_REST_CURVATURE`] is the rest curvature that
+/// shows a pattern's character.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RelaxParams {
     /// Final rest-length scale (dimensionless, Leaf §6.1). Default 0.8:
@@ -45,13 +47,17 @@ pub struct RelaxParams {
     /// rest curvature (dimensionless, 0 = a straight yarn, 1 = the
     /// generated loops are its rest shape). HYLC §5.1 (Fig. 10): a yarn
     /// taken out of a knit keeps a bent rest shape, but not all of it; the
-    /// part it does not keep is the bending stress that curls a stockinette
+    /// part it does not keep is bending stress that curls a stockinette
     /// swatch's edges (the loops' bending is asymmetric through the fabric)
-    /// and draws a rib in. Default 0.8: an 8x8 stockinette then rolls its
-    /// course ends to the back and its top and bottom to the front, a rib
-    /// stays flat, garter shortens, and a 6 x 10 cm rib stretched 30% along
-    /// the courses narrows by 5% (at 1: none of that, and 3%; at 0.5 the
-    /// stockinette rolls into a tube and garter buckles).
+    /// and shortens garter. Default 1 (no character: the relaxed swatch
+    /// lies flat, as the fabric tests clamp it). At 0.8 an 8x8 stockinette
+    /// rolls its course ends to the back (-15 mm) and its top and bottom to
+    /// the front (+3 mm), a rib stays flat (< 0.1 mm) and draws in to 0.87
+    /// of its generated width, garter shortens to 0.76 of its height (rib
+    /// 0.83, stockinette 0.86); a 6 x 10 cm rib stretched 30% along the
+    /// courses narrows by 5.1% (3% at 1), but the rolled stockinette fails
+    /// the weft stretch checks (compression 0.017, secant ratio 1.98). At
+    /// 0.5 the stockinette rolls into a tube and garter buckles.
     pub rest_curvature: f64,
 }
 
@@ -63,7 +69,7 @@ impl Default for RelaxParams {
             dt: 0.05,
             max_rounds: 30,
             force_tolerance: 1e-5,
-            rest_curvature: 0.8,
+            rest_curvature: 1.0,
         }
     }
 }
@@ -91,6 +97,18 @@ pub struct RelaxIntoContactStats {
 }
 
 impl RelaxParams {
+    /// A rest curvature fraction at which patterns show their character
+    /// (see [`RelaxParams::rest_curvature`]).
+    pub const CHARACTER_REST_CURVATURE: f64 = 0.8;
+
+    /// The defaults with [`Self::CHARACTER_REST_CURVATURE`].
+    pub fn with_character() -> RelaxParams {
+        RelaxParams {
+            rest_curvature: Self::CHARACTER_REST_CURVATURE,
+            ..RelaxParams::default()
+        }
+    }
+
     /// Checks every value's range before any work.
     pub fn check(&self) -> Result<(), FabricError> {
         let ok = self.length_scale.is_finite()
