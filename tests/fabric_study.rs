@@ -173,7 +173,7 @@ fn stretch_step_diagnostic() {
 /// (FC_PATTERNS=rib1x1 FC_DIRS=weft to run a subset, FC_DIRS=bias for the
 /// bias-cut piece, FC_HANG=0 to skip hanging; FC_MU sets the yarn friction
 /// coefficient, 0 for none; FC_WIDTH/FC_LENGTH (m) and FC_STEPS a smaller
-/// swatch or fewer steps).
+/// swatch or fewer steps; FC_KAPPA the relaxation's rest curvature fraction).
 #[test]
 #[ignore]
 fn fabric_checks() {
@@ -202,7 +202,10 @@ fn fabric_checks() {
             },
             test,
             fabric: fabric.clone(),
-            relax: RelaxParams::default(),
+            relax: RelaxParams {
+                rest_curvature: env_f("FC_KAPPA", RelaxParams::default().rest_curvature),
+                ..RelaxParams::default()
+            },
             output_dir: None,
         };
         for dir in list("FC_DIRS", "weft,warp") {
@@ -359,4 +362,165 @@ fn bend_study() {
             }
         }
     }
+}
+
+/// Pattern character (ignored): relax stockinette, rib and garter swatches
+/// and print their size against the generated one and their edge curl.
+/// `FK_PATTERNS=stockinette,rib1x1,garter FK_COURSES=8 FK_WALES=8 FK_KAPPA=0.5 FK_SCALE=0.8 cargo test --test fabric_study character_study -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn character_study() {
+    use knitvox::yarn::pattern::{character, PatternParams};
+    let courses = env_f("FK_COURSES", 8.0) as usize;
+    let wales = env_f("FK_WALES", 8.0) as usize;
+    let patterns = std::env::var("FK_PATTERNS").unwrap_or("stockinette,rib1x1,garter".into());
+    let fp = FabricParams::default();
+    let rp = RelaxParams {
+        length_scale: env_f("FK_SCALE", RelaxParams::default().length_scale),
+        rest_curvature: env_f("FK_KAPPA", RelaxParams::CHARACTER_REST_CURVATURE),
+        stages: env_f("FK_STAGES", RelaxParams::default().stages as f64) as usize,
+        ..RelaxParams::default()
+    };
+    let p = PatternParams::default();
+    let pitch = [
+        p.knit.wale_width * p.yarn_radius,
+        p.knit.course_height * p.yarn_radius,
+    ];
+    for pattern in patterns.split(',') {
+        let y = common::flat_swatch(pattern, courses, wales);
+        let t = Instant::now();
+        match relax_into_contact(&y, &fp, &rp) {
+            Ok((relaxed, rs)) => {
+                let c = character(&y.points, &relaxed.points, pitch).unwrap();
+                println!(
+                    "{pattern} {courses}x{wales} scale {} kappa {}: {} vertices, {} its, {:.1} s; near {:.3} cpv {:.2} min {:.3}; \
+                     width {:.3} height {:.3}; rise L/R/B/T {:.2}/{:.2}/{:.2}/{:.2} mm, side {:.2} end {:.2} mm; size {:.1} x {:.1} x {:.1} mm",
+                    rp.length_scale,
+                    rp.rest_curvature,
+                    y.num_points(),
+                    rs.newton_iterations,
+                    t.elapsed().as_secs_f64(),
+                    rs.contact.near_fraction,
+                    rs.contact.contacts_per_vertex,
+                    rs.min_distance_ratio_seen,
+                    c.width_ratio,
+                    c.height_ratio,
+                    1e3 * c.edge_rise_m[0],
+                    1e3 * c.edge_rise_m[1],
+                    1e3 * c.edge_rise_m[2],
+                    1e3 * c.edge_rise_m[3],
+                    1e3 * c.side_curl_m,
+                    1e3 * c.end_curl_m,
+                    1e3 * c.relaxed_size[0],
+                    1e3 * c.relaxed_size[1],
+                    1e3 * c.relaxed_size[2],
+                );
+            }
+            Err(e) => println!(
+                "{pattern}: relaxation failed after {:.1} s: {e}",
+                t.elapsed().as_secs_f64()
+            ),
+        }
+    }
+}
+
+/// Orthogonal compression (ignored): one stretch test with the swatch's
+/// middle width measured three ways per step: the extremal transverse
+/// extent (`StretchPoint::compression`), the distance between the mean
+/// transverse positions of the two edge bands (one pitch deep), and the
+/// same for the bands' extremes.
+/// `FX_PATTERN=rib1x1 FX_DIR=weft FX_WIDTH=0.03 FX_LENGTH=0.05 FX_MU=0.25 FX_KAPPA=1 FX_STEPS=3 FX_MAX=0.3 cargo test --test fabric_study compression_study -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn compression_study() {
+    use knitvox::pipeline::fabric_test::swatch;
+    use knitvox::pipeline::fabric_test::{FabricTest, FabricTestJob, SwatchSource};
+    use knitvox::pipeline::pattern::PatternSource;
+    use knitvox::yarn::fabric::rig::Rig;
+    let pattern = std::env::var("FX_PATTERN").unwrap_or("rib1x1".into());
+    let dir: Direction = std::env::var("FX_DIR")
+        .unwrap_or("weft".into())
+        .parse()
+        .unwrap();
+    let mut fp = FabricParams::default();
+    fp.friction.mu = env_f("FX_MU", fp.friction.mu);
+    let sp = StretchParams {
+        direction: dir,
+        steps: env_f("FX_STEPS", 3.0) as usize,
+        max_stretch: env_f("FX_MAX", 0.3),
+        hold_steps: 0,
+        ..StretchParams::default()
+    };
+    let job = FabricTestJob {
+        swatch: SwatchSource::Pattern {
+            source: PatternSource::Builtin(pattern.clone()),
+            size: [env_f("FX_WIDTH", 0.03), env_f("FX_LENGTH", 0.05)],
+        },
+        test: FabricTest::Stretch(sp.clone()),
+        fabric: fp.clone(),
+        relax: RelaxParams {
+            rest_curvature: env_f("FX_KAPPA", RelaxParams::default().rest_curvature),
+            ..RelaxParams::default()
+        },
+        output_dir: None,
+    };
+    let t = Instant::now();
+    let (y, name, _, _) = swatch(&job).unwrap();
+    println!(
+        "{name}: {} vertices, relaxed in {:.1} s",
+        y.num_points(),
+        t.elapsed().as_secs_f64()
+    );
+    let (axis, tr) = dir.axes();
+    let rig = Rig::new(&y.points, axis, tr, sp.clamp_depth);
+    let s = |p: [f64; 3], a: [f64; 3]| p[0] * a[0] + p[1] * a[1] + p[2] * a[2];
+    let t_rest: Vec<f64> = y.points.iter().map(|&p| s(p, tr)).collect();
+    let (tmin, tmax) = t_rest
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let band = 0.006;
+    let mid0 = 0.5 * (rig.s_min + rig.s_max);
+    let half0 = 0.1 * rig.gauge();
+    // Vertices in the middle fifth at rest, in the low and high edge bands.
+    let mid: Vec<bool> = y
+        .points
+        .iter()
+        .map(|&p| (s(p, axis) - mid0).abs() <= half0)
+        .collect();
+    let lo: Vec<bool> = (0..y.num_points())
+        .map(|v| mid[v] && t_rest[v] <= tmin + band)
+        .collect();
+    let hi: Vec<bool> = (0..y.num_points())
+        .map(|v| mid[v] && t_rest[v] >= tmax - band)
+        .collect();
+    let measure = |x: &[[f64; 3]]| {
+        let mean = |m: &[bool]| {
+            let (a, n) = x
+                .iter()
+                .zip(m)
+                .filter(|(_, k)| **k)
+                .fold((0.0, 0), |(a, n), (p, _)| (a + s(*p, tr), n + 1));
+            a / n.max(1) as f64
+        };
+        mean(&hi) - mean(&lo)
+    };
+    let w_band0 = measure(&y.points);
+    let mut rows = Vec::new();
+    let r = stretch_test(&y, &fp, &sp, &mut |f| {
+        rows.push((f.parameter, measure(f.points)));
+        Ok(())
+    })
+    .unwrap();
+    for (p, (st, wb)) in r.points.iter().zip(&rows) {
+        println!(
+            "  stretch {st:.2}: force {:.4} N, compression extremal {:.4}, band-mean {:.4}, cpv {:.2}",
+            p.force_n,
+            p.compression,
+            1.0 - wb / w_band0,
+            p.contacts_per_vertex
+        );
+    }
+    println!("{:.1} s", t.elapsed().as_secs_f64());
 }

@@ -13,7 +13,8 @@ use crate::yarn::fabric::{
     relax_into_contact, FabricError, FabricParams, RelaxIntoContactStats, RelaxParams,
 };
 use crate::yarn::pattern::{
-    self, build_tile, lay_out, min_segment_distance, Layout, Pattern, PatternError, PatternParams,
+    self, build_tile, character, lay_out, min_segment_distance, Character, Layout, Pattern,
+    PatternError, PatternParams,
 };
 use crate::yarn::sim::YarnSimParams;
 
@@ -123,6 +124,18 @@ pub struct PatternReport {
     /// contacts at the end (contacts per vertex, fraction of vertices
     /// touching, minimum distance ratio), size before and after (m).
     pub relaxation: Option<RelaxIntoContactStats>,
+    /// Relaxed flat swatches: contacts per vertex at the end of the
+    /// relaxation (segment pairs closer than the radii sum, x 2 / vertices)
+    /// and the fraction of vertices touching a non-adjacent segment (within
+    /// 1.02 x 2r); null when not relaxed.
+    pub contacts_per_vertex: Option<f64>,
+    pub near_fraction: Option<f64>,
+    /// Relaxed flat swatches: size against the generated swatch (width and
+    /// height ratios: rib draw-in, garter shortening) and edge curl (mean
+    /// rise of each edge band from the centre's plane, m; stockinette: the
+    /// sides curl to the back, the top and bottom to the front); see
+    /// `yarn::pattern::character`. Null for tubes and unrelaxed swatches.
+    pub character: Option<Character>,
     /// Periodic tile figures.
     pub tile_curves: usize,
     pub tile_vertices: usize,
@@ -174,10 +187,14 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
     // the same yarn (kg/m).
     let linear_density = YarnSimParams::default().density * std::f64::consts::PI * r * r;
     yarns.linear_density = Some(vec![linear_density; yarns.num_curves()]);
+    let mut shape = None;
     let relaxation = match &job.relax {
         Some(rp) => {
             let (relaxed, stats) = relax_into_contact(&yarns, &FabricParams::default(), rp)
                 .map_err(PatternStageError::Relax)?;
+            if job.layout.tube_radius.is_none() {
+                shape = character(&yarns.points, &relaxed.points, tile.pitch);
+            }
             yarns = relaxed;
             Some(stats)
         }
@@ -211,6 +228,9 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
         min_distance_ratio: md.ratio,
         min_distance: md.distance,
         relaxed: relaxation.is_some(),
+        contacts_per_vertex: relaxation.as_ref().map(|r| r.contact.contacts_per_vertex),
+        near_fraction: relaxation.as_ref().map(|r| r.contact.near_fraction),
+        character: shape,
         relaxation,
         tile_curves: tile.tile.yarns.num_curves(),
         tile_vertices: tile.tile.yarns.num_points(),

@@ -25,6 +25,8 @@ use crate::yarn::rods::RodRest;
 use crate::yarn::statics::{ContactStats, EnergyTerm, FrictionParams};
 
 /// Controls of [`relax_into_contact`].
+/// [`RelaxParams::CHARACTER_REST_CURVATURE`] is the rest curvature that
+/// shows a pattern's character.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RelaxParams {
     /// Final rest-length scale (dimensionless, Leaf §6.1). Default 0.8:
@@ -41,6 +43,22 @@ pub struct RelaxParams {
     pub max_rounds: usize,
     /// Static force residual (N) that ends the last stage. Default 1e-5.
     pub force_tolerance: f64,
+    /// Fraction of the generated curves' curvature the yarn keeps as its
+    /// rest curvature (dimensionless, 0 = a straight yarn, 1 = the
+    /// generated loops are its rest shape). HYLC §5.1 (Fig. 10): a yarn
+    /// taken out of a knit keeps a bent rest shape, but not all of it; the
+    /// part it does not keep is bending stress that curls a stockinette
+    /// swatch's edges (the loops' bending is asymmetric through the fabric)
+    /// and shortens garter. Default 1 (no character: the relaxed swatch
+    /// lies flat, as the fabric tests clamp it). At 0.8 an 8x8 stockinette
+    /// rolls its course ends to the back (-15 mm) and its top and bottom to
+    /// the front (+3 mm), a rib stays flat (< 0.1 mm) and draws in to 0.87
+    /// of its generated width, garter shortens to 0.76 of its height (rib
+    /// 0.83, stockinette 0.86); a 6 x 10 cm rib stretched 30% along the
+    /// courses narrows by 5.1% (3% at 1), but the rolled stockinette fails
+    /// the weft stretch checks (compression 0.017, secant ratio 1.98). At
+    /// 0.5 the stockinette rolls into a tube and garter buckles.
+    pub rest_curvature: f64,
 }
 
 impl Default for RelaxParams {
@@ -51,6 +69,7 @@ impl Default for RelaxParams {
             dt: 0.05,
             max_rounds: 30,
             force_tolerance: 1e-5,
+            rest_curvature: 1.0,
         }
     }
 }
@@ -78,6 +97,18 @@ pub struct RelaxIntoContactStats {
 }
 
 impl RelaxParams {
+    /// A rest curvature fraction at which patterns show their character
+    /// (see [`RelaxParams::rest_curvature`]).
+    pub const CHARACTER_REST_CURVATURE: f64 = 0.8;
+
+    /// The defaults with [`Self::CHARACTER_REST_CURVATURE`].
+    pub fn with_character() -> RelaxParams {
+        RelaxParams {
+            rest_curvature: Self::CHARACTER_REST_CURVATURE,
+            ..RelaxParams::default()
+        }
+    }
+
     /// Checks every value's range before any work.
     pub fn check(&self) -> Result<(), FabricError> {
         let ok = self.length_scale.is_finite()
@@ -89,12 +120,14 @@ impl RelaxParams {
             && self.dt > 0.0
             && self.max_rounds >= 1
             && self.force_tolerance.is_finite()
-            && self.force_tolerance > 0.0;
+            && self.force_tolerance > 0.0
+            && self.rest_curvature.is_finite()
+            && (0.0..=1.0).contains(&self.rest_curvature);
         if ok {
             Ok(())
         } else {
             Err(FabricError::Setup(format!(
-                "relaxation parameters out of range (length_scale in (0.5, 1], stages 1-100, dt > 0, rounds >= 1, tolerance > 0): {self:?}"
+                "relaxation parameters out of range (length_scale in (0.5, 1], stages 1-100, dt > 0, rounds >= 1, tolerance > 0, rest_curvature in [0, 1]): {self:?}"
             )))
         }
     }
@@ -127,8 +160,14 @@ pub fn relax_into_contact(
     let mut residual = f64::INFINITY;
     for stage in 1..=params.stages {
         let s = 1.0 - (1.0 - params.length_scale) * stage as f64 / params.stages as f64;
+        // Lengths and curvatures reach their final values together.
+        let f = stage as f64 / params.stages as f64;
+        let kappa = 1.0 - (1.0 - params.rest_curvature) * f;
         let mut rest = generated.clone();
         rest.scale_lengths(&vec![s; topo.num_edges()])?;
+        for k in &mut rest.kappa_bar {
+            k.iter_mut().for_each(|x| *x *= kappa);
+        }
         fabric.set_rest(rest)?;
         let last = stage == params.stages;
         let tol = if last {
@@ -157,7 +196,7 @@ pub fn relax_into_contact(
         }
     }
     // The rest the relaxed state is an equilibrium of: scaled lengths, the
-    // generated curvatures and twists, expressed in the relaxed material
+    // generated curvatures (times `rest_curvature`) and twists, expressed in the relaxed material
     // frames (stored as rest directors, so a reload with zero twist angles
     // has the same frames and energy). Replacing the curvatures by the
     // relaxed ones would drop the bending that holds the loops against

@@ -16,6 +16,7 @@
 //! grows along +Y, and +Z is the fabric's front (the knit face of a K stitch).
 
 pub mod builtin;
+pub mod character;
 pub mod distance;
 pub mod grid;
 pub mod knit;
@@ -28,6 +29,7 @@ use crate::geom::{GeomError, Vec3, Yarns};
 use super::PeriodicTile;
 
 pub use builtin::{builtin, BUILTIN_NAMES};
+pub use character::{character, Character};
 pub use distance::{min_segment_distance, MinDistance};
 pub use grid::{parse_grid, Stitch};
 
