@@ -90,6 +90,24 @@ fn demo_then_inspect_and_convert_everything() {
         let f = f.as_str().unwrap();
         assert!(Path::new(f).is_file(), "{f}");
     }
+    // Homogenization: the fit lowers the loss below the uniform material's
+    // on its two poses and the held-out line is measured.
+    let fit = &report["fit"];
+    let num = |v: &serde_json::Value| v.as_f64().unwrap();
+    assert!(
+        num(&fit["fit"]["loss_fitted"]) < num(&fit["fit"]["loss_before"]),
+        "{fit}"
+    );
+    assert_eq!(fit["fit"]["poses"].as_array().unwrap().len(), 2);
+    let v = &fit["validate"];
+    for k in [
+        "rms_yarn_diameters",
+        "uniform_rms_yarn_diameters",
+        "speedup",
+    ] {
+        assert!(num(&v[k]).is_finite() && num(&v[k]) > 0.0, "{k}: {v}");
+    }
+    assert!(Path::new(fit["fitted"].as_str().unwrap()).is_file());
     let input = out.join("example_swatch.bcc");
     let o = knitvox(&[
         "inspect",
