@@ -547,23 +547,22 @@ impl Stage for ValidateJob {
         .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
+        // The same scene with one material everywhere (uniform, placeholder).
+        let ne = asset.mesh.num_tets();
+        let run_uniform = |gamma_s: f64, gamma_v: f64, what: &str| {
+            let (gs, gv) = (vec![gamma_s; ne], vec![gamma_v; ne]);
+            homogenized_frames(
+                &asset,
+                (&gs, &gv),
+                &driver,
+                scene.gravity,
+                &frames.times,
+                &colliders,
+            )
+            .map_err(|m| setup(&self.scene, format!("{what} run: {m}")))
+        };
         let xu = match uniform {
-            Some(u) => {
-                let ne = asset.mesh.num_tets();
-                let (gs, gv) = (vec![u.gamma_s; ne], vec![u.gamma_v; ne]);
-                Some(
-                    homogenized_frames(
-                        &asset,
-                        (&gs, &gv),
-                        &driver,
-                        scene.gravity,
-                        &frames.times,
-                        &colliders,
-                    )
-                    .map_err(|m| setup(&self.scene, format!("uniform run: {m}")))?
-                    .frames,
-                )
-            }
+            Some(u) => Some(run_uniform(u.gamma_s, u.gamma_v, "uniform")?.frames),
             None => None,
         };
         // The Y2V floor (VH Eq. 5-6) of every yarn frame.
@@ -575,21 +574,9 @@ impl Stage for ValidateJob {
                     source,
                 }
             })?;
-        let ne = asset.mesh.num_tets();
         let placeholder = (asset.gamma_s.iter().any(|g| *g != DEFAULT_GAMMA_S)
             || asset.gamma_v.iter().any(|g| *g != DEFAULT_GAMMA_V))
-        .then(|| {
-            let (gs, gv) = (vec![DEFAULT_GAMMA_S; ne], vec![DEFAULT_GAMMA_V; ne]);
-            homogenized_frames(
-                &asset,
-                (&gs, &gv),
-                &driver,
-                scene.gravity,
-                &frames.times,
-                &colliders,
-            )
-            .map_err(|m| setup(&self.scene, format!("placeholder run: {m}")))
-        })
+        .then(|| run_uniform(DEFAULT_GAMMA_S, DEFAULT_GAMMA_V, "placeholder"))
         .transpose()?;
         let nf = frames.num_frames();
         let mut floor = Vec::new();
