@@ -89,10 +89,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         super::ProgressMode::Bar => super::ProgressMode::Lines,
         m => m,
     };
-    let mut console = super::Console::with_mode(mode, 0, "fit");
-    let result = job.run(&mut console);
-    let warnings = std::mem::take(&mut console.warnings);
-    drop(console);
+    let (result, warnings) = super::Console::with_mode(mode, 0, "fit").run(&job);
     let r = result?;
     if a.json {
         super::print_json_report(&r, &[("warnings", warnings.into())])?;

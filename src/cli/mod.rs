@@ -430,6 +430,17 @@ impl Console {
     }
 
     /// A console showing progress as `mode` says.
+    /// Runs `stage` with this console as its observer; returns its result
+    /// and the warnings, with the progress bar finished (so a report can be
+    /// printed after it).
+    pub fn run<S: crate::pipeline::Stage>(
+        mut self,
+        stage: &S,
+    ) -> (Result<S::Report, crate::pipeline::Error>, Vec<String>) {
+        let result = stage.run(&mut self);
+        (result, std::mem::take(&mut self.warnings))
+    }
+
     pub fn with_mode(mode: ProgressMode, frames: usize, label: &str) -> Console {
         Console {
             warnings: Vec::new(),

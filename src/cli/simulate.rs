@@ -18,7 +18,6 @@ use crate::pipeline::sim_scene::{
 use crate::pipeline::simulate::{
     self as stage, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest,
 };
-use crate::pipeline::Stage;
 
 fn parse_vec3(s: &str) -> Result<Vec3, String> {
     let v: Vec<f64> = s
@@ -246,14 +245,12 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
         shot,
     };
-    let mut console = super::Console::with_mode(
+    let console = super::Console::with_mode(
         super::ProgressMode::of(a.json),
         job.shot.request.frames.len(),
         "simulating",
     );
-    let result = job.run(&mut console);
-    let warnings = std::mem::take(&mut console.warnings);
-    drop(console);
+    let (result, warnings) = console.run(&job);
     let r = result?;
     if a.json {
         super::print_json_report(&r, &[("warnings", warnings.into())])?;
