@@ -516,6 +516,34 @@ fn print_event(event: &str, p: &impl serde::Serialize) {
     let _ = out.flush();
 }
 
+/// SIGTERM while `run` or `simulate` works: see [`relay_sigterm`].
+static INTERRUPT: crate::pipeline::Interrupt = crate::pipeline::Interrupt::new();
+
+extern "C" fn on_sigterm(_: libc::c_int) {
+    if !INTERRUPT.request() {
+        // No stage can stop cleanly: die of SIGTERM as without a handler.
+        // SAFETY: signal and raise are async-signal-safe.
+        unsafe {
+            libc::signal(libc::SIGTERM, libc::SIG_DFL);
+            libc::raise(libc::SIGTERM);
+        }
+    }
+}
+
+/// From here on SIGTERM makes a running (armed) shot checkpoint and stop
+/// (exit 75, resumed by the next run); otherwise it ends the process.
+pub(crate) fn relay_sigterm() -> &'static crate::pipeline::Interrupt {
+    #[cfg(unix)]
+    // SAFETY: installs an async-signal-safe handler (atomics, signal, raise).
+    unsafe {
+        libc::signal(
+            libc::SIGTERM,
+            on_sigterm as extern "C" fn(libc::c_int) as libc::sighandler_t,
+        );
+    }
+    &INTERRUPT
+}
+
 /// Prints a `--json` report as the last line of stdout (after any
 /// progress lines), with `"event": "report"` and `extra` fields.
 pub(crate) fn print_json_report(

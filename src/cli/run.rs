@@ -7,7 +7,6 @@ use clap::Args;
 use super::ExitCode;
 use crate::pipeline::job::{self, Job};
 use crate::pipeline::submit::{self, SlurmOptions};
-use crate::pipeline::Interrupt;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -97,40 +96,12 @@ fn farm(a: &RunArgs, job: &Job) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-/// SIGTERM while `run` works: see [`relay_sigterm`].
-static INTERRUPT: Interrupt = Interrupt::new();
-
-extern "C" fn on_sigterm(_: libc::c_int) {
-    if !INTERRUPT.request() {
-        // No stage can stop cleanly: die of SIGTERM as without a handler.
-        // SAFETY: signal and raise are async-signal-safe.
-        unsafe {
-            libc::signal(libc::SIGTERM, libc::SIG_DFL);
-            libc::raise(libc::SIGTERM);
-        }
-    }
-}
-
-/// From here on SIGTERM makes a running shot checkpoint and stop (exit 75,
-/// resumed by the next run); during any other stage it ends the process.
-fn relay_sigterm() -> &'static Interrupt {
-    #[cfg(unix)]
-    // SAFETY: installs an async-signal-safe handler (atomics, signal, raise).
-    unsafe {
-        libc::signal(
-            libc::SIGTERM,
-            on_sigterm as extern "C" fn(libc::c_int) as libc::sighandler_t,
-        );
-    }
-    &INTERRUPT
-}
-
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let mut job = Job::load(&a.job)?;
     if a.plan || a.submit.is_some() {
         return farm(a, &job);
     }
-    job.interrupt = Some(relay_sigterm());
+    job.interrupt = Some(super::relay_sigterm());
     let r = job::run_tasks(
         &job,
         a.stage.as_deref(),

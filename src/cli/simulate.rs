@@ -2,7 +2,6 @@
 //! character.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Args;
 
@@ -147,28 +146,6 @@ pub struct SimulateArgs {
     pub json: bool,
 }
 
-/// Set by SIGTERM while a resumable shot runs.
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn request_stop(_: libc::c_int) {
-    // Async-signal-safe: one atomic store.
-    STOP.store(true, Ordering::SeqCst);
-}
-
-/// From here on SIGTERM asks the shot to checkpoint and stop (exit 75)
-/// instead of ending the process at once.
-fn stop_on_sigterm() -> &'static AtomicBool {
-    #[cfg(unix)]
-    // SAFETY: installs an async-signal-safe handler (one atomic store).
-    unsafe {
-        libc::signal(
-            libc::SIGTERM,
-            request_stop as extern "C" fn(libc::c_int) as libc::sighandler_t,
-        );
-    }
-    &STOP
-}
-
 /// The scene of a command line: the file's, or one built from --character.
 pub fn scene_of(a: &SimulateArgs) -> anyhow::Result<Scene> {
     let mut scene = match (&a.scene, &a.character) {
@@ -233,7 +210,9 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             command: super::asset::command_line(),
         },
     };
-    let resumable = a.checkpoint_every > 0;
+    // A resumable shot checkpoints and stops on SIGTERM.
+    let interrupt = (a.checkpoint_every > 0).then(super::relay_sigterm);
+    let _armed = interrupt.map(|i| i.arm());
     let job = ChunkedShotJob {
         chunk: ChunkOptions {
             checkpoint_every: a.checkpoint_every,
@@ -241,7 +220,7 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             checkpoint: a.checkpoint.clone(),
             shot_start: a.shot_start,
             resume: a.resume,
-            stop: resumable.then(stop_on_sigterm),
+            stop: interrupt.map(|i| i.flag()),
         },
         shot,
     };
