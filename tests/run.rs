@@ -405,28 +405,6 @@ fn a_bad_training_pose_is_refused_naming_its_key() {
     }
 }
 
-/// Every file under `dir` (relative path -> bytes).
-fn files(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
-    fn walk(
-        root: &Path,
-        d: &Path,
-        m: &mut std::collections::BTreeMap<std::path::PathBuf, Vec<u8>>,
-    ) {
-        for e in std::fs::read_dir(d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, m);
-            } else {
-                let rel = p.strip_prefix(root).unwrap().to_path_buf();
-                m.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    let mut m = Default::default();
-    walk(dir, dir, &mut m);
-    m
-}
-
 /// A job whose shot takes 24 frames, run on one thread (bitwise results).
 fn long_shot_job(dir: &Path) -> std::path::PathBuf {
     let job = job_dir(dir);
@@ -458,7 +436,7 @@ fn sigterm_checkpoints_the_shot_and_the_next_run_resumes_it() {
         String::from_utf8_lossy(&clean.stderr)
     );
     let out = dir.path().join("job.out");
-    let reference = files(&out);
+    let reference = common::files_under(&out);
     assert!(!reference.keys().any(|p| p.starts_with("checkpoints")));
     std::fs::remove_dir_all(&out).unwrap();
 
@@ -518,7 +496,7 @@ fn sigterm_checkpoints_the_shot_and_the_next_run_resumes_it() {
         "did not resume: {frames:?}"
     );
     assert_eq!(frames.last(), Some(&24));
-    let after = files(&out);
+    let after = common::files_under(&out);
     assert_eq!(
         after.keys().collect::<Vec<_>>(),
         reference.keys().collect::<Vec<_>>()

@@ -255,25 +255,7 @@ fn shot_folder(parent: &Path, name: &str, frames: &str) {
     std::fs::write(d.join("job.toml"), job).unwrap();
 }
 
-/// Every file under `dir` (relative path -> bytes).
-fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    fn walk(base: &Path, d: &Path, m: &mut BTreeMap<PathBuf, Vec<u8>>) {
-        for e in std::fs::read_dir(d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(base, &p, m);
-            } else {
-                m.insert(
-                    p.strip_prefix(base).unwrap().into(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    let mut m = BTreeMap::new();
-    walk(dir, dir, &mut m);
-    m
-}
+use common::files_under as tree;
 
 fn run_once(root: &Path) -> Daemon {
     let mut d = Daemon::start(root, &["--once"]);
