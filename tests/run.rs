@@ -473,6 +473,18 @@ fn sigterm_checkpoints_the_shot_and_the_next_run_resumes_it() {
         .filter(|p| p.extension().is_some_and(|e| e == "ckpt"))
         .collect();
     assert_eq!(ckpts.len(), 1, "{ckpts:?}");
+    // A run stopped before its first step leaves a step-0 checkpoint beside
+    // later ones (a daemon killed as the shot began, then restarted): the
+    // finished run removes every checkpoint of the job, not only the one it
+    // resumed from.
+    let name = ckpts[0].file_name().unwrap().to_string_lossy().into_owned();
+    let (stem, _) = name.rsplit_once(".ckpt").unwrap();
+    let (prefix, _) = stem.rsplit_once('.').unwrap();
+    std::fs::copy(
+        &ckpts[0],
+        out.join(format!("checkpoints/{prefix}.0000000000.ckpt")),
+    )
+    .unwrap();
 
     let again = std::process::Command::new(common::knitvox_bin())
         .env("RAYON_NUM_THREADS", "1")

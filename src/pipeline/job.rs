@@ -983,9 +983,12 @@ impl Job {
             let _armed = interrupt.map(|i| i.arm());
             let r = stage.run(o)?;
             // Done: the record vouches for the asset, nothing to resume.
+            // Every checkpoint of the job goes, including the one a killed
+            // run wrote at the step this run resumed from.
             if let Some(c) = &r.checkpoint {
                 let _ = std::fs::remove_file(c);
             }
+            remove_checkpoints(&dir);
             let _ = std::fs::remove_dir(&dir); // only when empty
             Ok(vec![r.output])
         };
@@ -1124,6 +1127,20 @@ mod tests {
             assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");
             let m = e.to_string();
             assert!(m.contains("j.toml") && m.contains(key), "{m}");
+        }
+    }
+}
+
+/// Removes the checkpoint files in a job's own checkpoint folder (nothing
+/// else lives there); failures only leave files behind.
+fn remove_checkpoints(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == io::checkpoint::EXT) {
+            let _ = std::fs::remove_file(path);
         }
     }
 }
