@@ -502,3 +502,52 @@ fn every_builtin_relaxes_into_contact() {
         yarns.validate().unwrap();
     }
 }
+
+/// `--rest-curvature` sets how much of the generated loops' curvature the
+/// yarn keeps at rest: at the default (1) a stockinette swatch lies flat,
+/// at 0.8 its course ends roll to the back (the pattern's character).
+#[test]
+fn cli_rest_curvature_lets_stockinette_curl() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s.h5");
+    let side_curl = |extra: &[&str]| -> f64 {
+        let mut args = vec![
+            "pattern",
+            "stockinette",
+            "--courses",
+            "6",
+            "--wales",
+            "6",
+            "--json",
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["character"]["side_curl_m"].as_f64().unwrap()
+    };
+    let d = 2.0 * PatternParams::default().yarn_radius;
+    let flat = side_curl(&[]);
+    let curled = side_curl(&["--rest-curvature", "0.8"]);
+    assert!(flat.abs() < d, "default: side curl {flat} m");
+    assert!(curled < -2.0 * d, "0.8: side curl {curled} m");
+    for bad in ["1.5", "-0.1", "nan"] {
+        let opt = format!("--rest-curvature={bad}");
+        let o = knitvox(&[
+            "pattern",
+            "stockinette",
+            "--courses",
+            "2",
+            "--wales",
+            "2",
+            &opt,
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(2), "--rest-curvature {bad}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--rest-curvature"), "{err}");
+    }
+}

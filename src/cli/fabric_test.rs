@@ -48,6 +48,11 @@ pub struct SwatchArgs {
     /// Rest-length scale of the relaxation into contact (Leaf 2018 §6.1).
     #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
     pub length_scale: f64,
+    /// Fraction of the generated loops' curvature the yarn keeps as its rest
+    /// curvature (1: the relaxed swatch lies flat, as a lab clamps it; 0.8: patterns show their
+    /// character: stockinette curls, a rib draws in, garter shortens).
+    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::guard::parse_fraction)]
+    pub rest_curvature: f64,
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless; the
     /// relaxation into contact is always frictionless).
     #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
@@ -138,6 +143,7 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
         },
         relax: RelaxParams {
             length_scale: s.length_scale,
+            rest_curvature: s.rest_curvature,
             ..RelaxParams::default()
         },
         output_dir: s.output.clone(),

@@ -64,6 +64,17 @@ pub fn parse_non_negative(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A fraction in [0, 1].
+pub fn parse_fraction(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "'{}': expected a number from 0 to 1",
+            crate::geom::excerpt(s)
+        )),
+    }
+}
+
 /// BCC spline samples per span: 1 to `io::bcc::MAX_SPLINE_SAMPLES`.
 pub fn parse_spline_samples(s: &str) -> Result<usize, String> {
     let max = crate::io::bcc::MAX_SPLINE_SAMPLES;

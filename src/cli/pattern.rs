@@ -56,6 +56,11 @@ pub struct PatternArgs {
     /// onto each other.
     #[arg(long, value_name = "S", default_value_t = RelaxParams::default().length_scale)]
     pub length_scale: f64,
+    /// Fraction of the generated loops' curvature the yarn keeps as its rest
+    /// curvature (1: the relaxed swatch lies flat; 0.8: patterns show their
+    /// character: stockinette curls, a rib draws in, garter shortens).
+    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::guard::parse_fraction)]
+    pub rest_curvature: f64,
     /// Output yarn file (bcc, obj, ply, gltf, glb, h5).
     #[arg(long, short, value_name = "FILE")]
     pub output: PathBuf,
@@ -95,6 +100,7 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
         params,
         relax: (!a.no_relax).then(|| RelaxParams {
             length_scale: a.length_scale,
+            rest_curvature: a.rest_curvature,
             ..RelaxParams::default()
         }),
     };
