@@ -38,13 +38,12 @@ use std::sync::Arc;
 
 use crate::fit::{ShapeFitParams, ShapeFitter};
 use crate::pipeline::asset::re_embed;
-use crate::pipeline::yls_scene::ColliderSpec;
 use crate::sim::energy::ElasticModel;
 use crate::sim::statics::{
     ContactPenalty, EmbeddedPoint, Inertia, SignedDistance, StaticParams, StaticSolver,
 };
 use crate::yarn::poses::PoseDriver;
-use crate::yarn::sim::{PlaneCollider, PointCollider, SphereCollider};
+use crate::yarn::sim::PointCollider;
 
 /// Collider penalty stiffness per yarn vertex, in units of the stiffest
 /// tet's `(γs + γv) h` (N/m): 100 keeps the penetration about 1% of the
@@ -339,59 +338,6 @@ pub fn homogenized_frames(
     Ok(run)
 }
 
-/// The scene's colliders as the yarn-level run builds them
-/// ([`super::yls::run`]): a sphere without `center` sits under the centre
-/// of `rest`, its top one yarn diameter below the lowest yarn point.
-pub fn scene_colliders(
-    specs: &[ColliderSpec],
-    rest: &crate::geom::Yarns,
-) -> Result<Vec<Arc<dyn PointCollider>>, Error> {
-    let (lo, hi) = rest
-        .bounds()
-        .map_or(([0.0; 3], [0.0; 3]), |b| (b.min, b.max));
-    let r_max = (0..rest.num_points())
-        .map(|v| rest.radius_at(v))
-        .fold(0.0, f64::max);
-    let mut out: Vec<Arc<dyn PointCollider>> = Vec::with_capacity(specs.len());
-    for c in specs {
-        out.push(match c {
-            ColliderSpec::Plane { point, normal } => Arc::new(PlaneCollider {
-                point: *point,
-                normal: *normal,
-                friction: 0.0,
-            }),
-            ColliderSpec::Sphere { center, radius } => Arc::new(SphereCollider {
-                center: center.unwrap_or([
-                    0.5 * (lo[0] + hi[0]),
-                    lo[1] - 2.0 * r_max - radius,
-                    0.5 * (lo[2] + hi[2]),
-                ]),
-                radius: *radius,
-                velocity: [0.0; 3],
-                friction: 0.0,
-            }),
-            ColliderSpec::Character {
-                file,
-                animation,
-                scale,
-                offset,
-            } => {
-                let ch = io::gltf_skin::read_character(file)?;
-                Arc::new(
-                    yls::CharacterCollider::new(
-                        ch,
-                        animation.as_deref(),
-                        scale.unwrap_or(1.0),
-                        offset.unwrap_or([0.0; 3]),
-                    )
-                    .map_err(|m| setup(file, m))?,
-                )
-            }
-        });
-    }
-    Ok(out)
-}
-
 /// Yarn mass (kg) as the yarn-level simulator lumps it: per curve its
 /// linear density when the yarns carry one, else `density π r²`, times
 /// the segment lengths.
@@ -494,7 +440,11 @@ impl Stage for ValidateJob {
             io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
         }
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
-        let colliders = scene_colliders(&scene.colliders, &asset.rest_yarns)?;
+        let colliders: Vec<Arc<dyn PointCollider>> =
+            yls::scene_colliders(&scene.colliders, &asset.rest_yarns)?
+                .into_iter()
+                .map(Arc::from)
+                .collect();
         let density = yls::scene_params(&scene, &self.scene)?.density;
         let mesh_mass_kg: f64 = asset.node_mass.iter().sum();
         let yarn_mass_kg = yarn_mass(&asset.rest_yarns, density);

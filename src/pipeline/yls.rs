@@ -298,53 +298,7 @@ pub fn run_observed(
         })
         .map_err(sim_err)?;
     }
-    let (lo, hi) = rest
-        .bounds()
-        .map_or(([0.0; 3], [0.0; 3]), |b| (b.min, b.max));
-    let r_max = (0..rest.num_points())
-        .map(|v| rest.radius_at(v))
-        .fold(0.0, f64::max);
-    for c in &scene.colliders {
-        let collider: Box<dyn PointCollider> = match c {
-            ColliderSpec::Plane { point, normal } => Box::new(PlaneCollider {
-                point: *point,
-                normal: *normal,
-                friction: 0.0,
-            }),
-            ColliderSpec::Sphere { center, radius } => {
-                let center = center.unwrap_or([
-                    0.5 * (lo[0] + hi[0]),
-                    lo[1] - 2.0 * r_max - radius,
-                    0.5 * (lo[2] + hi[2]),
-                ]);
-                Box::new(SphereCollider {
-                    center,
-                    radius: *radius,
-                    velocity: [0.0; 3],
-                    friction: 0.0,
-                })
-            }
-            ColliderSpec::Character {
-                file: cf,
-                animation,
-                scale,
-                offset,
-            } => {
-                let ch = io::gltf_skin::read_character(cf)?;
-                Box::new(
-                    CharacterCollider::new(
-                        ch,
-                        animation.as_deref(),
-                        scale.unwrap_or(1.0),
-                        offset.unwrap_or([0.0; 3]),
-                    )
-                    .map_err(|message| YlsError::Setup {
-                        file: cf.clone(),
-                        message,
-                    })?,
-                )
-            }
-        };
+    for collider in scene_colliders(&scene.colliders, &rest)? {
         sim.add_collider(collider);
     }
 
@@ -435,4 +389,60 @@ impl Stage for YlsJob {
             &mut |p| observer.frame(p),
         )?)
     }
+}
+
+/// The colliders of a yls scene, as both the yarn-level run and `validate`
+/// use them: a sphere without `center` sits under the centre of `rest`,
+/// its top one yarn diameter below the lowest yarn point.
+pub fn scene_colliders(
+    specs: &[ColliderSpec],
+    rest: &crate::geom::Yarns,
+) -> Result<Vec<Box<dyn PointCollider>>, YlsError> {
+    let (lo, hi) = rest
+        .bounds()
+        .map_or(([0.0; 3], [0.0; 3]), |b| (b.min, b.max));
+    let r_max = (0..rest.num_points())
+        .map(|v| rest.radius_at(v))
+        .fold(0.0, f64::max);
+    let mut out: Vec<Box<dyn PointCollider>> = Vec::with_capacity(specs.len());
+    for c in specs {
+        out.push(match c {
+            ColliderSpec::Plane { point, normal } => Box::new(PlaneCollider {
+                point: *point,
+                normal: *normal,
+                friction: 0.0,
+            }),
+            ColliderSpec::Sphere { center, radius } => Box::new(SphereCollider {
+                center: center.unwrap_or([
+                    0.5 * (lo[0] + hi[0]),
+                    lo[1] - 2.0 * r_max - radius,
+                    0.5 * (lo[2] + hi[2]),
+                ]),
+                radius: *radius,
+                velocity: [0.0; 3],
+                friction: 0.0,
+            }),
+            ColliderSpec::Character {
+                file,
+                animation,
+                scale,
+                offset,
+            } => {
+                let ch = io::gltf_skin::read_character(file)?;
+                Box::new(
+                    CharacterCollider::new(
+                        ch,
+                        animation.as_deref(),
+                        scale.unwrap_or(1.0),
+                        offset.unwrap_or([0.0; 3]),
+                    )
+                    .map_err(|message| YlsError::Setup {
+                        file: file.clone(),
+                        message,
+                    })?,
+                )
+            }
+        });
+    }
+    Ok(out)
 }

@@ -210,13 +210,19 @@ pub struct FrameLinearization {
     pub lambda: Vec<f64>,
     /// `∂ε/∂γ` (Eq. 16), stacked `[γs; γv]`.
     pub grad: Vec<f64>,
+    /// The sparse LU of `K` (the adjoint's), reused by the Gauss-Newton
+    /// solves that need `K⁻¹`.
+    pub k_lu: SparseLu,
 }
+
+/// faer's sparse LU of a square `f64` matrix.
+pub type SparseLu = faer::sparse::linalg::solvers::Lu<usize, f64>;
 
 /// Sparse LU of the square matrix given by `entries`.
 pub(crate) fn sparse_lu(
     n: usize,
     entries: &[(usize, usize, f64)],
-) -> Result<faer::sparse::linalg::solvers::Lu<usize, f64>, String> {
+) -> Result<SparseLu, String> {
     let trip: Vec<Triplet<usize, usize, f64>> = entries
         .iter()
         .map(|&(r, c, v)| Triplet::new(r, c, v))
@@ -277,6 +283,7 @@ pub fn linearize(
         de_dx,
         lambda,
         grad,
+        k_lu: lu,
     })
 }
 

@@ -157,8 +157,14 @@ pub fn gn_solve_damped(
     damping: &[f64],
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
+    if let Basis::Harmonic(_) = basis {
+        return gn_solve_subspace(lins, basis, ne, grad, damping, fixed);
+    }
     let m = grad.len();
     let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
+    if total > KKT_MAX_UNKNOWNS {
+        return gn_solve_cg(lins, grad, damping, fixed, &CgParams::default()).map(|(d, _)| d);
+    }
     let dcol = total - m;
     let mut t = Vec::new();
     let mut off = 0;
@@ -203,6 +209,232 @@ pub fn gn_solve_damped(
         return Err("Gauss-Newton direction is not finite".into());
     }
     Ok(d)
+}
+
+/// The damped Gauss-Newton step in a harmonic subspace of `2r` parameters:
+/// Eq. 19-20 directly. Each frame's `K` is factored once and solved for the
+/// `2r` dense columns `C diag(H, H)`, giving `J = -K⁻¹ C` and `P = Jᵀ G J`
+/// (`2r x 2r`). The sparse system of Eq. 21 would carry those dense columns
+/// as dense rows, whose fill-in exhausts the sparse LU on a VH-size rib
+/// (12.7K nodes); this costs one sparse factorization and `2r` solves per
+/// frame.
+fn gn_solve_subspace(
+    lins: &[FrameLinearization],
+    basis: &Basis,
+    ne: usize,
+    grad: &[f64],
+    damping: &[f64],
+    fixed: &[bool],
+) -> Result<Vec<f64>, String> {
+    let m = grad.len();
+    let parts: Vec<DMatrix<f64>> = lins
+        .par_iter()
+        .map(|l| -> Result<DMatrix<f64>, String> {
+            let n = l.free.ndof;
+            let mut j = Mat::<f64>::zeros(n, m);
+            for (row, col, v) in basis.columns(&l.c, n, ne) {
+                j[(row, col)] += v;
+            }
+            // K⁻¹ C; the sign of J cancels in Jᵀ G J.
+            l.k_lu.solve_in_place_with_conj(Conj::No, j.as_mut());
+            let mut gj = Mat::<f64>::zeros(n, m);
+            for &(r, c, v) in &l.g {
+                for k in 0..m {
+                    gj[(r, k)] += v * j[(c, k)];
+                }
+            }
+            Ok(DMatrix::from_fn(m, m, |a, b| {
+                (0..n).map(|i| j[(i, a)] * gj[(i, b)]).sum()
+            }))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut p = DMatrix::<f64>::zeros(m, m);
+    for part in parts {
+        p += part;
+    }
+    let mut rhs = nalgebra::DVector::<f64>::zeros(m);
+    for j in 0..m {
+        if fixed[j] {
+            for k in 0..m {
+                p[(j, k)] = 0.0;
+                p[(k, j)] = 0.0;
+            }
+            p[(j, j)] = 1.0;
+        } else {
+            p[(j, j)] += damping[j];
+            rhs[j] = grad[j];
+        }
+    }
+    let d = p
+        .lu()
+        .solve(&rhs)
+        .ok_or("Gauss-Newton system: the subspace matrix is singular")?;
+    if !d.iter().all(|v| v.is_finite()) {
+        return Err("Gauss-Newton direction is not finite".into());
+    }
+    Ok(d.iter().copied().collect())
+}
+
+/// Largest Eq. 21 system factored directly. Its sparse LU fills in far
+/// beyond the matrix (a 12.7K-node rib, 2 frames: ~250K unknowns, 250 s and
+/// 7 GB per Gauss-Newton step); larger full-field systems go to
+/// [`gn_solve_cg`].
+pub const KKT_MAX_UNKNOWNS: usize = 60_000;
+
+/// Conjugate gradients on the damped Eq. 20.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CgParams {
+    /// Relative residual `|r| / |grad|` that ends the iteration. Default 1e-8.
+    pub tolerance: f64,
+    /// Most iterations (a truncated solve is still a descent direction:
+    /// every CG iterate from zero has `gradᵀ d > 0`). Default 300.
+    pub max_iterations: usize,
+}
+
+impl Default for CgParams {
+    fn default() -> Self {
+        CgParams {
+            tolerance: 1e-8,
+            max_iterations: 300,
+        }
+    }
+}
+
+/// What a CG solve did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CgStats {
+    pub iterations: usize,
+    /// Final relative residual.
+    pub residual: f64,
+}
+
+/// The damped Gauss-Newton step of Eq. 20 on the full field without forming
+/// `P`: preconditioned conjugate gradients on `(Σ_i P_i + diag(damping)) d
+/// = grad`, each product `P_i v = C_iᵀ K_i⁻ᵀ G_i K_i⁻¹ C_i v` two solves
+/// with the adjoint's LU of `K_i` (Zehnder et al. 2021 use the same
+/// products). Fixed parameters keep `d_j = 0`. The Jacobi preconditioner
+/// approximates `diag(P)` with `K ≈ diag(K)`.
+pub fn gn_solve_cg(
+    lins: &[FrameLinearization],
+    grad: &[f64],
+    damping: &[f64],
+    fixed: &[bool],
+    params: &CgParams,
+) -> Result<(Vec<f64>, CgStats), String> {
+    let m = grad.len();
+    let apply = |v: &[f64]| -> Vec<f64> {
+        let parts: Vec<Vec<f64>> = lins
+            .par_iter()
+            .map(|l| {
+                let n = l.free.ndof;
+                let mut u = Mat::<f64>::zeros(n, 1);
+                for &(r, j, c) in &l.c {
+                    u[(r, 0)] += c * v[j];
+                }
+                l.k_lu.solve_in_place_with_conj(Conj::No, u.as_mut());
+                let mut z = Mat::<f64>::zeros(n, 1);
+                for &(r, c, g) in &l.g {
+                    z[(r, 0)] += g * u[(c, 0)];
+                }
+                l.k_lu
+                    .solve_transpose_in_place_with_conj(Conj::No, z.as_mut());
+                let mut out = vec![0.0; m];
+                for &(r, j, c) in &l.c {
+                    out[j] += c * z[(r, 0)];
+                }
+                out
+            })
+            .collect();
+        let mut out: Vec<f64> = (0..m).map(|j| damping[j] * v[j]).collect();
+        for part in parts {
+            for (o, p) in out.iter_mut().zip(part) {
+                *o += p;
+            }
+        }
+        for (o, &fx) in out.iter_mut().zip(fixed) {
+            if fx {
+                *o = 0.0;
+            }
+        }
+        out
+    };
+    let precond = jacobi_estimate(lins, damping, m);
+    let b: Vec<f64> = (0..m)
+        .map(|j| if fixed[j] { 0.0 } else { grad[j] })
+        .collect();
+    let b_norm = dot(&b, &b).sqrt();
+    let mut x = vec![0.0; m];
+    if b_norm == 0.0 {
+        return Ok((x, CgStats { iterations: 0, residual: 0.0 }));
+    }
+    let mut r = b.clone();
+    let mut z: Vec<f64> = r.iter().zip(&precond).map(|(r, p)| r / p).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let mut stats = CgStats {
+        iterations: 0,
+        residual: 1.0,
+    };
+    while stats.iterations < params.max_iterations {
+        let ap = apply(&p);
+        let pap = dot(&p, &ap);
+        if !(pap > 0.0) || !pap.is_finite() {
+            break; // lost positivity in rounding: keep the last iterate
+        }
+        let alpha = rz / pap;
+        for j in 0..m {
+            x[j] += alpha * p[j];
+            r[j] -= alpha * ap[j];
+        }
+        stats.iterations += 1;
+        stats.residual = dot(&r, &r).sqrt() / b_norm;
+        if stats.residual <= params.tolerance {
+            break;
+        }
+        z = r.iter().zip(&precond).map(|(r, p)| r / p).collect();
+        let rz_next = dot(&r, &z);
+        let beta = rz_next / rz;
+        rz = rz_next;
+        for j in 0..m {
+            p[j] = z[j] + beta * p[j];
+        }
+    }
+    if !x.iter().all(|v| v.is_finite()) || stats.iterations == 0 {
+        return Err(format!(
+            "Gauss-Newton direction: conjugate gradients failed (relative residual {:e})",
+            stats.residual
+        ));
+    }
+    Ok((x, stats))
+}
+
+/// `diag(P) + damping` with `K⁻¹ ≈ diag(K)⁻¹`, floored at a millionth of
+/// its mean so that no parameter the frames do not see divides by zero.
+fn jacobi_estimate(lins: &[FrameLinearization], damping: &[f64], m: usize) -> Vec<f64> {
+    let mut d = damping.to_vec();
+    for l in lins {
+        let n = l.free.ndof;
+        let mut kdiag = vec![0.0; n];
+        for &(r, c, v) in &l.k {
+            if r == c {
+                kdiag[r] += v;
+            }
+        }
+        let mut gdiag = vec![0.0; n];
+        for &(r, c, v) in &l.g {
+            if r == c {
+                gdiag[r] += v;
+            }
+        }
+        for &(r, j, c) in &l.c {
+            if kdiag[r] != 0.0 {
+                d[j] += gdiag[r] * (c / kdiag[r]).powi(2);
+            }
+        }
+    }
+    let mean = d.iter().sum::<f64>() / m.max(1) as f64;
+    let floor = (1e-6 * mean).max(f64::MIN_POSITIVE);
+    d.iter().map(|v| v.max(floor)).collect()
 }
 
 /// Symmetric Ruiz equilibration of the matrix `t` (duplicates summed):

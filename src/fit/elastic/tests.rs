@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::adjoint::{equilibrium, linearize};
-use super::gauss_newton::{gn_solve, Basis};
+use super::gauss_newton::{gn_solve, gn_solve_cg, Basis, CgParams};
 use super::harmonic::{harmonic_basis, tet_laplacian};
 use super::samples::fold;
 use super::*;
@@ -665,6 +665,25 @@ fn gauss_newton_direction_equals_dense_eq20_solve() {
         );
         let err = (dv - &want).norm() / want.norm();
         assert!(err < 1e-6, "{m} parameters: relative difference {err:e}");
+        if let Basis::Full = basis {
+            // The matrix-free CG of large full-field systems reaches the
+            // same direction.
+            let cg = CgParams {
+                tolerance: 1e-12,
+                max_iterations: 20 * m,
+            };
+            let (d, st) = gn_solve_cg(&lins, &grad, &vec![kappa; m], &fixed, &cg).unwrap();
+            let err = (DVector::from_vec(d) - &want).norm() / want.norm();
+            eprintln!("CG: {} iterations, residual {:e}, difference {err:e}", st.iterations, st.residual);
+            assert!(err < 1e-6, "CG, {m} parameters: relative difference {err:e}");
+            // Truncated after a few iterations it is still a descent direction.
+            let short = CgParams {
+                tolerance: 1e-12,
+                max_iterations: 3,
+            };
+            let (d, _) = gn_solve_cg(&lins, &grad, &vec![kappa; m], &fixed, &short).unwrap();
+            assert!(DVector::from_vec(d).dot(&DVector::from_vec(grad.clone())) > 0.0);
+        }
         // And it is a descent direction (the search direction is -d).
         assert!(want.dot(&DVector::from_vec(grad)) > 0.0);
     }
