@@ -244,6 +244,13 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
             "{p}"
         );
         assert!(p["iteration"].as_u64().is_some_and(|i| i >= 1), "{p}");
+        // The direction's share of the iteration, and the halvings.
+        let (ms, dir) = (
+            p["ms"].as_f64().unwrap(),
+            p["direction_ms"].as_f64().unwrap(),
+        );
+        assert!(dir >= 0.0 && dir <= ms, "{p}");
+        assert!(p["halvings"].as_u64().is_some(), "{p}");
     }
     let r = r.clone();
     let loss = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap();

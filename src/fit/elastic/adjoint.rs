@@ -219,10 +219,7 @@ pub struct FrameLinearization {
 pub type SparseLu = faer::sparse::linalg::solvers::Lu<usize, f64>;
 
 /// Sparse LU of the square matrix given by `entries`.
-pub(crate) fn sparse_lu(
-    n: usize,
-    entries: &[(usize, usize, f64)],
-) -> Result<SparseLu, String> {
+pub(crate) fn sparse_lu(n: usize, entries: &[(usize, usize, f64)]) -> Result<SparseLu, String> {
     let trip: Vec<Triplet<usize, usize, f64>> = entries
         .iter()
         .map(|&(r, c, v)| Triplet::new(r, c, v))

@@ -365,7 +365,13 @@ pub fn gn_solve_cg(
     let b_norm = dot(&b, &b).sqrt();
     let mut x = vec![0.0; m];
     if b_norm == 0.0 {
-        return Ok((x, CgStats { iterations: 0, residual: 0.0 }));
+        return Ok((
+            x,
+            CgStats {
+                iterations: 0,
+                residual: 0.0,
+            },
+        ));
     }
     let mut r = b.clone();
     let mut z: Vec<f64> = r.iter().zip(&precond).map(|(r, p)| r / p).collect();
@@ -712,7 +718,14 @@ impl SampleFit<'_> {
             if !(slope < 0.0) {
                 break;
             }
+            let direction_ms = t_it.elapsed().as_secs_f64() * 1e3;
             let mut step = if gn { p.gn_step } else { p.gd_step };
+            if gn && logmode {
+                let big = dir.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                if big * step > p.max_log_step {
+                    step = p.max_log_step / big;
+                }
+            }
             let mut accepted = None;
             let mut halved = 0;
             for _ in 0..=p.max_halvings {
@@ -784,6 +797,8 @@ impl SampleFit<'_> {
                     method: if gn { "gn" } else { "gd" }.into(),
                     loss: ev.loss,
                     ms: t_it.elapsed().as_secs_f64() * 1e3,
+                    direction_ms,
+                    halvings: halved,
                 });
             }
             if decrease < p.min_decrease {

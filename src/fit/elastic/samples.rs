@@ -53,8 +53,12 @@ pub struct FitProgress {
     pub method: String,
     /// Loss (m³) after the iteration.
     pub loss: f64,
-    /// Wall time (ms) of the iteration.
+    /// Wall time (ms) of the iteration, and of it the search direction
+    /// (linearization and Gauss-Newton solve); the rest is the line search.
     pub ms: f64,
+    pub direction_ms: f64,
+    /// Line-search halvings of the accepted step.
+    pub halvings: u32,
 }
 
 /// What the fit of one sample did.

@@ -674,8 +674,14 @@ fn gauss_newton_direction_equals_dense_eq20_solve() {
             };
             let (d, st) = gn_solve_cg(&lins, &grad, &vec![kappa; m], &fixed, &cg).unwrap();
             let err = (DVector::from_vec(d) - &want).norm() / want.norm();
-            eprintln!("CG: {} iterations, residual {:e}, difference {err:e}", st.iterations, st.residual);
-            assert!(err < 1e-6, "CG, {m} parameters: relative difference {err:e}");
+            eprintln!(
+                "CG: {} iterations, residual {:e}, difference {err:e}",
+                st.iterations, st.residual
+            );
+            assert!(
+                err < 1e-6,
+                "CG, {m} parameters: relative difference {err:e}"
+            );
             // Truncated after a few iterations it is still a descent direction.
             let short = CgParams {
                 tolerance: 1e-12,
