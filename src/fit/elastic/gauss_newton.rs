@@ -720,7 +720,8 @@ impl SampleFit<'_> {
             }
             let direction_ms = t_it.elapsed().as_secs_f64() * 1e3;
             let mut step = if gn { p.gn_step } else { p.gd_step };
-            if gn && logmode {
+            let by_cg = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > KKT_MAX_UNKNOWNS;
+            if gn && logmode && by_cg {
                 let big = dir.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 if big * step > p.max_log_step {
                     step = p.max_log_step / big;

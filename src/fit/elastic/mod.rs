@@ -173,12 +173,14 @@ pub struct ElasticFitParams {
     /// fraction (dimensionless). Default 1e-9.
     pub min_decrease: f64,
     /// Largest change of any `ln γ` in one log-space Gauss-Newton step
-    /// (trust region, dimensionless): the first trial step is shortened to
-    /// it. Default ln 100 (a factor of 100 per iteration). Without it,
-    /// weakly damped steps on a 12.7K-node rib proposed materials whose
-    /// trial equilibria took ~30 s each, five halvings deep (184 s per
-    /// step); at ln 10 the 100x synthetic band stalls (loss 1.3e6x down in
-    /// 50 iterations against 1.5e10x at ln 100, measured in `tests.rs`).
+    /// solved by conjugate gradients (full fields above
+    /// [`gauss_newton::KKT_MAX_UNKNOWNS`] unknowns; trust region,
+    /// dimensionless): the first trial step is shortened to it. Default
+    /// ln 100. Without it, weakly damped steps on a 12.7K-node rib proposed
+    /// materials whose trial equilibria took ~30 s each, five halvings deep
+    /// (184 s per step). Directly solved (smaller) systems take the full
+    /// step: capping them too left the demo's joint fit at a material whose
+    /// bend frame found no equilibrium (not investigated further).
     pub max_log_step: f64,
 }
 

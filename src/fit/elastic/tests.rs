@@ -458,8 +458,7 @@ fn synthetic_recovery_of_a_10x_band() {
 /// Issue 11, synthetic recovery, 100x band (as the 10x check), and the
 /// default log-space full stage projects no element to the floor. Measured:
 /// loss 1.5e10x down, identified 120 `γs` and 10 `γv` of 192, within 0.05%;
-/// all tets within 10%: 100% of `γs`, 99% of `γv` (82% before the
-/// log-step trust region; guarded at 95% / 75%).
+/// all tets within 10%: 99% of `γs`, 82% of `γv` (guarded at 95% / 75%).
 #[test]
 fn synthetic_recovery_of_a_100x_band() {
     let r = strict_recovery(100.0);
