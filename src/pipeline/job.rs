@@ -983,11 +983,9 @@ impl Job {
             let _armed = interrupt.map(|i| i.arm());
             let r = stage.run(o)?;
             // Done: the record vouches for the asset, nothing to resume.
-            // Every checkpoint of the job goes, including the one a killed
-            // run wrote at the step this run resumed from.
-            if let Some(c) = &r.checkpoint {
-                let _ = std::fs::remove_file(c);
-            }
+            // Every checkpoint of the job goes (the run's own lies in `dir`
+            // too), including one a killed run wrote at the step this run
+            // resumed from.
             remove_checkpoints(&dir);
             let _ = std::fs::remove_dir(&dir); // only when empty
             Ok(vec![r.output])

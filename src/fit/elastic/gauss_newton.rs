@@ -99,6 +99,23 @@ impl Basis {
             }
         }
     }
+    /// `C diag(H, H)` of a harmonic basis as a dense `ndof x 2r` matrix
+    /// (an empty one for the full basis).
+    fn dense_columns(&self, c: &[(usize, usize, f64)], ndof: usize, ne: usize) -> DMatrix<f64> {
+        let Basis::Harmonic(h) = self else {
+            return DMatrix::zeros(0, 0);
+        };
+        let r = h.ncols();
+        let mut dense = DMatrix::<f64>::zeros(ndof, 2 * r);
+        for &(row, j, v) in c {
+            let (half, e) = (j / ne, j % ne);
+            for k in 0..r {
+                dense[(row, half * r + k)] += v * h[(e, k)];
+            }
+        }
+        dense
+    }
+
     /// `C diag(H, H)` of the triplets `c` (`ndof` rows).
     fn columns(
         &self,
@@ -108,17 +125,10 @@ impl Basis {
     ) -> Vec<(usize, usize, f64)> {
         match self {
             Basis::Full => c.to_vec(),
-            Basis::Harmonic(h) => {
-                let r = h.ncols();
-                let mut dense = DMatrix::<f64>::zeros(ndof, 2 * r);
-                for &(row, j, v) in c {
-                    let (half, e) = (j / ne, j % ne);
-                    for k in 0..r {
-                        dense[(row, half * r + k)] += v * h[(e, k)];
-                    }
-                }
+            Basis::Harmonic(_) => {
+                let dense = self.dense_columns(c, ndof, ne);
                 let mut out = Vec::new();
-                for col in 0..2 * r {
+                for col in 0..dense.ncols() {
                     for row in 0..ndof {
                         let v = dense[(row, col)];
                         if v != 0.0 {
@@ -161,10 +171,10 @@ pub fn gn_solve_damped(
         return gn_solve_subspace(lins, basis, ne, grad, damping, fixed);
     }
     let m = grad.len();
-    let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
-    if total > KKT_MAX_UNKNOWNS {
+    if solved_by_cg(lins, m) {
         return gn_solve_cg(lins, grad, damping, fixed, &CgParams::default()).map(|(d, _)| d);
     }
+    let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
     let dcol = total - m;
     let mut t = Vec::new();
     let mut off = 0;
@@ -231,10 +241,8 @@ fn gn_solve_subspace(
         .par_iter()
         .map(|l| -> Result<DMatrix<f64>, String> {
             let n = l.free.ndof;
-            let mut j = Mat::<f64>::zeros(n, m);
-            for (row, col, v) in basis.columns(&l.c, n, ne) {
-                j[(row, col)] += v;
-            }
+            let dense = basis.dense_columns(&l.c, n, ne);
+            let mut j = Mat::<f64>::from_fn(n, m, |row, col| dense[(row, col)]);
             // K⁻¹ C; the sign of J cancels in Jᵀ G J.
             l.k_lu.solve_in_place_with_conj(Conj::No, j.as_mut());
             let mut gj = Mat::<f64>::zeros(n, m);
@@ -280,6 +288,13 @@ fn gn_solve_subspace(
 /// 7 GB per Gauss-Newton step); larger full-field systems go to
 /// [`gn_solve_cg`].
 pub const KKT_MAX_UNKNOWNS: usize = 60_000;
+
+/// Whether the full-field Gauss-Newton system of `m` parameters over
+/// `lins` is solved by [`gn_solve_cg`] (its Eq. 21 form has more than
+/// [`KKT_MAX_UNKNOWNS`] unknowns).
+fn solved_by_cg(lins: &[FrameLinearization], m: usize) -> bool {
+    lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > KKT_MAX_UNKNOWNS
+}
 
 /// Conjugate gradients on the damped Eq. 20.
 #[derive(Debug, Clone, PartialEq)]
@@ -720,8 +735,7 @@ impl SampleFit<'_> {
             }
             let direction_ms = t_it.elapsed().as_secs_f64() * 1e3;
             let mut step = if gn { p.gn_step } else { p.gd_step };
-            let by_cg = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > KKT_MAX_UNKNOWNS;
-            if gn && logmode && by_cg {
+            if gn && logmode && solved_by_cg(&lins, m) {
                 let big = dir.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 if big * step > p.max_log_step {
                     step = p.max_log_step / big;
