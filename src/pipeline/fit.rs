@@ -40,7 +40,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::fit::elastic::adjoint::equilibrium;
+use crate::fit::elastic::adjoint::{equilibrium, equilibrium_continued, Anchor};
 use crate::fit::elastic::{
     fit_materials, ElasticFitError, ElasticFitParams, FitInputs, FitReport, Frame, FrameTarget,
     MaterialFields, Sample,
@@ -527,28 +527,80 @@ fn scene_of(path: &Path) -> Result<Option<YlsScene>, Error> {
         .map_err(|e| invalid(path, format!("its /metadata/scene_toml: {e}")))
 }
 
+/// Per sample and frame, the fit's equilibrium under the field it fitted
+/// ([`SampleReport::anchors`](crate::fit::elastic::SampleReport); a joint
+/// fit's one merged sample split back into the samples it joined).
+pub fn anchors_of(report: &FitReport, samples: &[Sample], joint: bool) -> Vec<Vec<Anchor>> {
+    if joint {
+        let mut all = report
+            .samples
+            .first()
+            .map(|s| s.anchors.clone())
+            .unwrap_or_default()
+            .into_iter();
+        samples
+            .iter()
+            .map(|s| all.by_ref().take(s.frames.len()).collect())
+            .collect()
+    } else {
+        report.samples.iter().map(|s| s.anchors.clone()).collect()
+    }
+}
+
+/// Equilibrium of `frame` under `model` (material `gamma`): by continuation
+/// from the fit's `anchor` when there is one (the equilibrium the fit itself
+/// reached, so losses agree with the fit's), else, or when that fails, by
+/// Newton from the frame's start.
+fn settle(
+    mesh: &TetMesh,
+    model: &ElasticModel,
+    gamma: &MaterialFields,
+    mass: &[f64],
+    frame: &Frame,
+    anchor: Option<&Anchor>,
+    params: &ElasticFitParams,
+) -> Result<Vec<Vec3>, String> {
+    let mut via_anchor = None;
+    if let Some(a) = anchor {
+        match equilibrium_continued(mesh, mass, frame, &gamma.stacked(), a, &params.statics()) {
+            Ok((x, _)) => return Ok(x),
+            Err(e) => via_anchor = Some(e),
+        }
+    }
+    equilibrium(model, mass, frame, &frame.start, &params.statics())
+        .map(|(x, _)| x)
+        .map_err(|e| match via_anchor {
+            Some(c) => format!("{e}; from the fit's equilibrium: {c}"),
+            None => e,
+        })
+}
+
 /// Loss (m³) of each sample at material `gamma`: every frame brought to
-/// equilibrium from its start, as the fitter does.
+/// equilibrium ([`settle`]; `anchors[s][f]` where known, may be empty).
 pub fn sample_losses(
     mesh: &TetMesh,
     mass: &[f64],
     samples: &[Sample],
     gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Vec<f64>, ElasticFitError> {
     let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
     samples
         .iter()
-        .map(|s| {
+        .enumerate()
+        .map(|(k, s)| {
             s.frames.iter().enumerate().try_fold(0.0, |acc, (i, f)| {
-                let (x, _) = equilibrium(&model, mass, f, &f.start, &params.statics()).map_err(
-                    |message| ElasticFitError::Sample {
-                        sample: s.name.clone(),
-                        frame: i,
-                        message,
-                    },
-                )?;
+                let anchor = anchors.get(k).and_then(|a| a.get(i));
+                let x =
+                    settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+                        ElasticFitError::Sample {
+                            sample: s.name.clone(),
+                            frame: i,
+                            message,
+                        }
+                    })?;
                 Ok(acc + f.target.loss(&model, &x))
             })
         })
@@ -623,6 +675,7 @@ pub fn force_scale(
     samples: &[Sample],
     reactions: &[Vec<Option<Vec<Vec3>>>],
     gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Option<ForceScale>, ElasticFitError> {
     let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
@@ -632,7 +685,7 @@ pub fn force_scale(
     });
     let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
     let mut pairs = Vec::new();
-    for (s, rs) in samples.iter().zip(reactions) {
+    for (k, (s, rs)) in samples.iter().zip(reactions).enumerate() {
         for (i, (f, r)) in s.frames.iter().zip(rs).enumerate() {
             let Some(r) = r else { continue };
             let mut pinned = vec![false; mesh.num_nodes()];
@@ -645,14 +698,14 @@ pub fn force_scale(
             if loaded {
                 continue;
             }
-            let (x, _) =
-                equilibrium(&model, mass, f, &f.start, &params.statics()).map_err(|message| {
-                    ElasticFitError::Sample {
-                        sample: s.name.clone(),
-                        frame: i,
-                        message,
-                    }
-                })?;
+            let anchor = anchors.get(k).and_then(|a| a.get(i));
+            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+                ElasticFitError::Sample {
+                    sample: s.name.clone(),
+                    frame: i,
+                    message,
+                }
+            })?;
             let g = model
                 .gradient(&x)
                 .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
@@ -765,11 +818,13 @@ pub fn fit_samples(
         progress,
     };
     let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
-    let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, params)?;
+    let at_uniform = anchors_of(&uniform_fit, samples, joint);
+    let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, &at_uniform, params)?;
     if let Some(fs) = uniform_force_scale {
         u = scaled(&u, fs.scale);
     }
     let (mut gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let at_field = anchors_of(&fit, samples, joint);
     let loaded = samples
         .iter()
         .flat_map(|s| &s.frames)
@@ -777,7 +832,7 @@ pub fn fit_samples(
     let field_force_scale = if loaded {
         None
     } else {
-        force_scale(mesh, mass, samples, reactions, &gamma, params)?
+        force_scale(mesh, mass, samples, reactions, &gamma, &at_field, params)?
     };
     if let Some(fs) = field_force_scale {
         gamma = scaled(&gamma, fs.scale);
@@ -787,9 +842,9 @@ pub fn fit_samples(
         gamma_s: mean(&u.gamma_s),
         gamma_v: mean(&u.gamma_v),
     };
-    let before = sample_losses(mesh, mass, samples, init, params)?;
-    let at_u = sample_losses(mesh, mass, samples, &u, params)?;
-    let after = sample_losses(mesh, mass, samples, &gamma, params)?;
+    let before = sample_losses(mesh, mass, samples, init, &[], params)?;
+    let at_u = sample_losses(mesh, mass, samples, &u, &at_uniform, params)?;
+    let after = sample_losses(mesh, mass, samples, &gamma, &at_field, params)?;
     let losses = (0..samples.len())
         .map(|k| [before[k], at_u[k], after[k]])
         .collect();
@@ -1130,6 +1185,51 @@ mod tests {
         assert_eq!(choose_frames(1, 1), vec![0]);
     }
 
+    /// A joint fit's anchors (one merged sample) go back to the samples it
+    /// joined, frame by frame in order; a pose-by-pose fit's stay as they are.
+    #[test]
+    fn joint_anchors_split_back_into_their_samples() {
+        let anchor = |v: f64| Anchor {
+            gamma: std::sync::Arc::new(vec![v]),
+            x: vec![[v, 0.0, 0.0]],
+        };
+        let frame = || Frame {
+            target: FrameTarget {
+                f_target: Vec::new(),
+                alpha: 0.0,
+                positions: Vec::new(),
+            },
+            pinned: Vec::new(),
+            start: Vec::new(),
+            f_ext: Vec::new(),
+        };
+        let sample = |n: usize| Sample {
+            name: format!("{n} frames"),
+            frames: (0..n).map(|_| frame()).collect(),
+            energy: 1.0,
+        };
+        let samples = [sample(2), sample(1)];
+        let report = |groups: Vec<Vec<f64>>| FitReport {
+            samples: groups
+                .into_iter()
+                .map(|g| crate::fit::elastic::SampleReport {
+                    anchors: g.into_iter().map(anchor).collect(),
+                    ..Default::default()
+                })
+                .collect(),
+            ..Default::default()
+        };
+        let firsts = |a: Vec<Vec<Anchor>>| -> Vec<Vec<f64>> {
+            a.iter()
+                .map(|s| s.iter().map(|a| a.x[0][0]).collect())
+                .collect()
+        };
+        let joint = anchors_of(&report(vec![vec![1.0, 2.0, 3.0]]), &samples, true);
+        assert_eq!(firsts(joint), vec![vec![1.0, 2.0], vec![3.0]]);
+        let apart = anchors_of(&report(vec![vec![1.0, 2.0], vec![3.0]]), &samples, false);
+        assert_eq!(firsts(apart), vec![vec![1.0, 2.0], vec![3.0]]);
+    }
+
     /// A slab held at both ends and stretched 20 %: the clamp forces at a
     /// true material γ* are the "reactions"; from γ*/7 the force scale is 7
     /// (the held equilibrium does not depend on the scale).
@@ -1177,6 +1277,7 @@ mod tests {
             &samples,
             &reactions,
             &scaled(&truth, 1.0 / 7.0),
+            &[],
             &params,
         )
         .unwrap()
@@ -1185,7 +1286,8 @@ mod tests {
         assert!((fs.scale - 7.0).abs() < 1e-4 * 7.0, "{fs:?}");
         assert!(fs.relative_misfit < 1e-4, "{fs:?}");
         // Without reactions there is nothing to match.
-        let none = force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &params).unwrap();
+        let none =
+            force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &[], &params).unwrap();
         assert!(none.is_none());
     }
 

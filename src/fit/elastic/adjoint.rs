@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use super::loss::FrameTarget;
 use super::Frame;
-use crate::geom::Vec3;
+use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
 use crate::sim::hessian::{element_gamma_derivatives, element_hessian};
 use crate::sim::statics::{StaticParams, StaticSolver, StaticStats};
@@ -124,6 +124,78 @@ pub fn equilibrium(
         ));
     }
     Ok((x, stats))
+}
+
+/// A known equilibrium: one frame's positions under a material (stacked
+/// `[γs; γv]`, Pa), from which [`equilibrium_continued`] reaches another.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Anchor {
+    pub gamma: std::sync::Arc<Vec<f64>>,
+    pub x: Vec<Vec3>,
+}
+
+/// Halvings of the material step in [`equilibrium_continued`] before it
+/// gives up: the path is walked in steps no shorter than 1/2^8 of it.
+const CONTINUATION_HALVINGS: u32 = 8;
+
+/// Equilibrium of `frame` under the material `gamma` (stacked `[γs; γv]`,
+/// Pa, all > 0), reached by continuation from `anchor`: the material walks
+/// the geometric path `γ(t) = γ_a^(1-t) γ^t` (t from 0 to 1; positive all
+/// along, and scale-uniform in ln γ like the fit's log-space steps), each
+/// [`equilibrium`] warm-started from the last. A step whose solve fails is
+/// halved, a step that succeeds doubles the next. Needed where Newton from
+/// the frame's own start does not converge for a fitted material of high
+/// contrast (γ spanning ten decades) although the fit reached that material
+/// through equilibria it warm-started all the way. Returns the positions and
+/// the number of solves.
+pub fn equilibrium_continued(
+    mesh: &TetMesh,
+    mass: &[f64],
+    frame: &Frame,
+    gamma: &[f64],
+    anchor: &Anchor,
+    params: &StaticParams,
+) -> Result<(Vec<Vec3>, u32), String> {
+    let ne = mesh.num_tets();
+    if gamma.len() != 2 * ne || anchor.gamma.len() != 2 * ne || anchor.x.len() != mesh.num_nodes() {
+        return Err("continuation anchor does not match the mesh".into());
+    }
+    let (mut t, mut h, mut solves) = (0.0f64, 1.0f64, 0u32);
+    let mut x = anchor.x.clone();
+    while t < 1.0 {
+        let tt = (t + h).min(1.0);
+        let g: Vec<f64> = anchor
+            .gamma
+            .iter()
+            .zip(gamma)
+            .map(|(a, b)| {
+                if tt >= 1.0 {
+                    *b
+                } else {
+                    a.powf(1.0 - tt) * b.powf(tt)
+                }
+            })
+            .collect();
+        let m = ElasticModel::new(mesh, &g[..ne], &g[ne..]).map_err(|e| e.to_string())?;
+        solves += 1;
+        match equilibrium(&m, mass, frame, &x, params) {
+            Ok((xn, _)) => {
+                x = xn;
+                t = tt;
+                h = (2.0 * h).min(1.0);
+            }
+            Err(e) => {
+                h *= 0.5;
+                if h < 0.5f64.powi(CONTINUATION_HALVINGS as i32) {
+                    return Err(format!(
+                        "{e} (also by continuation from the fit's equilibrium: stopped {:.0}% of the way in ln γ)",
+                        100.0 * t
+                    ));
+                }
+            }
+        }
+    }
+    Ok((x, solves))
 }
 
 /// `g = ∂E/∂x - f_ext` on the free DOFs and its relative size: largest free

@@ -916,9 +916,13 @@ pub fn fit_sample(
     params: &ElasticFitParams,
 ) -> Result<(MaterialFields, Vec<StageReport>, f64), ElasticFitError> {
     fit_sample_observed(mesh, mass, sample, init, harmonic, params, None)
+        .map(|(gamma, stages, loss0, _)| (gamma, stages, loss0))
 }
 
-/// [`fit_sample`], calling `progress` after every iteration.
+/// [`fit_sample`], calling `progress` after every iteration; also returns
+/// every frame's equilibrium under the fitted material (in frame order), the
+/// anchors of later solves under nearby materials
+/// ([`super::adjoint::equilibrium_continued`]).
 pub fn fit_sample_observed(
     mesh: &TetMesh,
     mass: &[f64],
@@ -927,7 +931,7 @@ pub fn fit_sample_observed(
     harmonic: &DMatrix<f64>,
     params: &ElasticFitParams,
     progress: Option<&dyn Fn(&super::samples::FitProgress)>,
-) -> Result<(MaterialFields, Vec<StageReport>, f64), ElasticFitError> {
+) -> Result<(MaterialFields, Vec<StageReport>, f64, Vec<Vec<Vec3>>), ElasticFitError> {
     params.check()?;
     let ne = mesh.num_tets();
     let model = ElasticModel::new(mesh, &init.gamma_s, &init.gamma_v)
@@ -981,5 +985,10 @@ pub fn fit_sample_observed(
     {
         return Err(fit.error(0, format!("fit produced gamma {g}")));
     }
-    Ok((MaterialFields::from_stacked(&ev.gamma), reports, loss0))
+    Ok((
+        MaterialFields::from_stacked(&ev.gamma),
+        reports,
+        loss0,
+        ev.xs,
+    ))
 }

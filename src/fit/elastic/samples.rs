@@ -10,6 +10,7 @@
 
 use std::time::Instant;
 
+use super::adjoint::Anchor;
 use super::gauss_newton::StageReport;
 use super::harmonic::harmonic_basis;
 use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
@@ -76,6 +77,11 @@ pub struct SampleReport {
     pub stages: Vec<StageReport>,
     /// Wall time (ms).
     pub ms: f64,
+    /// Every frame's equilibrium under this sample's own fitted field (not
+    /// the folded one), to warm-start later solves
+    /// ([`super::adjoint::equilibrium_continued`]); not serialized.
+    #[serde(skip)]
+    pub anchors: Vec<Anchor>,
 }
 
 /// What [`fit_materials`] did.
@@ -149,7 +155,7 @@ pub fn fit_materials(
     let mut w = 0.0f64;
     for sample in inputs.samples {
         let ts = Instant::now();
-        let (gk, stages, loss0) = super::gauss_newton::fit_sample_observed(
+        let (gk, stages, loss0, xs) = super::gauss_newton::fit_sample_observed(
             inputs.mesh,
             inputs.mass,
             sample,
@@ -172,6 +178,15 @@ pub fn fit_materials(
             final_loss,
             stages,
             ms: ts.elapsed().as_secs_f64() * 1e3,
+            anchors: {
+                let g = std::sync::Arc::new(gk.stacked());
+                xs.into_iter()
+                    .map(|x| Anchor {
+                        gamma: g.clone(),
+                        x,
+                    })
+                    .collect()
+            },
         });
     }
     if let Some(g) = gamma

@@ -894,3 +894,62 @@ fn rib_size_fit_time() {
     );
     assert!(s <= 1800.0, "fit took {s:.0} s > 30 min");
 }
+
+/// A fitted material far from the one whose equilibrium is known: where
+/// Newton from the frame's start gives up (iteration cap), the continuation
+/// from the known equilibrium along ln γ reaches the same equilibrium a
+/// generous solve finds.
+#[test]
+fn continuation_from_an_anchor_reaches_what_newton_from_the_start_misses() {
+    use super::adjoint::{equilibrium_continued, Anchor};
+    let (mesh, mass) = bar([6, 2, 2]);
+    let known = band_truth(&mesh, 5.0);
+    let (frame, _) = frame_of(&mesh, &mass, &known, Load::BendZ(0.05));
+    // Ten times softer with a 300x band: a much larger deflection.
+    let mut far = band_truth(&mesh, 300.0);
+    far.gamma_s
+        .iter_mut()
+        .chain(far.gamma_v.iter_mut())
+        .for_each(|g| *g *= 0.1);
+    let model = ElasticModel::new(&mesh, &far.gamma_s, &far.gamma_v).unwrap();
+    let capped = StaticParams {
+        tolerance: 1e-6,
+        max_iterations: 15,
+    };
+    let direct = equilibrium(&model, &mass, &frame, &mesh.nodes, &capped);
+    assert!(
+        direct.is_err(),
+        "the capped solve from rest must fail for the test to mean anything"
+    );
+    let anchor = Anchor {
+        gamma: std::sync::Arc::new(known.stacked()),
+        x: frame.start.clone(),
+    };
+    let (x, solves) =
+        equilibrium_continued(&mesh, &mass, &frame, &far.stacked(), &anchor, &capped).unwrap();
+    assert!(
+        solves > 1,
+        "one solve would mean no continuation was needed"
+    );
+    let generous = StaticParams {
+        tolerance: 1e-6,
+        max_iterations: 400,
+    };
+    let (reference, _) = equilibrium(&model, &mass, &frame, &frame.start, &generous).unwrap();
+    let tip = reference
+        .iter()
+        .zip(&mesh.nodes)
+        .fold(0.0f64, |m, (a, b)| m.max(crate::geom::dist(*a, *b)));
+    let gap = x
+        .iter()
+        .zip(&reference)
+        .fold(0.0f64, |m, (a, b)| m.max(crate::geom::dist(*a, *b)));
+    assert!(
+        tip > 0.2 * H,
+        "deflection {tip} m is too small to test anything"
+    );
+    assert!(
+        gap < 1e-5 * tip,
+        "continued equilibrium {gap} m from the reference (deflection {tip} m)"
+    );
+}
