@@ -526,6 +526,8 @@ struct SampleFit<'a> {
     sample: &'a Sample,
     params: &'a ElasticFitParams,
     progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
+    /// The initial material `[γs; γv]` (Pa), the reference of `max_contrast`.
+    init: Vec<f64>,
 }
 
 impl SampleFit<'_> {
@@ -572,6 +574,26 @@ impl SampleFit<'_> {
             ev.newton += it;
         }
         Ok(ev)
+    }
+
+    /// Clamps a full field into the contrast band of the initial material
+    /// ([`ElasticFitParams::max_contrast`]): every ratio `γ_j / γ0_j` within
+    /// a factor `max_contrast` of their geometric mean, so the overall scale
+    /// (free in a loss without external forces, set afterwards by the clamp
+    /// reactions) moves freely while the contrast is bounded; then the floor.
+    fn clamp_to_bounds(&self, gamma: &mut [f64]) {
+        let init = &self.init;
+        let mean = gamma
+            .iter()
+            .zip(init)
+            .map(|(g, g0)| (g / g0).ln())
+            .sum::<f64>()
+            / gamma.len().max(1) as f64;
+        let span = self.params.max_contrast.ln();
+        for (g, g0) in gamma.iter_mut().zip(init) {
+            let r = (*g / g0).ln().clamp(mean - span, mean + span);
+            *g = (g0 * r.exp()).max(self.params.gamma_floor);
+        }
     }
 
     fn error(&self, frame: usize, message: String) -> ElasticFitError {
@@ -767,6 +789,9 @@ impl SampleFit<'_> {
                 } else {
                     gt.iter().all(|g| *g >= floor)
                 };
+                if full {
+                    self.clamp_to_bounds(&mut gt);
+                }
                 if feasible && gt.iter().all(|g| g.is_finite()) {
                     if let Ok(t) = self.evaluate(&gt, &ev.xs) {
                         rep.newton_iterations += t.newton;
@@ -948,6 +973,7 @@ pub fn fit_sample_observed(
         sample,
         params,
         progress,
+        init: init.stacked(),
     };
     validate(mesh, mass, sample, &model).map_err(|(i, e)| fit.error(i, e))?;
     let starts: Vec<Vec<Vec3>> = sample.frames.iter().map(|f| f.start.clone()).collect();

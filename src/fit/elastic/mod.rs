@@ -182,6 +182,20 @@ pub struct ElasticFitParams {
     /// step: capping them too made the demo's joint fit 8x slower (107 s
     /// against 13 s, release) for the same loss (1.14e-8 against 1.18e-8 m³).
     pub max_log_step: f64,
+    /// Largest factor (dimensionless, >= 1) by which the full stage may
+    /// move any γ, up or down, relative to the initial material of a
+    /// sample's fit, up to a common factor: every `γ_j / γ0_j` stays within
+    /// `max_contrast` of their geometric mean (the field is clamped into the
+    /// band, then to the floor). The overall scale stays free: a loss without
+    /// external forces does not see it and the clamp reactions set it after
+    /// the fit. The harmonic stages, whose few parameters include that scale,
+    /// are not bounded. Default 1e3: three decades either way covers
+    /// the contrast of yarn-dense against empty voxels (the synthetic 100x
+    /// band is recovered inside it), while the directions two poses leave
+    /// unobserved otherwise drift to γs over 14 decades (0.0003 Pa to 5e10
+    /// Pa on a 10 x 10 stockinette fitted to a stretch and a bend), a field
+    /// whose held-out drape has no backward-Euler step.
+    pub max_contrast: f64,
 }
 
 impl Default for ElasticFitParams {
@@ -202,6 +216,7 @@ impl Default for ElasticFitParams {
             loss_stop: 1e-10,
             min_decrease: 1e-9,
             max_log_step: 2.0 * std::f64::consts::LN_10,
+            max_contrast: 1e3,
         }
     }
 }
@@ -226,12 +241,13 @@ impl ElasticFitParams {
             && self.equilibrium_tolerance <= 1e-5
             && self.loss_stop >= 0.0
             && self.min_decrease >= 0.0
-            && self.max_log_step > 0.0;
+            && self.max_log_step > 0.0
+            && self.max_contrast >= 1.0;
         if ok {
             Ok(())
         } else {
             Err(ElasticFitError::Inconsistent(format!(
-                "fit parameters out of range (steps > 0, max log step > 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
+                "fit parameters out of range (steps > 0, max log step > 0, max contrast >= 1, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
             )))
         }
     }
