@@ -691,3 +691,27 @@ fn write_report(
     }
     Ok(files)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The held-out scenes shipped for `validate` (examples/validate) have no
+    /// `[swatch]` and parse once the asset's rest yarns are named.
+    #[test]
+    fn example_validate_scenes_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/validate");
+        let mut scenes = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let text = std::fs::read_to_string(&path).unwrap();
+                let (text, injected) = with_swatch(&text, &path, Path::new("rest.h5")).unwrap();
+                assert!(injected, "{}: names its own swatch", path.display());
+                YlsScene::parse(&text, &path).unwrap_or_else(|e| panic!("{e}"));
+                scenes += 1;
+            }
+        }
+        assert!(scenes >= 1, "no scene in {}", dir.display());
+    }
+}
