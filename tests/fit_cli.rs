@@ -356,6 +356,25 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     assert!(loss(r, "loss_fitted") < 0.1 * loss(r, "loss_before"));
     assert_eq!(runs[0].1.gamma_s, runs[1].1.gamma_s);
     assert_eq!(runs[0].1.gamma_v, runs[1].1.gamma_v);
+
+    // --max-contrast 1 with no harmonic stage: the full stage may only scale
+    // the uniform material, so the field stays uniform.
+    let flat = c.dir.join("flat.vtkhdf");
+    let mut args = fit_args(&c, &flat, &["--max-contrast", "1"]);
+    let h = args.iter().position(|a| *a == "1,10").unwrap();
+    args[h] = "0";
+    let o = knitvox(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a = io::vtkhdf::read_asset(&flat).unwrap();
+    for g in [&a.gamma_s, &a.gamma_v] {
+        let [lo, hi] = g
+            .iter()
+            .fold([f64::INFINITY, 0.0f64], |r, v| [r[0].min(*v), r[1].max(*v)]);
+        assert!(
+            hi <= lo * (1.0 + 1e-9),
+            "contrast 1 left gamma in {lo}..{hi}"
+        );
+    }
 }
 
 #[test]
@@ -383,6 +402,22 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+
+    // A contrast bound below 1: usage, exit 2, naming the option's value.
+    let o = knitvox(&[
+        "fit",
+        s(&asset_path),
+        "--train",
+        s(&pose),
+        "-o",
+        s(&out),
+        "--max-contrast",
+        "0.5",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("0.5") && err.contains("contrast"), "{err}");
+    assert!(!out.exists());
 
     // A missing pose file: exit 66, named.
     let missing = d.join("nope.h5");

@@ -30,6 +30,12 @@ pub struct FitArgs {
     /// Gauss-Newton iterations per stage (VH §6.3: 20-30).
     #[arg(long, default_value_t = ElasticFitParams::default().gn_iterations, value_name = "N")]
     pub gn_iterations: u32,
+    /// Largest contrast of the fitted field: every gamma over its initial value
+    /// stays within this factor of their geometric mean (>= 1; `inf` for no
+    /// bound). Poses leave most of a field unobserved; unbounded, it drifts
+    /// over many decades.
+    #[arg(long, default_value_t = ElasticFitParams::default().max_contrast, value_name = "F", value_parser = parse_contrast)]
+    pub max_contrast: f64,
     /// The fitted asset [default: ASSET with .fit.vtkhdf]; must differ from ASSET.
     #[arg(short, long, value_name = "OUT.vtkhdf")]
     pub output: Option<PathBuf>,
@@ -67,6 +73,15 @@ fn parse_ranks(s: &str) -> Result<Ranks, String> {
     Ok(Ranks(out))
 }
 
+fn parse_contrast(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v >= 1.0 => Ok(v),
+        _ => Err(format!(
+            "'{s}' is not a contrast factor (a number >= 1, or inf)"
+        )),
+    }
+}
+
 pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
     let job = FitJob {
         asset: a.asset.clone(),
@@ -77,6 +92,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             harmonic_ranks: a.harmonic.0.clone(),
             gd_iterations: a.gd_iterations,
             gn_iterations: a.gn_iterations,
+            max_contrast: a.max_contrast,
             ..ElasticFitParams::default()
         },
         output: a.output.clone(),
