@@ -387,15 +387,13 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     write_pose(&asset, &gs, &gv, [0.3, 0.0, 0.0], &pose);
     let out = d.join("out.vtkhdf");
 
+    let fit_one = |o: &Path, extra: &[&str]| {
+        let mut args = vec!["fit", s(&asset_path), "--train", s(&pose), "-o", s(o)];
+        args.extend_from_slice(extra);
+        knitvox(&args)
+    };
     // -o equal to the input: usage, exit 2, nothing written.
-    let o = knitvox(&[
-        "fit",
-        s(&asset_path),
-        "--train",
-        s(&pose),
-        "-o",
-        s(&asset_path),
-    ]);
+    let o = fit_one(&asset_path, &[]);
     assert_eq!(
         o.status.code(),
         Some(2),
@@ -404,16 +402,7 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     );
 
     // A contrast bound below 1: usage, exit 2, naming the option's value.
-    let o = knitvox(&[
-        "fit",
-        s(&asset_path),
-        "--train",
-        s(&pose),
-        "-o",
-        s(&out),
-        "--max-contrast",
-        "0.5",
-    ]);
+    let o = fit_one(&out, &["--max-contrast", "0.5"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("0.5") && err.contains("contrast"), "{err}");

@@ -547,14 +547,14 @@ pub fn anchors_of(report: &FitReport, samples: &[Sample], joint: bool) -> Vec<Ve
     }
 }
 
-/// Equilibrium of `frame` under `model` (material `gamma`): by continuation
+/// Equilibrium of `frame` under `model` (material `gamma`, stacked): by continuation
 /// from the fit's `anchor` when there is one (the equilibrium the fit itself
 /// reached, so losses agree with the fit's), else, or when that fails, by
 /// Newton from the frame's start.
 fn settle(
     mesh: &TetMesh,
     model: &ElasticModel,
-    gamma: &MaterialFields,
+    gamma: &[f64],
     mass: &[f64],
     frame: &Frame,
     anchor: Option<&Anchor>,
@@ -562,7 +562,7 @@ fn settle(
 ) -> Result<Vec<Vec3>, String> {
     let mut via_anchor = None;
     if let Some(a) = anchor {
-        match equilibrium_continued(mesh, mass, frame, &gamma.stacked(), a, &params.statics()) {
+        match equilibrium_continued(mesh, mass, frame, gamma, a, &params.statics()) {
             Ok((x, _)) => return Ok(x),
             Err(e) => via_anchor = Some(e),
         }
@@ -587,6 +587,7 @@ pub fn sample_losses(
 ) -> Result<Vec<f64>, ElasticFitError> {
     let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let stacked = gamma.stacked();
     samples
         .iter()
         .enumerate()
@@ -594,7 +595,7 @@ pub fn sample_losses(
             s.frames.iter().enumerate().try_fold(0.0, |acc, (i, f)| {
                 let anchor = anchors.get(k).and_then(|a| a.get(i));
                 let x =
-                    settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+                    settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
                         ElasticFitError::Sample {
                             sample: s.name.clone(),
                             frame: i,
@@ -680,6 +681,7 @@ pub fn force_scale(
 ) -> Result<Option<ForceScale>, ElasticFitError> {
     let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let stacked = gamma.stacked();
     let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
         crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
     });
@@ -699,7 +701,7 @@ pub fn force_scale(
                 continue;
             }
             let anchor = anchors.get(k).and_then(|a| a.get(i));
-            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+            let x = settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
                 ElasticFitError::Sample {
                     sample: s.name.clone(),
                     frame: i,

@@ -188,7 +188,7 @@ pub fn equilibrium_continued(
                 h *= 0.5;
                 if h < 0.5f64.powi(CONTINUATION_HALVINGS as i32) {
                     return Err(format!(
-                        "{e} (also by continuation from the fit's equilibrium: stopped {:.0}% of the way in ln γ)",
+                        "{e} (the continuation stopped {:.0}% of the way in ln γ)",
                         100.0 * t
                     ));
                 }
