@@ -145,9 +145,25 @@ pub struct ValidateArgs {
     /// Folder for validate.json, error.png and both yarn sequences (PLY).
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
+    /// Integrator of the homogenized runs: `pd` (projective dynamics, as
+    /// `simulate` runs shots; steps of 1/150 s) or `newton` (one exact
+    /// backward-Euler step per frame; a slower reference).
+    #[arg(long, value_enum, default_value = "pd")]
+    pub solver: SolverArg,
+    /// Largest PD time step (s), a number or a fraction, as `simulate --dt`
+    /// [default: 1/150].
+    #[arg(long, value_name = "SECONDS", value_parser = crate::pipeline::sim_scene::parse_seconds)]
+    pub dt: Option<f64>,
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--solver` of `validate`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SolverArg {
+    Pd,
+    Newton,
 }
 
 pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
@@ -156,6 +172,11 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         scene: a.scene.clone(),
         uniform: a.uniform,
         report: a.report.clone(),
+        solver: match a.solver {
+            SolverArg::Pd => crate::pipeline::validate::HomogenizedSolver::Pd,
+            SolverArg::Newton => crate::pipeline::validate::HomogenizedSolver::Newton,
+        },
+        max_dt: a.dt,
     };
     let mut console = super::Console::new(false, 0, "");
     let r = job.run(&mut console)?;

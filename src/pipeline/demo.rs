@@ -288,6 +288,8 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         scene: held_out.clone(),
         uniform: true,
         report: Some(dir.join("validate")),
+        solver: Default::default(),
+        max_dt: None,
     }
     .run(&mut super::Quiet)?;
     Ok(FitDemo {

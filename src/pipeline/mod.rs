@@ -60,6 +60,7 @@ pub mod simulate;
 pub mod submit;
 pub mod train;
 pub mod validate;
+pub mod validate_pd;
 pub mod yls;
 pub mod yls_scene;
 

@@ -62,6 +62,10 @@ pub struct ValidateJob {
     pub uniform: bool,
     /// Folder for `validate.json`, `error.png` and both yarn sequences (PLY).
     pub report: Option<PathBuf>,
+    /// The homogenized runs' integrator. Default PD, as `simulate`.
+    pub solver: HomogenizedSolver,
+    /// Largest PD time step (s); None: `PdParams::default().dt` (1/150 s).
+    pub max_dt: Option<f64>,
 }
 
 /// Error of one frame (yarn diameters).
@@ -96,15 +100,22 @@ pub struct ValidateReport {
     pub tets: usize,
     pub yarn_vertices: usize,
     pub held_nodes: usize,
-    pub newton_iterations: u64,
+    /// The homogenized runs' integrator.
+    pub solver: HomogenizedSolver,
+    /// Newton iterations (solver `newton`) or PD iterations (`pd`) of the
+    /// homogenized run with the asset's material, and its implicit-Euler
+    /// steps.
+    pub solver_iterations: u64,
+    pub solver_steps: u64,
     /// Colliders acting on both runs.
     pub colliders: usize,
     /// Deepest collider penetration of a homogenized yarn vertex (m) and the
-    /// most yarn vertices in contact in one frame.
+    /// most contacts in one frame ([`HomogenizedRun::max_contacts`]).
     pub max_penetration_m: f64,
     pub max_contacts: usize,
-    /// Most backward-Euler substeps a homogenized frame needed (a frame
-    /// whose Newton solve fails is retried in 2, 4, .. 16 substeps).
+    /// Most implicit-Euler steps a homogenized frame took: PD splits every
+    /// frame into steps of at most 1/150 s; Newton takes one unless its solve
+    /// fails, then retries in 2, 4, .. 16.
     pub max_substeps: usize,
     /// Total node mass of the asset and the yarn-level mass (kg).
     pub mesh_mass_kg: f64,
@@ -154,18 +165,98 @@ impl SignedDistance for AtTime {
     }
 }
 
-/// What [`homogenized_frames`] computed.
+/// What a homogenized run ([`homogenized_run`]) computed.
 #[derive(Debug, Clone)]
 pub struct HomogenizedRun {
     /// Node positions per frame (m); frame 0 is the rest state.
     pub frames: Vec<Vec<Vec3>>,
-    pub newton_iterations: u64,
+    /// Newton iterations, or PD iterations (global solves).
+    pub iterations: u64,
     /// Deepest penetration of a yarn vertex into a collider (m).
     pub max_penetration_m: f64,
-    /// Most yarn vertices in contact in one frame.
+    /// Most contacts in one frame (Newton: yarn vertices within their
+    /// radius of a collider; PD: free tet nodes with an active contact
+    /// constraint in a step).
     pub max_contacts: usize,
-    /// Most backward-Euler substeps a frame needed (1: none).
+    /// Most backward-Euler substeps a frame needed (1: none); for PD the
+    /// implicit-Euler steps per frame.
     pub substeps: usize,
+    /// Implicit-Euler steps taken in all.
+    pub steps: u64,
+}
+
+/// The integrator of `validate`'s homogenized runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HomogenizedSolver {
+    /// Projective dynamics, as `simulate` runs shots ([`super::validate_pd`]).
+    #[default]
+    Pd,
+    /// One backward-Euler Newton solve per frame interval ([`homogenized_frames`]):
+    /// the exact implicit step, a reference for PD.
+    Newton,
+}
+
+impl HomogenizedSolver {
+    pub fn name(self) -> &'static str {
+        match self {
+            HomogenizedSolver::Pd => "pd",
+            HomogenizedSolver::Newton => "newton",
+        }
+    }
+}
+
+/// For every tet node, the pose's band (clamp group) that holds it: the
+/// first group holding a yarn vertex in one of the node's tets.
+fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {
+    let mut group = vec![None; asset.mesh.num_nodes()];
+    for g in 0..driver.num_groups() {
+        let mut held = vec![false; asset.embedding.num_vertices()];
+        for &v in driver.group_vertices(g) {
+            held[v] = true;
+        }
+        for i in held_nodes(&asset.mesh, &asset.embedding, &held) {
+            group[i].get_or_insert(g);
+        }
+    }
+    group
+}
+
+/// The homogenized frames of `validate` by `solver` (see
+/// [`homogenized_frames`] and [`super::validate_pd::pd_frames`]); `damping`
+/// is the mass-proportional damping (1/s) and `max_dt` the longest step (s,
+/// None: the default) of the PD run. Pure.
+#[allow(clippy::too_many_arguments)]
+pub fn homogenized_run(
+    (solver, max_dt): (HomogenizedSolver, Option<f64>),
+    asset: &Asset,
+    gamma: (&[f64], &[f64]),
+    driver: &PoseDriver,
+    gravity: Vec3,
+    damping: f64,
+    times: &[f64],
+    colliders: &[Arc<dyn PointCollider>],
+) -> Result<HomogenizedRun, String> {
+    match solver {
+        HomogenizedSolver::Newton => {
+            homogenized_frames(asset, gamma, driver, gravity, times, colliders)
+        }
+        HomogenizedSolver::Pd => {
+            let group = node_groups(asset, driver);
+            let pinned: Vec<usize> = (0..group.len()).filter(|&i| group[i].is_some()).collect();
+            let nodes = &asset.mesh.nodes;
+            let target = |i: usize, t: f64| driver.group_target(group[i].unwrap_or(0), nodes[i], t);
+            let d = super::validate_pd::PdRunParams::default();
+            let params = super::validate_pd::PdRunParams {
+                mass_damping: damping,
+                max_dt: max_dt.unwrap_or(d.max_dt),
+                ..d
+            };
+            super::validate_pd::pd_frames(
+                asset, gamma, &pinned, &target, gravity, times, colliders, &params,
+            )
+        }
+    }
 }
 
 /// One frame interval `(t0, t1)` in `sub` backward-Euler steps from
@@ -242,17 +333,7 @@ pub fn homogenized_frames(
 ) -> Result<HomogenizedRun, String> {
     let mesh = &asset.mesh;
     let n = mesh.num_nodes();
-    // Band of each held node: the first group holding one of its tets' vertices.
-    let mut group = vec![None; n];
-    for g in 0..driver.num_groups() {
-        let mut held = vec![false; asset.embedding.num_vertices()];
-        for &v in driver.group_vertices(g) {
-            held[v] = true;
-        }
-        for i in held_nodes(mesh, &asset.embedding, &held) {
-            group[i].get_or_insert(g);
-        }
-    }
+    let group = node_groups(asset, driver);
     let pinned: Vec<usize> = (0..n).filter(|&i| group[i].is_some()).collect();
     let model = ElasticModel::new(mesh, gamma.0, gamma.1).map_err(|e| e.to_string())?;
     let mut solver =
@@ -279,10 +360,11 @@ pub fn homogenized_frames(
     let params = StaticParams::default();
     let mut run = HomogenizedRun {
         frames: vec![mesh.nodes.clone()],
-        newton_iterations: 0,
+        iterations: 0,
         max_penetration_m: 0.0,
         max_contacts: 0,
         substeps: 1,
+        steps: 0,
     };
     let contact_at = |t: f64| -> Option<ContactPenalty> {
         (!colliders.is_empty()).then(|| ContactPenalty {
@@ -327,10 +409,11 @@ pub fn homogenized_frames(
                 Err(_) => sub *= 2,
             }
         };
-        run.newton_iterations += iterations;
+        run.iterations += iterations;
         run.max_contacts = run.max_contacts.max(contacts.0);
         run.max_penetration_m = run.max_penetration_m.max(contacts.1);
         run.substeps = run.substeps.max(sub);
+        run.steps += sub as u64;
         v = vel;
         x_p = x.clone();
         run.frames.push(x);
@@ -445,7 +528,8 @@ impl Stage for ValidateJob {
                 .into_iter()
                 .map(Arc::from)
                 .collect();
-        let density = yls::scene_params(&scene, &self.scene)?.density;
+        let yarn_params = yls::scene_params(&scene, &self.scene)?;
+        let density = yarn_params.density;
         let mesh_mass_kg: f64 = asset.node_mass.iter().sum();
         let yarn_mass_kg = yarn_mass(&asset.rest_yarns, density);
         if (mesh_mass_kg - yarn_mass_kg).abs() > 0.01 * yarn_mass_kg {
@@ -486,30 +570,27 @@ impl Stage for ValidateJob {
             .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
         // Homogenized, with the asset's material, then the uniform one.
         let t = Instant::now();
-        let hr = homogenized_frames(
-            &asset,
-            (&asset.gamma_s, &asset.gamma_v),
-            &driver,
-            scene.gravity,
-            &frames.times,
-            &colliders,
-        )
-        .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
+        let run_with = |gamma: (&[f64], &[f64])| {
+            homogenized_run(
+                (self.solver, self.max_dt),
+                &asset,
+                gamma,
+                &driver,
+                scene.gravity,
+                yarn_params.global_damping,
+                &frames.times,
+                &colliders,
+            )
+        };
+        let hr = run_with((&asset.gamma_s, &asset.gamma_v))
+            .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
         // The same scene with one material everywhere (uniform, placeholder).
         let ne = asset.mesh.num_tets();
         let run_uniform = |gamma_s: f64, gamma_v: f64, what: &str| {
             let (gs, gv) = (vec![gamma_s; ne], vec![gamma_v; ne]);
-            homogenized_frames(
-                &asset,
-                (&gs, &gv),
-                &driver,
-                scene.gravity,
-                &frames.times,
-                &colliders,
-            )
-            .map_err(|m| setup(&self.scene, format!("{what} run: {m}")))
+            run_with((&gs, &gv)).map_err(|m| setup(&self.scene, format!("{what} run: {m}")))
         };
         let xu = match uniform {
             Some(u) => Some(run_uniform(u.gamma_s, u.gamma_v, "uniform")?.frames),
@@ -589,7 +670,9 @@ impl Stage for ValidateJob {
                 }
                 held_nodes(&asset.mesh, &asset.embedding, &h).len()
             }),
-            newton_iterations: hr.newton_iterations,
+            solver: self.solver,
+            solver_iterations: hr.iterations,
+            solver_steps: hr.steps,
             colliders: colliders.len(),
             max_penetration_m: hr.max_penetration_m,
             max_contacts: hr.max_contacts,

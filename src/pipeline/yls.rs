@@ -407,12 +407,20 @@ pub fn scene_colliders(
     let mut out: Vec<Box<dyn PointCollider>> = Vec::with_capacity(specs.len());
     for c in specs {
         out.push(match c {
-            ColliderSpec::Plane { point, normal } => Box::new(PlaneCollider {
+            ColliderSpec::Plane {
+                point,
+                normal,
+                friction,
+            } => Box::new(PlaneCollider {
                 point: *point,
                 normal: *normal,
-                friction: 0.0,
+                friction: *friction,
             }),
-            ColliderSpec::Sphere { center, radius } => Box::new(SphereCollider {
+            ColliderSpec::Sphere {
+                center,
+                radius,
+                friction,
+            } => Box::new(SphereCollider {
                 center: center.unwrap_or([
                     0.5 * (lo[0] + hi[0]),
                     lo[1] - 2.0 * r_max - radius,
@@ -420,7 +428,7 @@ pub fn scene_colliders(
                 ]),
                 radius: *radius,
                 velocity: [0.0; 3],
-                friction: 0.0,
+                friction: *friction,
             }),
             ColliderSpec::Character {
                 file,

@@ -54,11 +54,23 @@ pub struct PoseSpec {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ColliderSpec {
-    /// Half space `(x - point) · normal >= 0`.
-    Plane { point: Vec3, normal: Vec3 },
+    /// Half space `(x - point) · normal >= 0`; Coulomb coefficient
+    /// `friction` (>= 0, default 0) against yarn vertices and tet nodes.
+    Plane {
+        point: Vec3,
+        normal: Vec3,
+        #[serde(default)]
+        friction: f64,
+    },
     /// A ball. Without `center` it sits under the swatch's centre with its
-    /// top a yarn diameter below the lowest yarn point.
-    Sphere { center: Option<Vec3>, radius: f64 },
+    /// top a yarn diameter below the lowest yarn point. `friction` as for
+    /// the plane.
+    Sphere {
+        center: Option<Vec3>,
+        radius: f64,
+        #[serde(default)]
+        friction: f64,
+    },
     /// The skinned body of a glTF character, posed through one animation.
     Character {
         file: PathBuf,
@@ -174,15 +186,35 @@ impl YlsScene {
                     Err(err(format!("key `{}` is not finite: {v:?}", key(k))))
                 }
             };
+            let non_negative = |k: &str, v: f64| {
+                if v.is_finite() && v >= 0.0 {
+                    Ok(())
+                } else {
+                    Err(err(format!(
+                        "key `{}` is {v}; it must be finite and >= 0",
+                        key(k)
+                    )))
+                }
+            };
             match c {
-                ColliderSpec::Plane { point, normal } => {
+                ColliderSpec::Plane {
+                    point,
+                    normal,
+                    friction,
+                } => {
+                    non_negative("friction", *friction)?;
                     finite("point", point)?;
                     finite("normal", normal)?;
                     if normal.iter().map(|c| c * c).sum::<f64>() == 0.0 {
                         return Err(err(format!("key `{}` is the zero vector", key("normal"))));
                     }
                 }
-                ColliderSpec::Sphere { center, radius } => {
+                ColliderSpec::Sphere {
+                    center,
+                    radius,
+                    friction,
+                } => {
+                    non_negative("friction", *friction)?;
                     if let Some(c) = center {
                         finite("center", c)?;
                     }
@@ -307,6 +339,22 @@ scale = 0.01
     }
 
     #[test]
+    fn collider_friction_defaults_to_none_and_reaches_the_collider() {
+        let mut rest = crate::geom::Yarns::new();
+        rest.push_curve(&[[0.0; 3], [0.01, 0.0, 0.0]], false, 0.001);
+        let mu = |text: &str| {
+            let s = YlsScene::parse(text, Path::new("/scenes/a.toml")).unwrap();
+            let c = crate::pipeline::yls::scene_colliders(&s.colliders[..1], &rest).unwrap();
+            c[0].friction()
+        };
+        assert_eq!(mu(GOOD), 0.0);
+        assert_eq!(
+            mu(&GOOD.replace("radius = 0.05", "radius = 0.05\nfriction = 0.4")),
+            0.4
+        );
+    }
+
+    #[test]
     fn errors_name_the_key() {
         let cases = [
             (GOOD.replace("amount = 0.3", "amont = 0.3"), "amont"),
@@ -318,6 +366,10 @@ scale = 0.01
             (
                 GOOD.replace("radius = 0.05", "radius = 0.0"),
                 "colliders[0].radius",
+            ),
+            (
+                GOOD.replace("radius = 0.05", "radius = 0.05\nfriction = -0.1"),
+                "colliders[0].friction",
             ),
             (GOOD.replace("courses = 8", "courses = 0"), "swatch.courses"),
             (
