@@ -32,6 +32,12 @@ pub struct TrainArgs {
     #[arg(long, value_name = "K", default_value_t = PoseRunParams::new(PoseKind::StretchCourses).steps as u32,
           value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub steps: u32,
+    /// Gravity (m/s²) along the fabric's normal, the swatch lying
+    /// horizontal between its clamps: the frames then carry every vertex's
+    /// weight and their sag observes the material's scale [default: 0, no
+    /// external force; 9.81 for Earth].
+    #[arg(long, value_name = "G", default_value_t = 0.0, value_parser = super::guard::parse_non_negative)]
+    pub gravity: f64,
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless).
     #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
     pub friction: f64,
@@ -54,6 +60,7 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
     pose.pose.amount = a.amount.or(default_amount(a.pose)).unwrap_or(0.0);
     pose.pose.mirror = a.mirror;
     pose.steps = a.steps as usize;
+    pose.gravity = a.gravity;
     let mut fabric = FabricParams::default();
     fabric.friction.mu = a.friction;
     let job = TrainJob {

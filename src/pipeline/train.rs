@@ -43,6 +43,8 @@ pub struct TrainReport {
     pub pose: String,
     pub amount: f64,
     pub mirror: bool,
+    /// Gravity along the fabric's normal (m/s²; 0: none).
+    pub gravity_m_s2: f64,
     /// Equilibrium frames written (one per step).
     pub frames: usize,
     pub vertices: usize,
@@ -107,6 +109,7 @@ fn pose_record(job: &TrainJob, sha: &str, plane: FabricPlane, rest_shape: &str) 
         "folds": p.folds,
         "band": p.band,
         "steps": job.pose.steps,
+        "gravity_m_s2": job.pose.gravity,
         "quasi_static": true,
         "fabric_plane": plane,
         "rest_shape": rest_shape,
@@ -192,6 +195,7 @@ impl Stage for TrainJob {
             pose: kind_name(self.pose.pose.kind),
             amount: self.pose.pose.amount,
             mirror: self.pose.pose.mirror,
+            gravity_m_s2: self.pose.gravity,
             frames: run.steps.len(),
             vertices: rest.num_points(),
             curves: rest.num_curves(),

@@ -4,7 +4,12 @@
 //! pose's amount, and the swatch is brought to equilibrium (rods, contact
 //! and friction, [`Fabric::settle`]) at every increment. Each equilibrium is
 //! one training frame: positions, elastic energy, the reactions of the
-//! clamps and the external forces (none: the poses run without gravity).
+//! clamps and the external forces. Without [`PoseRunParams::gravity`] (the
+//! HYLC protocol) there are none and the frames do not observe the
+//! material's scale (the fit takes it from the clamp reactions); with it
+//! every vertex carries its weight along the fabric's normal (the swatch
+//! lying horizontal, as in a drape) and the sag between the clamps does
+//! (VH trains mostly on frames of animations under gravity, §8.6).
 //!
 //! Frames: [`PoseDriver`] works in the scene frame (fabric in XZ, normal
 //! +Y); a swatch lying in another coordinate plane (the pattern generator
@@ -18,6 +23,11 @@ use std::time::Instant;
 use super::model::{Fabric, FabricError, FabricParams, Settle};
 use super::stretch::{vertex_forces, RigFrame};
 use crate::geom::{Vec3, Yarns};
+use crate::yarn::statics::{EnergyTerm, GravityTerm};
+
+/// Equilibrium under gravity to this fraction of the largest vertex weight
+/// (as `super::hang`).
+const LOAD_TOLERANCE: f64 = 1e-2;
 use crate::yarn::poses::{PoseDriver, PoseError, PoseKind, PoseParams};
 
 /// Controls of [`run_pose`].
@@ -31,6 +41,9 @@ pub struct PoseRunParams {
     pub steps: usize,
     /// Equilibrium controls per step (force tolerance 1e-5 N).
     pub settle: Settle,
+    /// Gravity (m/s², >= 0) along the fabric's normal, pulling toward
+    /// -normal (pose frame -Y). Default 0: no external force.
+    pub gravity: f64,
 }
 
 impl PoseRunParams {
@@ -40,6 +53,7 @@ impl PoseRunParams {
             pose: PoseParams::new(kind, default_amount(kind).unwrap_or(0.0)),
             steps: 10,
             settle: Settle::default(),
+            gravity: 0.0,
         }
     }
 
@@ -56,6 +70,12 @@ impl PoseRunParams {
             return Err(PoseRunError::Parameter(format!(
                 "steps is {} (must be 1 to 1000)",
                 self.steps
+            )));
+        }
+        if !(self.gravity.is_finite() && (0.0..=1000.0).contains(&self.gravity)) {
+            return Err(PoseRunError::Parameter(format!(
+                "gravity is {} m/s² (must be 0 to 1000)",
+                self.gravity
             )));
         }
         Ok(())
@@ -260,6 +280,31 @@ pub fn run_pose(
     full.pinned().iter().for_each(|&v| clamped[v] = true);
     let fixed = fixed_mask(&fabric, &clamped);
     let (band_of, band_centres) = bands(&full, &rest);
+    let mut gravity = GravityTerm {
+        mass: fabric.mass.clone(),
+        g: [0.0, -params.gravity, 0.0],
+    };
+    // Weights (pose frame) and, in the input frame, the external forces.
+    let external: Vec<Vec3> = fabric
+        .mass
+        .iter()
+        .map(|m| plane.from_pose([0.0, -m * params.gravity, 0.0]))
+        .collect();
+    // A vertex's weight (~1e-6 N) is below the default force tolerance: a
+    // loaded equilibrium must resolve a small fraction of it (as the hang
+    // test does).
+    let settle = if params.gravity > 0.0 {
+        let weight_max = fabric.mass.iter().fold(0.0, |m: f64, &w| m.max(w)) * params.gravity;
+        let s = Settle {
+            tolerance: params.settle.tolerance.min(LOAD_TOLERANCE * weight_max),
+            ..params.settle
+        };
+        fabric.params.solver.force_tolerance =
+            fabric.params.solver.force_tolerance.min(s.tolerance);
+        s
+    } else {
+        params.settle
+    };
 
     let mut steps = Vec::with_capacity(params.steps);
     let mut min_ratio = f64::INFINITY;
@@ -294,11 +339,18 @@ pub fn run_pose(
         }
         prev_field = field;
         let stage = format!("{} step {k}", kind_name(params.pose.kind));
+        let loads: &mut [&mut dyn EnergyTerm] = if params.gravity > 0.0 {
+            &mut [&mut gravity]
+        } else {
+            &mut []
+        };
         let st = fabric
-            .settle(&mut [], &fixed, &params.settle, &stage)
+            .settle(loads, &fixed, &settle, &stage)
             .map_err(fail)?;
-        params.settle.require(&st, &stage).map_err(fail)?;
-        let (_, g) = fabric.gradient(&mut []);
+        settle.require(&st, &stage).map_err(fail)?;
+        // Clamp reactions balance the elastic forces and the clamped
+        // vertices' own weight: the gradient of the total potential.
+        let (_, g) = fabric.gradient(loads);
         let energy = fabric.elastic_energy();
         if !energy.is_finite() || g.iter().any(|x| !x.is_finite()) {
             return Err(fail(FabricError::NoEquilibrium(format!(
@@ -330,7 +382,7 @@ pub fn run_pose(
             points: &x,
             energy,
             reactions,
-            external: vec![[0.0; 3]; n],
+            external: external.clone(),
         })
         .map_err(|message| PoseRunError::Frame { step: k, message })?;
         let force = clamp_forces
@@ -651,6 +703,57 @@ mod tests {
         assert!(s[1].force_n > s[0].force_n && s[0].force_n > 0.0, "{s:?}");
         assert!(s[1].energy_j > s[0].energy_j, "{s:?}");
         assert!(r.min_distance_ratio > 0.75, "{}", r.min_distance_ratio);
+    }
+
+    /// With gravity every frame records each vertex's weight along -normal
+    /// (input frame: the generator's XY swatch, so -Z), the clamps carry the
+    /// whole weight, and the swatch sags between them; without it the
+    /// frames carry no external force.
+    #[test]
+    fn gravity_loads_the_frames_and_the_clamps_carry_the_weight() {
+        let y = rib(3, 4);
+        let fp = FabricParams {
+            friction: crate::yarn::statics::FrictionParams {
+                mu: 0.0,
+                ..FabricParams::default().friction
+            },
+            ..FabricParams::default()
+        };
+        let run = |g: f64| {
+            let mut p = PoseRunParams::new(PoseKind::StretchCourses);
+            p.pose.amount = 0.05;
+            p.steps = 1;
+            p.gravity = g;
+            let mut last = None;
+            run_pose(&y, &fp, &p, &mut |f| {
+                last = Some((f.points.to_vec(), f.reactions.clone(), f.external.clone()));
+                Ok(())
+            })
+            .unwrap();
+            last.unwrap()
+        };
+        let (x0, _, e0) = run(0.0);
+        assert!(e0.iter().all(|f| *f == [0.0; 3]));
+        let (x, reactions, external) = run(9.81);
+        let sum = |v: &[Vec3], c: usize| v.iter().map(|f| f[c]).sum::<f64>();
+        let weight = -sum(&external, 2);
+        assert!(weight > 0.0 && sum(&external, 0) == 0.0 && sum(&external, 1) == 0.0);
+        let carried = sum(&reactions, 2);
+        assert!(
+            (carried - weight).abs() < 0.05 * weight,
+            "clamps carry {carried} N of {weight} N"
+        );
+        let mean_z = |x: &[Vec3]| sum(x, 2) / x.len() as f64;
+        let sag = mean_z(&x0) - mean_z(&x);
+        let b = crate::geom::bounds_of(&y.points).unwrap();
+        eprintln!(
+            "mean sag {sag:.3e} m over a {:.3e} m span",
+            b.max[0] - b.min[0]
+        );
+        assert!(sag > 1e-4, "{sag}");
+        let mut p = PoseRunParams::new(PoseKind::StretchCourses);
+        p.gravity = -1.0;
+        assert!(p.check().is_err());
     }
 
     /// The clamped bands the forces are summed over: the two ends of a
