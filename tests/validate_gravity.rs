@@ -156,3 +156,56 @@ fn validate_with_a_sphere_collider_keeps_the_mesh_outside() {
     );
     assert!((mm - ym).abs() < 1e-6 * ym, "{mm} vs {ym}");
 }
+
+#[test]
+fn validate_runs_pd_by_default_and_takes_the_solver_and_its_step() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (asset_path, _) = flat_asset(d);
+    let scene = d.join("fall.toml");
+    // 3 frames of 1/30 s in free fall.
+    std::fs::write(
+        &scene,
+        "duration = 0.1\nframe_rate = 30\n[pose]\nkind = \"free\"\n",
+    )
+    .unwrap();
+    let run = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec!["validate", s(&asset_path), "--scene", s(&scene), "--json"];
+        args.extend_from_slice(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let pd = run(&[]);
+    assert_eq!(pd["solver"], "pd");
+    // 1/30 s frames in steps of at most 1/150 s.
+    assert_eq!(pd["solver_steps"], 15, "{pd}");
+    assert_eq!(pd["max_substeps"], 5, "{pd}");
+    let coarse = run(&["--dt", "1/30"]);
+    assert_eq!(coarse["solver_steps"], 3, "{coarse}");
+    let newton = run(&["--solver", "newton"]);
+    assert_eq!(newton["solver"], "newton");
+    assert_eq!(newton["solver_steps"], 3, "{newton}");
+    // Free fall: implicit Euler lags the exact fall by g Δt² n / 2 after n
+    // steps (one step of 1/30 s per frame: 8 diameters by frame 3; steps of
+    // 1/150 s: 1.6), so PD at its default step tracks the yarn level
+    // (explicit, tiny steps) far closer than one Newton step per frame.
+    let rms = |r: &serde_json::Value| r["rms_yarn_diameters"].as_f64().unwrap();
+    eprintln!("free fall RMS: PD {} Newton {}", rms(&pd), rms(&newton));
+    assert!(rms(&pd) < 2.0, "{pd}");
+    assert!(rms(&newton) > 2.0 * rms(&pd), "{newton}");
+    let bad = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--dt",
+        "0",
+    ]);
+    assert_eq!(
+        bad.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+}

@@ -185,6 +185,20 @@ pub struct HomogenizedRun {
     pub steps: u64,
 }
 
+impl HomogenizedRun {
+    /// A run holding only its rest frame `nodes`.
+    pub fn at_rest(nodes: &[Vec3]) -> HomogenizedRun {
+        HomogenizedRun {
+            frames: vec![nodes.to_vec()],
+            iterations: 0,
+            max_penetration_m: 0.0,
+            max_contacts: 0,
+            substeps: 1,
+            steps: 0,
+        }
+    }
+}
+
 /// The integrator of `validate`'s homogenized runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -358,14 +372,7 @@ pub fn homogenized_frames(
         .map(|m| gravity.map(|g| m * g))
         .collect();
     let params = StaticParams::default();
-    let mut run = HomogenizedRun {
-        frames: vec![mesh.nodes.clone()],
-        iterations: 0,
-        max_penetration_m: 0.0,
-        max_contacts: 0,
-        substeps: 1,
-        steps: 0,
-    };
+    let mut run = HomogenizedRun::at_rest(&mesh.nodes);
     let contact_at = |t: f64| -> Option<ContactPenalty> {
         (!colliders.is_empty()).then(|| ContactPenalty {
             points: points.clone(),

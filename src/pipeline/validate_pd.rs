@@ -219,14 +219,7 @@ pub fn pd_frames(
     let radius: Vec<f64> = (0..asset.rest_yarns.num_points())
         .map(|v| asset.rest_yarns.radius_at(v))
         .collect();
-    let mut run = HomogenizedRun {
-        frames: vec![mesh.nodes.clone()],
-        iterations: 0,
-        max_penetration_m: 0.0,
-        max_contacts: 0,
-        substeps: 1,
-        steps: 0,
-    };
+    let mut run = HomogenizedRun::at_rest(&mesh.nodes);
     let mut x = mesh.nodes.clone();
     let mut v = vec![[0.0; 3]; mesh.num_nodes()];
     let mut dt_now = first_dt;

@@ -613,6 +613,16 @@ mod tests {
         .unwrap()
     }
 
+    fn frictionless() -> FabricParams {
+        FabricParams {
+            friction: crate::yarn::statics::FrictionParams {
+                mu: 0.0,
+                ..FabricParams::default().friction
+            },
+            ..FabricParams::default()
+        }
+    }
+
     #[test]
     fn plane_rotations_are_proper_and_inverse() {
         for plane in [FabricPlane::Xz, FabricPlane::Xy, FabricPlane::Yz] {
@@ -657,13 +667,7 @@ mod tests {
     #[test]
     fn stretch_courses_moves_the_band_and_pulls_back_more_each_step() {
         let y = rib(3, 4);
-        let fp = FabricParams {
-            friction: crate::yarn::statics::FrictionParams {
-                mu: 0.0,
-                ..FabricParams::default().friction
-            },
-            ..FabricParams::default()
-        };
+        let fp = frictionless();
         let mut p = PoseRunParams::new(PoseKind::StretchCourses);
         p.pose.amount = 0.1;
         p.steps = 2;
@@ -712,13 +716,7 @@ mod tests {
     #[test]
     fn gravity_loads_the_frames_and_the_clamps_carry_the_weight() {
         let y = rib(3, 4);
-        let fp = FabricParams {
-            friction: crate::yarn::statics::FrictionParams {
-                mu: 0.0,
-                ..FabricParams::default().friction
-            },
-            ..FabricParams::default()
-        };
+        let fp = frictionless();
         let run = |g: f64| {
             let mut p = PoseRunParams::new(PoseKind::StretchCourses);
             p.pose.amount = 0.05;
