@@ -530,6 +530,16 @@ impl Stage for ValidateJob {
             io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
         }
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
+        if let Some(dt) = self.max_dt {
+            let steps = scene.duration / dt;
+            if !(dt.is_finite() && dt > 0.0 && steps <= super::simulate::MAX_TOTAL_STEPS as f64) {
+                return Err(Error::Usage(format!(
+                    "--dt {dt}: {} s of scene need {steps:.0} PD steps (must be > 0 s and at most {} steps)",
+                    scene.duration,
+                    super::simulate::MAX_TOTAL_STEPS
+                )));
+            }
+        }
         let colliders: Vec<Arc<dyn PointCollider>> =
             yls::scene_colliders(&scene.colliders, &asset.rest_yarns)?
                 .into_iter()

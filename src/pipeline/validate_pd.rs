@@ -202,6 +202,18 @@ pub fn pd_frames(
     }
     let mesh = &asset.mesh;
     let steps_of = |t0: f64, t1: f64| ((t1 - t0) / params.max_dt - 1e-9).ceil().max(1.0) as usize;
+    // Bounded before running, as `simulate` bounds its shots.
+    let total: f64 = times
+        .windows(2)
+        .map(|w| ((w[1] - w[0]) / params.max_dt - 1e-9).ceil().max(1.0))
+        .sum();
+    if !(total <= super::simulate::MAX_TOTAL_STEPS as f64) {
+        return Err(format!(
+            "a PD step of {} s needs {total:.0} steps over the scene, more than the limit of {}",
+            params.max_dt,
+            super::simulate::MAX_TOTAL_STEPS
+        ));
+    }
     let first_dt = match times {
         [t0, t1, ..] => (t1 - t0) / steps_of(*t0, *t1) as f64,
         _ => params.max_dt,
