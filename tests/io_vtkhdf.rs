@@ -477,12 +477,16 @@ fn empty_truncated_and_foreign_files_are_errors() {
     assert!(msg.contains("no /VTKHDF group"), "{msg}");
     assert!(msg.contains("group /yarns"), "{msg}");
 
-    // A plain VTKHDF file (as ParaView writes): no /knitvox.
-    std::fs::copy(&good, &p).unwrap();
-    let f = hdf5::File::open_rw(&p).unwrap();
+    // A plain VTKHDF file (as ParaView writes): no /knitvox. A new file,
+    // not `p` rewritten: HDF5 opens files without O_CLOEXEC, so a process
+    // another test thread spawned while `p` was open can still hold its
+    // lock (flock), and opening it for writing would fail (EAGAIN).
+    let plain = dir.path().join("plain.vtkhdf");
+    std::fs::copy(&good, &plain).unwrap();
+    let f = hdf5::File::open_rw(&plain).unwrap();
     f.unlink("knitvox").unwrap();
     f.close().unwrap();
-    let (loc, msg) = format_error(&p);
+    let (loc, msg) = format_error(&plain);
     assert_eq!(loc, Location::File);
     assert!(msg.contains("no /knitvox group"), "{msg}");
 
