@@ -17,7 +17,8 @@ pub struct TrainArgs {
     /// Homogenized asset (.vtkhdf) whose rest yarns are posed.
     pub asset: PathBuf,
     /// Pose (schemas/yls-scene.md): stretch_courses, stretch_wales, biaxial,
-    /// shear, bend_central, bend_diagonal, fan, twist, multi_fold.
+    /// shear, bend_central, bend_diagonal, fan, twist, multi_fold,
+    /// cantilever (needs --gravity).
     #[arg(long, value_name = "KIND", value_parser = parse_kind)]
     pub pose: PoseKind,
     /// Magnitude: strain for stretches, biaxial, shear and fan; angle (rad)

@@ -35,7 +35,7 @@
 //! bands to the yarn-level ones (resultant force and moment per band) and
 //! scales the uniform material, and again the fitted field, by the
 //! least-squares factor. Poses with external forces (gravity) see the scale
-//! in their loss; when any frame has them the final field is not rescaled.
+//! in their loss; when any frame has them neither is rescaled.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -792,8 +792,8 @@ pub fn joint_sample(samples: &[Sample]) -> Sample {
 /// The in-memory core of `fit`: the uniform (r = 1) material from `init`,
 /// scaled to the clamp reactions ([`force_scale`]; `reactions[s][f]` per
 /// sample and frame, may be empty), then the field from it
-/// (`params.harmonic_ranks`, full stage), rescaled the same way when no
-/// frame carries an external force; either sample by sample with the Eq.
+/// (`params.harmonic_ranks`, full stage), rescaled the same way; both
+/// rescalings only when no frame carries an external force; either sample by sample with the Eq.
 /// 22 fold or, with `joint`, all samples as one ([`joint_sample`]). Losses
 /// are reported per sample either way.
 pub fn fit_samples(
@@ -819,18 +819,25 @@ pub fn fit_samples(
         init,
         progress,
     };
+    // Frames with external forces see the scale in the loss itself: then
+    // neither the uniform material nor the field is rescaled to the clamp
+    // reactions of the others (that would leave the loss's optimum).
+    let loaded = samples
+        .iter()
+        .flat_map(|s| &s.frames)
+        .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
     let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
     let at_uniform = anchors_of(&uniform_fit, samples, joint);
-    let uniform_force_scale = force_scale(mesh, mass, samples, reactions, &u, &at_uniform, params)?;
+    let uniform_force_scale = if loaded {
+        None
+    } else {
+        force_scale(mesh, mass, samples, reactions, &u, &at_uniform, params)?
+    };
     if let Some(fs) = uniform_force_scale {
         u = scaled(&u, fs.scale);
     }
     let (mut gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
     let at_field = anchors_of(&fit, samples, joint);
-    let loaded = samples
-        .iter()
-        .flat_map(|s| &s.frames)
-        .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0));
     let field_force_scale = if loaded {
         None
     } else {

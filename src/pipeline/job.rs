@@ -68,6 +68,9 @@ pub struct TrainSection {
     pub steps: Option<usize>,
     /// Yarn-on-yarn friction coefficient [default `train`'s].
     pub friction: Option<f64>,
+    /// Gravity along the fabric's normal (m/s²) [default 0; `cantilever`
+    /// needs it].
+    pub gravity: Option<f64>,
 }
 
 /// `[fit]`: per-element materials from the training poses (`knitvox fit`).
@@ -436,6 +439,11 @@ impl Job {
             }
             fabric.friction.mu = mu;
         }
+        if let Some(g) = t.gravity {
+            pose.gravity = g;
+        }
+        pose.check()
+            .map_err(|e| bad(&self.path, format!("key 'train[{i}]': {e}")))?;
         Ok((pose, fabric))
     }
 

@@ -59,6 +59,11 @@ pub enum PoseKind {
     /// Hanging: the two corner bands at +Z are held in place; gravity does
     /// the rest.
     Hang,
+    /// Cantilever (the textile lab's Peirce bending test, ASTM D1388): the
+    /// left band is held flat in place and the rest overhangs under
+    /// gravity, so its droop measures the bending stiffness against the
+    /// weight. `amount` is unused.
+    Cantilever,
     /// No scripted motion (drape over a collider, or a collider-driven
     /// scene): nothing is clamped.
     Free,
@@ -66,7 +71,7 @@ pub enum PoseKind {
 
 impl PoseKind {
     /// Every kind, in documentation order.
-    pub const ALL: [PoseKind; 11] = [
+    pub const ALL: [PoseKind; 12] = [
         PoseKind::StretchCourses,
         PoseKind::StretchWales,
         PoseKind::Biaxial,
@@ -77,6 +82,7 @@ impl PoseKind {
         PoseKind::Twist,
         PoseKind::MultiFold,
         PoseKind::Hang,
+        PoseKind::Cantilever,
         PoseKind::Free,
     ];
 }
@@ -380,6 +386,7 @@ impl PoseDriver {
                     Role::Hold,
                 ));
             }
+            PoseKind::Cantilever => rules.push((Box::new(left), Role::Hold)),
             PoseKind::Free => {}
         }
 
@@ -586,6 +593,20 @@ mod tests {
                 assert!(!d.pinned().is_empty(), "{kind:?}");
             }
         }
+    }
+
+    #[test]
+    fn cantilever_holds_only_the_left_band_in_place() {
+        let rest = grid();
+        let d = PoseDriver::new(&rest, PoseParams::new(PoseKind::Cantilever, 0.0)).unwrap();
+        assert_eq!(d.num_groups(), 1);
+        let band = PoseParams::new(PoseKind::Cantilever, 0.0).band;
+        for (i, q) in d.pinned().iter().zip(d.targets(1.0)) {
+            assert!(rest[*i][0] <= band + 1e-12, "{:?}", rest[*i]);
+            assert_eq!(q, rest[*i]);
+        }
+        let left = rest.iter().filter(|q| q[0] <= band + 1e-12).count();
+        assert_eq!(d.pinned().len(), left);
     }
 
     #[test]

@@ -78,6 +78,11 @@ impl PoseRunParams {
                 self.gravity
             )));
         }
+        if self.pose.kind == PoseKind::Cantilever && !(self.gravity > 0.0) {
+            return Err(PoseRunError::Parameter(
+                "cantilever is loaded by gravity alone: give a gravity > 0".into(),
+            ));
+        }
         Ok(())
     }
 }
@@ -85,7 +90,7 @@ impl PoseRunParams {
 /// The poses a training set is made of (VH §8.6 Fig. 19 and the uniaxial,
 /// biaxial and shear deformations of the yarn-level literature), in
 /// documentation order.
-pub const TRAINING_KINDS: [PoseKind; 9] = [
+pub const TRAINING_KINDS: [PoseKind; 10] = [
     PoseKind::StretchCourses,
     PoseKind::StretchWales,
     PoseKind::Biaxial,
@@ -95,6 +100,7 @@ pub const TRAINING_KINDS: [PoseKind; 9] = [
     PoseKind::Fan,
     PoseKind::Twist,
     PoseKind::MultiFold,
+    PoseKind::Cantilever,
 ];
 
 /// The schema name of a kind (`stretch_courses`, ...).
@@ -118,6 +124,8 @@ pub fn default_amount(kind: PoseKind) -> Option<f64> {
         PoseKind::Biaxial => Some(0.1),
         PoseKind::BendCentral | PoseKind::BendDiagonal | PoseKind::Twist => Some(0.8),
         PoseKind::MultiFold => Some(0.3),
+        // Loaded by gravity alone (PoseRunParams::gravity, required).
+        PoseKind::Cantilever => Some(0.0),
         PoseKind::Hang | PoseKind::Free => None,
     }
 }
@@ -284,12 +292,16 @@ pub fn run_pose(
         mass: fabric.mass.clone(),
         g: [0.0, -params.gravity, 0.0],
     };
-    // Weights (pose frame) and, in the input frame, the external forces.
-    let external: Vec<Vec3> = fabric
-        .mass
-        .iter()
-        .map(|m| plane.from_pose([0.0, -m * params.gravity, 0.0]))
-        .collect();
+    // The cantilever's load is its weight: the steps ramp gravity instead
+    // of the (unused) amount. Other poses carry their full weight at every
+    // step.
+    let gravity_at = |k: usize| {
+        if params.pose.kind == PoseKind::Cantilever {
+            params.gravity * k as f64 / params.steps as f64
+        } else {
+            params.gravity
+        }
+    };
     // A vertex's weight (~1e-6 N) is below the default force tolerance: a
     // loaded equilibrium must resolve a small fraction of it (as the hang
     // test does).
@@ -339,6 +351,14 @@ pub fn run_pose(
         }
         prev_field = field;
         let stage = format!("{} step {k}", kind_name(params.pose.kind));
+        let g_k = gravity_at(k);
+        gravity.g = [0.0, -g_k, 0.0];
+        // The weights (pose frame -Y), as external forces in the input frame.
+        let external: Vec<Vec3> = fabric
+            .mass
+            .iter()
+            .map(|m| plane.from_pose([0.0, -m * g_k, 0.0]))
+            .collect();
         let loads: &mut [&mut dyn EnergyTerm] = if params.gravity > 0.0 {
             &mut [&mut gravity]
         } else {
@@ -382,7 +402,7 @@ pub fn run_pose(
             points: &x,
             energy,
             reactions,
-            external: external.clone(),
+            external,
         })
         .map_err(|message| PoseRunError::Frame { step: k, message })?;
         let force = clamp_forces
@@ -752,6 +772,44 @@ mod tests {
         let mut p = PoseRunParams::new(PoseKind::StretchCourses);
         p.gravity = -1.0;
         assert!(p.check().is_err());
+        // The cantilever is loaded by gravity alone.
+        let p = PoseRunParams::new(PoseKind::Cantilever);
+        assert!(p.check().unwrap_err().to_string().contains("gravity"));
+    }
+
+    /// A cantilever droops under its ramped weight: the free edge sinks
+    /// further at every step (the generator's XY swatch: -Z is down) and the
+    /// one clamp carries the weight of the step.
+    #[test]
+    fn a_cantilever_droops_more_as_its_weight_ramps_up() {
+        let y = rib(3, 4);
+        let mut p = PoseRunParams::new(PoseKind::Cantilever);
+        p.gravity = 9.81;
+        p.steps = 2;
+        let b = crate::geom::bounds_of(&y.points).unwrap();
+        let tip: Vec<usize> = (0..y.num_points())
+            .filter(|&v| y.points[v][0] >= b.max[0] - 0.1 * (b.max[0] - b.min[0]))
+            .collect();
+        let mut drops = Vec::new();
+        run_pose(&y, &frictionless(), &p, &mut |f| {
+            let d = tip
+                .iter()
+                .map(|&v| y.points[v][2] - f.points[v][2])
+                .sum::<f64>()
+                / tip.len() as f64;
+            let weight = -f.external.iter().map(|e| e[2]).sum::<f64>();
+            let carried = f.reactions.iter().map(|r| r[2]).sum::<f64>();
+            assert!(
+                (carried - weight).abs() < 0.05 * weight,
+                "{carried} vs {weight}"
+            );
+            drops.push((d, weight));
+            Ok(())
+        })
+        .unwrap();
+        eprintln!("tip drops and weights: {drops:?}");
+        assert!(drops[0].0 > 1e-4 && drops[1].0 > drops[0].0, "{drops:?}");
+        assert!((drops[1].1 - 2.0 * drops[0].1).abs() < 1e-9 * drops[1].1);
     }
 
     /// The clamped bands the forces are summed over: the two ends of a
