@@ -28,11 +28,6 @@ use super::stretch::{vertex_forces, RigFrame};
 use crate::geom::{Vec3, Yarns};
 use crate::yarn::statics::{EnergyTerm, GravityTerm};
 
-/// Force residual of each equilibrium as a fraction of the heaviest
-/// vertex's weight (as in hanging): the loop's shape is the balance of
-/// bending and weight, so the weight must be resolved.
-const LOAD_TOLERANCE: f64 = 1e-2;
-
 /// Controls of [`bend_test`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BendParams {
@@ -410,17 +405,9 @@ pub fn bend_test(
         .iter()
         .map(|m| [0.0, 0.0, -m * params.gravity])
         .collect();
-    let weight_max = fabric.mass.iter().fold(0.0, |m: f64, &w| m.max(w)) * params.gravity.abs();
-    let settle = Settle {
-        tolerance: if weight_max > 0.0 {
-            params.settle.tolerance.min(LOAD_TOLERANCE * weight_max)
-        } else {
-            params.settle.tolerance
-        },
-        ..params.settle
-    };
-    fabric.params.solver.force_tolerance =
-        fabric.params.solver.force_tolerance.min(settle.tolerance);
+    // The loop's shape is the balance of bending and weight, so the weight
+    // must be resolved.
+    let settle = fabric.resolve_weights(&params.settle, params.gravity);
 
     let mut points = Vec::with_capacity(params.steps + 1);
     let mut min_ratio = f64::INFINITY;

@@ -11,10 +11,6 @@ use super::stretch::{vertex_forces, RigFrame};
 use crate::geom::Yarns;
 use crate::yarn::statics::{EnergyTerm, GravityTerm};
 
-/// Force residual of the hanging equilibrium, as a fraction of the heaviest
-/// vertex's weight.
-const LOAD_TOLERANCE: f64 = 1e-2;
-
 /// Controls of [`hang_test`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct HangParams {
@@ -113,16 +109,7 @@ pub fn hang_test(
         .collect();
     let y_low0 = rig.s_min;
     let height = rig.s_max - rig.s_min;
-    // A vertex's weight (~1e-6 N) is below the default force tolerance:
-    // equilibrium must be resolved to a small fraction of it, or the
-    // unloaded swatch already counts as hanging at rest.
-    let weight_max = fabric.mass.iter().fold(0.0, |m: f64, &w| m.max(w)) * params.gravity;
-    let settle = Settle {
-        tolerance: params.settle.tolerance.min(LOAD_TOLERANCE * weight_max),
-        ..params.settle
-    };
-    fabric.params.solver.force_tolerance =
-        fabric.params.solver.force_tolerance.min(settle.tolerance);
+    let settle = fabric.resolve_weights(&params.settle, params.gravity);
     let st = {
         let mut extra: [&mut dyn EnergyTerm; 1] = [&mut gravity];
         fabric.settle(&mut extra, &fixed, &settle, "hanging")?

@@ -108,7 +108,29 @@ pub struct Fabric {
     cache: SymbolicCache,
 }
 
+/// Force residual of an equilibrium under gravity, as a fraction of the
+/// heaviest vertex's weight ([`Fabric::resolve_weights`]).
+pub const LOAD_TOLERANCE: f64 = 1e-2;
+
 impl Fabric {
+    /// `settle` tightened so that an equilibrium under gravity `g` (m/s²)
+    /// resolves [`LOAD_TOLERANCE`] of the heaviest vertex's weight (also the
+    /// Newton force tolerance): a vertex weighs ~1e-6 N, below the default
+    /// tolerance, so a loaded swatch would otherwise count as settled at
+    /// rest. Unchanged when `g` is 0.
+    pub fn resolve_weights(&mut self, settle: &Settle, g: f64) -> Settle {
+        let weight_max = self.mass.iter().fold(0.0, |m: f64, &w| m.max(w)) * g.abs();
+        if !(weight_max > 0.0) {
+            return *settle;
+        }
+        let s = Settle {
+            tolerance: settle.tolerance.min(LOAD_TOLERANCE * weight_max),
+            ..*settle
+        };
+        self.params.solver.force_tolerance = self.params.solver.force_tolerance.min(s.tolerance);
+        s
+    }
+
     /// The fabric of `yarns` at their positions, with their stored rest
     /// shape when they carry one, else the positions as rest.
     pub fn new(yarns: &Yarns, params: &FabricParams) -> Result<Fabric, FabricError> {

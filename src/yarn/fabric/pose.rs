@@ -23,12 +23,8 @@ use std::time::Instant;
 use super::model::{Fabric, FabricError, FabricParams, Settle};
 use super::stretch::{vertex_forces, RigFrame};
 use crate::geom::{Vec3, Yarns};
-use crate::yarn::statics::{EnergyTerm, GravityTerm};
-
-/// Equilibrium under gravity to this fraction of the largest vertex weight
-/// (as `super::hang`).
-const LOAD_TOLERANCE: f64 = 1e-2;
 use crate::yarn::poses::{PoseDriver, PoseError, PoseKind, PoseParams};
+use crate::yarn::statics::{EnergyTerm, GravityTerm};
 
 /// Controls of [`run_pose`].
 #[derive(Debug, Clone, PartialEq)]
@@ -302,21 +298,7 @@ pub fn run_pose(
             params.gravity
         }
     };
-    // A vertex's weight (~1e-6 N) is below the default force tolerance: a
-    // loaded equilibrium must resolve a small fraction of it (as the hang
-    // test does).
-    let settle = if params.gravity > 0.0 {
-        let weight_max = fabric.mass.iter().fold(0.0, |m: f64, &w| m.max(w)) * params.gravity;
-        let s = Settle {
-            tolerance: params.settle.tolerance.min(LOAD_TOLERANCE * weight_max),
-            ..params.settle
-        };
-        fabric.params.solver.force_tolerance =
-            fabric.params.solver.force_tolerance.min(s.tolerance);
-        s
-    } else {
-        params.settle
-    };
+    let settle = fabric.resolve_weights(&params.settle, params.gravity);
 
     let mut steps = Vec::with_capacity(params.steps);
     let mut min_ratio = f64::INFINITY;
