@@ -236,6 +236,7 @@ amount = 0.1
 mirror = true
 steps = 3
 friction = 0.2
+gravity = 9.81
 [fit]
 samples = 2
 harmonic = [1, 10]
