@@ -211,15 +211,6 @@ pub enum HomogenizedSolver {
     Newton,
 }
 
-impl HomogenizedSolver {
-    pub fn name(self) -> &'static str {
-        match self {
-            HomogenizedSolver::Pd => "pd",
-            HomogenizedSolver::Newton => "newton",
-        }
-    }
-}
-
 /// For every tet node, the pose's band (clamp group) that holds it: the
 /// first group holding a yarn vertex in one of the node's tets.
 fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {

@@ -24,6 +24,7 @@
 
 use std::sync::Arc;
 
+use crate::geom::vec3::{dot, sub};
 use crate::geom::{Asset, Vec3};
 use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::pd::{PdParams, PdSolver};
@@ -119,11 +120,7 @@ impl YarnColliders<'_> {
             return 0.0;
         }
         star.iter()
-            .map(|&v| {
-                let y = self.y0[v];
-                let o = (y[0] - x[0]) * n[0] + (y[1] - x[1]) * n[1] + (y[2] - x[2]) * n[2];
-                self.radius[v] - o
-            })
+            .map(|&v| self.radius[v] - dot(sub(self.y0[v], x), n))
             .fold(f64::NEG_INFINITY, f64::max)
     }
 }
@@ -203,10 +200,7 @@ pub fn pd_frames(
     let mesh = &asset.mesh;
     let steps_of = |t0: f64, t1: f64| ((t1 - t0) / params.max_dt - 1e-9).ceil().max(1.0) as usize;
     // Bounded before running, as `simulate` bounds its shots.
-    let total: f64 = times
-        .windows(2)
-        .map(|w| ((w[1] - w[0]) / params.max_dt - 1e-9).ceil().max(1.0))
-        .sum();
+    let total: f64 = times.windows(2).map(|w| steps_of(w[0], w[1]) as f64).sum();
     if !(total <= super::simulate::MAX_TOTAL_STEPS as f64) {
         return Err(format!(
             "a PD step of {} s needs {total:.0} steps over the scene, more than the limit of {}",

@@ -284,9 +284,10 @@ pub fn run_pose(
     full.pinned().iter().for_each(|&v| clamped[v] = true);
     let fixed = fixed_mask(&fabric, &clamped);
     let (band_of, band_centres) = bands(&full, &rest);
+    // Its acceleration is set per step (`gravity_at`).
     let mut gravity = GravityTerm {
         mass: fabric.mass.clone(),
-        g: [0.0, -params.gravity, 0.0],
+        g: [0.0; 3],
     };
     // The cantilever's load is its weight: the steps ramp gravity instead
     // of the (unused) amount. Other poses carry their full weight at every
