@@ -183,6 +183,14 @@ fn validate_runs_pd_by_default_and_takes_the_solver_and_its_step() {
     assert_eq!(pd["max_substeps"], 5, "{pd}");
     let coarse = run(&["--dt", "1/30"]);
     assert_eq!(coarse["solver_steps"], 3, "{coarse}");
+    // Free fall has no contact: the PD iterations of a step stop at their
+    // tolerance or at the limit; a limit of 1 is exactly one per step.
+    let one = run(&["--pd-iterations", "1"]);
+    assert_eq!(one["solver_iterations"], 15, "{one}");
+    assert!(pd["solver_iterations"].as_u64().unwrap() > 15, "{pd}");
+    for k in ["pd_local_s", "pd_global_s"] {
+        assert!(pd[k].as_f64().unwrap() > 0.0, "{k}: {pd}");
+    }
     let newton = run(&["--solver", "newton"]);
     assert_eq!(newton["solver"], "newton");
     assert_eq!(newton["solver_steps"], 3, "{newton}");
@@ -194,18 +202,15 @@ fn validate_runs_pd_by_default_and_takes_the_solver_and_its_step() {
     eprintln!("free fall RMS: PD {} Newton {}", rms(&pd), rms(&newton));
     assert!(rms(&pd) < 2.0, "{pd}");
     assert!(rms(&newton) > 2.0 * rms(&pd), "{newton}");
-    let bad = knitvox(&[
-        "validate",
-        s(&asset_path),
-        "--scene",
-        s(&scene),
-        "--dt",
-        "0",
-    ]);
-    assert_eq!(
-        bad.status.code(),
-        Some(2),
-        "{}",
-        String::from_utf8_lossy(&bad.stderr)
-    );
+    for bad_option in [["--dt", "0"], ["--pd-iterations", "0"]] {
+        let mut args = vec!["validate", s(&asset_path), "--scene", s(&scene)];
+        args.extend_from_slice(&bad_option);
+        let bad = knitvox(&args);
+        assert_eq!(
+            bad.status.code(),
+            Some(2),
+            "{bad_option:?}: {}",
+            String::from_utf8_lossy(&bad.stderr)
+        );
+    }
 }

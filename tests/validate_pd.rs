@@ -10,7 +10,7 @@ use knitvox::embed::EmbedParams;
 use knitvox::geom::{Asset, Vec3};
 use knitvox::io::{self, ReadOptions};
 use knitvox::pipeline::asset::build_asset;
-use knitvox::pipeline::validate::{homogenized_run, HomogenizedSolver};
+use knitvox::pipeline::validate::{homogenized_run, HomogenizedRunParams, HomogenizedSolver};
 use knitvox::yarn::poses::{PoseDriver, PoseKind, PoseParams};
 use knitvox::yarn::sim::{PlaneCollider, PointCollider};
 
@@ -72,7 +72,7 @@ fn pd_contacts_keep_every_yarn_vertex_its_radius_above_a_plane() {
     let ne = asset.mesh.num_tets();
     let times: Vec<f64> = (0..=6).map(|k| k as f64 / 30.0).collect();
     let run = homogenized_run(
-        (HomogenizedSolver::Pd, None),
+        &HomogenizedRunParams::default(),
         &asset,
         (&vec![1e3; ne], &vec![1e3; ne]),
         &free(&asset),
@@ -123,7 +123,15 @@ fn slide(asset: &Asset, mu: f64) -> f64 {
     let ne = asset.mesh.num_tets();
     let times: Vec<f64> = (0..=9).map(|k| k as f64 / 30.0).collect();
     let run = homogenized_run(
-        (HomogenizedSolver::Pd, None),
+        // Converged PD steps: at the default 8 iterations PD's slow
+        // convergence on this soft, large motion acts as damping that
+        // rounding alone moves (the mu 0 slide: 64-81% of the free one at 8
+        // or 16 iterations, depending on the contact solve's last digits;
+        // 89-91% at 60).
+        &HomogenizedRunParams {
+            pd_iterations: Some(60),
+            ..Default::default()
+        },
         asset,
         (&vec![1e4; ne], &vec![1e4; ne]),
         &free(asset),
@@ -145,7 +153,7 @@ fn friction_holds_the_mesh_on_a_slope_a_frictionless_one_slides_down() {
     let (slip, stick) = (slide(&asset, 0.0), slide(&asset, 0.6));
     eprintln!("slide 0.1-0.3 s: mu 0 {slip:.4e} m, mu 0.6 {stick:.4e} m, free {free_slide:.4e} m");
     // tan 20° = 0.36 < 0.6: static friction holds it.
-    assert!(slip > 0.7 * free_slide, "{slip} vs {free_slide}");
+    assert!(slip > 0.85 * free_slide, "{slip} vs {free_slide}");
     assert!(stick.abs() < 0.05 * free_slide, "{stick} vs {free_slide}");
 }
 
@@ -162,7 +170,10 @@ fn pd_settles_a_hang_where_the_newton_reference_does() {
     let times: Vec<f64> = (0..=20).map(|k| k as f64 * 0.1).collect();
     let sag = |solver| {
         let run = homogenized_run(
-            (solver, None),
+            &HomogenizedRunParams {
+                solver,
+                ..Default::default()
+            },
             &asset,
             (&gs, &gv),
             &driver,

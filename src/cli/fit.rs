@@ -154,6 +154,10 @@ pub struct ValidateArgs {
     /// [default: 1/150].
     #[arg(long, value_name = "SECONDS", value_parser = crate::pipeline::sim_scene::parse_seconds)]
     pub dt: Option<f64>,
+    /// PD iterations per step (local + global; Anderson-accelerated) of the
+    /// homogenized runs [default: 8, as `simulate`].
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub pd_iterations: Option<u32>,
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
@@ -172,11 +176,14 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         scene: a.scene.clone(),
         uniform: a.uniform,
         report: a.report.clone(),
-        solver: match a.solver {
-            SolverArg::Pd => crate::pipeline::validate::HomogenizedSolver::Pd,
-            SolverArg::Newton => crate::pipeline::validate::HomogenizedSolver::Newton,
+        homogenized: crate::pipeline::validate::HomogenizedRunParams {
+            solver: match a.solver {
+                SolverArg::Pd => crate::pipeline::validate::HomogenizedSolver::Pd,
+                SolverArg::Newton => crate::pipeline::validate::HomogenizedSolver::Newton,
+            },
+            max_dt: a.dt,
+            pd_iterations: a.pd_iterations,
         },
-        max_dt: a.dt,
     };
     let mut console = super::Console::new(false, 0, "");
     let r = job.run(&mut console)?;

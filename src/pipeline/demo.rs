@@ -288,8 +288,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         scene: held_out.clone(),
         uniform: true,
         report: Some(dir.join("validate")),
-        solver: Default::default(),
-        max_dt: None,
+        homogenized: Default::default(),
     }
     .run(&mut super::Quiet)?;
     Ok(FitDemo {

@@ -62,10 +62,9 @@ pub struct ValidateJob {
     pub uniform: bool,
     /// Folder for `validate.json`, `error.png` and both yarn sequences (PLY).
     pub report: Option<PathBuf>,
-    /// The homogenized runs' integrator. Default PD, as `simulate`.
-    pub solver: HomogenizedSolver,
-    /// Largest PD time step (s); None: `PdParams::default().dt` (1/150 s).
-    pub max_dt: Option<f64>,
+    /// How the homogenized runs are integrated (PD by default, as
+    /// `simulate`).
+    pub homogenized: HomogenizedRunParams,
 }
 
 /// Error of one frame (yarn diameters).
@@ -107,6 +106,13 @@ pub struct ValidateReport {
     /// steps.
     pub solver_iterations: u64,
     pub solver_steps: u64,
+    /// Where the PD run with the asset's material spent its time (s): local
+    /// steps and global solves (the rest of `homogenized_s` is contact
+    /// targets, V2Y of the collider thickness and bookkeeping), and the
+    /// contact CG iterations of its global solves; 0 for Newton.
+    pub pd_local_s: f64,
+    pub pd_global_s: f64,
+    pub pd_contact_cg_iterations: u64,
     /// Colliders acting on both runs.
     pub colliders: usize,
     /// Deepest collider penetration of a homogenized yarn vertex (m) and the
@@ -183,6 +189,12 @@ pub struct HomogenizedRun {
     pub substeps: usize,
     /// Implicit-Euler steps taken in all.
     pub steps: u64,
+    /// PD only (else 0): wall time of the local steps and of the global
+    /// solves summed over the run (s), and the contact CG iterations of the
+    /// global solves.
+    pub local_s: f64,
+    pub global_s: f64,
+    pub contact_cg_iterations: u64,
 }
 
 impl HomogenizedRun {
@@ -195,6 +207,9 @@ impl HomogenizedRun {
             max_contacts: 0,
             substeps: 1,
             steps: 0,
+            local_s: 0.0,
+            global_s: 0.0,
+            contact_cg_iterations: 0,
         }
     }
 }
@@ -209,6 +224,17 @@ pub enum HomogenizedSolver {
     /// One backward-Euler Newton solve per frame interval ([`homogenized_frames`]):
     /// the exact implicit step, a reference for PD.
     Newton,
+}
+
+/// How `validate` integrates its homogenized runs.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HomogenizedRunParams {
+    /// The integrator. Default PD.
+    pub solver: HomogenizedSolver,
+    /// Largest PD time step (s). None: `PdRunParams::default()` (1/150 s).
+    pub max_dt: Option<f64>,
+    /// PD iterations per step. None: `PdRunParams::default()` (8).
+    pub pd_iterations: Option<u32>,
 }
 
 /// For every tet node, the pose's band (clamp group) that holds it: the
@@ -229,11 +255,10 @@ fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {
 
 /// The homogenized frames of `validate` by `solver` (see
 /// [`homogenized_frames`] and [`super::validate_pd::pd_frames`]); `damping`
-/// is the mass-proportional damping (1/s) and `max_dt` the longest step (s,
-/// None: the default) of the PD run. Pure.
+/// is the mass-proportional damping (1/s) of the PD run. Pure.
 #[allow(clippy::too_many_arguments)]
 pub fn homogenized_run(
-    (solver, max_dt): (HomogenizedSolver, Option<f64>),
+    how: &HomogenizedRunParams,
     asset: &Asset,
     gamma: (&[f64], &[f64]),
     driver: &PoseDriver,
@@ -242,7 +267,7 @@ pub fn homogenized_run(
     times: &[f64],
     colliders: &[Arc<dyn PointCollider>],
 ) -> Result<HomogenizedRun, String> {
-    match solver {
+    match how.solver {
         HomogenizedSolver::Newton => {
             homogenized_frames(asset, gamma, driver, gravity, times, colliders)
         }
@@ -254,8 +279,8 @@ pub fn homogenized_run(
             let d = super::validate_pd::PdRunParams::default();
             let params = super::validate_pd::PdRunParams {
                 mass_damping: damping,
-                max_dt: max_dt.unwrap_or(d.max_dt),
-                ..d
+                max_dt: how.max_dt.unwrap_or(d.max_dt),
+                iterations: how.pd_iterations.unwrap_or(d.iterations),
             };
             super::validate_pd::pd_frames(
                 asset, gamma, &pinned, &target, gravity, times, colliders, &params,
@@ -521,7 +546,7 @@ impl Stage for ValidateJob {
             io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
         }
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
-        if let Some(dt) = self.max_dt {
+        if let Some(dt) = self.homogenized.max_dt {
             let steps = scene.duration / dt;
             if !(dt.is_finite() && dt > 0.0 && steps <= super::simulate::MAX_TOTAL_STEPS as f64) {
                 return Err(Error::Usage(format!(
@@ -580,7 +605,7 @@ impl Stage for ValidateJob {
         let t = Instant::now();
         let run_with = |gamma: (&[f64], &[f64])| {
             homogenized_run(
-                (self.solver, self.max_dt),
+                &self.homogenized,
                 &asset,
                 gamma,
                 &driver,
@@ -678,9 +703,12 @@ impl Stage for ValidateJob {
                 }
                 held_nodes(&asset.mesh, &asset.embedding, &h).len()
             }),
-            solver: self.solver,
+            solver: self.homogenized.solver,
             solver_iterations: hr.iterations,
             solver_steps: hr.steps,
+            pd_local_s: hr.local_s,
+            pd_global_s: hr.global_s,
+            pd_contact_cg_iterations: hr.contact_cg_iterations,
             colliders: colliders.len(),
             max_penetration_m: hr.max_penetration_m,
             max_contacts: hr.max_contacts,
