@@ -191,6 +191,43 @@ fn validate_runs_pd_by_default_and_takes_the_solver_and_its_step() {
     for k in ["pd_local_s", "pd_global_s"] {
         assert!(pd[k].as_f64().unwrap() > 0.0, "{k}: {pd}");
     }
+    assert_eq!(pd["pd_global_solver"], "direct", "{pd}");
+    // The domain-decomposed global solve (exact interiors) gives the same run.
+    let cpu = run(&["--backend", "cpu"]);
+    assert_eq!(cpu["pd_backend"], "cpu", "{cpu}");
+    let dd = run(&["--backend", "cpu", "--pd-solver", "dd"]);
+    assert_eq!(dd["pd_global_solver"], "dd", "{dd}");
+    let rms = |r: &serde_json::Value| r["rms_yarn_diameters"].as_f64().unwrap();
+    assert!(
+        (rms(&dd) - rms(&cpu)).abs() < 1e-3 * rms(&cpu),
+        "dd {dd} vs direct {cpu}"
+    );
+    // The GPU backend (f32 local step): where wgpu finds an adapter (lavapipe
+    // included) the same run to 1%; without one, exit 69 before the
+    // yarn-level run.
+    let mut args = vec!["validate", s(&asset_path), "--scene", s(&scene), "--json"];
+    args.extend_from_slice(&["--backend", "gpu"]);
+    let gpu = knitvox(&args);
+    if knitvox::sim::gpu::GpuContext::new().is_ok() {
+        assert!(
+            gpu.status.success(),
+            "{}",
+            String::from_utf8_lossy(&gpu.stderr)
+        );
+        let g: serde_json::Value = serde_json::from_slice(&gpu.stdout).unwrap();
+        assert_eq!(g["pd_backend"], "gpu", "{g}");
+        assert!(
+            (rms(&g) - rms(&cpu)).abs() < 1e-2 * rms(&cpu),
+            "gpu {g} vs cpu {cpu}"
+        );
+    } else {
+        assert_eq!(
+            gpu.status.code(),
+            Some(69),
+            "{}",
+            String::from_utf8_lossy(&gpu.stderr)
+        );
+    }
     let newton = run(&["--solver", "newton"]);
     assert_eq!(newton["solver"], "newton");
     assert_eq!(newton["solver_steps"], 3, "{newton}");

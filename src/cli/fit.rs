@@ -158,6 +158,12 @@ pub struct ValidateArgs {
     /// homogenized runs [default: 8, as `simulate`].
     #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub pd_iterations: Option<u32>,
+    /// Where the PD runs' local step runs [default: auto, as `simulate`].
+    #[arg(long, value_enum, default_value = "auto")]
+    pub backend: crate::pipeline::sim_scene::BackendChoice,
+    /// Global solver of the PD runs, as `simulate --solver` [default: direct].
+    #[arg(long, value_enum, default_value = "direct")]
+    pub pd_solver: crate::pipeline::sim_scene::SolverChoice,
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
@@ -183,6 +189,8 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
             },
             max_dt: a.dt,
             pd_iterations: a.pd_iterations,
+            backend: a.backend,
+            global: a.pd_solver,
         },
     };
     let mut console = super::Console::new(false, 0, "");

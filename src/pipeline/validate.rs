@@ -31,6 +31,7 @@ use crate::io::{self, plot, IoError, WriteOptions};
 use crate::pipeline::asset::check_asset_ext;
 use crate::pipeline::fit::held_nodes;
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
+use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
@@ -113,6 +114,10 @@ pub struct ValidateReport {
     pub pd_local_s: f64,
     pub pd_global_s: f64,
     pub pd_contact_cg_iterations: u64,
+    /// PD only: the local step's backend ("cpu", "gpu") and the global
+    /// solver ("direct", "dd") that ran; "" for Newton.
+    pub pd_backend: &'static str,
+    pub pd_global_solver: &'static str,
     /// Colliders acting on both runs.
     pub colliders: usize,
     /// Deepest collider penetration of a homogenized yarn vertex (m) and the
@@ -195,6 +200,10 @@ pub struct HomogenizedRun {
     pub local_s: f64,
     pub global_s: f64,
     pub contact_cg_iterations: u64,
+    /// PD only: the local step's backend ("cpu", "gpu") and the global
+    /// solver ("direct", "dd"); "" for Newton.
+    pub backend: &'static str,
+    pub global_solver: &'static str,
 }
 
 impl HomogenizedRun {
@@ -210,6 +219,8 @@ impl HomogenizedRun {
             local_s: 0.0,
             global_s: 0.0,
             contact_cg_iterations: 0,
+            backend: "",
+            global_solver: "",
         }
     }
 }
@@ -235,6 +246,10 @@ pub struct HomogenizedRunParams {
     pub max_dt: Option<f64>,
     /// PD iterations per step. None: `PdRunParams::default()` (8).
     pub pd_iterations: Option<u32>,
+    /// PD: where the local step runs (default `Auto`, as `simulate`) and the
+    /// global solver (default direct).
+    pub backend: BackendChoice,
+    pub global: SolverChoice,
 }
 
 /// For every tet node, the pose's band (clamp group) that holds it: the
@@ -281,6 +296,8 @@ pub fn homogenized_run(
                 mass_damping: damping,
                 max_dt: how.max_dt.unwrap_or(d.max_dt),
                 iterations: how.pd_iterations.unwrap_or(d.iterations),
+                backend: how.backend,
+                global: how.global,
             };
             super::validate_pd::pd_frames(
                 asset, gamma, &pinned, &target, gravity, times, colliders, &params,
@@ -556,6 +573,17 @@ impl Stage for ValidateJob {
                 )));
             }
         }
+        // `--backend gpu` without a GPU fails here (exit 69), before the
+        // yarn-level run, not after it.
+        if self.homogenized.solver == HomogenizedSolver::Pd
+            && self.homogenized.backend == BackendChoice::Gpu
+        {
+            crate::sim::gpu::GpuContext::new().map_err(|e| {
+                super::simulate::SimulateError::Unavailable(format!(
+                    "--backend gpu: no usable GPU: {e}"
+                ))
+            })?;
+        }
         let colliders: Vec<Arc<dyn PointCollider>> =
             yls::scene_colliders(&scene.colliders, &asset.rest_yarns)?
                 .into_iter()
@@ -709,6 +737,8 @@ impl Stage for ValidateJob {
             pd_local_s: hr.local_s,
             pd_global_s: hr.global_s,
             pd_contact_cg_iterations: hr.contact_cg_iterations,
+            pd_backend: hr.backend,
+            pd_global_solver: hr.global_solver,
             colliders: colliders.len(),
             max_penetration_m: hr.max_penetration_m,
             max_contacts: hr.max_contacts,

@@ -30,6 +30,8 @@ use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::pd::{PdParams, PdSolver};
 use crate::yarn::sim::PointCollider;
 
+use super::sim_scene::{BackendChoice, SolverChoice};
+use super::simulate::{attach_backend, global_solver};
 use super::validate::HomogenizedRun;
 
 /// Parameters of [`pd_frames`].
@@ -44,6 +46,11 @@ pub struct PdRunParams {
     pub mass_damping: f64,
     /// PD iterations per step. Default: `PdParams::default().max_iterations`.
     pub iterations: u32,
+    /// Where the local step (and the DD Jacobi iterations) run. Default
+    /// `Auto`: a hardware GPU when there is one, as `simulate`.
+    pub backend: BackendChoice,
+    /// The global solver. Default direct (sparse Cholesky).
+    pub global: SolverChoice,
 }
 
 impl Default for PdRunParams {
@@ -53,6 +60,8 @@ impl Default for PdRunParams {
             max_dt: d.dt,
             mass_damping: 0.0,
             iterations: d.max_iterations,
+            backend: BackendChoice::default(),
+            global: SolverChoice::default(),
         }
     }
 }
@@ -177,6 +186,13 @@ fn yarn_penetration(
     depth
 }
 
+/// Puts `solver` on `backend` (see [`attach_backend`]).
+fn run_backend(solver: &mut PdSolver, backend: BackendChoice) -> Result<(), String> {
+    attach_backend(solver, backend)
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+}
+
 /// Homogenized frames at `times` (s; `times[0]` is the rest state) by PD
 /// under `gravity` (m/s²) and `colliders`; the nodes in `pinned` follow
 /// `target(node, t)`. Pure.
@@ -219,15 +235,19 @@ pub fn pd_frames(
         max_iterations: params.iterations,
         // Nothing here reads the end-of-step residual: skip its gradient.
         report_residual: false,
+        global: global_solver(params.global),
         ..PdParams::default()
     };
     let mut solver = PdSolver::new(mesh, &asset.node_mass, gamma.0, gamma.1, pinned, pd)
         .map_err(|e| e.to_string())?;
+    run_backend(&mut solver, params.backend)?;
     let stars = NodeStars::new(asset);
     let radius: Vec<f64> = (0..asset.rest_yarns.num_points())
         .map(|v| asset.rest_yarns.radius_at(v))
         .collect();
     let mut run = HomogenizedRun::at_rest(&mesh.nodes);
+    run.backend = solver.backend_names().0;
+    run.global_solver = solver.params().global.name();
     let mut x = mesh.nodes.clone();
     let mut v = vec![[0.0; 3]; mesh.num_nodes()];
     let mut dt_now = first_dt;
@@ -239,6 +259,8 @@ pub fn pd_frames(
             solver
                 .set_time_step(dt, params.mass_damping)
                 .map_err(|e| e.to_string())?;
+            // A new time step puts the solver back on the CPU.
+            run_backend(&mut solver, params.backend)?;
             dt_now = dt;
         }
         for j in 1..=sub {
