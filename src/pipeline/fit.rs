@@ -760,6 +760,52 @@ fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
     }
 }
 
+/// `samples` with every frame's start replaced by its equilibrium under
+/// `gamma` ([`settle`]: by continuation from `anchors[s][f]`, the
+/// equilibria under a nearby material, when given); the pinned nodes keep
+/// their places, so the frames pose the same problems.
+fn warm_samples(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
+    params: &ElasticFitParams,
+) -> Result<Vec<Sample>, ElasticFitError> {
+    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let stacked = gamma.stacked();
+    samples
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let frames = s
+                .frames
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    let anchor = anchors.get(k).and_then(|a| a.get(i));
+                    let x = settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(
+                        |message| ElasticFitError::Sample {
+                            sample: s.name.clone(),
+                            frame: i,
+                            message,
+                        },
+                    )?;
+                    Ok(Frame {
+                        start: x,
+                        ..f.clone()
+                    })
+                })
+                .collect::<Result<Vec<_>, ElasticFitError>>()?;
+            Ok(Sample {
+                frames,
+                ..s.clone()
+            })
+        })
+        .collect()
+}
+
 /// What [`fit_samples`] found.
 #[derive(Debug, Clone)]
 pub struct Fitted {
@@ -835,7 +881,24 @@ pub fn fit_samples(
     if let Some(fs) = uniform_force_scale {
         u = scaled(&u, fs.scale);
     }
-    let (mut gamma, fit) = fit_materials(&FitInputs { init: &u, ..inputs }, params)?;
+    let (mut gamma, fit) = match fit_materials(&FitInputs { init: &u, ..inputs }, params) {
+        // Newton from a frame's own start can fail under the rescaled
+        // material (measured: a cantilever frame under gravity in a joint
+        // fit, after 7 minutes of the uniform stage) although the uniform
+        // fit reached its equilibrium under the unscaled one: start the
+        // field's fit from the equilibria that continuation from there finds.
+        Err(ElasticFitError::Sample { .. }) if uniform_force_scale.is_some() => {
+            let warm = warm_samples(mesh, mass, samples, &u, &at_uniform, params)?;
+            let merged_warm = [joint_sample(&warm)];
+            let field_inputs = FitInputs {
+                init: &u,
+                samples: if joint { &merged_warm } else { &warm },
+                ..inputs
+            };
+            fit_materials(&field_inputs, params)?
+        }
+        other => other?,
+    };
     let at_field = anchors_of(&fit, samples, joint);
     let field_force_scale = if loaded {
         None
@@ -1297,6 +1360,67 @@ mod tests {
         let none =
             force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &[], &params).unwrap();
         assert!(none.is_none());
+    }
+
+    /// `warm_samples` puts every frame's start at its equilibrium under the
+    /// given material, also by continuation from an anchor at another one:
+    /// a slab held at one end and sagging under its weight.
+    #[test]
+    fn warm_samples_start_at_the_equilibrium_of_the_material() {
+        let h = 0.01;
+        let (mesh, mass) = crate::sim::pd::box_mesh([6, 1, 2], h, 120.0);
+        let nt = mesh.num_tets();
+        let pinned: Vec<usize> = (0..mesh.num_nodes())
+            .filter(|&i| mesh.nodes[i][0] < 1e-9)
+            .collect();
+        let weight: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
+        let stiff = MaterialFields {
+            gamma_s: vec![2e4; nt],
+            gamma_v: vec![2e4; nt],
+        };
+        let soft = scaled(&stiff, 0.1);
+        let model = ElasticModel::new(&mesh, &stiff.gamma_s, &stiff.gamma_v).unwrap();
+        let frame = Frame {
+            target: FrameTarget::from_nodes(&model, &mesh.nodes, &mass, LOSS_ALPHA, h).unwrap(),
+            pinned: pinned.clone(),
+            start: mesh.nodes.clone(),
+            f_ext: weight,
+        };
+        let samples = [Sample {
+            name: "sag".into(),
+            frames: vec![frame.clone()],
+            energy: 1.0,
+        }];
+        let params = ElasticFitParams::default();
+        let soft_model = ElasticModel::new(&mesh, &soft.gamma_s, &soft.gamma_v).unwrap();
+        let (cold, _) =
+            equilibrium(&soft_model, &mass, &frame, &frame.start, &params.statics()).unwrap();
+        let (at_stiff, _) =
+            equilibrium(&model, &mass, &frame, &frame.start, &params.statics()).unwrap();
+        let anchor = Anchor {
+            gamma: std::sync::Arc::new(stiff.stacked()),
+            x: at_stiff,
+        };
+        let lowest = |x: &[Vec3]| x.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+        let sag = -lowest(&cold);
+        assert!(sag > 1e-4, "the soft slab sags only {sag} m");
+        for anchors in [vec![], vec![vec![anchor]]] {
+            let warm = warm_samples(&mesh, &mass, &samples, &soft, &anchors, &params).unwrap();
+            let x = &warm[0].frames[0].start;
+            for &p in &pinned {
+                assert_eq!(x[p], frame.start[p], "pinned node {p} moved");
+            }
+            let d = x
+                .iter()
+                .zip(&cold)
+                .map(|(a, b)| crate::geom::dist(*a, *b))
+                .fold(0.0, f64::max);
+            assert!(
+                d < 1e-3 * sag,
+                "{} anchors: {d} m from the equilibrium",
+                anchors.len()
+            );
+        }
     }
 
     /// The pose record's bands: a stretch_courses file gives its left and
