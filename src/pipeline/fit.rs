@@ -575,8 +575,45 @@ fn settle(
         })
 }
 
+/// Every frame of `samples` brought to equilibrium under `gamma`
+/// ([`settle`]; `anchors[s][f]` where known, may be empty): positions per
+/// sample and frame, and the model of `gamma`.
+fn settle_samples(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
+    params: &ElasticFitParams,
+) -> Result<(ElasticModel, Vec<Vec<Vec<Vec3>>>), ElasticFitError> {
+    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let stacked = gamma.stacked();
+    let xs = samples
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            s.frames
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    let anchor = anchors.get(k).and_then(|a| a.get(i));
+                    settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
+                        ElasticFitError::Sample {
+                            sample: s.name.clone(),
+                            frame: i,
+                            message,
+                        }
+                    })
+                })
+                .collect::<Result<Vec<_>, _>>()
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((model, xs))
+}
+
 /// Loss (m³) of each sample at material `gamma`: every frame brought to
-/// equilibrium ([`settle`]; `anchors[s][f]` where known, may be empty).
+/// equilibrium ([`settle_samples`]).
 pub fn sample_losses(
     mesh: &TetMesh,
     mass: &[f64],
@@ -585,27 +622,18 @@ pub fn sample_losses(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Vec<f64>, ElasticFitError> {
-    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
-        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let stacked = gamma.stacked();
-    samples
+    let (model, xs) = settle_samples(mesh, mass, samples, gamma, anchors, params)?;
+    Ok(samples
         .iter()
-        .enumerate()
-        .map(|(k, s)| {
-            s.frames.iter().enumerate().try_fold(0.0, |acc, (i, f)| {
-                let anchor = anchors.get(k).and_then(|a| a.get(i));
-                let x =
-                    settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
-                        ElasticFitError::Sample {
-                            sample: s.name.clone(),
-                            frame: i,
-                            message,
-                        }
-                    })?;
-                Ok(acc + f.target.loss(&model, &x))
-            })
+        .zip(&xs)
+        .map(|(s, xs)| {
+            s.frames
+                .iter()
+                .zip(xs)
+                .map(|(f, x)| f.target.loss(&model, x))
+                .sum()
         })
-        .collect()
+        .collect())
 }
 
 /// The uniform γ scale that the clamp reactions call for.
@@ -761,7 +789,7 @@ fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
 }
 
 /// `samples` with every frame's start replaced by its equilibrium under
-/// `gamma` ([`settle`]: by continuation from `anchors[s][f]`, the
+/// `gamma` ([`settle_samples`]: by continuation from `anchors[s][f]`, the
 /// equilibria under a nearby material, when given); the pinned nodes keep
 /// their places, so the frames pose the same problems.
 fn warm_samples(
@@ -772,38 +800,23 @@ fn warm_samples(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Vec<Sample>, ElasticFitError> {
-    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
-        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let stacked = gamma.stacked();
-    samples
+    let (_, xs) = settle_samples(mesh, mass, samples, gamma, anchors, params)?;
+    Ok(samples
         .iter()
-        .enumerate()
-        .map(|(k, s)| {
-            let frames = s
+        .zip(xs)
+        .map(|(s, xs)| Sample {
+            frames: s
                 .frames
                 .iter()
-                .enumerate()
-                .map(|(i, f)| {
-                    let anchor = anchors.get(k).and_then(|a| a.get(i));
-                    let x = settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(
-                        |message| ElasticFitError::Sample {
-                            sample: s.name.clone(),
-                            frame: i,
-                            message,
-                        },
-                    )?;
-                    Ok(Frame {
-                        start: x,
-                        ..f.clone()
-                    })
+                .zip(xs)
+                .map(|(f, x)| Frame {
+                    start: x,
+                    ..f.clone()
                 })
-                .collect::<Result<Vec<_>, ElasticFitError>>()?;
-            Ok(Sample {
-                frames,
-                ..s.clone()
-            })
+                .collect(),
+            ..s.clone()
         })
-        .collect()
+        .collect())
 }
 
 /// What [`fit_samples`] found.
