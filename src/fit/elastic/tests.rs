@@ -991,3 +991,52 @@ fn continuation_from_an_anchor_reaches_what_newton_from_the_start_misses() {
         "continued equilibrium {gap} m from the reference (deflection {tip} m)"
     );
 }
+
+/// When the projected-Hessian Newton cannot reach the coarse tolerance in
+/// its iterations, `equilibrium` stops it at a looser one and the exact
+/// Newton polish still ends at the asked tolerance: a soft slab held at one
+/// end, sagging under its weight from flat, with the iteration cap set
+/// between the iterations 1e-4 and 1e-6 need.
+#[test]
+fn equilibrium_polishes_where_the_projected_newton_stalls() {
+    use crate::sim::statics::StaticSolver;
+    let (mesh, mass) = box_mesh([8, 1, 2], H, 120.0);
+    let nt = mesh.num_tets();
+    let model = ElasticModel::new(&mesh, &vec![300.0; nt], &vec![300.0; nt]).unwrap();
+    let pinned: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let weight: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
+    let iterations_to = |tolerance: f64| {
+        let mut s = StaticSolver::new(model.clone(), &mass, &pinned).unwrap();
+        let p = StaticParams {
+            tolerance,
+            max_iterations: 500,
+        };
+        s.solve(&mesh.nodes, &weight, None, &p)
+            .unwrap()
+            .1
+            .iterations
+    };
+    let (n4, n6) = (iterations_to(1e-4), iterations_to(1e-6));
+    eprintln!("projected Newton: {n4} iterations to 1e-4, {n6} to 1e-6");
+    assert!(
+        n4 < n6,
+        "the setup does not separate the tolerances: {n4} vs {n6}"
+    );
+    let frame = Frame {
+        target: loss::FrameTarget::from_nodes(&model, &mesh.nodes, &mass, 0.1, H).unwrap(),
+        pinned,
+        start: mesh.nodes.clone(),
+        f_ext: weight,
+    };
+    let capped = StaticParams {
+        tolerance: 1e-6,
+        max_iterations: n4,
+    };
+    let (x, stats) = equilibrium(&model, &mass, &frame, &frame.start, &capped).unwrap();
+    let last = *stats.residuals.last().unwrap();
+    assert!(last <= 1e-6, "ended at {last:e}");
+    let sag = -x.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+    assert!(sag > 1e-3, "sagged only {sag} m");
+}
