@@ -575,6 +575,9 @@ fn settle(
         })
 }
 
+/// The model of a material and the equilibria under it, per sample and frame.
+type SettledSamples = (ElasticModel, Vec<Vec<Vec<Vec3>>>);
+
 /// Every frame of `samples` brought to equilibrium under `gamma`
 /// ([`settle`]; `anchors[s][f]` where known, may be empty): positions per
 /// sample and frame, and the model of `gamma`.
@@ -585,7 +588,7 @@ fn settle_samples(
     gamma: &MaterialFields,
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
-) -> Result<(ElasticModel, Vec<Vec<Vec<Vec3>>>), ElasticFitError> {
+) -> Result<SettledSamples, ElasticFitError> {
     let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
     let stacked = gamma.stacked();
