@@ -792,8 +792,9 @@ fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
 }
 
 /// Whether the training loss at `to` is at most that at `from` (both
-/// settled from `anchors`, the equilibria under `from`); a material whose
-/// frames find no equilibrium does not lower it. Loaded frames (weights,
+/// started from `anchors`, the equilibria under `from`; `to` by Newton from
+/// there, without continuation, so a far material costs one solve per
+/// frame); a material whose frames find no equilibrium so does not lower it. Loaded frames (weights,
 /// external forces) see the material's scale in the loss, so there the loss,
 /// not the clamp reactions, decides it: measured on a stretch + bend +
 /// cantilever joint fit, the uniform stage reached 2.15e-5 m³ and the
@@ -809,12 +810,22 @@ fn lowers_loss(
     let before: f64 = sample_losses(mesh, mass, samples, from, anchors, params)?
         .iter()
         .sum();
-    Ok(
-        match sample_losses(mesh, mass, samples, to, anchors, params) {
-            Ok(after) => after.iter().sum::<f64>() <= before,
-            Err(_) => false,
-        },
-    )
+    let model = ElasticModel::new(mesh, &to.gamma_s, &to.gamma_v)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let mut after = 0.0;
+    for (k, s) in samples.iter().enumerate() {
+        for (i, f) in s.frames.iter().enumerate() {
+            let start = anchors
+                .get(k)
+                .and_then(|a| a.get(i))
+                .map_or(&f.start, |a| &a.x);
+            match equilibrium(&model, mass, f, start, &params.statics()) {
+                Ok((x, _)) => after += f.target.loss(&model, &x),
+                Err(_) => return Ok(false),
+            }
+        }
+    }
+    Ok(after <= before)
 }
 
 /// `samples` with every frame's start replaced by its equilibrium under
@@ -930,12 +941,13 @@ pub fn fit_samples(
         }
     }
     let (mut gamma, fit) = match fit_materials(&FitInputs { init: &u, ..inputs }, params) {
-        // Newton from a frame's own start can fail under the rescaled
+        // Newton from a frame's own start can fail under the uniform
         // material (measured: a cantilever frame under gravity in a joint
-        // fit, after 7 minutes of the uniform stage) although the uniform
-        // fit reached its equilibrium under the unscaled one: start the
-        // field's fit from the equilibria that continuation from there finds.
-        Err(ElasticFitError::Sample { .. }) if uniform_force_scale.is_some() => {
+        // fit, after 7 minutes of the uniform stage, rescaled or not)
+        // although the uniform fit reached its equilibrium through warm
+        // starts: start the field's fit from the equilibria that
+        // continuation from the uniform fit's finds.
+        Err(ElasticFitError::Sample { .. }) => {
             let warm = warm_samples(mesh, mass, samples, &u, &at_uniform, params)?;
             let merged_warm = [joint_sample(&warm)];
             let field_inputs = FitInputs {
