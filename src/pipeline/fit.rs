@@ -1422,11 +1422,10 @@ mod tests {
         assert!(none.is_none());
     }
 
-    /// `warm_samples` puts every frame's start at its equilibrium under the
-    /// given material, also by continuation from an anchor at another one:
-    /// a slab held at one end and sagging under its weight.
-    #[test]
-    fn warm_samples_start_at_the_equilibrium_of_the_material() {
+    /// A slab held at its x = 0 end under its weight, with a uniform
+    /// material of `gamma` (Pa): the mesh, its masses, and a frame whose
+    /// target is the flat rest shape.
+    fn sagging_slab(gamma: f64) -> (TetMesh, Vec<f64>, MaterialFields, Frame) {
         let h = 0.01;
         let (mesh, mass) = crate::sim::pd::box_mesh([6, 1, 2], h, 120.0);
         let nt = mesh.num_tets();
@@ -1434,18 +1433,29 @@ mod tests {
             .filter(|&i| mesh.nodes[i][0] < 1e-9)
             .collect();
         let weight: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
-        let stiff = MaterialFields {
-            gamma_s: vec![2e4; nt],
-            gamma_v: vec![2e4; nt],
+        let material = MaterialFields {
+            gamma_s: vec![gamma; nt],
+            gamma_v: vec![gamma; nt],
         };
-        let soft = scaled(&stiff, 0.1);
-        let model = ElasticModel::new(&mesh, &stiff.gamma_s, &stiff.gamma_v).unwrap();
+        let model = ElasticModel::new(&mesh, &material.gamma_s, &material.gamma_v).unwrap();
         let frame = Frame {
             target: FrameTarget::from_nodes(&model, &mesh.nodes, &mass, LOSS_ALPHA, h).unwrap(),
-            pinned: pinned.clone(),
+            pinned,
             start: mesh.nodes.clone(),
             f_ext: weight,
         };
+        (mesh, mass, material, frame)
+    }
+
+    /// `warm_samples` puts every frame's start at its equilibrium under the
+    /// given material, also by continuation from an anchor at another one:
+    /// a slab held at one end and sagging under its weight.
+    #[test]
+    fn warm_samples_start_at_the_equilibrium_of_the_material() {
+        let (mesh, mass, stiff, frame) = sagging_slab(2e4);
+        let pinned = frame.pinned.clone();
+        let soft = scaled(&stiff, 0.1);
+        let model = ElasticModel::new(&mesh, &stiff.gamma_s, &stiff.gamma_v).unwrap();
         let samples = [Sample {
             name: "sag".into(),
             frames: vec![frame.clone()],
@@ -1487,28 +1497,12 @@ mod tests {
     /// the material that made the frame lowers it, moving away does not.
     #[test]
     fn lowers_loss_sees_the_scale_of_a_loaded_frame() {
-        let h = 0.01;
-        let (mesh, mass) = crate::sim::pd::box_mesh([6, 1, 2], h, 120.0);
-        let nt = mesh.num_tets();
-        let pinned: Vec<usize> = (0..mesh.num_nodes())
-            .filter(|&i| mesh.nodes[i][0] < 1e-9)
-            .collect();
-        let weight: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
-        let truth = MaterialFields {
-            gamma_s: vec![2e3; nt],
-            gamma_v: vec![2e3; nt],
-        };
+        let (mesh, mass, truth, mut frame) = sagging_slab(2e3);
         let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
-        let mut frame = Frame {
-            target: FrameTarget::from_nodes(&model, &mesh.nodes, &mass, LOSS_ALPHA, h).unwrap(),
-            pinned,
-            start: mesh.nodes.clone(),
-            f_ext: weight,
-        };
         let params = ElasticFitParams::default();
         let (sagged, _) =
             equilibrium(&model, &mass, &frame, &frame.start, &params.statics()).unwrap();
-        frame.target = FrameTarget::from_nodes(&model, &sagged, &mass, LOSS_ALPHA, h).unwrap();
+        frame.target = FrameTarget::from_nodes(&model, &sagged, &mass, LOSS_ALPHA, 0.01).unwrap();
         let samples = [Sample {
             name: "sag".into(),
             frames: vec![frame],
