@@ -429,6 +429,19 @@ impl std::fmt::Debug for PdSolver {
     }
 }
 
+/// Solves `A X = R` for the three coordinate columns of `r` (interleaved
+/// x, y, z per row) with the factor of `A`, into `out` (same layout).
+fn solve_xyz(factor: &SparseCholesky, r: &[f64], out: &mut [f64]) {
+    let n = r.len() / 3;
+    let mut m = Mat::<f64>::from_fn(n, 3, |i, k| r[3 * i + k]);
+    factor.solve_in_place(m.as_mut());
+    for i in 0..n {
+        for k in 0..3 {
+            out[3 * i + k] = m[(i, k)];
+        }
+    }
+}
+
 /// `K + W` factored for one set of contact weights (direct solver).
 struct ContactFactor {
     /// The diagonal of `W` per free node.
@@ -949,13 +962,7 @@ impl PdSolver {
         }
         let solve = |r: &[f64], out: &mut [f64]| -> Result<(), SimError> {
             if let Some(f) = factor {
-                let mut m = Mat::<f64>::from_fn(nf, 3, |i, k| r[3 * i + k]);
-                f.solve_in_place(m.as_mut());
-                for i in 0..nf {
-                    for k in 0..3 {
-                        out[3 * i + k] = m[(i, k)];
-                    }
-                }
+                solve_xyz(f, r, out);
                 Ok(())
             } else if let Some(dd) = dd {
                 dd.reduced_solve(r, out)
@@ -1022,7 +1029,6 @@ impl PdSolver {
     /// numerically (symbolic analysis reused) only when the weights differ
     /// from the last call's. Returns whether it refactored.
     fn contact_solve(&mut self, b: &mut [f64], w: &[f64]) -> Result<bool, SimError> {
-        let nf = self.k_free.n;
         let fresh = self.contact_factor.as_ref().is_some_and(|c| c.weights == w);
         if !fresh {
             let (lower, diag) = self.k_lower.as_ref().ok_or_else(|| {
@@ -1046,13 +1052,8 @@ impl PdSolver {
         let Some(c) = &self.contact_factor else {
             return Err(SimError::Inconsistent("contact factor missing".into()));
         };
-        let mut m = Mat::<f64>::from_fn(nf, 3, |i, k| b[3 * i + k]);
-        c.factor.solve_in_place(m.as_mut());
-        for i in 0..nf {
-            for k in 0..3 {
-                b[3 * i + k] = m[(i, k)];
-            }
-        }
+        let rhs = b.to_vec();
+        solve_xyz(&c.factor, &rhs, b);
         Ok(!fresh)
     }
 
