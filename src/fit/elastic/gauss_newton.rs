@@ -510,22 +510,22 @@ pub struct StageReport {
 }
 
 /// A material and its equilibria.
-struct Evaluated {
-    gamma: Vec<f64>,
+pub(super) struct Evaluated {
+    pub(super) gamma: Vec<f64>,
     model: ElasticModel,
-    xs: Vec<Vec<Vec3>>,
-    loss: f64,
-    residual: f64,
-    newton: u64,
+    pub(super) xs: Vec<Vec<Vec3>>,
+    pub(super) loss: f64,
+    pub(super) residual: f64,
+    pub(super) newton: u64,
 }
 
 /// Context of one sample's fit.
-struct SampleFit<'a> {
+pub(super) struct SampleFit<'a> {
     mesh: &'a TetMesh,
     mass: &'a [f64],
-    sample: &'a Sample,
-    params: &'a ElasticFitParams,
-    progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
+    pub(super) sample: &'a Sample,
+    pub(super) params: &'a ElasticFitParams,
+    pub(super) progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
     /// The initial material `[γs; γv]` (Pa), the reference of `max_contrast`.
     init: Vec<f64>,
 }
@@ -537,7 +537,11 @@ impl SampleFit<'_> {
 
     /// Equilibria and loss at `gamma`, warm-started from `starts`. The error
     /// carries the failing frame.
-    fn evaluate(&self, gamma: &[f64], starts: &[Vec<Vec3>]) -> Result<Evaluated, (usize, String)> {
+    pub(super) fn evaluate(
+        &self,
+        gamma: &[f64],
+        starts: &[Vec<Vec3>],
+    ) -> Result<Evaluated, (usize, String)> {
         let ne = self.ne();
         let model = ElasticModel::new(self.mesh, &gamma[..ne], &gamma[ne..])
             .map_err(|e| (0, e.to_string()))?;
@@ -877,6 +881,15 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// Whether any frame of `sample` carries an external force: only then does
+/// the loss see the material's overall scale.
+pub fn loaded(sample: &Sample) -> bool {
+    sample
+        .frames
+        .iter()
+        .any(|f| f.f_ext.iter().flatten().any(|c| *c != 0.0))
+}
+
 /// Checks a sample against the mesh; the message names the frame.
 fn validate(
     mesh: &TetMesh,
@@ -925,7 +938,9 @@ fn validate(
     Ok(())
 }
 
-/// Fits one sample from `init` (VH §6.1-6.3, §6.5): for each rank of
+/// Fits one sample from `init` (VH §6.1-6.3, §6.5): where a frame carries
+/// external forces and `params.scale_search`, first the best common factor
+/// of the field (stage "scale"); then for each rank of
 /// `params.harmonic_ranks` (columns of `harmonic`, the basis of
 /// [`super::harmonic::harmonic_basis`] with at least that many columns), a
 /// stage in that subspace, then the full field when `params.full_stage`.
@@ -983,6 +998,11 @@ pub fn fit_sample_observed(
     let loss0 = ev.loss;
     let goal = params.loss_stop * loss0;
     let mut reports = Vec::new();
+    if params.scale_search && loaded(sample) {
+        let (e, rep) = fit.scale_stage(ev);
+        ev = e;
+        reports.push(rep);
+    }
     for &r in &params.harmonic_ranks {
         if r == 0 || r >= ne {
             continue;

@@ -8,6 +8,8 @@
 //! * [`gauss_newton`]: the adjoint Gauss-Newton direction (Eq. 19-21, with the
 //!   Levenberg-Marquardt `κ I`), line search and the non-negativity
 //!   projection / pivoting of §6.3, and the staged optimizer of one sample.
+//! * `scale_search`: the stage before them where frames carry external
+//!   forces, a search over one common factor of the field.
 //! * [`harmonic`]: the harmonic bases of §6.5 (lowest eigenvectors of the
 //!   tet-mesh graph Laplacian).
 //! * [`samples`]: sample-by-sample fitting with the energy-weighted convex
@@ -22,6 +24,7 @@ pub mod gauss_newton;
 pub mod harmonic;
 pub mod loss;
 pub mod samples;
+mod scale_search;
 
 #[cfg(test)]
 mod tests;
@@ -122,6 +125,10 @@ pub struct ElasticFitParams {
     /// Whether the full per-element field is fitted after the harmonic
     /// stages. Default true.
     pub full_stage: bool,
+    /// Whether a sample with external forces starts with a search over one
+    /// common factor of the whole field (`scale_search`: doublings while the
+    /// loss falls, then golden section on its logarithm). Default true.
+    pub scale_search: bool,
     /// Whether the full stage works on `θ = ln γ` (multiplicative updates
     /// `γ ← γ e^{t dθ}`, gradient `γ ∂ε/∂γ`, Gauss-Newton damping scaled by
     /// `(γ_rms/γ_j)²`, i.e. Eq. 21 with Marquardt's diagonal in θ) instead
@@ -203,6 +210,7 @@ impl Default for ElasticFitParams {
         ElasticFitParams {
             harmonic_ranks: vec![1, 10, 30],
             full_stage: true,
+            scale_search: true,
             full_stage_log: true,
             gd_iterations: 12,
             gn_iterations: 50,
