@@ -1527,6 +1527,39 @@ mod tests {
         assert!(!lowers_loss(&mesh, &mass, &samples, (&truth, &stiff), &[], &params).unwrap());
     }
 
+    /// A joint fit of a loaded frame from a material 100x too stiff: the
+    /// uniform fit's scale stage finds the truth's scale, and the field fit,
+    /// starting from that optimum, runs neither the scale nor the r = 1
+    /// stage again.
+    #[test]
+    fn joint_loaded_fit_finds_the_scale_and_skips_what_its_start_optimizes() {
+        let (mesh, mass, truth, mut frame) = sagging_slab(2e3);
+        let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
+        let params = ElasticFitParams {
+            harmonic_ranks: vec![1, 3],
+            full_stage: false,
+            ..Default::default()
+        };
+        let (sagged, _) =
+            equilibrium(&model, &mass, &frame, &frame.start, &params.statics()).unwrap();
+        frame.target = FrameTarget::from_nodes(&model, &sagged, &mass, LOSS_ALPHA, 0.01).unwrap();
+        let samples = [Sample {
+            name: "sag".into(),
+            frames: vec![frame],
+            energy: 1.0,
+        }];
+        let init = scaled(&truth, 100.0);
+        let fitted = fit_samples(&mesh, &mass, &samples, &[], true, &init, &params, None).unwrap();
+        let names = |r: &crate::fit::elastic::FitReport| -> Vec<String> {
+            r.samples[0].stages.iter().map(|s| s.name.clone()).collect()
+        };
+        assert_eq!(names(&fitted.uniform_fit), ["scale", "harmonic r=1"]);
+        assert_eq!(names(&fitted.fit), ["harmonic r=3"]);
+        assert!(fitted.uniform_force_scale.is_none());
+        let c = fitted.uniform.gamma_s / truth.gamma_s[0];
+        assert!((c - 1.0).abs() < 0.05, "uniform at {c} of the truth");
+    }
+
     /// The pose record's bands: a stretch_courses file gives its left and
     /// right bands (both ends of the swatch along X), whatever its reactions.
     #[test]
