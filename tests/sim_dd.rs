@@ -450,8 +450,13 @@ fn block_dropped_on_a_plane_comes_to_rest_on_it() {
         let highest = x.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
         eprintln!(
             "{}: lowest {lowest:.3e} m, top {highest:.4} m, speed {:.3e} m/s, {} contacts, \
-             {} projected, {} global iterations in the last step",
-            last.solver, last.max_speed, last.contacts, last.projected, last.global_iterations
+             {} projected, {} global iterations, {} refactorizations in the last step",
+            last.solver,
+            last.max_speed,
+            last.contacts,
+            last.projected,
+            last.global_iterations,
+            last.contact_refactors
         );
         assert!(
             (0.0..1e-4).contains(&lowest),
@@ -640,4 +645,51 @@ fn direct_contact_factor_matches_the_contact_cg_and_refactors_only_on_change() {
         refactors < contact_iterations,
         "refactored on every iteration ({refactors} of {contact_iterations}): the factor is not reused"
     );
+}
+
+/// A plane at height 0 that reports every other query of each node as
+/// admissible, alternate nodes in alternate phases: a contact set
+/// flickering at its boundary, as nodes do that a projection puts exactly
+/// on the surface.
+struct FlickeringPlane {
+    calls: Vec<std::sync::atomic::AtomicU32>,
+}
+
+impl NodeProjector for FlickeringPlane {
+    fn project(&self, node: usize, p: Vec3) -> Option<Vec3> {
+        let k = self.calls[node].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        // Half the nodes in each phase: the contact set alternates.
+        (p[1] < 0.0 && (k as usize + node) % 2 == 0).then_some([p[0], 0.0, p[2]])
+    }
+}
+
+/// The direct solver's constrained set only grows within a step (and starts
+/// from the nodes in contact in the last one), so a flickering contact does
+/// not refactor `K + W` every PD iteration: once per phase when the block
+/// lands, then never.
+#[test]
+fn a_flickering_contact_does_not_refactor_every_iteration() {
+    let (mesh, mass) = box_mesh([3, 2, 3], H, RHO);
+    let nt = mesh.num_tets();
+    let params = PdParams {
+        mass_damping: 4.0,
+        ..Default::default()
+    };
+    let mut s = PdSolver::new(&mesh, &mass, &vec![1e4; nt], &vec![1e4; nt], &[], params).unwrap();
+    let plane = FlickeringPlane {
+        calls: (0..mesh.num_nodes()).map(|_| Default::default()).collect(),
+    };
+    let mut x = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; x.len()];
+    let (mut refactors, mut iterations, mut last) = (0, 0, StepStats::default());
+    for _ in 0..30 {
+        last = s.step_with_contacts(&mut x, &mut v, &[], &plane).unwrap();
+        assert!(last.contact_refactors <= 2, "{last:?}");
+        refactors += last.contact_refactors;
+        iterations += last.iterations;
+    }
+    eprintln!("{refactors} refactorizations in {iterations} PD iterations");
+    assert!((1..=4).contains(&refactors) && iterations > 10 * refactors);
+    assert_eq!(last.contact_refactors, 0);
+    assert!(x.iter().all(|p| p[1] > -1e-3), "sank into the plane");
 }

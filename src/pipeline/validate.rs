@@ -110,10 +110,13 @@ pub struct ValidateReport {
     /// Where the PD run with the asset's material spent its time (s): local
     /// steps and global solves (the rest of `homogenized_s` is contact
     /// targets, V2Y of the collider thickness and bookkeeping), and the
-    /// contact CG iterations of its global solves; 0 for Newton.
+    /// contact CG iterations of its global solves and the numeric
+    /// refactorizations of `K + W` for new contact sets (direct solver);
+    /// 0 for Newton.
     pub pd_local_s: f64,
     pub pd_global_s: f64,
     pub pd_contact_cg_iterations: u64,
+    pub pd_contact_refactors: u64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd") that ran; "" for Newton.
     pub pd_backend: &'static str,
@@ -196,10 +199,11 @@ pub struct HomogenizedRun {
     pub steps: u64,
     /// PD only (else 0): wall time of the local steps and of the global
     /// solves summed over the run (s), and the contact CG iterations of the
-    /// global solves.
+    /// global solves and the refactorizations of `K + W`.
     pub local_s: f64,
     pub global_s: f64,
     pub contact_cg_iterations: u64,
+    pub contact_refactors: u64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd"); "" for Newton.
     pub backend: &'static str,
@@ -219,6 +223,7 @@ impl HomogenizedRun {
             local_s: 0.0,
             global_s: 0.0,
             contact_cg_iterations: 0,
+            contact_refactors: 0,
             backend: "",
             global_solver: "",
         }
@@ -737,6 +742,7 @@ impl Stage for ValidateJob {
             pd_local_s: hr.local_s,
             pd_global_s: hr.global_s,
             pd_contact_cg_iterations: hr.contact_cg_iterations,
+            pd_contact_refactors: hr.contact_refactors,
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,
             colliders: colliders.len(),

@@ -289,6 +289,7 @@ pub fn pd_frames(
             run.local_s += st.local_ms * 1e-3;
             run.global_s += st.global_ms * 1e-3;
             run.contact_cg_iterations += st.global_iterations as u64;
+            run.contact_refactors += u64::from(st.contact_refactors);
             run.max_contacts = run.max_contacts.max(st.contacts);
         }
         if !colliders.is_empty() {
