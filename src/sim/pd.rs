@@ -59,13 +59,13 @@
 //! `w_i = κ m_i / Δt²` ([`PdParams::contact_stiffness`] `κ`). The projections
 //! `P` are re-evaluated every PD iteration (local step); the global system
 //! becomes `(K + W) x = b + W P`. The constrained set only grows within a
-//! step, starting from the nodes that met a collider in the last step: a
+//! step (each step starts empty, so steps depend only on their inputs): a
 //! node that is admissible again keeps its weight with `P(x) = x` (the
 //! projection of an admissible point), which is PD on `½ w dist(x, C)²`
 //! with the same fixed point, so `W` changes only when a node joins. (Re-
 //! evaluating the set every iteration made it chatter at the contact
 //! boundary: 452 refactorizations in 474 PD iterations on the held-out
-//! drape, 167 now; its global solves 0.54 s -> 0.24 s.) The direct solver
+//! drape, 179 now; its global solves 0.51 s -> 0.24 s, median of 3.) The direct solver
 //! factors `K + W` numerically (the symbolic analysis of `K` reused: `W`
 //! only adds to the diagonal) whenever the weights differ from its last
 //! solve's, and otherwise reuses that factor: one exact solve per iteration.
@@ -419,10 +419,6 @@ pub struct PdSolver {
     steps: u64,
     /// Numeric refactorizations of `K + W` in the current step.
     contact_refactors: u32,
-    /// Free nodes (by free index) that met a collider in the last step:
-    /// the next step's constrained set starts with them, so a resting
-    /// contact keeps its factor of `K + W` from step to step.
-    contact_memory: Vec<bool>,
 }
 
 impl std::fmt::Debug for PdSolver {
@@ -697,7 +693,6 @@ impl PdSolver {
             last: None,
             steps: 0,
             contact_refactors: 0,
-            contact_memory: Vec::new(),
         };
         solver.factorize(true)?;
         Ok(solver)
@@ -1191,12 +1186,11 @@ impl PdSolver {
         self.contact_refactors = 0;
         let mut global_residual = 0.0f64;
         let mut out = vec![[0.0; 3]; n];
-        let mut in_set = if self.contact_memory.len() == nf {
-            std::mem::take(&mut self.contact_memory)
-        } else {
-            vec![false; nf]
-        };
-        let mut touched = vec![false; nf];
+        // Each step starts with an empty set: a step depends only on its
+        // inputs, so a shot resumed from a checkpoint is bit for bit the
+        // uninterrupted one (carrying the last step's set saved 12 of 179
+        // refactorizations on the held-out drape, and broke that).
+        let mut in_set = vec![false; nf];
         let mut contacts_active: usize;
         let wscale = p.contact_stiffness / (dt * dt);
         let mut rhs = vec![0.0; 3 * nf];
@@ -1259,10 +1253,9 @@ impl PdSolver {
             // nodes leave made the set chatter at the contact boundary
             // (held-out drape: 452 refactorizations in 474 iterations).
             let mut grew = false;
-            for ((s, t), a) in in_set.iter_mut().zip(&mut touched).zip(&active) {
+            for (s, a) in in_set.iter_mut().zip(&active) {
                 grew |= *a && !*s;
                 *s |= *a;
-                *t |= *a;
             }
             let changed = grew && iterations > 0;
             objectives.push(phi);
@@ -1407,7 +1400,6 @@ impl PdSolver {
             f64::NAN
         };
 
-        self.contact_memory = touched;
         x.copy_from_slice(&xk);
         v.copy_from_slice(&v_new);
         // The elastic energy of the returned positions is known exactly when
