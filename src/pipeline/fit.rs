@@ -924,7 +924,9 @@ pub fn fit_samples(
     // (Stop 20 rescaled it regardless: its r = 1 stage barely moved then,
     // 1.08e-3 -> 1.06e-3 m³, because stalled equilibria failed its line
     // searches; with the stall retried it reaches 2.15e-5.)
-    let loaded = samples.iter().any(crate::fit::elastic::gauss_newton::loaded);
+    let loaded = samples
+        .iter()
+        .any(crate::fit::elastic::gauss_newton::loaded);
     let (mut u, uniform_fit) = fit_materials(&inputs, &uniform_params)?;
     let at_uniform = anchors_of(&uniform_fit, samples, joint);
     let mut uniform_force_scale =
@@ -1507,13 +1509,13 @@ mod tests {
         }
     }
 
-    /// With a loaded frame the loss sees the material's scale: moving toward
-    /// the material that made the frame lowers it, moving away does not.
-    #[test]
-    fn lowers_loss_sees_the_scale_of_a_loaded_frame() {
+    /// The sagging slab of 2e3 Pa as a one-frame sample whose target is its
+    /// own equilibrium under that material.
+    fn sagged_sample(
+        params: &ElasticFitParams,
+    ) -> (TetMesh, Vec<f64>, MaterialFields, [Sample; 1]) {
         let (mesh, mass, truth, mut frame) = sagging_slab(2e3);
         let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
-        let params = ElasticFitParams::default();
         let (sagged, _) =
             equilibrium(&model, &mass, &frame, &frame.start, &params.statics()).unwrap();
         frame.target = FrameTarget::from_nodes(&model, &sagged, &mass, LOSS_ALPHA, 0.01).unwrap();
@@ -1522,6 +1524,15 @@ mod tests {
             frames: vec![frame],
             energy: 1.0,
         }];
+        (mesh, mass, truth, samples)
+    }
+
+    /// With a loaded frame the loss sees the material's scale: moving toward
+    /// the material that made the frame lowers it, moving away does not.
+    #[test]
+    fn lowers_loss_sees_the_scale_of_a_loaded_frame() {
+        let params = ElasticFitParams::default();
+        let (mesh, mass, truth, samples) = sagged_sample(&params);
         let stiff = scaled(&truth, 7.0);
         assert!(lowers_loss(&mesh, &mass, &samples, (&stiff, &truth), &[], &params).unwrap());
         assert!(!lowers_loss(&mesh, &mass, &samples, (&truth, &stiff), &[], &params).unwrap());
@@ -1533,21 +1544,12 @@ mod tests {
     /// stage again.
     #[test]
     fn joint_loaded_fit_finds_the_scale_and_skips_what_its_start_optimizes() {
-        let (mesh, mass, truth, mut frame) = sagging_slab(2e3);
-        let model = ElasticModel::new(&mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
         let params = ElasticFitParams {
             harmonic_ranks: vec![1, 3],
             full_stage: false,
             ..Default::default()
         };
-        let (sagged, _) =
-            equilibrium(&model, &mass, &frame, &frame.start, &params.statics()).unwrap();
-        frame.target = FrameTarget::from_nodes(&model, &sagged, &mass, LOSS_ALPHA, 0.01).unwrap();
-        let samples = [Sample {
-            name: "sag".into(),
-            frames: vec![frame],
-            energy: 1.0,
-        }];
+        let (mesh, mass, truth, samples) = sagged_sample(&params);
         let init = scaled(&truth, 100.0);
         let fitted = fit_samples(&mesh, &mass, &samples, &[], true, &init, &params, None).unwrap();
         let names = |r: &crate::fit::elastic::FitReport| -> Vec<String> {

@@ -1279,7 +1279,13 @@ impl PdSolver {
                 in_set
                     .iter()
                     .enumerate()
-                    .map(|(fi, &a)| if a { wscale * self.mass[free_nodes[fi]] } else { 0.0 })
+                    .map(|(fi, &a)| {
+                        if a {
+                            wscale * self.mass[free_nodes[fi]]
+                        } else {
+                            0.0
+                        }
+                    })
                     .collect()
             });
             if let Some(w) = &weights {
