@@ -237,6 +237,7 @@ mirror = true
 steps = 3
 friction = 0.2
 gravity = 9.81
+band = 0.1
 [fit]
 samples = 2
 harmonic = [1, 10]
@@ -396,6 +397,7 @@ fn a_bad_training_pose_is_refused_naming_its_key() {
     for (body, key) in [
         ("[[train]]\nkind = \"wiggle\"\n", "train[0].kind"),
         ("[[train]]\nkind = \"shear\"\nsteps = 0\n", "train[0].steps"),
+        ("[[train]]\nkind = \"shear\"\nband = 0.6\n", "band is 0.6"),
         ("[fit]\n", "[fit] needs at least one [[train]]"),
     ] {
         std::fs::write(&job, format!("[garment]\nyarns = \"swatch.bcc\"\n{body}")).unwrap();

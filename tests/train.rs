@@ -267,6 +267,28 @@ fn bad_requests_are_usage_errors_and_non_assets_are_named() {
         vec!["train", a, "--pose", "twist", "--amount", "nan", "-o", o],
         vec!["train", a, "--pose", "shear", "--steps", "0", "-o", o],
         vec!["train", a, "--pose", "shear", "--friction", "-1", "-o", o],
+        vec![
+            "train",
+            a,
+            "--pose",
+            "stretch_courses",
+            "--band",
+            "0.6",
+            "-o",
+            o,
+        ],
+        vec![
+            "train",
+            a,
+            "--pose",
+            "cantilever",
+            "--gravity",
+            "9.81",
+            "--band",
+            "0.95",
+            "-o",
+            o,
+        ],
         vec!["train", a, "--pose", "shear", "-o", "x.ply"],
     ] {
         let (code, _, err) = run(&args);

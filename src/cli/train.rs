@@ -39,6 +39,13 @@ pub struct TrainArgs {
     /// external force; 9.81 for Earth].
     #[arg(long, value_name = "G", default_value_t = 0.0, value_parser = super::guard::parse_non_negative)]
     pub gravity: f64,
+    /// Width of each clamped band as a fraction of the swatch extent across
+    /// it, in (0, 0.5); for cantilever, the held fraction of the swatch in
+    /// (0, 0.95): the overhang is the rest. A short overhang droops in the
+    /// range where its droop still measures the bending stiffness
+    /// [default: 0.06].
+    #[arg(long, value_name = "F")]
+    pub band: Option<f64>,
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless).
     #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
     pub friction: f64,
@@ -60,6 +67,9 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
     let mut pose = PoseRunParams::new(a.pose);
     pose.pose.amount = a.amount.or(default_amount(a.pose)).unwrap_or(0.0);
     pose.pose.mirror = a.mirror;
+    if let Some(b) = a.band {
+        pose.pose.band = b;
+    }
     pose.steps = a.steps as usize;
     pose.gravity = a.gravity;
     let mut fabric = FabricParams::default();

@@ -71,6 +71,9 @@ pub struct TrainSection {
     /// Gravity along the fabric's normal (m/s²) [default 0; `cantilever`
     /// needs it].
     pub gravity: Option<f64>,
+    /// Clamped band width as a fraction of the swatch extent (`train
+    /// --band`; cantilever: the held fraction) [default 0.06].
+    pub band: Option<f64>,
 }
 
 /// `[fit]`: per-element materials from the training poses (`knitvox fit`).
@@ -441,6 +444,9 @@ impl Job {
         }
         if let Some(g) = t.gravity {
             pose.gravity = g;
+        }
+        if let Some(b) = t.band {
+            pose.pose.band = b;
         }
         pose.check()
             .map_err(|e| bad(&self.path, format!("key 'train[{i}]': {e}")))?;

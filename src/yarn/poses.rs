@@ -104,7 +104,8 @@ pub struct PoseParams {
     /// The mirrored counterpart (VH Fig. 19 uses both). Default false.
     pub mirror: bool,
     /// Width of a clamped band as a fraction of the swatch extent across it
-    /// (dimensionless, (0, 0.5)). Default 0.06: about one stitch row on a
+    /// (dimensionless, (0, 0.5); (0, 0.95) for `Cantilever`, whose one band
+    /// sets the overhang). Default 0.06: about one stitch row on a
     /// 16-course swatch, enough to grip whole loops.
     pub band: f64,
     /// Time (s) over which the progress ramps from 0 to 1. Default 1.
@@ -112,6 +113,16 @@ pub struct PoseParams {
 }
 
 impl PoseParams {
+    /// The bound `band` stays below: 0.5 where two bands face each other,
+    /// 0.95 for `Cantilever`, whose one band sets the overhang.
+    pub fn max_band(&self) -> f64 {
+        if self.kind == PoseKind::Cantilever {
+            0.95
+        } else {
+            0.5
+        }
+    }
+
     /// A pose of `kind` with `amount` and the other fields at their defaults.
     pub fn new(kind: PoseKind, amount: f64) -> PoseParams {
         PoseParams {
@@ -219,8 +230,9 @@ impl PoseDriver {
         if !p.amount.is_finite() {
             return bad(format!("amount is {}", p.amount));
         }
-        if !(p.band > 0.0 && p.band < 0.5) {
-            return bad(format!("band is {} (must be in (0, 0.5))", p.band));
+        let max_band = p.max_band();
+        if !(p.band > 0.0 && p.band < max_band) {
+            return bad(format!("band is {} (must be in (0, {max_band}))", p.band));
         }
         if !(p.ramp.is_finite() && p.ramp >= 0.0) {
             return bad(format!("ramp is {} s (must be >= 0)", p.ramp));
@@ -607,6 +619,18 @@ mod tests {
         }
         let left = rest.iter().filter(|q| q[0] <= band + 1e-12).count();
         assert_eq!(d.pinned().len(), left);
+        // A wide band sets a short overhang; two-band poses stay below half.
+        let mut wide = PoseParams::new(PoseKind::Cantilever, 0.0);
+        wide.band = 0.62;
+        let d = PoseDriver::new(&rest, wide.clone()).unwrap();
+        let held = rest.iter().filter(|q| q[0] <= 0.62).count();
+        assert_eq!(d.pinned().len(), held);
+        assert!(held > rest.len() / 2);
+        wide.kind = PoseKind::StretchCourses;
+        assert!(PoseDriver::new(&rest, wide.clone()).is_err());
+        wide.kind = PoseKind::Cantilever;
+        wide.band = 0.95;
+        assert!(PoseDriver::new(&rest, wide).is_err());
     }
 
     #[test]

@@ -74,6 +74,13 @@ impl PoseRunParams {
                 self.gravity
             )));
         }
+        let max_band = self.pose.max_band();
+        if !(self.pose.band > 0.0 && self.pose.band < max_band) {
+            return Err(PoseRunError::Parameter(format!(
+                "band is {} (must be in (0, {max_band}))",
+                self.pose.band
+            )));
+        }
         if self.pose.kind == PoseKind::Cantilever && !(self.gravity > 0.0) {
             return Err(PoseRunError::Parameter(
                 "cantilever is loaded by gravity alone: give a gravity > 0".into(),
