@@ -436,15 +436,15 @@ impl std::fmt::Debug for PdSolver {
     }
 }
 
-/// Solves `A X = R` for the three coordinate columns of `r` (interleaved
-/// x, y, z per row) with the factor of `A`, into `out` (same layout).
-fn solve_xyz(factor: &SparseCholesky, r: &[f64], out: &mut [f64]) {
-    let n = r.len() / 3;
-    let mut m = Mat::<f64>::from_fn(n, 3, |i, k| r[3 * i + k]);
+/// Solves `A X = B` in place for the three coordinate columns of `b`
+/// (interleaved x, y, z per row) with the factor of `A`.
+fn solve_xyz(factor: &SparseCholesky, b: &mut [f64]) {
+    let n = b.len() / 3;
+    let mut m = Mat::<f64>::from_fn(n, 3, |i, k| b[3 * i + k]);
     factor.solve_in_place(m.as_mut());
     for i in 0..n {
         for k in 0..3 {
-            out[3 * i + k] = m[(i, k)];
+            b[3 * i + k] = m[(i, k)];
         }
     }
 }
@@ -969,7 +969,8 @@ impl PdSolver {
         }
         let solve = |r: &[f64], out: &mut [f64]| -> Result<(), SimError> {
             if let Some(f) = factor {
-                solve_xyz(f, r, out);
+                out.copy_from_slice(r);
+                solve_xyz(f, out);
                 Ok(())
             } else if let Some(dd) = dd {
                 dd.reduced_solve(r, out)
@@ -1059,8 +1060,7 @@ impl PdSolver {
         let Some(c) = &self.contact_factor else {
             return Err(SimError::Inconsistent("contact factor missing".into()));
         };
-        let rhs = b.to_vec();
-        solve_xyz(&c.factor, &rhs, b);
+        solve_xyz(&c.factor, b);
         Ok(!fresh)
     }
 
@@ -1191,6 +1191,10 @@ impl PdSolver {
         // uninterrupted one (carrying the last step's set saved 12 of 179
         // refactorizations on the held-out drape, and broke that).
         let mut in_set = vec![false; nf];
+        // The weights `w_i` of the nodes in the set (0 elsewhere), and
+        // whether any node has joined.
+        let mut weights = vec![0.0; nf];
+        let mut constrained = false;
         let mut contacts_active: usize;
         let wscale = p.contact_stiffness / (dt * dt);
         let mut rhs = vec![0.0; 3 * nf];
@@ -1253,10 +1257,14 @@ impl PdSolver {
             // nodes leave made the set chatter at the contact boundary
             // (held-out drape: 452 refactorizations in 474 iterations).
             let mut grew = false;
-            for (s, a) in in_set.iter_mut().zip(&active) {
-                grew |= *a && !*s;
-                *s |= *a;
+            for (fi, &a) in active.iter().enumerate() {
+                if a && !in_set[fi] {
+                    in_set[fi] = true;
+                    weights[fi] = wscale * self.mass[free_nodes[fi]];
+                    grew = true;
+                }
             }
+            constrained |= grew;
             let changed = grew && iterations > 0;
             objectives.push(phi);
             if iterations > 0 && !changed {
@@ -1275,32 +1283,17 @@ impl PdSolver {
                     xf[3 * fi + k] = xk[i][k];
                 }
             }
-            let weights: Option<Vec<f64>> = in_set.iter().any(|&a| a).then(|| {
-                in_set
-                    .iter()
-                    .enumerate()
-                    .map(|(fi, &a)| {
-                        if a {
-                            wscale * self.mass[free_nodes[fi]]
-                        } else {
-                            0.0
-                        }
-                    })
-                    .collect()
-            });
-            if let Some(w) = &weights {
-                for (fi, q) in proj.iter().enumerate() {
-                    if in_set[fi] {
-                        let q = q.unwrap_or(xk[free_nodes[fi]]);
-                        for k in 0..3 {
-                            rhs[3 * fi + k] += w[fi] * q[k];
-                        }
+            for (fi, q) in proj.iter().enumerate() {
+                if in_set[fi] {
+                    let q = q.unwrap_or(xk[free_nodes[fi]]);
+                    for k in 0..3 {
+                        rhs[3 * fi + k] += weights[fi] * q[k];
                     }
                 }
             }
             let tg = Instant::now();
             let st = self
-                .global_solve(&mut rhs, &xf, weights.as_deref())
+                .global_solve(&mut rhs, &xf, constrained.then_some(&weights[..]))
                 .map_err(row_to_node)?;
             global_ms += tg.elapsed().as_secs_f64() * 1e3;
             global_iterations += st.iterations;

@@ -115,12 +115,19 @@ pub struct PoseParams {
 impl PoseParams {
     /// The bound `band` stays below: 0.5 where two bands face each other,
     /// 0.95 for `Cantilever`, whose one band sets the overhang.
-    pub fn max_band(&self) -> f64 {
+    fn max_band(&self) -> f64 {
         if self.kind == PoseKind::Cantilever {
             0.95
         } else {
             0.5
         }
+    }
+
+    /// What is wrong with `band` (None: within (0, [`Self::max_band`])).
+    pub fn band_error(&self) -> Option<String> {
+        let max_band = self.max_band();
+        (!(self.band > 0.0 && self.band < max_band))
+            .then(|| format!("band is {} (must be in (0, {max_band}))", self.band))
     }
 
     /// A pose of `kind` with `amount` and the other fields at their defaults.
@@ -230,9 +237,8 @@ impl PoseDriver {
         if !p.amount.is_finite() {
             return bad(format!("amount is {}", p.amount));
         }
-        let max_band = p.max_band();
-        if !(p.band > 0.0 && p.band < max_band) {
-            return bad(format!("band is {} (must be in (0, {max_band}))", p.band));
+        if let Some(e) = p.band_error() {
+            return bad(e);
         }
         if !(p.ramp.is_finite() && p.ramp >= 0.0) {
             return bad(format!("ramp is {} s (must be >= 0)", p.ramp));

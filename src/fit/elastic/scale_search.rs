@@ -45,17 +45,17 @@ impl SampleFit<'_> {
         let base = ev.gamma.clone();
         let mut best = (0.0f64, ev);
         let step = std::f64::consts::LN_2;
-        // The walk: the direction that lowers the loss, while it does.
-        let mut direction = 0.0;
+        // The walk: the direction that lowers the loss (the first step
+        // taken, best.0), while it does.
         for d in [step, -step] {
             if let Some(t) = self.try_scale(&base, d, &best.1, &mut rep) {
                 if t.loss < best.1.loss {
-                    direction = d;
                     best = (d, t);
                     break;
                 }
             }
         }
+        let direction = best.0;
         if direction != 0.0 {
             for _ in 1..MAX_WALK {
                 let next = best.0 + direction;

@@ -74,12 +74,8 @@ impl PoseRunParams {
                 self.gravity
             )));
         }
-        let max_band = self.pose.max_band();
-        if !(self.pose.band > 0.0 && self.pose.band < max_band) {
-            return Err(PoseRunError::Parameter(format!(
-                "band is {} (must be in (0, {max_band}))",
-                self.pose.band
-            )));
+        if let Some(e) = self.pose.band_error() {
+            return Err(PoseRunError::Parameter(e));
         }
         if self.pose.kind == PoseKind::Cantilever && !(self.gravity > 0.0) {
             return Err(PoseRunError::Parameter(
