@@ -628,12 +628,12 @@ mod tests {
         // A wide band sets a short overhang; two-band poses stay below half.
         let mut wide = PoseParams::new(PoseKind::Cantilever, 0.0);
         wide.band = 0.62;
-        let d = PoseDriver::new(&rest, wide.clone()).unwrap();
+        let d = PoseDriver::new(&rest, wide).unwrap();
         let held = rest.iter().filter(|q| q[0] <= 0.62).count();
         assert_eq!(d.pinned().len(), held);
         assert!(held > rest.len() / 2);
         wide.kind = PoseKind::StretchCourses;
-        assert!(PoseDriver::new(&rest, wide.clone()).is_err());
+        assert!(PoseDriver::new(&rest, wide).is_err());
         wide.kind = PoseKind::Cantilever;
         wide.band = 0.95;
         assert!(PoseDriver::new(&rest, wide).is_err());
