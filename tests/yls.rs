@@ -146,6 +146,75 @@ fn drape_over_a_sphere_keeps_the_contact_bound() {
 }
 
 #[test]
+fn the_rods_model_follows_the_handles_and_drapes_without_passing_through() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = scene("rib1x1", "stretch_courses", 0.3, 0.03, "model = \"rods\"");
+    let (r, out) = run_scene(dir.path(), "rods_stretch", &text);
+    assert_eq!(r["model"], "rods", "{r}");
+    assert!(r["newton_iterations"].as_u64().unwrap() >= r["steps"].as_u64().unwrap());
+    let ratio = r["min_distance_ratio"].as_f64().unwrap();
+    assert!(ratio >= 0.75, "{ratio}");
+    let first = h5::read_frame(&out, 0).unwrap();
+    let last = h5::read_frame(&out, 3).unwrap();
+    let strain = x_extent(&last) / x_extent(&first) - 1.0;
+    assert!((strain - 0.3).abs() < 0.02, "strain {strain}");
+    let params = h5::read_text(&out, "parameters_json").unwrap().unwrap();
+    assert!(params.contains("\"model\":\"rods\""), "{params}");
+    assert!(params.contains("collider_stiffness"), "{params}");
+    // Dropped on a frictional sphere under gravity: it falls, stays out of
+    // the sphere by its radius (less the penalty's give) and keeps the
+    // contact bound.
+    let text = format!(
+        "{}\n[[colliders]]\ntype = \"sphere\"\nradius = 0.01\nfriction = 0.5\n",
+        scene("stockinette", "free", 0.0, 0.05, "model = \"rods\"")
+    )
+    .replace("gravity = [0.0, 0.0, 0.0]", "gravity = [0.0, -9.81, 0.0]");
+    let (r, out) = run_scene(dir.path(), "rods_drape", &text);
+    assert!(r["min_distance_ratio"].as_f64().unwrap() >= 0.75, "{r}");
+    let pen = r["max_penetration_m"].as_f64().unwrap();
+    assert!(pen < 1e-4, "penetration {pen} m");
+    let first = h5::read_frame(&out, 0).unwrap();
+    let last = h5::read_frame(&out, h5::frame_count(&out).unwrap() - 1).unwrap();
+    let drop = first
+        .iter()
+        .zip(last.iter())
+        .map(|(a, b)| a[1] - b[1])
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
+    // `[rods]` settings are checked and need the rods model.
+    for (text, key) in [
+        (
+            format!(
+                "{}\n[rods]\nmax_dt = 0.001\n",
+                scene("rib1x1", "shear", 0.1, 0.01, "")
+            ),
+            "model = \"rods\"",
+        ),
+        (
+            format!(
+                "{}\n[rods]\nmax_dt = -1.0\n",
+                scene("rib1x1", "shear", 0.1, 0.01, "model = \"rods\"")
+            ),
+            "rods.max_dt",
+        ),
+        (
+            format!(
+                "{}\n[rods]\nfriction = 0.2\nstiffnes = 3.0\n",
+                scene("rib1x1", "shear", 0.1, 0.01, "model = \"rods\"")
+            ),
+            "stiffnes",
+        ),
+    ] {
+        let s = dir.path().join("bad_rods.toml");
+        std::fs::write(&s, &text).unwrap();
+        let o = dir.path().join("bad_rods.h5");
+        let (code, _, err) = run(&["yls", s.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+        assert_eq!(code, 65, "{key}: {err}");
+        assert!(err.contains(key), "{key} not in {err}");
+    }
+}
+
+#[test]
 fn every_pose_kind_runs() {
     let dir = tempfile::tempdir().unwrap();
     for (kind, amount) in [

@@ -13,10 +13,10 @@ use crate::geom::{Vec3, Yarns};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
 use crate::pipeline::simulate::median;
-use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YlsScene};
+use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YarnModel, YlsScene};
 use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
 use crate::sim::collide::{MeshCollider, MeshTopology};
-use crate::yarn::fabric::RelaxParams;
+use crate::yarn::fabric::{FabricError, FabricParams, RelaxParams, RodDynamics, RodDynamicsParams};
 use crate::yarn::pattern::{Layout, PatternParams};
 use crate::yarn::poses::{PoseDriver, PoseError};
 use crate::yarn::sim::{
@@ -42,6 +42,8 @@ pub enum YlsError {
     Io(#[from] IoError),
     #[error("{}: {source}", file.display())]
     Sim { file: PathBuf, source: YarnSimError },
+    #[error("{}: rods model: {source}", file.display())]
+    Rods { file: PathBuf, source: FabricError },
 }
 
 impl YlsError {
@@ -80,6 +82,110 @@ pub struct YlsReport {
     /// Wall time of the generated swatch's relaxation (ms; 0 without).
     pub relax_ms: f64,
     pub wall_s: f64,
+    /// The yarn mechanics that ran (`explicit` or `rods`).
+    pub model: YarnModel,
+    /// `rods`: Newton iterations over all steps, the largest final force
+    /// residual of a step (N), yarn-yarn contacts per vertex at the end and
+    /// the deepest collider penetration (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub newton_iterations: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_residual_n: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contacts_per_vertex: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_penetration_m: Option<f64>,
+}
+
+/// The yarn mechanics of a run.
+enum Runner {
+    Explicit(Box<YarnSim>),
+    Rods(Box<RodDynamics>),
+}
+
+/// What one output frame's advance did.
+#[derive(Default)]
+struct FrameStats {
+    steps: u64,
+    min_ratio: f64,
+    max_disp: f64,
+    newton: usize,
+    residual: f64,
+    contacts_per_vertex: f64,
+    penetration: f64,
+}
+
+impl Runner {
+    fn advance(&mut self, dt: f64, file: &Path) -> Result<FrameStats, YlsError> {
+        match self {
+            Runner::Explicit(sim) => {
+                let st = sim.advance(dt).map_err(|source| YlsError::Sim {
+                    file: file.into(),
+                    source,
+                })?;
+                Ok(FrameStats {
+                    steps: st.steps,
+                    min_ratio: st.min_distance_ratio,
+                    max_disp: st.max_displacement_ratio,
+                    ..FrameStats::default()
+                })
+            }
+            Runner::Rods(d) => {
+                let st = d.advance(dt).map_err(|source| YlsError::Rods {
+                    file: file.into(),
+                    source,
+                })?;
+                Ok(FrameStats {
+                    steps: st.steps,
+                    min_ratio: st.min_distance_ratio,
+                    max_disp: st.max_displacement_ratio,
+                    newton: st.newton_iterations,
+                    residual: st.max_residual_n,
+                    contacts_per_vertex: st.contacts_per_vertex,
+                    penetration: st.max_penetration_m,
+                })
+            }
+        }
+    }
+
+    fn time(&self) -> f64 {
+        match self {
+            Runner::Explicit(sim) => sim.time(),
+            Runner::Rods(d) => d.time(),
+        }
+    }
+
+    fn positions(&self) -> Vec<Vec3> {
+        match self {
+            Runner::Explicit(sim) => sim.positions().to_vec(),
+            Runner::Rods(d) => d.points(),
+        }
+    }
+}
+
+/// The rods model's parameters for `scene`: `knitvox train`'s yarn model
+/// (friction from `[rods]`), the scene's gravity, and the density and
+/// global damping the explicit simulator would use (`[sim]`), so both
+/// models and `validate`'s mesh see the same mass and damping.
+pub fn rods_params(scene: &YlsScene, sim: &YarnSimParams) -> (FabricParams, RodDynamicsParams) {
+    let spec = scene.rods.clone().unwrap_or_default();
+    let mut fabric = FabricParams {
+        density: sim.density,
+        ..FabricParams::default()
+    };
+    if let Some(mu) = spec.friction {
+        fabric.friction.mu = mu;
+    }
+    let d = RodDynamicsParams::default();
+    let dynamics = RodDynamicsParams {
+        max_dt: spec.max_dt.unwrap_or(d.max_dt),
+        gravity: scene.gravity,
+        global_damping: sim.global_damping,
+        collider_stiffness: spec.collider_stiffness.unwrap_or(d.collider_stiffness),
+        force_tolerance: spec.force_tolerance,
+        ..d
+    };
+    (fabric, dynamics)
 }
 
 /// Rotation taking the pattern generator's frame (fabric in XY, front +Z)
@@ -280,34 +386,57 @@ pub fn run_observed(
         file: file.into(),
         source,
     };
-    let mut sim = YarnSim::new(&rest, params.clone()).map_err(sim_err)?;
     let driver = Arc::new(PoseDriver::new(&rest.points, scene.pose_params()).map_err(
         |source| YlsError::Pose {
             file: file.into(),
             source,
         },
     )?);
-    for g in 0..driver.num_groups() {
-        sim.add_handle(Handle {
-            vertices: driver.group_vertices(g).to_vec(),
-            motion: HandleMotion::Pose {
-                driver: driver.clone(),
-                group: g,
-            },
-            start_time: 0.0,
-        })
-        .map_err(sim_err)?;
-    }
-    for collider in scene_colliders(&scene.colliders, &rest)? {
-        sim.add_collider(collider);
-    }
+    let colliders = scene_colliders(&scene.colliders, &rest)?;
+    let (mut runner, model_record) = match scene.model {
+        YarnModel::Explicit => {
+            let mut sim = YarnSim::new(&rest, params.clone()).map_err(sim_err)?;
+            for g in 0..driver.num_groups() {
+                sim.add_handle(Handle {
+                    vertices: driver.group_vertices(g).to_vec(),
+                    motion: HandleMotion::Pose {
+                        driver: driver.clone(),
+                        group: g,
+                    },
+                    start_time: 0.0,
+                })
+                .map_err(sim_err)?;
+            }
+            for collider in colliders {
+                sim.add_collider(collider);
+            }
+            (Runner::Explicit(Box::new(sim)), format!("{params:?}"))
+        }
+        YarnModel::Rods => {
+            let (fabric, dynamics) = rods_params(scene, &params);
+            let record = format!("{fabric:?} {dynamics:?}");
+            let d = RodDynamics::new(
+                &rest,
+                &fabric,
+                &dynamics,
+                Some(driver.clone()),
+                colliders.into_iter().map(Arc::from).collect(),
+            )
+            .map_err(|source| YlsError::Rods {
+                file: file.into(),
+                source,
+            })?;
+            (Runner::Rods(Box::new(d)), record)
+        }
+    };
 
     let mut writer = FrameWriter::create(out, &rest)?;
     writer.add_text("scene_toml", text)?;
     let record = serde_json::json!({
         "generator": format!("knitvox {}", env!("CARGO_PKG_VERSION")),
         "scene_file": file.display().to_string(),
-        "yarn_sim_parameters": format!("{params:?}"),
+        "model": scene.model,
+        "yarn_sim_parameters": model_record,
         "pose": format!("{:?}", scene.pose_params()),
         "handled_vertices": driver.pinned().len(),
     });
@@ -315,16 +444,23 @@ pub fn run_observed(
     writer.push(0.0, &rest.points)?;
     let frames = scene.num_frames();
     let frame_dt = 1.0 / scene.frame_rate;
-    let (mut steps, mut min_ratio, mut max_disp) = (0u64, f64::INFINITY, 0.0f64);
+    let mut total = FrameStats {
+        min_ratio: f64::INFINITY,
+        ..FrameStats::default()
+    };
     let mut ms = Vec::with_capacity(frames);
     for f in 1..=frames {
         let tf = Instant::now();
-        let st = sim.advance(frame_dt).map_err(sim_err)?;
+        let st = runner.advance(frame_dt, file)?;
         ms.push(tf.elapsed().as_secs_f64() * 1e3);
-        steps += st.steps;
-        min_ratio = min_ratio.min(st.min_distance_ratio);
-        max_disp = max_disp.max(st.max_displacement_ratio);
-        writer.push(sim.time(), sim.positions())?;
+        total.steps += st.steps;
+        total.min_ratio = total.min_ratio.min(st.min_ratio);
+        total.max_disp = total.max_disp.max(st.max_disp);
+        total.newton += st.newton;
+        total.residual = total.residual.max(st.residual);
+        total.contacts_per_vertex = st.contacts_per_vertex;
+        total.penetration = total.penetration.max(st.penetration);
+        writer.push(runner.time(), &runner.positions())?;
         on_frame(&FrameProgress {
             frame: f as i64,
             done: f,
@@ -335,19 +471,25 @@ pub fn run_observed(
         });
     }
     let output = writer.finish()?;
+    let rods = scene.model == YarnModel::Rods;
     Ok(YlsReport {
         scene: scene.name.clone(),
         output,
         vertices: rest.num_points(),
         curves: rest.num_curves(),
         frames,
-        steps,
+        steps: total.steps,
         handled_vertices: driver.pinned().len(),
-        min_distance_ratio: min_ratio,
-        max_displacement_ratio: max_disp,
+        min_distance_ratio: total.min_ratio,
+        max_displacement_ratio: total.max_disp,
         ms_per_frame_median: median(ms),
         relax_ms,
         wall_s: t0.elapsed().as_secs_f64(),
+        model: scene.model,
+        newton_iterations: rods.then_some(total.newton),
+        max_residual_n: rods.then_some(total.residual),
+        contacts_per_vertex: rods.then_some(total.contacts_per_vertex),
+        max_penetration_m: rods.then_some(total.penetration),
     })
 }
 

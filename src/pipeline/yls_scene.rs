@@ -82,6 +82,35 @@ pub enum ColliderSpec {
     },
 }
 
+/// Which yarn-level mechanics run the scene.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum YarnModel {
+    /// The explicit simulator (`yarn::sim`: Kaldor contact, no twist,
+    /// unsigned curvature, viscous contact damping).
+    #[default]
+    Explicit,
+    /// Implicit Euler on the quasi-static rods (`yarn::fabric::dynamics`:
+    /// stretch, signed bending, twist, contact, Coulomb friction): the
+    /// mechanics of `knitvox train` and `fabric-test`.
+    Rods,
+}
+
+/// Settings of the `rods` model (`[rods]`).
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RodsSpec {
+    /// Largest implicit-Euler step (s). Default 1/600.
+    pub max_dt: Option<f64>,
+    /// Yarn-on-yarn Coulomb coefficient. Default 0.25 (`knitvox train`'s).
+    pub friction: Option<f64>,
+    /// Collider penalty stiffness (N/m per vertex). Default 1000.
+    pub collider_stiffness: Option<f64>,
+    /// Newton force tolerance per step (N). Default: 1% of the heaviest
+    /// vertex's weight.
+    pub force_tolerance: Option<f64>,
+}
+
 /// A parsed scene, paths resolved against the scene file's folder.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -105,6 +134,11 @@ pub struct YlsScene {
     /// the simulator is built).
     #[serde(default)]
     pub sim: toml::Table,
+    /// Yarn-level mechanics. Default `explicit`.
+    #[serde(default)]
+    pub model: YarnModel,
+    /// Settings of the `rods` model.
+    pub rods: Option<RodsSpec>,
 }
 
 fn default_frame_rate() -> f64 {
@@ -153,6 +187,33 @@ impl YlsScene {
                 "keys `duration` x `frame_rate` ask for {} frames (at most {MAX_SCENE_FRAMES})",
                 scene.duration * scene.frame_rate
             )));
+        }
+        if let Some(r) = &scene.rods {
+            if scene.model != YarnModel::Rods {
+                return Err(err(
+                    "table `rods` needs `model = \"rods\"` (the explicit simulator reads `[sim]`)"
+                        .into(),
+                ));
+            }
+            for (key, v) in [
+                ("rods.max_dt", r.max_dt),
+                ("rods.collider_stiffness", r.collider_stiffness),
+                ("rods.force_tolerance", r.force_tolerance),
+            ] {
+                if let Some(v) = v {
+                    positive(key, v)?;
+                }
+            }
+            if let Some(mu) = r.friction {
+                if !(mu.is_finite() && (0.0..=10.0).contains(&mu)) {
+                    return Err(err(format!(
+                        "key `rods.friction` is {mu}; it must be in [0, 10]"
+                    )));
+                }
+            }
+            if r.max_dt.is_some_and(|dt| scene.duration / dt > 1e7) {
+                return Err(err("key `rods.max_dt`: more than 1e7 steps".into()));
+            }
         }
         if let Some(g) = scene.gravity.iter().find(|g| !g.is_finite()) {
             return Err(err(format!("key `gravity` has the component {g}")));

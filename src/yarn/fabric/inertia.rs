@@ -16,19 +16,37 @@ pub struct InertiaTerm {
     pub target: Vec<f64>,
     /// Time step h (s).
     pub dt: f64,
+    /// Name in the solver's statistics.
+    pub label: &'static str,
 }
 
 impl InertiaTerm {
     /// A term for `mass.len()` vertices predicting `target` with step `dt`.
     pub fn new(mass: Vec<f64>, target: Vec<f64>, dt: f64) -> InertiaTerm {
         debug_assert_eq!(3 * mass.len(), target.len());
-        InertiaTerm { mass, target, dt }
+        InertiaTerm {
+            mass,
+            target,
+            dt,
+            label: "inertia",
+        }
+    }
+
+    /// Rayleigh mass damping `gamma m v` (gamma in 1/s) over a step of
+    /// `dt` from `start`: with `v = (x - start) / dt` its potential is
+    /// `sum_i gamma m_i / (2 dt) |x_i - start_i|^2`, the inertia form with
+    /// step `sqrt(dt / gamma)`. `gamma` must be > 0.
+    pub fn damping(mass: Vec<f64>, start: Vec<f64>, dt: f64, gamma: f64) -> InertiaTerm {
+        InertiaTerm {
+            label: "damping",
+            ..InertiaTerm::new(mass, start, (dt / gamma).sqrt())
+        }
     }
 }
 
 impl EnergyTerm for InertiaTerm {
     fn name(&self) -> &'static str {
-        "inertia"
+        self.label
     }
 
     fn eval(&self, q: &[f64], grad: &mut [f64], hess: Option<&mut Triplets>) -> f64 {

@@ -7,6 +7,7 @@
 //! Pure: no files, no printing, no environment.
 
 pub mod bend;
+pub mod dynamics;
 pub mod hang;
 pub mod inertia;
 pub mod model;
@@ -15,6 +16,7 @@ pub mod relax;
 pub mod rig;
 pub mod stretch;
 
+pub use dynamics::{RodAdvanceStats, RodDynamics, RodDynamicsParams};
 pub use hang::{hang_test, HangParams, HangResult};
 pub use inertia::InertiaTerm;
 pub use model::{lumped_masses, Fabric, FabricError, FabricParams, Settle, SettleStats};

@@ -135,7 +135,7 @@ pub struct FrictionTerm {
 }
 
 /// `f0` of IPC Eq. 15 (m).
-fn f0(y: f64, eps: f64) -> f64 {
+pub(crate) fn f0(y: f64, eps: f64) -> f64 {
     if y < eps {
         -y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0
     } else {
@@ -144,7 +144,7 @@ fn f0(y: f64, eps: f64) -> f64 {
 }
 
 /// `f1(y) / y` (1/m), finite at 0.
-fn f1_over_y(y: f64, eps: f64) -> f64 {
+pub(crate) fn f1_over_y(y: f64, eps: f64) -> f64 {
     if y < eps {
         2.0 / eps - y / (eps * eps)
     } else {
@@ -153,7 +153,7 @@ fn f1_over_y(y: f64, eps: f64) -> f64 {
 }
 
 /// A unit vector pair spanning the plane orthogonal to unit `n`.
-fn tangent_basis(n: Vec3) -> [Vec3; 2] {
+pub(crate) fn tangent_basis(n: Vec3) -> [Vec3; 2] {
     let k = (0..3)
         .min_by(|&a, &b| n[a].abs().total_cmp(&n[b].abs()))
         .unwrap_or(0);
@@ -287,6 +287,43 @@ impl FrictionTerm {
     }
 }
 
+/// `T H_u T^T` (3x3, N/m): the PSD Hessian of `k f0(|u|)` (module docs)
+/// with respect to the world displacement, `u = T^T d` in the tangent
+/// `basis` T.
+pub(crate) fn slip_hessian_world(
+    k: f64,
+    u: [f64; 2],
+    eps: f64,
+    basis: &[Vec3; 2],
+) -> [[f64; 3]; 3] {
+    let y = (u[0] * u[0] + u[1] * u[1]).sqrt();
+    let fy = f1_over_y(y, eps);
+    let mut hu = [[k * fy, 0.0], [0.0, k * fy]];
+    if y > 0.0 {
+        let cu = if y < eps {
+            -k / (eps * eps * y)
+        } else {
+            -k / (y * y * y)
+        };
+        for a in 0..2 {
+            for b in 0..2 {
+                hu[a][b] += cu * u[a] * u[b];
+            }
+        }
+    }
+    let mut m = [[0.0; 3]; 3];
+    for (a, ta) in basis.iter().enumerate() {
+        for (b, tb) in basis.iter().enumerate() {
+            for i in 0..3 {
+                for l in 0..3 {
+                    m[i][l] += hu[a][b] * ta[i] * tb[l];
+                }
+            }
+        }
+    }
+    m
+}
+
 impl EnergyTerm for FrictionTerm {
     fn name(&self) -> &'static str {
         "friction"
@@ -313,31 +350,7 @@ impl EnergyTerm for FrictionTerm {
             let Some(h) = hess.as_deref_mut() else {
                 continue;
             };
-            // H_u (2x2), PSD (module docs).
-            let mut hu = [[k * fy, 0.0], [0.0, k * fy]];
-            if y > 0.0 {
-                let cu = if y < eps {
-                    -k / (eps * eps * y)
-                } else {
-                    -k / (y * y * y)
-                };
-                for a in 0..2 {
-                    for b in 0..2 {
-                        hu[a][b] += cu * u[a] * u[b];
-                    }
-                }
-            }
-            // World 3x3: T H_u T^T.
-            let mut m = [[0.0; 3]; 3];
-            for (a, ta) in c.basis.iter().enumerate() {
-                for (b, tb) in c.basis.iter().enumerate() {
-                    for i in 0..3 {
-                        for l in 0..3 {
-                            m[i][l] += hu[a][b] * ta[i] * tb[l];
-                        }
-                    }
-                }
-            }
+            let m = slip_hessian_world(k, u, eps, &c.basis);
             let dofs: Vec<usize> = c
                 .vertices
                 .iter()

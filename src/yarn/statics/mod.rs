@@ -9,12 +9,14 @@
 //! Pure: no files, no printing, no environment.
 
 pub mod assemble;
+pub mod collider;
 pub mod contact;
 pub mod external;
 pub mod friction;
 pub mod solver;
 pub mod term;
 
+pub use collider::ColliderTerm;
 pub use contact::{ContactStats, ContactTerm, NEAR_FACTOR};
 pub use external::GravityTerm;
 pub use friction::{Carry, FrictionContact, FrictionParams, FrictionTerm};
