@@ -78,6 +78,8 @@ name = "held-out-shear"
 duration = 0.1
 frame_rate = 50
 gravity = [0.0, 0.0, 0.0]
+# the yarn mechanics of the training poses (implicit Euler on the rods)
+model = "rods"
 [pose]
 kind = "shear"
 amount = 0.1
