@@ -52,6 +52,21 @@ fn x_extent(points: &[[f64; 3]]) -> f64 {
     hi - lo
 }
 
+fn first_and_last_frames(out: &Path) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let first = h5::read_frame(out, 0).unwrap();
+    let last = h5::read_frame(out, h5::frame_count(out).unwrap() - 1).unwrap();
+    (first, last)
+}
+
+/// The largest fall (m, along -Y) of any vertex between two frames.
+fn largest_drop(first: &[[f64; 3]], last: &[[f64; 3]]) -> f64 {
+    first
+        .iter()
+        .zip(last)
+        .map(|(a, b)| a[1] - b[1])
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
 /// Runs a scene through the CLI and returns the JSON report.
 fn run_scene(dir: &Path, name: &str, text: &str) -> (serde_json::Value, std::path::PathBuf) {
     let s = dir.join(format!("{name}.toml"));
@@ -114,13 +129,8 @@ fn drape_over_a_sphere_keeps_the_contact_bound() {
     assert!(ratio >= 0.75, "{ratio}");
     // It fell, and nothing went through the sphere (centre under the
     // swatch, top one yarn diameter below its lowest point).
-    let first = h5::read_frame(&out, 0).unwrap();
-    let last = h5::read_frame(&out, h5::frame_count(&out).unwrap() - 1).unwrap();
-    let drop = first
-        .iter()
-        .zip(last.iter())
-        .map(|(a, b)| a[1] - b[1])
-        .fold(f64::NEG_INFINITY, f64::max);
+    let (first, last) = first_and_last_frames(&out);
+    let drop = largest_drop(&first, &last);
     assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
     let (lo, hi) = first
         .iter()
@@ -173,13 +183,8 @@ fn the_rods_model_follows_the_handles_and_drapes_without_passing_through() {
     assert!(r["min_distance_ratio"].as_f64().unwrap() >= 0.75, "{r}");
     let pen = r["max_penetration_m"].as_f64().unwrap();
     assert!(pen < 1e-4, "penetration {pen} m");
-    let first = h5::read_frame(&out, 0).unwrap();
-    let last = h5::read_frame(&out, h5::frame_count(&out).unwrap() - 1).unwrap();
-    let drop = first
-        .iter()
-        .zip(last.iter())
-        .map(|(a, b)| a[1] - b[1])
-        .fold(f64::NEG_INFINITY, f64::max);
+    let (first, last) = first_and_last_frames(&out);
+    let drop = largest_drop(&first, &last);
     assert!(drop > 1e-3, "the swatch did not fall ({drop} m)");
     // `[rods]` settings are checked and need the rods model.
     for (text, key) in [

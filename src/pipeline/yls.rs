@@ -89,6 +89,9 @@ pub struct YlsReport {
     /// the deepest collider penetration (m).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub newton_iterations: Option<usize>,
+    /// `rods`: steps retried as two half steps after Newton failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub split_steps: Option<u64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_residual_n: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -110,6 +113,7 @@ struct FrameStats {
     min_ratio: f64,
     max_disp: f64,
     newton: usize,
+    splits: u64,
     residual: f64,
     contacts_per_vertex: f64,
     penetration: f64,
@@ -140,6 +144,7 @@ impl Runner {
                     min_ratio: st.min_distance_ratio,
                     max_disp: st.max_displacement_ratio,
                     newton: st.newton_iterations,
+                    splits: st.split_steps,
                     residual: st.max_residual_n,
                     contacts_per_vertex: st.contacts_per_vertex,
                     penetration: st.max_penetration_m,
@@ -457,6 +462,7 @@ pub fn run_observed(
         total.min_ratio = total.min_ratio.min(st.min_ratio);
         total.max_disp = total.max_disp.max(st.max_disp);
         total.newton += st.newton;
+        total.splits += st.splits;
         total.residual = total.residual.max(st.residual);
         total.contacts_per_vertex = st.contacts_per_vertex;
         total.penetration = total.penetration.max(st.penetration);
@@ -487,6 +493,7 @@ pub fn run_observed(
         wall_s: t0.elapsed().as_secs_f64(),
         model: scene.model,
         newton_iterations: rods.then_some(total.newton),
+        split_steps: rods.then_some(total.splits),
         max_residual_n: rods.then_some(total.residual),
         contacts_per_vertex: rods.then_some(total.contacts_per_vertex),
         max_penetration_m: rods.then_some(total.penetration),

@@ -32,6 +32,10 @@ use crate::yarn::poses::PoseDriver;
 use crate::yarn::sim::PointCollider;
 use crate::yarn::statics::{ColliderTerm, EnergyTerm, GravityTerm};
 
+/// Most halvings of a step whose Newton solve fails
+/// ([`RodDynamics::advance`]).
+pub const MAX_SPLITS: u32 = 5;
+
 /// Controls of [`RodDynamics`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -101,6 +105,9 @@ impl RodDynamicsParams {
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct RodAdvanceStats {
     pub steps: u64,
+    /// Steps whose Newton solve failed and that were retried as two half
+    /// steps.
+    pub split_steps: u64,
     pub newton_iterations: usize,
     /// Largest final force residual of a step (N).
     pub max_residual_n: f64,
@@ -209,13 +216,36 @@ impl RodDynamics {
             ..RodAdvanceStats::default()
         };
         for _ in 0..steps {
-            self.step(dt, &mut st)?;
+            self.step_or_split(dt, 0, &mut st)?;
         }
         let q = self.fabric.q.clone();
         st.contacts_per_vertex = self.fabric.contact.stats(&q).contacts_per_vertex;
         st.collider_contacts = self.colliders.contacts(&q).0;
         st.seconds = t0.elapsed().as_secs_f64();
         Ok(st)
+    }
+
+    /// [`Self::step`], retried as two half steps from the same state when
+    /// Newton fails (its line search stalls on the non-smooth contact and
+    /// friction terms, or it runs out of iterations), down to
+    /// `dt / 2^MAX_SPLITS`; divergence is not retried.
+    fn step_or_split(
+        &mut self,
+        dt: f64,
+        depth: u32,
+        st: &mut RodAdvanceStats,
+    ) -> Result<(), FabricError> {
+        let (q, v) = (self.fabric.q.clone(), self.velocity.clone());
+        match self.step(dt, st) {
+            Err(FabricError::Solve { .. }) if depth < MAX_SPLITS => {
+                self.fabric.q = q;
+                self.velocity = v;
+                st.split_steps += 1;
+                self.step_or_split(0.5 * dt, depth + 1, st)?;
+                self.step_or_split(0.5 * dt, depth + 1, st)
+            }
+            other => other,
+        }
     }
 
     /// One implicit-Euler step of `dt` (module docs).
@@ -395,6 +425,42 @@ mod tests {
             assert!((p[1] - R).abs() < 1e-6, "height {}", p[1]);
             assert!(crate::geom::dist(*p, *q) < 1e-6, "still moving");
         }
+    }
+
+    #[test]
+    fn a_step_newton_cannot_finish_is_retried_as_half_steps() {
+        let plane: Arc<dyn PointCollider> = Arc::new(PlaneCollider {
+            point: [0.0; 3],
+            normal: [0.0, 1.0, 0.0],
+            friction: 0.0,
+        });
+        // Ten Newton iterations per step: enough in free fall (the energy
+        // is quadratic there), not where the yarn hits the plane at the
+        // full step (it takes 12-16 there).
+        let mut fabric = FabricParams::default();
+        fabric.solver.max_iterations = 10;
+        let params = RodDynamicsParams {
+            max_dt: 1.0 / 100.0,
+            ..RodDynamicsParams::default()
+        };
+        let yarns = straight_yarn(R + 2e-3);
+        let mut d = RodDynamics::new(&yarns, &fabric, &params, None, vec![plane]).expect("set-up");
+        let st = d.advance(0.05).expect("split steps finish");
+        assert!(st.split_steps > 0, "{st:?}");
+        assert!(st.max_penetration_m < 0.2 * R, "{st:?}");
+        // Without splitting room the same run fails and names the step.
+        let mut fabric = fabric.clone();
+        fabric.solver.max_iterations = 4;
+        let mut d = RodDynamics::new(&yarns, &fabric, &params, None, vec![
+            Arc::new(PlaneCollider {
+                point: [0.0; 3],
+                normal: [0.0, 1.0, 0.0],
+                friction: 0.0,
+            }) as Arc<dyn PointCollider>,
+        ])
+        .expect("set-up");
+        let e = d.advance(0.05).expect_err("four iterations cannot land it");
+        assert!(e.to_string().contains("implicit step at t ="), "{e}");
     }
 
     /// Slide of a yarn lying across a 20 degree slope in 0.2 s (m), and
