@@ -451,13 +451,17 @@ mod tests {
         // Without splitting room the same run fails and names the step.
         let mut fabric = fabric.clone();
         fabric.solver.max_iterations = 4;
-        let mut d = RodDynamics::new(&yarns, &fabric, &params, None, vec![
-            Arc::new(PlaneCollider {
+        let mut d = RodDynamics::new(
+            &yarns,
+            &fabric,
+            &params,
+            None,
+            vec![Arc::new(PlaneCollider {
                 point: [0.0; 3],
                 normal: [0.0, 1.0, 0.0],
                 friction: 0.0,
-            }) as Arc<dyn PointCollider>,
-        ])
+            }) as Arc<dyn PointCollider>],
+        )
         .expect("set-up");
         let e = d.advance(0.05).expect_err("four iterations cannot land it");
         assert!(e.to_string().contains("implicit step at t ="), "{e}");
