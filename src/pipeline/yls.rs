@@ -119,6 +119,19 @@ struct FrameStats {
     penetration: f64,
 }
 
+impl FrameStats {
+    /// What both models report: steps, minimum distance ratio, largest
+    /// one-step displacement ratio.
+    fn common(steps: u64, min_ratio: f64, max_disp: f64) -> FrameStats {
+        FrameStats {
+            steps,
+            min_ratio,
+            max_disp,
+            ..FrameStats::default()
+        }
+    }
+}
+
 impl Runner {
     fn advance(&mut self, dt: f64, file: &Path) -> Result<FrameStats, YlsError> {
         match self {
@@ -127,12 +140,11 @@ impl Runner {
                     file: file.into(),
                     source,
                 })?;
-                Ok(FrameStats {
-                    steps: st.steps,
-                    min_ratio: st.min_distance_ratio,
-                    max_disp: st.max_displacement_ratio,
-                    ..FrameStats::default()
-                })
+                Ok(FrameStats::common(
+                    st.steps,
+                    st.min_distance_ratio,
+                    st.max_displacement_ratio,
+                ))
             }
             Runner::Rods(d) => {
                 let st = d.advance(dt).map_err(|source| YlsError::Rods {
@@ -140,14 +152,12 @@ impl Runner {
                     source,
                 })?;
                 Ok(FrameStats {
-                    steps: st.steps,
-                    min_ratio: st.min_distance_ratio,
-                    max_disp: st.max_displacement_ratio,
                     newton: st.newton_iterations,
                     splits: st.split_steps,
                     residual: st.max_residual_n,
                     contacts_per_vertex: st.contacts_per_vertex,
                     penetration: st.max_penetration_m,
+                    ..FrameStats::common(st.steps, st.min_distance_ratio, st.max_displacement_ratio)
                 })
             }
         }

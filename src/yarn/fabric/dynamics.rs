@@ -218,9 +218,9 @@ impl RodDynamics {
         for _ in 0..steps {
             self.step_or_split(dt, 0, &mut st)?;
         }
-        let q = self.fabric.q.clone();
-        st.contacts_per_vertex = self.fabric.contact.stats(&q).contacts_per_vertex;
-        st.collider_contacts = self.colliders.contacts(&q).0;
+        let q = &self.fabric.q;
+        st.contacts_per_vertex = self.fabric.contact.stats(q).contacts_per_vertex;
+        st.collider_contacts = self.colliders.contacts().0;
         st.seconds = t0.elapsed().as_secs_f64();
         Ok(st)
     }
@@ -304,9 +304,7 @@ impl RodDynamics {
         st.min_distance_ratio = st
             .min_distance_ratio
             .min(self.fabric.contact.stats(q).min_distance_ratio);
-        if !self.colliders.is_empty() {
-            st.max_penetration_m = st.max_penetration_m.max(self.colliders.contacts(q).1);
-        }
+        st.max_penetration_m = st.max_penetration_m.max(self.colliders.contacts().1);
         self.time = t1;
         Ok(())
     }
@@ -320,13 +318,11 @@ fn gauge_and_clamps(fabric: &Fabric, held: &[bool]) -> Vec<bool> {
     let mut fixed = vec![false; fabric.q.len()];
     fabric.clamp(&mut fixed, held);
     let topo = fabric.rods.topology();
-    let gauge = fabric.twist_gauge();
     for c in &topo.curve_edges {
-        if c.is_empty() || c.clone().any(|e| fixed[topo.twist_dof(e)]) {
-            continue;
+        if !c.is_empty() && !c.clone().any(|e| fixed[topo.twist_dof(e)]) {
+            // As `Fabric::twist_gauge`: the curve's first twist.
+            fixed[topo.twist_dof(c.start)] = true;
         }
-        let dof = topo.twist_dof(c.start);
-        fixed[dof] = gauge[dof];
     }
     fixed
 }
@@ -344,6 +340,15 @@ mod tests {
         let pts: Vec<Vec3> = (0..21).map(|i| [i as f64 * 1e-3, y, 0.0]).collect();
         yarns.push_curve(&pts, false, R);
         yarns
+    }
+
+    /// The plane y = 0, facing +Y, with Coulomb coefficient `mu`.
+    fn floor(mu: f64) -> Arc<dyn PointCollider> {
+        Arc::new(PlaneCollider {
+            point: [0.0; 3],
+            normal: [0.0, 1.0, 0.0],
+            friction: mu,
+        })
     }
 
     fn run(
@@ -405,11 +410,7 @@ mod tests {
 
     #[test]
     fn a_yarn_dropped_on_a_plane_comes_to_rest_on_it() {
-        let plane: Arc<dyn PointCollider> = Arc::new(PlaneCollider {
-            point: [0.0; 3],
-            normal: [0.0, 1.0, 0.0],
-            friction: 0.3,
-        });
+        let plane = floor(0.3);
         let params = RodDynamicsParams {
             global_damping: 5.0,
             ..RodDynamicsParams::default()
@@ -429,11 +430,7 @@ mod tests {
 
     #[test]
     fn a_step_newton_cannot_finish_is_retried_as_half_steps() {
-        let plane: Arc<dyn PointCollider> = Arc::new(PlaneCollider {
-            point: [0.0; 3],
-            normal: [0.0, 1.0, 0.0],
-            friction: 0.0,
-        });
+        let plane = floor(0.0);
         // Ten Newton iterations per step: enough in free fall (the energy
         // is quadratic there), not where the yarn hits the plane at the
         // full step (it takes 12-16 there).
@@ -451,18 +448,8 @@ mod tests {
         // Without splitting room the same run fails and names the step.
         let mut fabric = fabric.clone();
         fabric.solver.max_iterations = 4;
-        let mut d = RodDynamics::new(
-            &yarns,
-            &fabric,
-            &params,
-            None,
-            vec![Arc::new(PlaneCollider {
-                point: [0.0; 3],
-                normal: [0.0, 1.0, 0.0],
-                friction: 0.0,
-            }) as Arc<dyn PointCollider>],
-        )
-        .expect("set-up");
+        let mut d =
+            RodDynamics::new(&yarns, &fabric, &params, None, vec![floor(0.0)]).expect("set-up");
         let e = d.advance(0.05).expect_err("four iterations cannot land it");
         assert!(e.to_string().contains("implicit step at t ="), "{e}");
     }

@@ -15,7 +15,9 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::friction::{f0, f1_over_y, slip_hessian_world, tangent_basis};
+use super::friction::{
+    elastic_offset, f0, f1_over_y, onto_tangent_plane, slip_hessian_world, tangent_basis,
+};
 use super::term::{EnergyTerm, Triplets};
 use crate::geom::vec3::dot;
 use crate::geom::Vec3;
@@ -62,8 +64,9 @@ pub struct ColliderTerm {
     stick_distance: f64,
     /// Query time of the surfaces (s).
     time: f64,
-    /// (vertex, collider) pairs within radius + skin at the iteration start.
-    candidates: Vec<(usize, usize)>,
+    /// (vertex, collider, signed distance - radius) within radius + skin
+    /// at the iteration start.
+    candidates: Vec<(usize, usize, f64)>,
     friction: Vec<SurfaceFriction>,
 }
 
@@ -92,10 +95,6 @@ impl ColliderTerm {
             candidates: Vec::new(),
             friction: Vec::new(),
         }
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.colliders.is_empty()
     }
 
     /// Queries the surfaces at time `t` (s) from now on.
@@ -135,10 +134,7 @@ impl ColliderTerm {
             .friction
             .iter()
             .map(|f| {
-                let u = f.slip(point(q, f.vertex));
-                let y = (u[0] * u[0] + u[1] * u[1]).sqrt();
-                let k = if y > eps { eps / y } else { 1.0 };
-                let w = std::array::from_fn(|i| k * (u[0] * f.basis[0][i] + u[1] * f.basis[1][i]));
+                let w = elastic_offset(f.slip(point(q, f.vertex)), &f.basis, eps);
                 ((f.vertex, f.collider), w)
             })
             .collect();
@@ -153,10 +149,9 @@ impl ColliderTerm {
             let x = point(q, v);
             let vc = col.velocity(x, self.time);
             let basis = tangent_basis(n);
-            let offset = carry.get(&(v, c)).map_or([0.0; 3], |w| {
-                let (a, b) = (dot(*w, basis[0]), dot(*w, basis[1]));
-                std::array::from_fn(|i| a * basis[0][i] + b * basis[1][i])
-            });
+            let offset = carry
+                .get(&(v, c))
+                .map_or([0.0; 3], |w| onto_tangent_plane(*w, &basis));
             out.push(SurfaceFriction {
                 vertex: v,
                 collider: c,
@@ -169,12 +164,14 @@ impl ColliderTerm {
         self.friction = out;
     }
 
-    /// Vertices in contact (closer than their radius) at `q` and the
-    /// deepest penetration (m, 0 without contact).
-    pub fn contacts(&self, q: &[f64]) -> (usize, f64) {
-        let near = self.near(q, 0.0);
-        let deepest = near.iter().map(|n| -n.2).fold(0.0, f64::max);
-        (near.len(), deepest)
+    /// Vertices in contact (closer than their radius) and the deepest
+    /// penetration (m, 0 without contact) at the last
+    /// [`EnergyTerm::begin_iteration`]'s state (after a Newton solve: its
+    /// final iterate), without querying the surfaces again.
+    pub fn contacts(&self) -> (usize, f64) {
+        let touching = self.candidates.iter().filter(|c| c.2 < 0.0);
+        let deepest = touching.clone().map(|c| -c.2).fold(0.0, f64::max);
+        (touching.count(), deepest)
     }
 }
 
@@ -187,14 +184,14 @@ impl EnergyTerm for ColliderTerm {
         self.candidates = self
             .near(q, self.skin)
             .into_iter()
-            .map(|(v, c, _, _)| (v, c))
+            .map(|(v, c, gap, _)| (v, c, gap))
             .collect();
     }
 
     fn eval(&self, q: &[f64], grad: &mut [f64], mut hess: Option<&mut Triplets>) -> f64 {
         let k = self.stiffness;
         let mut e = 0.0;
-        for &(v, c) in &self.candidates {
+        for &(v, c, _) in &self.candidates {
             let (d, n) = self.colliders[c].signed_distance(point(q, v), self.time);
             let pen = self.radius[v] - d;
             if !(pen > 0.0) {

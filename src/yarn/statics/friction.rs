@@ -222,14 +222,7 @@ impl FrictionTerm {
         self.contacts
             .iter()
             .map(|c| {
-                let u = c.slip(q);
-                let y = (u[0] * u[0] + u[1] * u[1]).sqrt();
-                let f = if y > self.stick_distance {
-                    self.stick_distance / y
-                } else {
-                    1.0
-                };
-                let w = std::array::from_fn(|i| f * (u[0] * c.basis[0][i] + u[1] * c.basis[1][i]));
+                let w = elastic_offset(c.slip(q), &c.basis, self.stick_distance);
                 (c.vertices, w)
             })
             .collect()
@@ -254,10 +247,9 @@ impl FrictionTerm {
             let x = ids.map(|v| point(q, v));
             let (s, t) = segment_closest_params(x[0], x[1], x[2], x[3]);
             let basis = tangent_basis(scale(fa, 1.0 / lambda));
-            let offset = carry.get(&ids).map_or([0.0; 3], |w| {
-                let (a, b) = (dot(*w, basis[0]), dot(*w, basis[1]));
-                std::array::from_fn(|i| a * basis[0][i] + b * basis[1][i])
-            });
+            let offset = carry
+                .get(&ids)
+                .map_or([0.0; 3], |w| onto_tangent_plane(*w, &basis));
             self.contacts.push(FrictionContact {
                 vertices: ids,
                 s,
@@ -285,6 +277,20 @@ impl FrictionTerm {
     pub fn total_capacity(&self) -> f64 {
         self.mu * self.contacts.iter().map(|c| c.normal_force).sum::<f64>()
     }
+}
+
+/// The elastic part of a slip `u` (in the tangent `basis`) to carry into
+/// the next lag: `T u` clipped to length `eps` (m, world frame).
+pub(crate) fn elastic_offset(u: [f64; 2], basis: &[Vec3; 2], eps: f64) -> Vec3 {
+    let y = (u[0] * u[0] + u[1] * u[1]).sqrt();
+    let f = if y > eps { eps / y } else { 1.0 };
+    std::array::from_fn(|i| f * (u[0] * basis[0][i] + u[1] * basis[1][i]))
+}
+
+/// `w` projected onto the plane spanned by the orthonormal `basis`.
+pub(crate) fn onto_tangent_plane(w: Vec3, basis: &[Vec3; 2]) -> Vec3 {
+    let (a, b) = (dot(w, basis[0]), dot(w, basis[1]));
+    std::array::from_fn(|i| a * basis[0][i] + b * basis[1][i])
 }
 
 /// `T H_u T^T` (3x3, N/m): the PSD Hessian of `k f0(|u|)` (module docs)
