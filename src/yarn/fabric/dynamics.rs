@@ -170,7 +170,9 @@ impl RodDynamics {
                 held[v] = true;
             }
         }
-        let fixed = gauge_and_clamps(&fabric, &held);
+        // Rotational inertia is not modelled: twists stay quasi-static, so a
+        // free curve's constant twist needs its gauge.
+        let fixed = fabric.clamped_and_gauged(&held);
         let radius: Vec<f64> = (0..n).map(|v| yarns.radius_at(v)).collect();
         let skin = 1.05 * fabric.params.solver.max_displacement;
         let stick = fabric.params.friction.stick_distance;
@@ -308,23 +310,6 @@ impl RodDynamics {
         self.time = t1;
         Ok(())
     }
-}
-
-/// Fixed coordinates: the handled vertices' positions and the twists of
-/// edges between two of them, and one twist of every curve with no such
-/// edge (a free rod's constant twist is a null space, HYLC §5; rotational
-/// inertia is not modelled, so twists stay quasi-static).
-fn gauge_and_clamps(fabric: &Fabric, held: &[bool]) -> Vec<bool> {
-    let mut fixed = vec![false; fabric.q.len()];
-    fabric.clamp(&mut fixed, held);
-    let topo = fabric.rods.topology();
-    for c in &topo.curve_edges {
-        if !c.is_empty() && !c.clone().any(|e| fixed[topo.twist_dof(e)]) {
-            // As `Fabric::twist_gauge`: the curve's first twist.
-            fixed[topo.twist_dof(c.start)] = true;
-        }
-    }
-    fixed
 }
 
 #[cfg(test)]

@@ -242,6 +242,21 @@ impl Fabric {
         fixed
     }
 
+    /// A fixed mask holding `clamped` vertices ([`Self::clamp`]) plus one
+    /// twist per curve that no clamp holds (a free rod's constant twist is
+    /// a null space, HYLC §5).
+    pub fn clamped_and_gauged(&self, clamped: &[bool]) -> Vec<bool> {
+        let mut fixed = vec![false; self.q.len()];
+        self.clamp(&mut fixed, clamped);
+        let topo = self.rods.topology();
+        for c in &topo.curve_edges {
+            if !c.is_empty() && !c.clone().any(|e| fixed[topo.twist_dof(e)]) {
+                fixed[topo.twist_dof(c.start)] = true;
+            }
+        }
+        fixed
+    }
+
     /// Fixes the positions of `vertices` and the twists of the edges with
     /// both ends among them.
     pub fn clamp(&self, fixed: &mut [bool], vertices: &[bool]) {

@@ -285,7 +285,7 @@ pub fn run_pose(
     let n = fabric.num_vertices();
     let mut clamped = vec![false; n];
     full.pinned().iter().for_each(|&v| clamped[v] = true);
-    let fixed = fixed_mask(&fabric, &clamped);
+    let fixed = fabric.clamped_and_gauged(&clamped);
     let (band_of, band_centres) = bands(&full, &rest);
     // Its acceleration is set per step (`gravity_at`).
     let mut gravity = GravityTerm {
@@ -417,20 +417,6 @@ pub fn run_pose(
         min_distance_ratio: min_ratio,
         seconds: t0.elapsed().as_secs_f64(),
     })
-}
-
-/// Clamped positions and twists; plus one twist per curve that no clamp
-/// holds (a free rod's constant twist is a null space, HYLC §5).
-fn fixed_mask(fabric: &Fabric, clamped: &[bool]) -> Vec<bool> {
-    let mut fixed = vec![false; fabric.q.len()];
-    fabric.clamp(&mut fixed, clamped);
-    let topo = fabric.rods.topology();
-    for c in &topo.curve_edges {
-        if !c.is_empty() && !c.clone().any(|e| fixed[topo.twist_dof(e)]) {
-            fixed[topo.twist_dof(c.start)] = true;
-        }
-    }
-    fixed
 }
 
 /// The clamped bands: each group of the pose split where its vertices
