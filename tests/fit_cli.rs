@@ -604,5 +604,47 @@ fn validate_runs_both_levels_and_reports_the_distance() {
         "clamped vertices differ by {apart} yarn diameters"
     );
 
+    // The report keeps the yarn-level frames; `--truth` reuses them: the
+    // same errors, the recorded yarn-level time, no second yarn-level run.
+    let truth = report.join("yarn_level.h5");
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--truth",
+        s(&truth),
+        "--json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let again: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for key in [
+        "rms_yarn_diameters",
+        "max_yarn_diameters",
+        "y2v_floor_rms_yarn_diameters",
+        "yarn_level_s",
+    ] {
+        assert_eq!(again[key], full[key], "{key}");
+    }
+    assert!(again["truth_file"]
+        .as_str()
+        .unwrap()
+        .ends_with("yarn_level.h5"));
+    // Another scene (a larger stretch) is refused, naming what differs.
+    let other = d.join("other.toml");
+    std::fs::write(&other, STRETCH_SCENE.replace("0.05", "0.06")).unwrap();
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&other),
+        "--truth",
+        s(&truth),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(err.contains("--truth") && err.contains("pose"), "{err}");
+
     // Scenes with colliders: tests/validate_gravity.rs.
 }

@@ -164,6 +164,12 @@ pub struct ValidateArgs {
     /// Global solver of the PD runs, as `simulate --solver` [default: direct].
     #[arg(long, value_enum, default_value = "direct")]
     pub pd_solver: crate::pipeline::sim_scene::SolverChoice,
+    /// Reuse this yarn-level run of the scene instead of running it again:
+    /// `yarn_level.h5` of an earlier `--report`, or `knitvox yls` output.
+    /// Its scene (`[swatch]` aside), rest yarns and frame times must match;
+    /// `yarn_level_s` (and the speedup) then come from the time it records.
+    #[arg(long, value_name = "FRAMES.h5")]
+    pub truth: Option<std::path::PathBuf>,
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
@@ -192,6 +198,7 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
             backend: a.backend,
             global: a.pd_solver,
         },
+        truth: a.truth.clone(),
     };
     let mut console = super::Console::new(false, 0, "");
     let r = job.run(&mut console)?;

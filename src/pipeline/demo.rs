@@ -291,6 +291,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         uniform: true,
         report: Some(dir.join("validate")),
         homogenized: Default::default(),
+        truth: None,
     }
     .run(&mut super::Quiet)?;
     Ok(FitDemo {

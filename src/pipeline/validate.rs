@@ -66,6 +66,12 @@ pub struct ValidateJob {
     /// How the homogenized runs are integrated (PD by default, as
     /// `simulate`).
     pub homogenized: HomogenizedRunParams,
+    /// A yarn-level run of the same scene to reuse instead of running it
+    /// again (`knitvox yls` output, or `yarn_level.h5` of a `--report`):
+    /// its scene (`/metadata/scene_toml`, `[swatch]` aside), rest yarns
+    /// and frame times must match; its recorded wall time is reported as
+    /// the yarn level's.
+    pub truth: Option<PathBuf>,
 }
 
 /// Error of one frame (yarn diameters).
@@ -139,6 +145,9 @@ pub struct ValidateReport {
     pub y2v_floor_rms_yarn_diameters: f64,
     pub y2v_floor_max_yarn_diameters: f64,
     pub per_frame: Vec<FrameError>,
+    /// The yarn-level frames reused (`--truth`); `yarn_level_s` is then
+    /// the wall time that file records, measured when it was made.
+    pub truth_file: Option<PathBuf>,
     pub report_files: Vec<PathBuf>,
 }
 
@@ -504,6 +513,72 @@ fn rms_max(d: &[f64]) -> (f64, f64) {
     )
 }
 
+/// The scene table without `[swatch]` (the rest yarns are compared
+/// separately, point by point).
+fn scene_without_swatch(text: &str, file: &Path) -> Result<toml::Table, Error> {
+    let mut table: toml::Table = text
+        .parse()
+        .map_err(|e| setup(file, format!("not a TOML scene: {e}")))?;
+    table.remove("swatch");
+    Ok(table)
+}
+
+/// Checks that `truth` ran `text` (the scene `file`, `[swatch]` aside) and
+/// returns the wall time it records (s).
+fn check_truth(truth: &Path, text: &str, file: &Path) -> Result<f64, Error> {
+    let bad = |m: String| setup(truth, format!("--truth: {m}"));
+    let recorded = io::h5::read_text(truth, "scene_toml")?.ok_or_else(|| {
+        bad("records no scene (/metadata/scene_toml); make it with `knitvox yls` or `validate --report`".into())
+    })?;
+    let theirs = scene_without_swatch(&recorded, truth)?;
+    let ours = scene_without_swatch(text, file)?;
+    if theirs != ours {
+        let differ: Vec<&str> = ours
+            .keys()
+            .chain(theirs.keys())
+            .filter(|k| ours.get(*k) != theirs.get(*k))
+            .map(String::as_str)
+            .collect();
+        return Err(bad(format!(
+            "ran another scene than {} (keys differ: {}); run it again without --truth",
+            file.display(),
+            differ.join(", ")
+        )));
+    }
+    let run = io::h5::read_text(truth, "run_json")?
+        .ok_or_else(|| bad("records no run time (/metadata/run_json)".into()))?;
+    let wall_s = serde_json::from_str::<serde_json::Value>(&run)
+        .ok()
+        .and_then(|v| v.get("wall_s").and_then(|w| w.as_f64()))
+        .filter(|w| w.is_finite() && *w >= 0.0)
+        .ok_or_else(|| bad(format!("/metadata/run_json: no valid `wall_s` in {run:?}")))?;
+    Ok(wall_s)
+}
+
+/// The reused frames must be the scene's frames: one per `1 / frame_rate`
+/// from 0 (the rest state) to `duration`.
+fn check_truth_times(truth: &Path, times: &[f64], scene: &YlsScene) -> Result<(), Error> {
+    let n = scene.num_frames();
+    let dt = 1.0 / scene.frame_rate;
+    let ok = times.len() == n + 1
+        && times
+            .iter()
+            .enumerate()
+            .all(|(k, t)| (t - k as f64 * dt).abs() <= 1e-9 * (1.0 + t.abs()));
+    if ok {
+        return Ok(());
+    }
+    Err(setup(
+        truth,
+        format!(
+            "--truth: {} frames at times {:?}..; the scene asks for {} frames every {dt} s",
+            times.len(),
+            times.iter().take(3).collect::<Vec<_>>(),
+            n + 1
+        ),
+    ))
+}
+
 /// The scene's text with `[swatch]` naming `swatch_file` when it has none.
 fn with_swatch(text: &str, scene: &Path, swatch_file: &Path) -> Result<(String, bool), Error> {
     let table: toml::Table = text
@@ -604,12 +679,21 @@ impl Stage for ValidateJob {
                 self.asset.display()
             ));
         }
-        // Yarn level.
+        // Yarn level: run, or reused from `--truth`.
         let yarn_out = tmp.path().join("yarn_level.h5");
-        let yr = yls::run(&scene, &text, &self.scene, &yarn_out, &mut |d, t| {
-            observer.frames(d, 2 * t)
-        })?;
-        let yd = io::read_path(&yarn_out, &Default::default())?;
+        let (yarn_file, yarn_level_s) = match &self.truth {
+            Some(truth) => {
+                let wall_s = check_truth(truth, &text, &self.scene)?;
+                (truth.clone(), wall_s)
+            }
+            None => {
+                let yr = yls::run(&scene, &text, &self.scene, &yarn_out, &mut |d, t| {
+                    observer.frames(d, 2 * t)
+                })?;
+                (yarn_out.clone(), yr.wall_s)
+            }
+        };
+        let yd = io::read_path(&yarn_file, &Default::default())?;
         let rest = &asset.rest_yarns;
         let same_rest = yd.yarns.offsets == rest.offsets
             && yd.yarns.closed == rest.closed
@@ -632,6 +716,9 @@ impl Stage for ValidateJob {
         let frames: YarnFrames = yd
             .frames
             .ok_or_else(|| Error::Internal("the yarn-level run wrote no frames".into()))?;
+        if let Some(truth) = &self.truth {
+            check_truth_times(truth, &frames.times, &scene)?;
+        }
         let driver = PoseDriver::new(&rest.points, scene.pose_params())
             .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
         // Homogenized, with the asset's material, then the uniform one.
@@ -723,9 +810,9 @@ impl Stage for ValidateJob {
             uniform_rms_yarn_diameters: xu.as_ref().map(|_| urms),
             uniform_max_yarn_diameters: xu.as_ref().map(|_| umax),
             placeholder_rms_yarn_diameters: placeholder_rms,
-            yarn_level_s: yr.wall_s,
+            yarn_level_s,
             homogenized_s,
-            speedup: yr.wall_s / homogenized_s.max(1e-9),
+            speedup: yarn_level_s / homogenized_s.max(1e-9),
             nodes: asset.mesh.num_nodes(),
             tets: asset.mesh.num_tets(),
             yarn_vertices: rest.num_points(),
@@ -754,29 +841,40 @@ impl Stage for ValidateJob {
             y2v_floor_rms_yarn_diameters: frms,
             y2v_floor_max_yarn_diameters: fmax,
             per_frame,
+            truth_file: self.truth.clone(),
             report_files: Vec::new(),
         };
         if let Some(dir) = &self.report {
-            report.report_files =
-                io::atomic::all_or_nothing(|| write_report(dir, &asset, &frames, xs, &report))?;
+            let fresh = self.truth.is_none().then_some(yarn_out.as_path());
+            report.report_files = io::atomic::all_or_nothing(|| {
+                write_report(dir, &asset, &frames, xs, &report, fresh)
+            })?;
         }
         Ok(report)
     }
 }
 
-/// `validate.json`, `error.png`, `yarn_level.####.ply`, `homogenized.####.ply`.
+/// `validate.json`, `error.png`, `yarn_level.####.ply`, `homogenized.####.ply`,
+/// and `yarn_level.h5` (the run's frames, for `--truth`) when the yarn level
+/// ran here (`fresh`).
 fn write_report(
     dir: &Path,
     asset: &Asset,
     frames: &YarnFrames,
     xs: &[Vec<Vec3>],
     r: &ValidateReport,
+    fresh: Option<&Path>,
 ) -> Result<Vec<PathBuf>, Error> {
     std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
         path: dir.to_path_buf(),
         source,
     })?;
     let mut files = Vec::new();
+    if let Some(src) = fresh {
+        let h5 = dir.join("yarn_level.h5");
+        io::atomic::write_with(&h5, |tmp| std::fs::copy(src, tmp).map(|_| ()))?;
+        files.push(h5);
+    }
     let json = dir.join("validate.json");
     let text = serde_json::to_vec_pretty(r).map_err(|e| Error::Internal(e.to_string()))?;
     io::atomic::write_bytes(&json, &text)?;

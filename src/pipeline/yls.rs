@@ -486,6 +486,13 @@ pub fn run_observed(
             penetration_m: None,
         });
     }
+    // The run's wall time travels with the frames: `validate --truth`
+    // reuses them and reports this time as the yarn level's.
+    let wall_s = t0.elapsed().as_secs_f64();
+    writer.add_text(
+        "run_json",
+        &serde_json::json!({ "wall_s": wall_s, "steps": total.steps }).to_string(),
+    )?;
     let output = writer.finish()?;
     let rods = scene.model == YarnModel::Rods;
     Ok(YlsReport {
@@ -500,7 +507,7 @@ pub fn run_observed(
         max_displacement_ratio: total.max_disp,
         ms_per_frame_median: median(ms),
         relax_ms,
-        wall_s: t0.elapsed().as_secs_f64(),
+        wall_s,
         model: scene.model,
         newton_iterations: rods.then_some(total.newton),
         split_steps: rods.then_some(total.splits),
