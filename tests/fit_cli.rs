@@ -646,5 +646,45 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     assert_eq!(o.status.code(), Some(65), "{err}");
     assert!(err.contains("--truth") && err.contains("pose"), "{err}");
 
+    // A yls run is a dynamic training pose: `fit` loads its frames with the
+    // Eq. 13 inertia forces (the fitted frame and the two before it), or
+    // takes them as equilibria with --quasi-static.
+    let fit_once = |extra: &[&str]| -> serde_json::Value {
+        let out = d.join(format!("dyn{}.vtkhdf", extra.len()));
+        let mut args = vec![
+            "fit",
+            s(&asset_path),
+            "--train",
+            s(&truth),
+            "--samples",
+            "1",
+            "--harmonic",
+            "1",
+            "--gd-iterations",
+            "1",
+            "--gn-iterations",
+            "2",
+            "-o",
+            s(&out),
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        // Progress events, one per line, then the report.
+        let text = String::from_utf8_lossy(&o.stdout);
+        serde_json::from_str(text.lines().last().unwrap()).unwrap()
+    };
+    let dynamic = fit_once(&[]);
+    let equilibria = fit_once(&["--quasi-static"]);
+    assert_eq!(dynamic["poses"][0]["dynamic"], true, "{dynamic}");
+    assert_eq!(equilibria["poses"][0]["dynamic"], false);
+    let before = |r: &serde_json::Value| r["loss_before"].as_f64().unwrap();
+    assert!(
+        before(&dynamic) != before(&equilibria),
+        "the inertia forces changed nothing: {}",
+        before(&dynamic)
+    );
+
     // Scenes with colliders: tests/validate_gravity.rs.
 }

@@ -46,6 +46,11 @@ pub struct FitArgs {
     /// the energy-weighted average of Eq. 22.
     #[arg(long)]
     pub joint: bool,
+    /// Fit the frames of yls runs as equilibria: without it their inertia and
+    /// damping forces (VH Eq. 13-14, differenced from the shape fits of each
+    /// fitted frame and the two before it) load every node.
+    #[arg(long)]
+    pub quasi_static: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -98,6 +103,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         output: a.output.clone(),
         report: a.report.clone(),
         joint: a.joint,
+        quasi_static: a.quasi_static,
         command: command_line(),
     };
     // A bar has no length to show here: plain lines without --json.

@@ -280,6 +280,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         output: Some(fitted.clone()),
         report: Some(dir.join("fit-report")),
         joint: true,
+        quasi_static: false,
         command: command.into(),
     }
     .run(&mut super::Quiet)?;

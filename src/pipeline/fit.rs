@@ -83,6 +83,10 @@ pub struct FitJob {
     /// Fit every pose's frames together (VH Eq. 9) instead of pose by pose
     /// with the energy-weighted fold of Eq. 22. Default false.
     pub joint: bool,
+    /// Treat the frames of yls runs (dynamic: a stored scene, no pose
+    /// record) as equilibria, without the inertia and damping forces of
+    /// VH Eq. 13-14. Default false.
+    pub quasi_static: bool,
     /// The command line, for provenance.
     pub command: String,
 }
@@ -135,6 +139,10 @@ pub struct PoseSummary {
     /// Largest Y2V RMS yarn error over its frames (m) and smallest det F.
     pub y2v_rms_max: f64,
     pub y2v_min_det_f: f64,
+    /// Dynamic frames (a yls run): each carries the inertia and damping
+    /// forces of VH Eq. 13-14 from the shape fits of it and the two frames
+    /// before ([`inertia_forces`]).
+    pub dynamic: bool,
 }
 
 /// What `fit` did.
@@ -259,6 +267,25 @@ struct Context<'a> {
     fitter: ShapeFitter,
     model: ElasticModel,
     samples: usize,
+    quasi_static: bool,
+}
+
+/// The forces of VH Eq. 13-14 that turn a dynamic frame into a static
+/// problem: `-m_i (a_i + c v_i)` per node, with the acceleration and
+/// velocity differenced from the shape fits of frames `f - 2`, `f - 1`, `f`
+/// (positions fitted first, differenced afterwards: VH §5), `dt` the frame
+/// interval (s) and `c` the mass-proportional damping (1/s) of the run.
+pub fn inertia_forces(mass: &[f64], x: [&[Vec3]; 3], dt: f64, damping: f64) -> Vec<Vec3> {
+    let [x0, x1, x2] = x;
+    (0..mass.len())
+        .map(|i| {
+            std::array::from_fn(|k| {
+                let a = (x2[i][k] - 2.0 * x1[i][k] + x0[i][k]) / (dt * dt);
+                let v = (x2[i][k] - x1[i][k]) / dt;
+                -mass[i] * (a + damping * v)
+            })
+        })
+        .collect()
 }
 
 fn invalid(path: &Path, message: String) -> Error {
@@ -369,6 +396,12 @@ fn read_pose(
             Source::Assumed
         }
     };
+    // A yls run (its scene stored, no pose record of `knitvox train`) is
+    // dynamic: its frames are not equilibria without their inertia.
+    let damping = match &scene {
+        Some(s) if !cx.quasi_static => Some(super::yls::scene_params(s, path)?.global_damping),
+        _ => None,
+    };
     let mut out = Vec::with_capacity(chosen.len());
     let mut node_reactions = Vec::with_capacity(chosen.len());
     let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
@@ -418,7 +451,7 @@ fn read_pose(
         }
         held_v = held_v.max(held_f.iter().filter(|h| **h).count());
         held_n = held_n.max(pinned.len());
-        let f_ext = match (&external, &scene) {
+        let mut f_ext = match (&external, &scene) {
             (Some(e), _) => node_forces(&asset.mesh, &asset.embedding, &e[f]),
             (None, Some(s)) => asset
                 .node_mass
@@ -427,6 +460,14 @@ fn read_pose(
                 .collect(),
             (None, None) => vec![[0.0; 3]; asset.mesh.num_nodes()],
         };
+        if let Some(c) = damping {
+            let inertia = dynamic_forces(cx, path, &frames, f, &x_hat, c)?;
+            for (fe, fi) in f_ext.iter_mut().zip(&inertia) {
+                for k in 0..3 {
+                    fe[k] += fi[k];
+                }
+            }
+        }
         energy += match &energies {
             Some(e) => e[f],
             None => cx
@@ -470,6 +511,7 @@ fn read_pose(
         energy_source,
         y2v_rms_max: rms_max,
         y2v_min_det_f: min_det,
+        dynamic: damping.is_some(),
     };
     Ok((
         Sample {
@@ -479,6 +521,46 @@ fn read_pose(
         },
         summary,
         node_reactions,
+    ))
+}
+
+/// [`inertia_forces`] of frame `f` (shape fit `x_hat`) of a dynamic pose:
+/// the two frames before it are shape-fitted too and must be as far apart
+/// in time as it is from the one before.
+fn dynamic_forces(
+    cx: &Context<'_>,
+    path: &Path,
+    frames: &crate::geom::YarnFrames,
+    f: usize,
+    x_hat: &[Vec3],
+    damping: f64,
+) -> Result<Vec<Vec3>, Error> {
+    if f < 2 {
+        return Err(invalid(path, format!(
+            "frame {f}: a dynamic frame needs the two frames before it (Eq. 13): fit later frames, or pass --quasi-static"
+        )));
+    }
+    let t = &frames.times;
+    let (dt, dt0) = (t[f] - t[f - 1], t[f - 1] - t[f - 2]);
+    if !(dt > 0.0 && (dt - dt0).abs() <= 1e-6 * dt) {
+        return Err(invalid(path, format!(
+            "frames {}..={f}: times {:?} are not evenly spaced: no Eq. 13 inertia (pass --quasi-static to fit them as equilibria)",
+            f - 2,
+            &t[f - 2..=f]
+        )));
+    }
+    let fit = |k: usize| {
+        cx.fitter
+            .fit(frames.frame(k))
+            .map(|(x, _)| x)
+            .map_err(|e| invalid(path, format!("frame {k}: shape fit: {e}")))
+    };
+    let (x0, x1) = (fit(f - 2)?, fit(f - 1)?);
+    Ok(inertia_forces(
+        &cx.asset.node_mass,
+        [&x0, &x1, x_hat],
+        dt,
+        damping,
     ))
 }
 
@@ -1057,6 +1139,7 @@ impl Stage for FitJob {
             fitter,
             model,
             samples: self.samples,
+            quasi_static: self.quasi_static,
         };
         let mut samples = Vec::new();
         let mut poses = Vec::new();
@@ -1322,6 +1405,43 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn inertia_forces_cancel_gravity_in_free_fall_and_add_damping() {
+        // Shape fits of a free fall x(t) = x0 + u t + g t²/2 sampled every
+        // dt: the second difference is exactly g dt², so the Eq. 13 force
+        // balances each node's weight, whatever the step; damping adds
+        // -c m v with v the backward difference.
+        let (g, u, dt) = ([0.0, -9.81, 0.0], [0.3, 0.1, -0.2], 1.0 / 30.0);
+        let mass = vec![2e-4, 5e-5, 1e-3];
+        let x0s: Vec<Vec3> = vec![[0.0, 0.0, 0.0], [0.01, 0.02, -0.03], [1.0, 2.0, 3.0]];
+        let at = |t: f64| -> Vec<Vec3> {
+            x0s.iter()
+                .map(|p| std::array::from_fn(|k| p[k] + u[k] * t + 0.5 * g[k] * t * t))
+                .collect()
+        };
+        let t2 = 0.4;
+        let (a, b, c) = (at(t2 - 2.0 * dt), at(t2 - dt), at(t2));
+        let f = inertia_forces(&mass, [&a, &b, &c], dt, 0.0);
+        for (fi, m) in f.iter().zip(&mass) {
+            for k in 0..3 {
+                assert!((fi[k] + m * g[k]).abs() <= 1e-9 * m * 9.81, "{fi:?}");
+            }
+        }
+        let damping = 2.0;
+        let fd = inertia_forces(&mass, [&a, &b, &c], dt, damping);
+        for i in 0..3 {
+            for k in 0..3 {
+                let v = (c[i][k] - b[i][k]) / dt;
+                let want = -mass[i] * (g[k] + damping * v);
+                assert!(
+                    (fd[i][k] - want).abs() <= 1e-9 * mass[i] * 10.0,
+                    "{:?}",
+                    fd[i]
+                );
+            }
+        }
+    }
 
     #[test]
     fn frames_are_chosen_evenly_with_the_last() {

@@ -922,6 +922,7 @@ impl Job {
             output: Some(self.fitted_asset()),
             report: None,
             joint: f.joint.unwrap_or(false),
+            quasi_static: false,
             command: command.into(),
         };
         Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))
