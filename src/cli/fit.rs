@@ -36,6 +36,12 @@ pub struct FitArgs {
     /// over many decades.
     #[arg(long, default_value_t = ElasticFitParams::default().max_contrast, value_name = "F", value_parser = parse_contrast)]
     pub max_contrast: f64,
+    /// Weight of a Gaussian prior on the full stage's log-field around the
+    /// harmonic stages' field (>= 0; 0: none): moving every gamma by a factor
+    /// e costs this fraction of the stage's starting loss, so directions the
+    /// poses barely observe stay put.
+    #[arg(long, default_value_t = ElasticFitParams::default().prior_weight, value_name = "RHO", value_parser = parse_prior)]
+    pub prior: f64,
     /// The fitted asset [default: ASSET with .fit.vtkhdf]; must differ from ASSET.
     #[arg(short, long, value_name = "OUT.vtkhdf")]
     pub output: Option<PathBuf>,
@@ -78,6 +84,13 @@ fn parse_ranks(s: &str) -> Result<Ranks, String> {
     Ok(Ranks(out))
 }
 
+fn parse_prior(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?}: a number >= 0")),
+    }
+}
+
 fn parse_contrast(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v >= 1.0 => Ok(v),
@@ -98,6 +111,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             gd_iterations: a.gd_iterations,
             gn_iterations: a.gn_iterations,
             max_contrast: a.max_contrast,
+            prior_weight: a.prior,
             ..ElasticFitParams::default()
         },
         output: a.output.clone(),

@@ -678,6 +678,10 @@ impl SampleFit<'_> {
         let mut lm = 1.0f64;
         let mut failures = 0;
         let floor = p.gamma_floor;
+        let prior = Prior::new(
+            (full && p.full_stage_log && p.prior_weight > 0.0).then_some(p.prior_weight),
+            &ev,
+        );
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
                 break;
@@ -686,17 +690,19 @@ impl SampleFit<'_> {
             rep.iterations += 1;
             let gn = it >= p.gd_iterations;
             let (lins, grad_gamma) = self.linearize(&ev)?;
-            let grad = basis.pull(&grad_gamma, ne);
+            let mut grad = basis.pull(&grad_gamma, ne);
+            prior.add_gradient(&ev.gamma, &mut grad);
             let gamma_rms =
                 (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
             let logmode = full && p.full_stage_log;
             let mut dir: Vec<f64> = if gn && logmode {
                 let kappa = p.kappa * lm * ev.loss / (m as f64 * gamma_rms * gamma_rms);
-                let damping: Vec<f64> = ev
+                let mut damping: Vec<f64> = ev
                     .gamma
                     .iter()
                     .map(|g| kappa * (gamma_rms / g).powi(2))
                     .collect();
+                prior.add_hessian(&ev.gamma, &mut damping);
                 let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &fixed)
                     .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
@@ -799,7 +805,7 @@ impl SampleFit<'_> {
                 if feasible && gt.iter().all(|g| g.is_finite()) {
                     if let Ok(t) = self.evaluate(&gt, &ev.xs) {
                         rep.newton_iterations += t.newton;
-                        if t.loss < ev.loss {
+                        if prior.objective(&t) < prior.objective(&ev) {
                             accepted = Some((t, newly, if full { gt.clone() } else { qt }));
                             break;
                         }
@@ -828,7 +834,7 @@ impl SampleFit<'_> {
             for j in newly {
                 clamped[j] = true;
             }
-            let decrease = (ev.loss - t.loss) / ev.loss;
+            let decrease = (prior.objective(&ev) - prior.objective(&t)) / prior.objective(&ev);
             q = qn;
             ev = t;
             rep.losses.push(ev.loss);
@@ -866,6 +872,67 @@ impl SampleFit<'_> {
         gn_solve(lins, basis, self.ne(), grad, kappa, fixed)
             .map(|d| d.iter().map(|v| -v).collect())
             .map_err(|e| self.error(0, e))
+    }
+}
+
+/// The Gaussian prior of [`ElasticFitParams::prior_weight`] on `θ = ln γ`
+/// around the stage's start, `w Σ_j (θ_j - θ0_j)²` with `w = ρ L0 / m`;
+/// inactive (zero) without a weight.
+struct Prior {
+    w: f64,
+    theta0: Vec<f64>,
+}
+
+impl Prior {
+    fn new(weight: Option<f64>, start: &Evaluated) -> Prior {
+        match weight {
+            Some(rho) => Prior {
+                w: rho * start.loss / start.gamma.len().max(1) as f64,
+                theta0: start.gamma.iter().map(|g| g.ln()).collect(),
+            },
+            None => Prior {
+                w: 0.0,
+                theta0: Vec::new(),
+            },
+        }
+    }
+
+    fn value(&self, gamma: &[f64]) -> f64 {
+        if self.w == 0.0 {
+            return 0.0;
+        }
+        self.w
+            * gamma
+                .iter()
+                .zip(&self.theta0)
+                .map(|(g, t0)| (g.ln() - t0).powi(2))
+                .sum::<f64>()
+    }
+
+    /// The loss plus the prior: what the stage's line search lowers.
+    fn objective(&self, ev: &Evaluated) -> f64 {
+        ev.loss + self.value(&ev.gamma)
+    }
+
+    /// Adds the prior's gradient with respect to γ, `2 w (θ - θ0) / γ`.
+    fn add_gradient(&self, gamma: &[f64], grad: &mut [f64]) {
+        if self.w == 0.0 {
+            return;
+        }
+        for ((d, g), t0) in grad.iter_mut().zip(gamma).zip(&self.theta0) {
+            *d += 2.0 * self.w * (g.ln() - t0) / g;
+        }
+    }
+
+    /// Adds the prior's Gauss-Newton curvature in γ, `2 w / γ²` (its
+    /// Hessian in θ is `2 w I`), to a diagonal.
+    fn add_hessian(&self, gamma: &[f64], diag: &mut [f64]) {
+        if self.w == 0.0 {
+            return;
+        }
+        for (d, g) in diag.iter_mut().zip(gamma) {
+            *d += 2.0 * self.w / (g * g);
+        }
     }
 }
 

@@ -203,6 +203,14 @@ pub struct ElasticFitParams {
     /// Pa on a 10 x 10 stockinette fitted to a stretch and a bend), a field
     /// whose held-out drape has no backward-Euler step.
     pub max_contrast: f64,
+    /// Weight ρ (dimensionless, >= 0) of a Gaussian prior on the full
+    /// stage's log-field around its start θ0 (the harmonic stages' field):
+    /// the stage minimizes `L(γ) + ρ L0 mean_j (θ_j - θ0_j)²`, L0 the loss at
+    /// the stage's start, so moving every γ by a factor e costs ρ L0.
+    /// Directions the poses barely observe then stay at the start instead of
+    /// drifting to the contrast bound for a tiny loss decrease (a MAP
+    /// estimate; VH §6 has none). Log-space full stage only. Default 0.
+    pub prior_weight: f64,
 }
 
 impl Default for ElasticFitParams {
@@ -225,6 +233,7 @@ impl Default for ElasticFitParams {
             min_decrease: 1e-9,
             max_log_step: 2.0 * std::f64::consts::LN_10,
             max_contrast: 1e3,
+            prior_weight: 0.0,
         }
     }
 }
@@ -250,12 +259,14 @@ impl ElasticFitParams {
             && self.loss_stop >= 0.0
             && self.min_decrease >= 0.0
             && self.max_log_step > 0.0
-            && self.max_contrast >= 1.0;
+            && self.max_contrast >= 1.0
+            && self.prior_weight >= 0.0
+            && self.prior_weight.is_finite();
         if ok {
             Ok(())
         } else {
             Err(ElasticFitError::Inconsistent(format!(
-                "fit parameters out of range (steps > 0, max log step > 0, max contrast >= 1, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
+                "fit parameters out of range (steps > 0, max log step > 0, max contrast >= 1, prior weight >= 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
             )))
         }
     }
