@@ -85,7 +85,7 @@ fn parse_ranks(s: &str) -> Result<Ranks, String> {
 }
 
 fn parse_prior(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
+    match s.trim().parse::<f64>() {
         Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
         _ => Err(format!("{s:?}: a number >= 0")),
     }

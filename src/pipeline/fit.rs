@@ -83,9 +83,10 @@ pub struct FitJob {
     /// Fit every pose's frames together (VH Eq. 9) instead of pose by pose
     /// with the energy-weighted fold of Eq. 22. Default false.
     pub joint: bool,
-    /// Treat the frames of yls runs (dynamic: a stored scene, no pose
-    /// record) as equilibria, without the inertia and damping forces of
-    /// VH Eq. 13-14. Default false.
+    /// Treat the frames of yls runs (files storing their scene,
+    /// `/metadata/scene_toml`; `train` output stores none) as equilibria,
+    /// without the inertia and damping forces of VH Eq. 13-14. Default
+    /// false.
     pub quasi_static: bool,
     /// The command line, for provenance.
     pub command: String,
@@ -396,8 +397,9 @@ fn read_pose(
             Source::Assumed
         }
     };
-    // A yls run (its scene stored, no pose record of `knitvox train`) is
-    // dynamic: its frames are not equilibria without their inertia.
+    // A yls run (the only writer of /metadata/scene_toml; `train` output
+    // stores its pose instead) is dynamic: its frames are not equilibria
+    // without their inertia.
     let damping = match &scene {
         Some(s) if !cx.quasi_static => Some(super::yls::scene_params(s, path)?.global_damping),
         _ => None,

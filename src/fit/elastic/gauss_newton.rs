@@ -775,6 +775,7 @@ impl SampleFit<'_> {
             }
             let mut accepted = None;
             let mut halved = 0;
+            let objective = prior.objective(&ev);
             for _ in 0..=p.max_halvings {
                 let qt: Vec<f64> = if logmode {
                     q.iter()
@@ -805,7 +806,7 @@ impl SampleFit<'_> {
                 if feasible && gt.iter().all(|g| g.is_finite()) {
                     if let Ok(t) = self.evaluate(&gt, &ev.xs) {
                         rep.newton_iterations += t.newton;
-                        if prior.objective(&t) < prior.objective(&ev) {
+                        if prior.objective(&t) < objective {
                             accepted = Some((t, newly, if full { gt.clone() } else { qt }));
                             break;
                         }
@@ -834,7 +835,7 @@ impl SampleFit<'_> {
             for j in newly {
                 clamped[j] = true;
             }
-            let decrease = (prior.objective(&ev) - prior.objective(&t)) / prior.objective(&ev);
+            let decrease = (objective - prior.objective(&t)) / objective;
             q = qn;
             ev = t;
             rep.losses.push(ev.loss);
