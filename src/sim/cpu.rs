@@ -10,7 +10,10 @@ use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, LocalEval};
 use super::energy::{node_gradients, ElasticModel};
-use super::local::{project_diag_sl3, project_volume_detailed, signed_svd_warm, SignedSvd};
+use super::local::{
+    project_diag_sl3, project_volume_detailed, signed_svd_warm_approx, signed_svd_warm_approx_x4,
+    SignedSvd, SVD_LANES,
+};
 use super::SimError;
 use crate::geom::Vec3;
 
@@ -38,7 +41,7 @@ pub struct CpuElasticRhs {
     /// Per-tet scratch: energy and clamped flag.
     per_tet_energy: Vec<(f64, bool)>,
     /// Per tet, the right singular vectors `V` of its last `F`: the warm
-    /// start of the next SVD ([`signed_svd_warm`]; PD iterations and time
+    /// start of the next SVD ([`signed_svd_warm_approx`]; PD iterations and time
     /// steps move `F` little).
     warm_v: Vec<Matrix3<f64>>,
 }
@@ -141,13 +144,8 @@ impl ElasticRhs for CpuElasticRhs {
             .zip(self.warm_v.par_chunks_mut(TET_CHUNK))
             .enumerate()
             .for_each(|(c, ((g_chunk, e_chunk), w_chunk))| {
-                for (j, ((g, en), wv)) in g_chunk
-                    .iter_mut()
-                    .zip(e_chunk.iter_mut())
-                    .zip(w_chunk.iter_mut())
-                    .enumerate()
-                {
-                    let e = c * TET_CHUNK + j;
+                let base = c * TET_CHUNK;
+                let def_grad = |e: usize| {
                     let r = &rest[e];
                     let x0 = v3(x[r.nodes[0]]);
                     let ds = Matrix3::from_columns(&[
@@ -155,19 +153,40 @@ impl ElasticRhs for CpuElasticRhs {
                         v3(x[r.nodes[2]]) - x0,
                         v3(x[r.nodes[3]]) - x0,
                     ]);
-                    let f = ds * r.dm_inv;
-                    let svd = signed_svd_warm(&f, wv);
-                    if let Some(svd) = &svd {
-                        *wv = svd.v;
-                    }
-                    let (rot, vol, clamped) = project_from_svd(&f, svd);
-                    *en = (
-                        r.volume
-                            * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared()),
-                        clamped,
-                    );
+                    ds * r.dm_inv
+                };
+                let finish = |e: usize, f: &Matrix3<f64>, svd: Option<SignedSvd>| {
+                    let r = &rest[e];
+                    let (rot, vol, clamped) = project_from_svd(f, svd);
+                    let energy = r.volume
+                        * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared());
                     let target = 2.0 * r.volume * (gs[e] * rot + gv[e] * vol);
-                    *g = node_gradients(&target, &r.dm_inv);
+                    ((energy, clamped), node_gradients(&target, &r.dm_inv))
+                };
+                // Four tets per SVD call (latency: see the x4 doc), the
+                // chunk's remainder one by one; same results either way.
+                let n = g_chunk.len();
+                let mut j = 0;
+                while j + SVD_LANES <= n {
+                    let fs: [Matrix3<f64>; SVD_LANES] =
+                        std::array::from_fn(|l| def_grad(base + j + l));
+                    let w0: [Matrix3<f64>; SVD_LANES] = std::array::from_fn(|l| w_chunk[j + l]);
+                    let svds = signed_svd_warm_approx_x4(&fs, &w0);
+                    for l in 0..SVD_LANES {
+                        if let Some(svd) = &svds[l] {
+                            w_chunk[j + l] = svd.v;
+                        }
+                        (e_chunk[j + l], g_chunk[j + l]) = finish(base + j + l, &fs[l], svds[l]);
+                    }
+                    j += SVD_LANES;
+                }
+                for j in j..n {
+                    let f = def_grad(base + j);
+                    let svd = signed_svd_warm_approx(&f, &w_chunk[j]);
+                    if let Some(svd) = &svd {
+                        w_chunk[j] = svd.v;
+                    }
+                    (e_chunk[j], g_chunk[j]) = finish(base + j, &f, svd);
                 }
             });
         let per_tet = &self.per_tet;

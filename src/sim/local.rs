@@ -73,7 +73,7 @@ pub struct SignedSvd {
 /// weakness of eigenvalue-only methods). About 10x faster than nalgebra's
 /// general SVD, the local step's cost.
 pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
-    signed_svd_from(f, None)
+    signed_svd_from(f, None, EXACT_STOP_REL2)
 }
 
 /// [`signed_svd`] with the Jacobi rotations started from the rotation `v0`
@@ -85,51 +85,56 @@ pub fn signed_svd(f: &Matrix3<f64>) -> Option<SignedSvd> {
 /// the cold one only by rounding (and by the sign/order choices where
 /// singular values are equal).
 pub fn signed_svd_warm(f: &Matrix3<f64>, v0: &Matrix3<f64>) -> Option<SignedSvd> {
-    signed_svd_from(f, Some(v0))
+    signed_svd_from(f, Some(v0), EXACT_STOP_REL2)
 }
 
-fn signed_svd_from(f: &Matrix3<f64>, v0: Option<&Matrix3<f64>>) -> Option<SignedSvd> {
-    if !f.iter().all(|x| x.is_finite()) {
-        return None;
-    }
-    // Scale to unit size so that FᵀF can neither overflow nor underflow.
-    let scale = f.amax();
-    if scale == 0.0 {
-        return Some(SignedSvd {
-            u: Matrix3::identity(),
-            s: Vector3::zeros(),
-            v: Matrix3::identity(),
-        });
-    }
-    let fs = f / scale;
+/// [`signed_svd_warm`] to about 1e-10 relative instead of rounding: the
+/// sweeps stop after the one that started with every column pair within
+/// 1e-5 of orthogonal (quadratic convergence takes that to ~1e-10), which
+/// with a nearby warm start is usually one sweep fewer. `U` and `V` are
+/// still rotations to rounding; `U diag(s) Vᵀ` reproduces `F` to ~1e-10
+/// relative. For the PD local step, whose iterations stop far above that
+/// (`PdParams::tolerance`).
+pub fn signed_svd_warm_approx(f: &Matrix3<f64>, v0: &Matrix3<f64>) -> Option<SignedSvd> {
+    signed_svd_from(f, Some(v0), APPROX_STOP_REL2)
+}
+
+/// Squared relative off-diagonal at a sweep's start below which that sweep
+/// is the last: 1e-8 relative gives rounding after it (quadratic), 1e-5
+/// about 1e-10.
+const EXACT_STOP_REL2: f64 = 1e-16;
+const APPROX_STOP_REL2: f64 = 1e-10;
+
+fn signed_svd_from(
+    f: &Matrix3<f64>,
+    v0: Option<&Matrix3<f64>>,
+    stop_rel2: f64,
+) -> Option<SignedSvd> {
+    let (mut b, mut v, scale) = match jacobi_start(f, v0)? {
+        Ok(start) => start,
+        Err(zero) => return Some(zero),
+    };
     // One-sided (Hestenes) Jacobi: rotate column pairs of B = F V until
     // every pair is orthogonal relative to the columns' own norms (which is
     // what keeps tiny singular values accurate, unlike an eigensolve of FᵀF).
-    let (mut b, mut v) = match v0 {
-        Some(v0) if v0.iter().all(|x| x.is_finite()) => (fs * v0, *v0),
-        _ => (fs, Matrix3::<f64>::identity()),
-    };
     for _sweep in 0..JACOBI_SWEEPS {
         let mut rotated = false;
         // Squared relative off-diagonal (no square root on the hot path).
         let mut max_rel2: f64 = 0.0;
         for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
-            let (bp, bq) = (b.column(p), b.column(q));
-            let (alpha, beta, gamma) = (bp.norm_squared(), bq.norm_squared(), bp.dot(&bq));
-            let (ab, g2) = (alpha * beta, gamma * gamma);
-            if gamma == 0.0 || g2 <= f64::EPSILON * f64::EPSILON * ab {
-                continue;
+            // Summed in the order the four-lane version sums them.
+            let (mut alpha, mut beta, mut gamma) = (0.0, 0.0, 0.0);
+            for k in 0..3 {
+                let (x, y) = (b[(k, p)], b[(k, q)]);
+                alpha += x * x;
+                beta += y * y;
+                gamma += x * y;
             }
-            rotated = true;
-            max_rel2 = max_rel2.max(g2 / ab);
-            let zeta = (beta - alpha) / (2.0 * gamma);
-            let t = if zeta.abs() > 1e150 {
-                0.5 / zeta
-            } else {
-                zeta.signum() / (zeta.abs() + (zeta * zeta + 1.0).sqrt())
+            let Some((c, sn, rel2)) = jacobi_rotation(alpha, beta, gamma) else {
+                continue;
             };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let sn = t * c;
+            rotated = true;
+            max_rel2 = max_rel2.max(rel2);
             for k in 0..3 {
                 let (xp, xq) = (b[(k, p)], b[(k, q)]);
                 b[(k, p)] = c * xp - sn * xq;
@@ -142,10 +147,159 @@ fn signed_svd_from(f: &Matrix3<f64>, v0: Option<&Matrix3<f64>>) -> Option<Signed
         // Cyclic Jacobi converges quadratically: once every pair started the
         // sweep within 1e-8 of orthogonal, the sweep has brought them to
         // rounding, and a checking sweep would rotate nothing.
-        if !rotated || max_rel2 <= 1e-16 {
+        if !rotated || max_rel2 <= stop_rel2 {
             break;
         }
     }
+    Some(finish_svd(b, v, scale))
+}
+
+/// The scaled `B = F V0 / max|F|`, `V0` and the scale that the sweeps start
+/// from; `Err` with the SVD of a zero `F`, `None` for a non-finite one.
+#[allow(clippy::type_complexity)]
+fn jacobi_start(
+    f: &Matrix3<f64>,
+    v0: Option<&Matrix3<f64>>,
+) -> Option<Result<(Matrix3<f64>, Matrix3<f64>, f64), SignedSvd>> {
+    if !f.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    // Scale to unit size so that FᵀF can neither overflow nor underflow.
+    let scale = f.amax();
+    if scale == 0.0 {
+        return Some(Err(SignedSvd {
+            u: Matrix3::identity(),
+            s: Vector3::zeros(),
+            v: Matrix3::identity(),
+        }));
+    }
+    let fs = f / scale;
+    Some(Ok(match v0 {
+        Some(v0) if v0.iter().all(|x| x.is_finite()) => (fs * v0, *v0, scale),
+        _ => (fs, Matrix3::<f64>::identity(), scale),
+    }))
+}
+
+/// The Jacobi rotation `(c, s)` that makes columns of squared norms
+/// `alpha`, `beta` and inner product `gamma` orthogonal, with their squared
+/// relative inner product `gamma² / (alpha beta)`; `None` where they
+/// already are (to rounding).
+#[inline(always)]
+fn jacobi_rotation(alpha: f64, beta: f64, gamma: f64) -> Option<(f64, f64, f64)> {
+    let (ab, g2) = (alpha * beta, gamma * gamma);
+    if gamma == 0.0 || g2 <= f64::EPSILON * f64::EPSILON * ab {
+        return None;
+    }
+    let (c, sn) = rotation_of(alpha, beta, gamma);
+    Some((c, sn, g2 / ab))
+}
+
+/// Cosine and sine of the Jacobi rotation for `gamma != 0` (Golub & Van
+/// Loan §8.5.2, the smaller root `t`).
+#[inline(always)]
+fn rotation_of(alpha: f64, beta: f64, gamma: f64) -> (f64, f64) {
+    let zeta = (beta - alpha) / (2.0 * gamma);
+    // For |zeta| > 1e150 (zeta² overflows) t -> 1 / (2 zeta).
+    let big = zeta.abs() > 1e150;
+    let z = if big { 1.0 } else { zeta };
+    let t_small = z.signum() / (z.abs() + (z * z + 1.0).sqrt());
+    let t = if big { 0.5 / zeta } else { t_small };
+    let c = 1.0 / (t * t + 1.0).sqrt();
+    (c, t * c)
+}
+
+/// Tets per batch of [`signed_svd_warm_approx_x4`].
+pub const SVD_LANES: usize = 4;
+
+/// [`signed_svd_warm_approx`] of four matrices at once, each result the
+/// one the single call gives (the same rotations in the same order, to the
+/// sign of a zero). The Jacobi sweeps run in lockstep over the four: each
+/// sweep's chain of square roots and divisions is latency-bound, and four
+/// independent chains keep the divider busy where one leaves it idle. A
+/// lane that has converged is rotated by the identity (bitwise a no-op).
+pub fn signed_svd_warm_approx_x4(
+    f: &[Matrix3<f64>; SVD_LANES],
+    v0: &[Matrix3<f64>; SVD_LANES],
+) -> [Option<SignedSvd>; SVD_LANES] {
+    let starts: [_; SVD_LANES] = std::array::from_fn(|l| jacobi_start(&f[l], Some(&v0[l])));
+    if !starts.iter().all(|s| matches!(s, Some(Ok(_))))
+        || !v0.iter().all(|v| v.iter().all(|x| x.is_finite()))
+    {
+        return std::array::from_fn(|l| signed_svd_warm_approx(&f[l], &v0[l]));
+    }
+    // Lane-major copies: b[k][l] is entry k (column-major) of lane l.
+    let mut b = [[0.0f64; SVD_LANES]; 9];
+    let mut v = [[0.0f64; SVD_LANES]; 9];
+    let mut scale = [0.0f64; SVD_LANES];
+    for (l, s) in starts.iter().enumerate() {
+        if let Some(Ok((bl, vl, sc))) = s {
+            for k in 0..9 {
+                b[k][l] = bl[k];
+                v[k][l] = vl[k];
+            }
+            scale[l] = *sc;
+        }
+    }
+    let mut done = [false; SVD_LANES];
+    for _sweep in 0..JACOBI_SWEEPS {
+        let mut rotated = [false; SVD_LANES];
+        let mut max_rel2 = [0.0f64; SVD_LANES];
+        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let mut c = [1.0f64; SVD_LANES];
+            let mut sn = [0.0f64; SVD_LANES];
+            for l in 0..SVD_LANES {
+                let col = |m: usize, k: usize| b[3 * m + k][l];
+                let (mut alpha, mut beta, mut gamma) = (0.0, 0.0, 0.0);
+                for k in 0..3 {
+                    let (x, y) = (col(p, k), col(q, k));
+                    alpha += x * x;
+                    beta += y * y;
+                    gamma += x * y;
+                }
+                // Branch-free (selects, not jumps), so the four lanes'
+                // divisions and square roots overlap.
+                let (ab, g2) = (alpha * beta, gamma * gamma);
+                let skip = done[l] | (gamma == 0.0) | (g2 <= f64::EPSILON * f64::EPSILON * ab);
+                let (cl, sl) = rotation_of(alpha, beta, if skip { 1.0 } else { gamma });
+                c[l] = if skip { 1.0 } else { cl };
+                sn[l] = if skip { 0.0 } else { sl };
+                rotated[l] |= !skip;
+                let rel2 = g2 / ab;
+                max_rel2[l] = if skip {
+                    max_rel2[l]
+                } else {
+                    max_rel2[l].max(rel2)
+                };
+            }
+            for k in 0..3 {
+                let (ip, iq) = (3 * p + k, 3 * q + k);
+                for l in 0..SVD_LANES {
+                    let (xp, xq) = (b[ip][l], b[iq][l]);
+                    b[ip][l] = c[l] * xp - sn[l] * xq;
+                    b[iq][l] = sn[l] * xp + c[l] * xq;
+                    let (vp, vq) = (v[ip][l], v[iq][l]);
+                    v[ip][l] = c[l] * vp - sn[l] * vq;
+                    v[iq][l] = sn[l] * vp + c[l] * vq;
+                }
+            }
+        }
+        for l in 0..SVD_LANES {
+            done[l] |= !rotated[l] || max_rel2[l] <= APPROX_STOP_REL2;
+        }
+        if done.iter().all(|&d| d) {
+            break;
+        }
+    }
+    std::array::from_fn(|l| {
+        let bl = Matrix3::from_fn(|r, c| b[3 * c + r][l]);
+        let vl = Matrix3::from_fn(|r, c| v[3 * c + r][l]);
+        Some(finish_svd(bl, vl, scale[l]))
+    })
+}
+
+/// Sorts, fixes the signs of and QR-factors the orthogonalized `B = F V /
+/// scale` into the signed SVD of `F`.
+fn finish_svd(b: Matrix3<f64>, v: Matrix3<f64>, scale: f64) -> SignedSvd {
     let a = Matrix3::from_diagonal(&Vector3::from_fn(|k, _| b.column(k).norm_squared()));
     // Sort descending by column norm (a swap of two columns flips det V,
     // the sign fix below restores it).
@@ -210,7 +364,7 @@ fn signed_svd_from(f: &Matrix3<f64>, v0: Option<&Matrix3<f64>>) -> Option<Signed
             sv[2] = -sv[2];
         }
     }
-    Some(SignedSvd { u, s: sv, v: vs })
+    SignedSvd { u, s: sv, v: vs }
 }
 
 /// Cap on one-sided Jacobi sweeps (f64 converges in 4-6: quadratic).
@@ -860,6 +1014,67 @@ mod tests {
             // The reflection sits on s3 (where det F is not rounding noise).
             if f.determinant().abs() > 1e-10 * scale.powi(3) {
                 assert_eq!(f.determinant() < 0.0, svd.s[2] < 0.0, "{svd:?}");
+            }
+        }
+    }
+
+    /// F of a PD iteration: random, near identity or rank-deficient, or
+    /// inverted, with the V of a nearby F as warm start.
+    fn pd_like_case(rng: &mut Rng, case: usize) -> (Matrix3<f64>, Matrix3<f64>) {
+        let mut f = Matrix3::from_fn(|_, _| rng.next() * 2.0 - 1.0);
+        match case % 4 {
+            0 => f = Matrix3::identity() + 0.3 * f,
+            1 => f.set_column(2, &(0.5 * f.column(0) + 1e-9 * f.column(1))),
+            2 => f.column_mut(0).neg_mut(),
+            _ => {}
+        }
+        let near = f + Matrix3::from_fn(|_, _| 1e-3 * (rng.next() - 0.5));
+        (f, signed_svd(&near).unwrap().v)
+    }
+
+    #[test]
+    fn approximate_svd_reconstructs_to_1e_9_with_proper_rotations() {
+        let mut rng = Rng(11);
+        for case in 0..2000 {
+            let (f, v0) = pd_like_case(&mut rng, case);
+            let a = signed_svd_warm_approx(&f, &v0).unwrap();
+            let cold = signed_svd(&f).unwrap();
+            let back = a.u * Matrix3::from_diagonal(&a.s) * a.v.transpose();
+            assert!((back - f).norm() <= 1e-9 * f.norm(), "case {case}");
+            assert!((a.s - cold.s).norm() <= 1e-9 * f.norm(), "case {case}");
+            for m in [a.u, a.v] {
+                assert!((m.transpose() * m - Matrix3::identity()).norm() < 1e-12);
+                assert!((m.determinant() - 1.0).abs() < 1e-12);
+            }
+            if f.determinant().abs() > 1e-6 {
+                assert_eq!(f.determinant() < 0.0, a.s[2] < 0.0, "case {case}");
+            }
+        }
+    }
+
+    #[test]
+    fn four_lane_svd_is_four_single_ones() {
+        let mut rng = Rng(12);
+        for batch in 0..500 {
+            let cases: [_; SVD_LANES] = std::array::from_fn(|l| pd_like_case(&mut rng, batch + l));
+            let mut f = cases.map(|c| c.0);
+            let mut v0 = cases.map(|c| c.1);
+            // Batches with a lane the lockstep sweeps cannot take: a zero
+            // F, a non-finite F, a non-finite warm start.
+            match batch % 10 {
+                7 => f[1] = Matrix3::zeros(),
+                8 => f[2][(1, 1)] = f64::NAN,
+                9 => v0[3][(0, 2)] = f64::INFINITY,
+                _ => {}
+            }
+            let four = signed_svd_warm_approx_x4(&f, &v0);
+            for l in 0..SVD_LANES {
+                // `==` on floats: equal up to the sign of a zero.
+                assert_eq!(
+                    four[l],
+                    signed_svd_warm_approx(&f[l], &v0[l]),
+                    "batch {batch} lane {l}"
+                );
             }
         }
     }
