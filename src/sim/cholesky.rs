@@ -7,7 +7,10 @@
 //! way, [`SparseCholesky::solve_in_place`]).
 
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+};
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SparseColMatRef;
 use faer::{MatMut, Par};
 
@@ -32,6 +35,25 @@ impl SparseCholesky {
             faer::Side::Lower,
             Default::default(),
             Default::default(),
+        )
+        .map_err(|e| format!("{e:?}"))
+    }
+
+    /// [`Self::symbolic`] that always picks faer's supernodal factorization.
+    /// For the PD global matrix (a tet mesh's node graph) this refactors
+    /// about 1.3x faster than the simplicial one faer's heuristic picks for
+    /// a 1,568-node mesh, and PD refactors whenever its contact set grows.
+    pub fn symbolic_supernodal(
+        lower: SparseColMatRef<'_, usize, f64>,
+    ) -> Result<SymbolicCholesky<usize>, String> {
+        factorize_symbolic_cholesky(
+            lower.symbolic(),
+            faer::Side::Lower,
+            Default::default(),
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+                ..Default::default()
+            },
         )
         .map_err(|e| format!("{e:?}"))
     }

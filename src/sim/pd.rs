@@ -735,7 +735,7 @@ impl PdSolver {
                     .map_err(llt_error)?;
                 let sym = match self.factor.take() {
                     Some(f) if !symbolic => f.into_symbolic(),
-                    _ => SparseCholesky::symbolic(a.as_ref()).map_err(llt_error)?,
+                    _ => SparseCholesky::symbolic_supernodal(a.as_ref()).map_err(llt_error)?,
                 };
                 self.factor = Some(SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?);
                 let diag = diagonal_positions(&a)?;
@@ -1050,7 +1050,7 @@ impl PdSolver {
             }
             let sym = match self.contact_factor.take() {
                 Some(c) => c.factor.into_symbolic(),
-                None => SparseCholesky::symbolic(a.as_ref()).map_err(llt_error)?,
+                None => SparseCholesky::symbolic_supernodal(a.as_ref()).map_err(llt_error)?,
             };
             let factor = SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?;
             self.contact_factor = Some(ContactFactor {
