@@ -166,12 +166,13 @@ impl ElasticRhs for CpuElasticRhs {
                 // Four tets per SVD call (latency: see the x4 doc), the
                 // chunk's remainder one by one; same results either way.
                 let n = g_chunk.len();
+                let mut svds = [None; SVD_LANES];
                 let mut j = 0;
                 while j + SVD_LANES <= n {
                     let fs: [Matrix3<f64>; SVD_LANES] =
                         std::array::from_fn(|l| def_grad(base + j + l));
                     let w0: [Matrix3<f64>; SVD_LANES] = std::array::from_fn(|l| w_chunk[j + l]);
-                    let svds = signed_svd_warm_approx_x4(&fs, &w0);
+                    signed_svd_warm_approx_x4(&fs, &w0, &mut svds);
                     for l in 0..SVD_LANES {
                         if let Some(svd) = &svds[l] {
                             w_chunk[j + l] = svd.v;

@@ -211,8 +211,9 @@ fn rotation_of(alpha: f64, beta: f64, gamma: f64) -> (f64, f64) {
 /// Tets per batch of [`signed_svd_warm_approx_x4`].
 pub const SVD_LANES: usize = 4;
 
-/// [`signed_svd_warm_approx`] of four matrices at once, each result the
-/// one the single call gives (the same rotations in the same order, to the
+/// [`signed_svd_warm_approx`] of four matrices at once, into `out` (written
+/// in place: returning the ~700-byte array cost a copy per call), each
+/// result the one the single call gives (the same rotations in the same order, to the
 /// sign of a zero). The Jacobi sweeps run in lockstep over the four: each
 /// sweep's chain of square roots and divisions is latency-bound, and four
 /// independent chains keep the divider busy where one leaves it idle. A
@@ -220,24 +221,35 @@ pub const SVD_LANES: usize = 4;
 pub fn signed_svd_warm_approx_x4(
     f: &[Matrix3<f64>; SVD_LANES],
     v0: &[Matrix3<f64>; SVD_LANES],
-) -> [Option<SignedSvd>; SVD_LANES] {
-    let starts: [_; SVD_LANES] = std::array::from_fn(|l| jacobi_start(&f[l], Some(&v0[l])));
-    if !starts.iter().all(|s| matches!(s, Some(Ok(_))))
-        || !v0.iter().all(|v| v.iter().all(|x| x.is_finite()))
-    {
-        return std::array::from_fn(|l| signed_svd_warm_approx(&f[l], &v0[l]));
+    out: &mut [Option<SignedSvd>; SVD_LANES],
+) {
+    let mut scale = [0.0f64; SVD_LANES];
+    for l in 0..SVD_LANES {
+        scale[l] = f[l].amax();
     }
-    // Lane-major copies: b[k][l] is entry k (column-major) of lane l.
+    // Lanes the lockstep sweeps cannot take (non-finite or zero F, a
+    // non-finite warm start): all four one by one.
+    let regular = (0..SVD_LANES).all(|l| {
+        scale[l] > 0.0
+            && scale[l].is_finite()
+            && f[l].iter().all(|x| x.is_finite())
+            && v0[l].iter().all(|x| x.is_finite())
+    });
+    if !regular {
+        for l in 0..SVD_LANES {
+            out[l] = signed_svd_warm_approx(&f[l], &v0[l]);
+        }
+        return;
+    }
+    // Lane-major B = (F / scale) V0 and V = V0: b[k][l] is entry k
+    // (column-major) of lane l, as `jacobi_start` computes it.
     let mut b = [[0.0f64; SVD_LANES]; 9];
     let mut v = [[0.0f64; SVD_LANES]; 9];
-    let mut scale = [0.0f64; SVD_LANES];
-    for (l, s) in starts.iter().enumerate() {
-        if let Some(Ok((bl, vl, sc))) = s {
-            for k in 0..9 {
-                b[k][l] = bl[k];
-                v[k][l] = vl[k];
-            }
-            scale[l] = *sc;
+    for l in 0..SVD_LANES {
+        let bl = (f[l] / scale[l]) * v0[l];
+        for k in 0..9 {
+            b[k][l] = bl[k];
+            v[k][l] = v0[l][k];
         }
     }
     let mut done = [false; SVD_LANES];
@@ -290,11 +302,11 @@ pub fn signed_svd_warm_approx_x4(
             break;
         }
     }
-    std::array::from_fn(|l| {
+    for l in 0..SVD_LANES {
         let bl = Matrix3::from_fn(|r, c| b[3 * c + r][l]);
         let vl = Matrix3::from_fn(|r, c| v[3 * c + r][l]);
-        Some(finish_svd(bl, vl, scale[l]))
-    })
+        out[l] = Some(finish_svd(bl, vl, scale[l]));
+    }
 }
 
 /// Sorts, fixes the signs of and QR-factors the orthogonalized `B = F V /
@@ -1067,7 +1079,8 @@ mod tests {
                 9 => v0[3][(0, 2)] = f64::INFINITY,
                 _ => {}
             }
-            let four = signed_svd_warm_approx_x4(&f, &v0);
+            let mut four = [None; SVD_LANES];
+            signed_svd_warm_approx_x4(&f, &v0, &mut four);
             for l in 0..SVD_LANES {
                 // `==` on floats: equal up to the sign of a zero.
                 assert_eq!(
