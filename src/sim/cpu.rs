@@ -120,6 +120,34 @@ fn project_from_svd(
     }
 }
 
+/// One tet's energy `V (γs |F - R|² + γv |F - V(F)|²)` (J, VH Eq. 7) and
+/// the PD target `2 V (γs R + γv V(F))` from the signed SVD of `F`, and
+/// whether the SL(3) projection clamped. With `F = U S Vᵀ`, `R = U Vᵀ` and
+/// `V(F) = U D Vᵀ` (U, V rotations) both come from the singular values:
+/// `|F - R|² = Σ (s_i - 1)²`, `|F - V(F)|² = Σ (s_i - d_i)²` and the target
+/// is `U diag(2 V (γs + γv d_i)) Vᵀ`, one matrix product instead of five.
+fn targets_from_svd(
+    svd: &SignedSvd,
+    volume: f64,
+    gamma_s: f64,
+    gamma_v: f64,
+) -> (f64, Matrix3<f64>, bool) {
+    let p = project_diag_sl3([svd.s[0], svd.s[1], svd.s[2]]);
+    let (mut e_s, mut e_v) = (0.0, 0.0);
+    let mut u = svd.u;
+    for k in 0..3 {
+        e_s += (svd.s[k] - 1.0).powi(2);
+        e_v += (svd.s[k] - p.d[k]).powi(2);
+        let w = 2.0 * volume * (gamma_s + gamma_v * p.d[k]);
+        u.column_mut(k).scale_mut(w);
+    }
+    (
+        volume * (gamma_s * e_s + gamma_v * e_v),
+        u * svd.v.transpose(),
+        p.clamped,
+    )
+}
+
 impl ElasticRhs for CpuElasticRhs {
     fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError> {
         let n = self.model.num_nodes();
@@ -157,10 +185,17 @@ impl ElasticRhs for CpuElasticRhs {
                 };
                 let finish = |e: usize, f: &Matrix3<f64>, svd: Option<SignedSvd>| {
                     let r = &rest[e];
-                    let (rot, vol, clamped) = project_from_svd(f, svd);
-                    let energy = r.volume
-                        * (gs[e] * (f - rot).norm_squared() + gv[e] * (f - vol).norm_squared());
-                    let target = 2.0 * r.volume * (gs[e] * rot + gv[e] * vol);
+                    let (energy, target, clamped) = match svd {
+                        Some(svd) => targets_from_svd(&svd, r.volume, gs[e], gv[e]),
+                        None => {
+                            let (rot, vol, clamped) = project_from_svd(f, None);
+                            let energy = r.volume
+                                * (gs[e] * (f - rot).norm_squared()
+                                    + gv[e] * (f - vol).norm_squared());
+                            let target = 2.0 * r.volume * (gs[e] * rot + gv[e] * vol);
+                            (energy, target, clamped)
+                        }
+                    };
                     ((energy, clamped), node_gradients(&target, &r.dm_inv))
                 };
                 // Four tets per SVD call (latency: see the x4 doc), the
@@ -332,6 +367,34 @@ mod tests {
             for k in 0..3 {
                 assert!((o[k] - e[k]).abs() < 1e-10, "{o:?} vs {e:?}");
             }
+        }
+    }
+
+    #[test]
+    fn targets_from_singular_values_match_the_matrices() {
+        // Stretched, compressed, near-degenerate and inverted F.
+        for (i, f) in [
+            Matrix3::new(1.1, 0.2, -0.1, 0.0, 0.8, 0.3, 0.1, 0.0, 1.3),
+            Matrix3::new(0.3, 0.05, 0.0, -0.02, 2.5, 0.4, 0.1, 0.0, 0.9),
+            Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1e-4),
+            Matrix3::new(-1.0, 0.1, 0.0, 0.0, 1.0, 0.2, 0.3, 0.0, 1.2),
+            Matrix3::identity(),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let (vol, gs, gv) = (0.37, 2.0, 5.0);
+            let (rot, proj, clamped) = project_both(f);
+            let energy = vol * (gs * (f - rot).norm_squared() + gv * (f - proj).norm_squared());
+            let target = 2.0 * vol * (gs * rot + gv * proj);
+            let svd = crate::sim::local::signed_svd(f).unwrap();
+            let (e2, t2, c2) = targets_from_svd(&svd, vol, gs, gv);
+            assert!(
+                (e2 - energy).abs() <= 1e-12 * energy.max(1.0),
+                "case {i}: {e2} vs {energy}"
+            );
+            assert!((t2 - target).norm() <= 1e-12 * target.norm(), "case {i}");
+            assert_eq!(c2, clamped, "case {i}");
         }
     }
 
