@@ -11,8 +11,8 @@ use rayon::prelude::*;
 use super::backend::{ElasticRhs, LocalEval};
 use super::energy::{node_gradients, ElasticModel};
 use super::local::{
-    project_diag_sl3, project_volume_detailed, signed_svd_warm_approx, signed_svd_warm_approx_x4,
-    SignedSvd, SVD_LANES,
+    project_diag_sl3, project_volume_detailed, signed_svd_warm, signed_svd_warm_x4, SignedSvd,
+    SVD_LANES,
 };
 use super::SimError;
 use crate::geom::Vec3;
@@ -41,7 +41,7 @@ pub struct CpuElasticRhs {
     /// Per-tet scratch: energy and clamped flag.
     per_tet_energy: Vec<(f64, bool)>,
     /// Per tet, the right singular vectors `V` of its last `F`: the warm
-    /// start of the next SVD ([`signed_svd_warm_approx`]; PD iterations and time
+    /// start of the next SVD ([`signed_svd_warm`]; PD iterations and time
     /// steps move `F` little).
     warm_v: Vec<Matrix3<f64>>,
 }
@@ -207,7 +207,7 @@ impl ElasticRhs for CpuElasticRhs {
                     let fs: [Matrix3<f64>; SVD_LANES] =
                         std::array::from_fn(|l| def_grad(base + j + l));
                     let w0: [Matrix3<f64>; SVD_LANES] = std::array::from_fn(|l| w_chunk[j + l]);
-                    signed_svd_warm_approx_x4(&fs, &w0, &mut svds);
+                    signed_svd_warm_x4(&fs, &w0, &mut svds);
                     for l in 0..SVD_LANES {
                         if let Some(svd) = &svds[l] {
                             w_chunk[j + l] = svd.v;
@@ -218,7 +218,7 @@ impl ElasticRhs for CpuElasticRhs {
                 }
                 for j in j..n {
                     let f = def_grad(base + j);
-                    let svd = signed_svd_warm_approx(&f, &w_chunk[j]);
+                    let svd = signed_svd_warm(&f, &w_chunk[j]);
                     if let Some(svd) = &svd {
                         w_chunk[j] = svd.v;
                     }
