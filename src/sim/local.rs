@@ -282,46 +282,55 @@ pub fn signed_svd_warm_x4(
             break;
         }
     }
+    // Sort per lane, then the Givens QR in lockstep (its square roots and
+    // divisions are a chain like the sweeps'), then order and signs.
+    let mut vs = [Matrix3::zeros(); SVD_LANES];
     for l in 0..SVD_LANES {
         let bl = Matrix3::from_fn(|r, c| b[3 * c + r][l]);
         let vl = Matrix3::from_fn(|r, c| v[3 * c + r][l]);
-        out[l] = Some(finish_svd(bl, vl, scale[l]));
+        let (bs, vsl) = sort_columns(bl, vl);
+        vs[l] = vsl;
+        for k in 0..9 {
+            b[k][l] = bs[k];
+        }
+    }
+    let mut u = [[0.0f64; SVD_LANES]; 9];
+    for k in [0, 4, 8] {
+        u[k] = [1.0; SVD_LANES];
+    }
+    for (i, j, col) in QR_ROTATIONS {
+        let mut c = [1.0f64; SVD_LANES];
+        let mut sn = [0.0f64; SVD_LANES];
+        for l in 0..SVD_LANES {
+            (c[l], sn[l]) = givens(b[3 * col + i][l], b[3 * col + j][l]);
+        }
+        for k in 0..3 {
+            let (bi_, bj_) = (3 * k + i, 3 * k + j);
+            let (ui_, uj_) = (3 * i + k, 3 * j + k);
+            for l in 0..SVD_LANES {
+                let (bi, bj) = (b[bi_][l], b[bj_][l]);
+                b[bi_][l] = c[l] * bi + sn[l] * bj;
+                b[bj_][l] = -sn[l] * bi + c[l] * bj;
+                let (ui, uj) = (u[ui_][l], u[uj_][l]);
+                u[ui_][l] = c[l] * ui + sn[l] * uj;
+                u[uj_][l] = -sn[l] * ui + c[l] * uj;
+            }
+        }
+    }
+    for l in 0..SVD_LANES {
+        let ul = Matrix3::from_fn(|r, c| u[3 * c + r][l]);
+        let sv = Vector3::new(b[0][l], b[4][l], b[8][l]) * scale[l];
+        out[l] = Some(order_and_sign(ul, sv, vs[l]));
     }
 }
 
 /// Sorts, fixes the signs of and QR-factors the orthogonalized `B = F V /
 /// scale` into the signed SVD of `F`.
 fn finish_svd(b: Matrix3<f64>, v: Matrix3<f64>, scale: f64) -> SignedSvd {
-    let a = Matrix3::from_diagonal(&Vector3::from_fn(|k, _| b.column(k).norm_squared()));
-    // Sort descending by column norm (a swap of two columns flips det V,
-    // the sign fix below restores it).
-    let mut order = [0usize, 1, 2];
-    order.sort_by(|&x, &y| a[(y, y)].total_cmp(&a[(x, x)]));
-    let mut vs = Matrix3::zeros();
-    let mut bs = Matrix3::zeros();
-    for (k, &o) in order.iter().enumerate() {
-        vs.set_column(k, &v.column(o));
-        bs.set_column(k, &b.column(o));
-    }
-    if vs.determinant() < 0.0 {
-        vs.column_mut(2).neg_mut();
-        bs.column_mut(2).neg_mut();
-    }
-    // Givens QR of B = F V: zero (1,0), (2,0), then (2,1). Each rotation
-    // makes the pivot `hypot >= 0`, so R11, R22 >= 0 and R33 carries det F.
-    let mut b = bs;
+    let (mut b, vs) = sort_columns(b, v);
     let mut u = Matrix3::<f64>::identity();
-    for (i, j, col) in [(0usize, 1usize, 0usize), (0, 2, 0), (1, 2, 1)] {
-        let (x, y) = (b[(i, col)], b[(j, col)]);
-        // F is scaled to max |entry| 1: no overflow, and `hypot`'s care
-        // costs more than the rest of the rotation.
-        let r = (x * x + y * y).sqrt();
-        let (c, sn) = if r == 0.0 {
-            (1.0, 0.0)
-        } else {
-            let inv = 1.0 / r;
-            (x * inv, y * inv)
-        };
+    for (i, j, col) in QR_ROTATIONS {
+        let (c, sn) = givens(b[(i, col)], b[(j, col)]);
         // Rows i, j of B <- G B; columns i, j of U <- U Gᵀ.
         for k in 0..3 {
             let (bi, bj) = (b[(i, k)], b[(j, k)]);
@@ -332,7 +341,50 @@ fn finish_svd(b: Matrix3<f64>, v: Matrix3<f64>, scale: f64) -> SignedSvd {
             u[(k, j)] = -sn * ui + c * uj;
         }
     }
-    let mut sv = Vector3::new(b[(0, 0)], b[(1, 1)], b[(2, 2)]) * scale;
+    order_and_sign(u, Vector3::new(b[(0, 0)], b[(1, 1)], b[(2, 2)]) * scale, vs)
+}
+
+/// The Givens QR of `B = F V`: zero (1,0), (2,0), then (2,1). Each rotation
+/// makes the pivot `hypot >= 0`, so R11, R22 >= 0 and R33 carries det F.
+const QR_ROTATIONS: [(usize, usize, usize); 3] = [(0, 1, 0), (0, 2, 0), (1, 2, 1)];
+
+/// Cosine and sine of the Givens rotation taking `(x, y)` to `(r, 0)`,
+/// `r >= 0`; the identity for `(0, 0)`. Branch-free. F is scaled to max
+/// |entry| 1: no overflow, and `hypot`'s care costs more than the rest of
+/// the rotation.
+#[inline(always)]
+fn givens(x: f64, y: f64) -> (f64, f64) {
+    let r = (x * x + y * y).sqrt();
+    let zero = r == 0.0;
+    let inv = 1.0 / if zero { 1.0 } else { r };
+    (
+        if zero { 1.0 } else { x * inv },
+        if zero { 0.0 } else { y * inv },
+    )
+}
+
+/// `B` and `V` with their columns sorted by decreasing norm of `B`'s, the
+/// last negated where that leaves det V = -1 (a swap flips it).
+fn sort_columns(b: Matrix3<f64>, v: Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let a = Vector3::from_fn(|k, _| b.column(k).norm_squared());
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&x, &y| a[y].total_cmp(&a[x]));
+    let mut vs = Matrix3::zeros();
+    let mut bs = Matrix3::zeros();
+    for (k, &o) in order.iter().enumerate() {
+        vs.set_column(k, &v.column(o));
+        bs.set_column(k, &b.column(o));
+    }
+    if vs.determinant() < 0.0 {
+        vs.column_mut(2).neg_mut();
+        bs.column_mut(2).neg_mut();
+    }
+    (bs, vs)
+}
+
+/// The signed SVD from the QR's `U`, the diagonal `sv` of `R` (scaled back)
+/// and the sorted `V`: |s| in decreasing order, only `s3` negative.
+fn order_and_sign(mut u: Matrix3<f64>, mut sv: Vector3<f64>, mut vs: Matrix3<f64>) -> SignedSvd {
     // Rounding can leave |s| out of order by an ulp where values cluster:
     // swap columns of both U and V (negating one to keep det +1).
     for (i, j) in [(0usize, 1usize), (1, 2), (0, 1)] {
