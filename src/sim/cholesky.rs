@@ -25,18 +25,26 @@ pub struct SparseCholesky {
     values: Vec<f64>,
 }
 
+/// faer's symbolic Cholesky of the lower triangle `lower` with `params`.
+fn symbolic_with(
+    lower: SparseColMatRef<'_, usize, f64>,
+    params: CholeskySymbolicParams<'_>,
+) -> Result<SymbolicCholesky<usize>, String> {
+    factorize_symbolic_cholesky(
+        lower.symbolic(),
+        faer::Side::Lower,
+        Default::default(),
+        params,
+    )
+    .map_err(|e| format!("{e:?}"))
+}
+
 impl SparseCholesky {
     /// Symbolic analysis of the pattern of `lower` (lower triangle of the matrix).
     pub fn symbolic(
         lower: SparseColMatRef<'_, usize, f64>,
     ) -> Result<SymbolicCholesky<usize>, String> {
-        factorize_symbolic_cholesky(
-            lower.symbolic(),
-            faer::Side::Lower,
-            Default::default(),
-            Default::default(),
-        )
-        .map_err(|e| format!("{e:?}"))
+        symbolic_with(lower, Default::default())
     }
 
     /// [`Self::symbolic`] that always picks faer's supernodal factorization.
@@ -46,16 +54,13 @@ impl SparseCholesky {
     pub fn symbolic_supernodal(
         lower: SparseColMatRef<'_, usize, f64>,
     ) -> Result<SymbolicCholesky<usize>, String> {
-        factorize_symbolic_cholesky(
-            lower.symbolic(),
-            faer::Side::Lower,
-            Default::default(),
+        symbolic_with(
+            lower,
             CholeskySymbolicParams {
                 supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
                 ..Default::default()
             },
         )
-        .map_err(|e| format!("{e:?}"))
     }
 
     /// Numeric factorization of `lower` with a symbolic analysis of its pattern.
