@@ -42,6 +42,12 @@ pub struct FitArgs {
     /// poses barely observe stay put.
     #[arg(long, default_value_t = ElasticFitParams::default().prior_weight, value_name = "RHO", value_parser = parse_prior)]
     pub prior: f64,
+    /// Weight of a smoothness term on the full stage's log-fields over
+    /// face-adjacent tets (>= 0; 0: none): a jump by a factor e across every
+    /// face costs this fraction of the stage's starting loss, so the field
+    /// varies smoothly between the places the poses observe.
+    #[arg(long, default_value_t = ElasticFitParams::default().smooth_weight, value_name = "SIGMA", value_parser = parse_prior)]
+    pub smooth: f64,
     /// The fitted asset [default: ASSET with .fit.vtkhdf]; must differ from ASSET.
     #[arg(short, long, value_name = "OUT.vtkhdf")]
     pub output: Option<PathBuf>,
@@ -112,6 +118,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             gn_iterations: a.gn_iterations,
             max_contrast: a.max_contrast,
             prior_weight: a.prior,
+            smooth_weight: a.smooth,
             ..ElasticFitParams::default()
         },
         output: a.output.clone(),

@@ -39,6 +39,7 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 use super::adjoint::{equilibrium, linearize, sparse_lu, FrameLinearization};
+use super::regularizer::Regularizer;
 use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
@@ -154,25 +155,32 @@ pub fn gn_solve(
     kappa: f64,
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
-    gn_solve_damped(lins, basis, ne, grad, &vec![kappa; grad.len()], fixed)
+    gn_solve_damped(lins, basis, ne, grad, &vec![kappa; grad.len()], &[], fixed)
 }
 
-/// [`gn_solve`] with a damping of its own per parameter: solves
-/// `(Σ_i P_i + diag(damping)) d = grad`.
+/// [`gn_solve`] with a damping of its own per parameter and a symmetric
+/// coupling between parameters (a regularizer's off-diagonal curvature,
+/// entries `(a, b, v)` given both ways; full basis only): solves
+/// `(Σ_i P_i + diag(damping) + coupling) d = grad`.
 pub fn gn_solve_damped(
     lins: &[FrameLinearization],
     basis: &Basis,
     ne: usize,
     grad: &[f64],
     damping: &[f64],
+    coupling: &[(usize, usize, f64)],
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
     if let Basis::Harmonic(_) = basis {
+        if !coupling.is_empty() {
+            return Err("a parameter coupling needs the full basis".into());
+        }
         return gn_solve_subspace(lins, basis, ne, grad, damping, fixed);
     }
     let m = grad.len();
     if solved_by_cg(lins, m) {
-        return gn_solve_cg(lins, grad, damping, fixed, &CgParams::default()).map(|(d, _)| d);
+        return gn_solve_cg(lins, grad, damping, coupling, fixed, &CgParams::default())
+            .map(|(d, _)| d);
     }
     let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
     let dcol = total - m;
@@ -195,6 +203,11 @@ pub fn gn_solve_damped(
     }
     for (j, &fx) in fixed.iter().enumerate() {
         t.push((dcol + j, dcol + j, if fx { 1.0 } else { damping[j] }));
+    }
+    for &(a, b, v) in coupling {
+        if !fixed[a] && !fixed[b] {
+            t.push((dcol + a, dcol + b, v));
+        }
     }
     // The blocks differ by many orders of magnitude (G ~ m, K ~ Pa m,
     // C ~ m², κ tiny): equilibrate symmetrically before the LU.
@@ -333,6 +346,7 @@ pub fn gn_solve_cg(
     lins: &[FrameLinearization],
     grad: &[f64],
     damping: &[f64],
+    coupling: &[(usize, usize, f64)],
     fixed: &[bool],
     params: &CgParams,
 ) -> Result<(Vec<f64>, CgStats), String> {
@@ -361,6 +375,9 @@ pub fn gn_solve_cg(
             })
             .collect();
         let mut out: Vec<f64> = (0..m).map(|j| damping[j] * v[j]).collect();
+        for &(a, b, c) in coupling {
+            out[a] += c * v[b];
+        }
         for part in parts {
             for (o, p) in out.iter_mut().zip(part) {
                 *o += p;
@@ -678,10 +695,7 @@ impl SampleFit<'_> {
         let mut lm = 1.0f64;
         let mut failures = 0;
         let floor = p.gamma_floor;
-        let prior = Prior::new(
-            (full && p.full_stage_log && p.prior_weight > 0.0).then_some(p.prior_weight),
-            &ev,
-        );
+        let prior = Regularizer::new(p, full && p.full_stage_log, self.mesh, &ev);
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
                 break;
@@ -702,8 +716,9 @@ impl SampleFit<'_> {
                     .iter()
                     .map(|g| kappa * (gamma_rms / g).powi(2))
                     .collect();
-                prior.add_hessian(&ev.gamma, &mut damping);
-                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &fixed)
+                let mut coupling = Vec::new();
+                prior.add_hessian(&ev.gamma, &mut damping, &mut coupling);
+                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed)
                     .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
                 d.iter().zip(&ev.gamma).map(|(v, g)| -v / g).collect()
@@ -873,67 +888,6 @@ impl SampleFit<'_> {
         gn_solve(lins, basis, self.ne(), grad, kappa, fixed)
             .map(|d| d.iter().map(|v| -v).collect())
             .map_err(|e| self.error(0, e))
-    }
-}
-
-/// The Gaussian prior of [`ElasticFitParams::prior_weight`] on `θ = ln γ`
-/// around the stage's start, `w Σ_j (θ_j - θ0_j)²` with `w = ρ L0 / m`;
-/// inactive (zero) without a weight.
-struct Prior {
-    w: f64,
-    theta0: Vec<f64>,
-}
-
-impl Prior {
-    fn new(weight: Option<f64>, start: &Evaluated) -> Prior {
-        match weight {
-            Some(rho) => Prior {
-                w: rho * start.loss / start.gamma.len().max(1) as f64,
-                theta0: start.gamma.iter().map(|g| g.ln()).collect(),
-            },
-            None => Prior {
-                w: 0.0,
-                theta0: Vec::new(),
-            },
-        }
-    }
-
-    fn value(&self, gamma: &[f64]) -> f64 {
-        if self.w == 0.0 {
-            return 0.0;
-        }
-        self.w
-            * gamma
-                .iter()
-                .zip(&self.theta0)
-                .map(|(g, t0)| (g.ln() - t0).powi(2))
-                .sum::<f64>()
-    }
-
-    /// The loss plus the prior: what the stage's line search lowers.
-    fn objective(&self, ev: &Evaluated) -> f64 {
-        ev.loss + self.value(&ev.gamma)
-    }
-
-    /// Adds the prior's gradient with respect to γ, `2 w (θ - θ0) / γ`.
-    fn add_gradient(&self, gamma: &[f64], grad: &mut [f64]) {
-        if self.w == 0.0 {
-            return;
-        }
-        for ((d, g), t0) in grad.iter_mut().zip(gamma).zip(&self.theta0) {
-            *d += 2.0 * self.w * (g.ln() - t0) / g;
-        }
-    }
-
-    /// Adds the prior's Gauss-Newton curvature in γ, `2 w / γ²` (its
-    /// Hessian in θ is `2 w I`), to a diagonal.
-    fn add_hessian(&self, gamma: &[f64], diag: &mut [f64]) {
-        if self.w == 0.0 {
-            return;
-        }
-        for (d, g) in diag.iter_mut().zip(gamma) {
-            *d += 2.0 * self.w / (g * g);
-        }
     }
 }
 

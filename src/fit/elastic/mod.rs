@@ -23,6 +23,7 @@ pub mod adjoint;
 pub mod gauss_newton;
 pub mod harmonic;
 pub mod loss;
+mod regularizer;
 pub mod samples;
 mod scale_search;
 
@@ -211,6 +212,15 @@ pub struct ElasticFitParams {
     /// drifting to the contrast bound for a tiny loss decrease (a MAP
     /// estimate; VH §6 has none). Log-space full stage only. Default 0.
     pub prior_weight: f64,
+    /// Weight σ (dimensionless, >= 0) of a smoothness term on the full
+    /// stage's log-fields over face-adjacent tets: the stage minimizes
+    /// `L(γ) + σ L0 mean_(a,b) (θ_a - θ_b)²` over the adjacent pairs of the
+    /// γs and of the γv field, so a jump by a factor e across every face
+    /// costs σ L0. A field the poses observe only in places then varies
+    /// smoothly in between instead of in patches (soft tets in series soften
+    /// motions the poses never showed; README "Held-out drape"). Log-space
+    /// full stage only. Default 0.
+    pub smooth_weight: f64,
 }
 
 impl Default for ElasticFitParams {
@@ -234,6 +244,7 @@ impl Default for ElasticFitParams {
             max_log_step: 2.0 * std::f64::consts::LN_10,
             max_contrast: 1e3,
             prior_weight: 0.0,
+            smooth_weight: 0.0,
         }
     }
 }
@@ -261,12 +272,14 @@ impl ElasticFitParams {
             && self.max_log_step > 0.0
             && self.max_contrast >= 1.0
             && self.prior_weight >= 0.0
-            && self.prior_weight.is_finite();
+            && self.prior_weight.is_finite()
+            && self.smooth_weight >= 0.0
+            && self.smooth_weight.is_finite();
         if ok {
             Ok(())
         } else {
             Err(ElasticFitError::Inconsistent(format!(
-                "fit parameters out of range (steps > 0, max log step > 0, max contrast >= 1, prior weight >= 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
+                "fit parameters out of range (steps > 0, max log step > 0, max contrast >= 1, prior and smoothness weights >= 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
             )))
         }
     }
