@@ -1240,7 +1240,10 @@ fn smoothness_makes_the_field_smoother_and_the_loss_still_falls() {
             .map(|(a, b)| (g[a].ln() - g[b].ln()).powi(2))
             .sum::<f64>()
             / (2 * pairs.len()) as f64;
-        let loss = stages.last().and_then(|s| s.losses.last().copied()).unwrap();
+        let loss = stages
+            .last()
+            .and_then(|s| s.losses.last().copied())
+            .unwrap();
         (rough, loss, loss0)
     };
     let (free_rough, free_loss, loss0) = run(0.0);
@@ -1248,6 +1251,9 @@ fn smoothness_makes_the_field_smoother_and_the_loss_still_falls() {
     eprintln!(
         "roughness {free_rough:.4} -> {smooth_rough:.4}, loss {loss0:.3e} -> {free_loss:.3e} / {smooth_loss:.3e}"
     );
-    assert!(smooth_rough <= 0.5 * free_rough, "{smooth_rough} vs {free_rough}");
+    assert!(
+        smooth_rough <= 0.5 * free_rough,
+        "{smooth_rough} vs {free_rough}"
+    );
     assert!(smooth_loss < 0.02 * loss0, "{smooth_loss:e} vs {loss0:e}");
 }
