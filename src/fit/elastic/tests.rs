@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::adjoint::{equilibrium, linearize};
+use super::adjoint::{equilibrium, linearize, FrameLinearization};
 use super::gauss_newton::{gn_solve, gn_solve_cg, gn_solve_damped, Basis, CgParams};
 use super::harmonic::{harmonic_basis, tet_laplacian};
 use super::samples::fold;
@@ -619,10 +619,10 @@ fn dense(n: usize, m: usize, t: &[(usize, usize, f64)]) -> DMatrix<f64> {
     a
 }
 
-#[test]
-fn gauss_newton_direction_equals_dense_eq20_solve() {
+/// The small case's frames linearized at their equilibria under its
+/// material, and the total loss gradient `∂ε/∂γ`.
+fn small_case_linearized() -> (TetMesh, Vec<FrameLinearization>, Vec<f64>) {
     let (mesh, mass, g, sample) = small_case();
-    let ne = mesh.num_tets();
     let model = ElasticModel::new(&mesh, &g.gamma_s, &g.gamma_v).unwrap();
     let lins: Vec<_> = sample
         .frames
@@ -632,23 +632,39 @@ fn gauss_newton_direction_equals_dense_eq20_solve() {
             linearize(&model, f, &x).unwrap()
         })
         .collect();
-    let grad_gamma: Vec<f64> = (0..2 * ne)
+    let grad = (0..2 * mesh.num_tets())
         .map(|j| lins.iter().map(|l| l.grad[j]).sum())
         .collect();
+    (mesh, lins, grad)
+}
+
+/// Dense Eq. 19-20: `P = Σ Jᵀ G J`, `J = -K⁻¹ C` with `C` in `basis`.
+fn dense_gauss_newton_matrix(
+    lins: &[FrameLinearization],
+    basis: &Basis,
+    ne: usize,
+) -> DMatrix<f64> {
+    let m = basis.dim(ne);
+    let mut p = DMatrix::<f64>::zeros(m, m);
+    for l in lins {
+        let n = l.free.ndof;
+        let k = dense(n, n, &l.k);
+        let c = dense(n, m, &gauss_newton_columns(basis, &l.c, n, ne));
+        let j = -k.lu().solve(&c).unwrap();
+        p += j.transpose() * dense(n, n, &l.g) * &j;
+    }
+    p
+}
+
+#[test]
+fn gauss_newton_direction_equals_dense_eq20_solve() {
+    let (mesh, lins, grad_gamma) = small_case_linearized();
+    let ne = mesh.num_tets();
     let h = harmonic_basis(&mesh, 6).unwrap();
     for basis in [Basis::Full, Basis::Harmonic(h)] {
         let m = basis.dim(ne);
         let grad = basis.pull(&grad_gamma, ne);
-        // Dense Eq. 19-20: P = Σ Jᵀ G J, J = -K⁻¹ C (C in the basis).
-        let mut p = DMatrix::<f64>::zeros(m, m);
-        for l in &lins {
-            let n = l.free.ndof;
-            let k = dense(n, n, &l.k);
-            let c = dense(n, m, &gauss_newton_columns(&basis, &l.c, n, ne));
-            let gm = dense(n, n, &l.g);
-            let j = -k.lu().solve(&c).unwrap();
-            p += j.transpose() * gm * &j;
-        }
+        let p = dense_gauss_newton_matrix(&lins, &basis, ne);
         let kappa = 1e-6 * p.trace() / m as f64;
         let fixed = vec![false; m];
         let d = gn_solve(&lins, &basis, ne, &grad, kappa, &fixed).unwrap();
@@ -1153,29 +1169,10 @@ fn prior_keeps_the_field_near_its_start_and_the_loss_still_falls() {
 /// coupling) d = grad`, as the dense system does.
 #[test]
 fn coupled_gauss_newton_direction_equals_the_dense_solve() {
-    let (mesh, mass, g, sample) = small_case();
+    let (mesh, lins, grad) = small_case_linearized();
     let ne = mesh.num_tets();
-    let model = ElasticModel::new(&mesh, &g.gamma_s, &g.gamma_v).unwrap();
-    let lins: Vec<_> = sample
-        .frames
-        .iter()
-        .map(|f| {
-            let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
-            linearize(&model, f, &x).unwrap()
-        })
-        .collect();
     let m = 2 * ne;
-    let grad: Vec<f64> = (0..m)
-        .map(|j| lins.iter().map(|l| l.grad[j]).sum())
-        .collect();
-    let mut p = DMatrix::<f64>::zeros(m, m);
-    for l in &lins {
-        let n = l.free.ndof;
-        let k = dense(n, n, &l.k);
-        let c = dense(n, m, &l.c);
-        let j = -k.lu().solve(&c).unwrap();
-        p += j.transpose() * dense(n, n, &l.g) * &j;
-    }
+    let p = dense_gauss_newton_matrix(&lins, &Basis::Full, ne);
     // A graph-Laplacian-like coupling of neighbouring parameters, as strong
     // as P's diagonal.
     let w = p.trace() / m as f64;
