@@ -695,7 +695,7 @@ impl SampleFit<'_> {
         let mut lm = 1.0f64;
         let mut failures = 0;
         let floor = p.gamma_floor;
-        let prior = Regularizer::new(p, full && p.full_stage_log, self.mesh, &ev);
+        let regularizer = Regularizer::new(p, full && p.full_stage_log, self.mesh, &ev);
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
                 break;
@@ -705,7 +705,7 @@ impl SampleFit<'_> {
             let gn = it >= p.gd_iterations;
             let (lins, grad_gamma) = self.linearize(&ev)?;
             let mut grad = basis.pull(&grad_gamma, ne);
-            prior.add_gradient(&ev.gamma, &mut grad);
+            regularizer.add_gradient(&ev.gamma, &mut grad);
             let gamma_rms =
                 (ev.gamma.iter().map(|g| g * g).sum::<f64>() / ev.gamma.len() as f64).sqrt();
             let logmode = full && p.full_stage_log;
@@ -717,7 +717,7 @@ impl SampleFit<'_> {
                     .map(|g| kappa * (gamma_rms / g).powi(2))
                     .collect();
                 let mut coupling = Vec::new();
-                prior.add_hessian(&ev.gamma, &mut damping, &mut coupling);
+                regularizer.add_hessian(&ev.gamma, &mut damping, &mut coupling);
                 let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed)
                     .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
@@ -790,7 +790,7 @@ impl SampleFit<'_> {
             }
             let mut accepted = None;
             let mut halved = 0;
-            let objective = prior.objective(&ev);
+            let objective = regularizer.objective(&ev);
             for _ in 0..=p.max_halvings {
                 let qt: Vec<f64> = if logmode {
                     q.iter()
@@ -821,7 +821,7 @@ impl SampleFit<'_> {
                 if feasible && gt.iter().all(|g| g.is_finite()) {
                     if let Ok(t) = self.evaluate(&gt, &ev.xs) {
                         rep.newton_iterations += t.newton;
-                        if prior.objective(&t) < objective {
+                        if regularizer.objective(&t) < objective {
                             accepted = Some((t, newly, if full { gt.clone() } else { qt }));
                             break;
                         }
@@ -850,7 +850,7 @@ impl SampleFit<'_> {
             for j in newly {
                 clamped[j] = true;
             }
-            let decrease = (objective - prior.objective(&t)) / objective;
+            let decrease = (objective - regularizer.objective(&t)) / objective;
             q = qn;
             ev = t;
             rep.losses.push(ev.loss);
