@@ -10,9 +10,10 @@ use std::process::{Command, Output};
 use knitvox::embed::EmbedParams;
 use knitvox::fit::elastic::adjoint::equilibrium;
 use knitvox::fit::elastic::{Frame, FrameTarget};
+use knitvox::fit::{ShapeFitParams, ShapeFitter};
 use knitvox::geom::{Asset, Vec3};
 use knitvox::io::{self, h5::FrameWriter, ReadOptions, WriteOptions};
-use knitvox::pipeline::asset::build_asset;
+use knitvox::pipeline::asset::{build_asset, re_embed};
 use knitvox::pipeline::fit::{held_nodes, node_forces};
 use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::statics::StaticParams;
@@ -79,36 +80,57 @@ fn truth(a: &Asset) -> (Vec<f64>, Vec<f64>) {
 /// A pose file: the left band (x within 12% of the width) held, the right
 /// band loaded by `load` (N in total, spread over its vertices), at 50% and
 /// 100% of the load. Returns the largest yarn displacement (m).
-fn write_pose(a: &Asset, gs: &[f64], gv: &[f64], load: Vec3, path: &Path) -> f64 {
-    let model = ElasticModel::new(&a.mesh, gs, gv).unwrap();
+/// The held yarn vertices (the left band) and the yarn forces (`s` times
+/// `load` spread over the right band) of a synthetic pose.
+fn pose_loads(a: &Asset, load: Vec3, s: f64) -> (Vec<bool>, Vec<Vec3>) {
     let (x0, x1) = x_extent(a);
     let band = 0.12 * (x1 - x0);
     let pts = &a.rest_yarns.points;
     let held: Vec<bool> = pts.iter().map(|p| p[0] < x0 + band).collect();
     let loaded: Vec<usize> = (0..pts.len()).filter(|&v| pts[v][0] > x1 - band).collect();
-    let pinned = held_nodes(&a.mesh, &a.embedding, &held);
+    let mut f_y = vec![[0.0; 3]; pts.len()];
+    for &v in &loaded {
+        f_y[v] = load.map(|c| s * c / loaded.len() as f64);
+    }
+    (held, f_y)
+}
+
+/// The mesh's equilibrium (node positions) under `model` with the loads of
+/// [`pose_loads`], the held nodes where `start` has them.
+fn loaded_equilibrium(
+    a: &Asset,
+    model: &ElasticModel,
+    held: &[bool],
+    f_y: &[Vec3],
+    start: &[Vec3],
+) -> Vec<Vec3> {
+    let frame = Frame {
+        target: FrameTarget {
+            f_target: Vec::new(),
+            alpha: 0.0,
+            positions: Vec::new(),
+        },
+        pinned: held_nodes(&a.mesh, &a.embedding, held),
+        start: start.to_vec(),
+        f_ext: node_forces(&a.mesh, &a.embedding, f_y),
+    };
+    let tight = StaticParams {
+        tolerance: 1e-8,
+        max_iterations: 200,
+    };
+    equilibrium(model, &a.node_mass, &frame, start, &tight)
+        .unwrap()
+        .0
+}
+
+fn write_pose(a: &Asset, gs: &[f64], gv: &[f64], load: Vec3, path: &Path) -> f64 {
+    let model = ElasticModel::new(&a.mesh, gs, gv).unwrap();
+    let pts = &a.rest_yarns.points;
     let mut w = FrameWriter::create(path, &a.rest_yarns).unwrap();
     let mut largest = 0.0f64;
     for (t, s) in [(0.5, 0.5), (1.0, 1.0)] {
-        let mut f_y = vec![[0.0; 3]; pts.len()];
-        for &v in &loaded {
-            f_y[v] = load.map(|c| s * c / loaded.len() as f64);
-        }
-        let frame = Frame {
-            target: FrameTarget {
-                f_target: Vec::new(),
-                alpha: 0.0,
-                positions: Vec::new(),
-            },
-            pinned: pinned.clone(),
-            start: a.mesh.nodes.clone(),
-            f_ext: node_forces(&a.mesh, &a.embedding, &f_y),
-        };
-        let tight = StaticParams {
-            tolerance: 1e-8,
-            max_iterations: 200,
-        };
-        let (x, _) = equilibrium(&model, &a.node_mass, &frame, &a.mesh.nodes, &tight).unwrap();
+        let (held, f_y) = pose_loads(a, load, s);
+        let x = loaded_equilibrium(a, &model, &held, &f_y, &a.mesh.nodes);
         let y = a.embedding.v2y(&a.mesh, &x);
         largest = y
             .iter()
@@ -146,6 +168,12 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// The fixture's poses: file name and the load on the right band (N).
+const POSES: [(&str, Vec3); 2] = [
+    ("stretch.h5", [0.3, 0.0, 0.0]),
+    ("bend.h5", [0.0, 0.0, 1.2e-2]),
+];
+
 /// Fixture: an asset and two poses (stretch along x, bend along z).
 struct Case {
     _dir: tempfile::TempDir,
@@ -162,10 +190,7 @@ fn case() -> Case {
     let (asset_path, asset) = asset_in(&dir);
     let truth = truth(&asset);
     let mut poses = Vec::new();
-    for (name, load) in [
-        ("stretch.h5", [0.3, 0.0, 0.0]),
-        ("bend.h5", [0.0, 0.0, 1.2e-2]),
-    ] {
+    for (name, load) in POSES {
         let p = dir.join(name);
         let d = write_pose(&asset, &truth.0, &truth.1, load, &p);
         eprintln!("{name}: largest yarn displacement {d:.3e} m");
@@ -313,7 +338,78 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     assert_eq!(rec.poses[0].frames, vec![1]);
     assert_eq!(rec.losses.len(), 2);
     assert!(rec.losses.iter().all(|l| l.fitted < l.before));
+    // The asset's record keeps each pose's training fidelity, as reported.
+    for (k, l) in rec.losses.iter().enumerate() {
+        let t = l.training.expect("training fidelity in the record");
+        assert_eq!(
+            Some(t.fitted_rms_yarn_diameters),
+            r["poses"][k]["training"]["fitted_rms_yarn_diameters"].as_f64()
+        );
+    }
     assert_eq!(a.mesh, c.asset.mesh);
+
+    // Training fidelity, in yarn diameters: the fitted field carries the
+    // training yarns closer than the uniform material, and that closer than
+    // the placeholder.
+    let t = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    let tr = &r["training"];
+    let (t_before, t_uniform, t_fitted, t_floor) = (
+        t(tr, "before_rms_yarn_diameters"),
+        t(tr, "uniform_rms_yarn_diameters"),
+        t(tr, "fitted_rms_yarn_diameters"),
+        t(tr, "y2v_floor_rms_yarn_diameters"),
+    );
+    eprintln!("training RMS (yarn diameters): before {t_before:.4}, uniform {t_uniform:.4}, fitted {t_fitted:.4}, Y2V floor {t_floor:.4}");
+    assert!(
+        t_fitted < t_uniform && t_uniform < t_before && t_floor < t_before,
+        "{tr}"
+    );
+    // Each pose's figures before the fit, recomputed here: the shape fit
+    // of its yarns (the floor), and the equilibrium of its loads under the
+    // input asset's material with the held nodes where the shape fit has
+    // them, as `fit` solves it.
+    let placeholder = ElasticModel::new(&c.asset.mesh, &c.asset.gamma_s, &c.asset.gamma_v).unwrap();
+    let embedded = re_embed(&c.asset, &c.asset_path).unwrap();
+    let fitter =
+        ShapeFitter::from_embedded(&c.asset.rest_yarns, &embedded, &ShapeFitParams::default())
+            .unwrap();
+    let (mut pooled, mut pooled_floor) = (0.0, 0.0);
+    for (k, (name, load)) in POSES.iter().enumerate() {
+        let data = io::read_path(&c.poses[k], &ReadOptions::default()).unwrap();
+        let frames = data.frames.unwrap();
+        let yarns = frames.frame(frames.num_frames() - 1);
+        let (x_hat, _) = fitter.fit(yarns).unwrap();
+        let (held, f_y) = pose_loads(&c.asset, *load, 1.0);
+        let x = loaded_equilibrium(&c.asset, &placeholder, &held, &f_y, &x_hat);
+        let v2y = |x: &[Vec3]| c.asset.embedding.v2y(&c.asset.mesh, x);
+        let rest = &c.asset.rest_yarns;
+        let (before, floor) = (
+            rms_diameters(rest, &v2y(&x), yarns),
+            rms_diameters(rest, &v2y(&x_hat), yarns),
+        );
+        let pose = &r["poses"][k]["training"];
+        for (what, expected) in [
+            ("before_rms_yarn_diameters", before),
+            ("y2v_floor_rms_yarn_diameters", floor),
+        ] {
+            let reported = t(pose, what);
+            assert!(
+                (reported - expected).abs() <= 1e-4 * expected,
+                "{name} {what}: reported {reported}, recomputed {expected}"
+            );
+        }
+        pooled += before * before / POSES.len() as f64;
+        pooled_floor += floor * floor / POSES.len() as f64;
+    }
+    for (what, got, want) in [
+        ("before", t_before, pooled.sqrt()),
+        ("floor", t_floor, pooled_floor.sqrt()),
+    ] {
+        assert!(
+            (got - want).abs() <= 1e-4 * want,
+            "pooled {what}: {got} {want}"
+        );
+    }
 
     // The report: valid JSON and PNGs.
     let json: serde_json::Value =

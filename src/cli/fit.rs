@@ -153,6 +153,14 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             r.gamma_v_range[1],
             r.wall_s
         );
+        let t = &r.training;
+        println!(
+            "training poses, RMS in yarn diameters: fitted {:.3}, uniform {:.3}, before {:.3} (Y2V floor {:.3})",
+            t.fitted_rms_yarn_diameters,
+            t.uniform_rms_yarn_diameters,
+            t.before_rms_yarn_diameters,
+            t.y2v_floor_rms_yarn_diameters
+        );
     }
     Ok(ExitCode::Success)
 }

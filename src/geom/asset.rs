@@ -119,6 +119,22 @@ pub struct UniformMaterial {
     pub gamma_v: f64,
 }
 
+/// In-sample fidelity: the RMS distance (yarn diameters, over every yarn
+/// vertex of the fitted frames) between the pose's yarns and V2Y of the
+/// mesh's equilibrium under each material, as `validate` measures held-out
+/// motion. The field can do no better on held-out motion than its margin
+/// over the uniform material here suggests: what no material of Eq. 7 on
+/// this mesh reaches on a pose stays out of reach elsewhere.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainingFidelity {
+    /// V2Y of the shape fit (VH Eq. 5-6) of each frame: the Y2V floor.
+    pub y2v_floor_rms_yarn_diameters: f64,
+    /// The asset's material as read.
+    pub before_rms_yarn_diameters: f64,
+    pub uniform_rms_yarn_diameters: f64,
+    pub fitted_rms_yarn_diameters: f64,
+}
+
 /// Losses of one pose (m³).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PoseLosses {
@@ -132,6 +148,10 @@ pub struct PoseLosses {
     /// Last loss of each stage of this pose's own fit (`harmonic r=N`,
     /// `full`; with a joint fit, of the joint one).
     pub stages: Vec<(String, f64)>,
+    /// The fit's fidelity on this pose (absent in records written before
+    /// it was measured).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub training: Option<TrainingFidelity>,
 }
 
 /// Key of the fit record in [`Asset::parameters`].

@@ -16,7 +16,9 @@ pub(crate) mod vec3;
 mod yarns;
 
 pub use asset::{Asset, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
-pub use asset::{FitPose, FitRecord, PoseLosses, UniformMaterial, FIT_RECORD_KEY};
+pub use asset::{
+    FitPose, FitRecord, PoseLosses, TrainingFidelity, UniformMaterial, FIT_RECORD_KEY,
+};
 pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
 pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};

@@ -223,6 +223,28 @@ pub fn shapefit(
     })
 }
 
+/// Per-vertex distances in yarn diameters, `|V2Y(nodes) - yarn| / 2 r`,
+/// between the yarns the asset's mesh carries at node positions `nodes`
+/// and the yarn positions `yarn` (the measure of `validate` and of `fit`'s
+/// training fidelity).
+pub fn yarn_distances(asset: &Asset, nodes: &[Vec3], yarn: &[Vec3]) -> Vec<f64> {
+    let y = asset.embedding.v2y(&asset.mesh, nodes);
+    y.iter()
+        .zip(yarn)
+        .enumerate()
+        .map(|(v, (a, b))| crate::geom::dist(*a, *b) / (2.0 * asset.rest_yarns.radius_at(v)))
+        .collect()
+}
+
+/// Root mean square and largest value of `d` (0 for none).
+pub fn rms_max(d: &[f64]) -> (f64, f64) {
+    let n = d.len().max(1) as f64;
+    (
+        (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        d.iter().copied().fold(0.0, f64::max),
+    )
+}
+
 /// V2Y of the asset's stored steps: per-step yarn positions (m).
 pub fn v2y_steps(asset: &Asset, steps: &[usize]) -> YarnFrames {
     let n = asset.mesh.num_nodes();

@@ -47,10 +47,13 @@ use crate::fit::elastic::{
 };
 use crate::fit::{ShapeFitParams, ShapeFitter};
 use crate::geom::{
-    Asset, Embedding, FitPose, FitRecord, PoseLosses, TetMesh, UniformMaterial, Vec3,
+    Asset, Embedding, FitPose, FitRecord, PoseLosses, TetMesh, TrainingFidelity, UniformMaterial,
+    Vec3,
 };
 use crate::io::{self, plot, IoError, ReadOptions};
-use crate::pipeline::asset::{check_asset_ext, re_embed, sha256_file, StageError};
+use crate::pipeline::asset::{
+    check_asset_ext, re_embed, rms_max, sha256_file, yarn_distances, StageError,
+};
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::energy::ElasticModel;
@@ -144,6 +147,67 @@ pub struct PoseSummary {
     /// forces of VH Eq. 13-14 from the shape fits of it and the two frames
     /// before ([`inertia_forces`]).
     pub dynamic: bool,
+    /// How close the mesh's equilibria carry the yarns on this pose's
+    /// fitted frames (filled in after the fit).
+    pub training: Option<TrainingFidelity>,
+}
+
+/// Pooled over frames: `yarns[i]` the yarn positions of frame i,
+/// `start[i]` its shape fit (mesh nodes), `states[m][i]` the
+/// equilibrium of frame i under material m (before, uniform, fitted).
+pub fn training_fidelity(
+    asset: &Asset,
+    yarns: &[&[Vec3]],
+    start: &[&[Vec3]],
+    states: [&[&[Vec3]]; 3],
+) -> TrainingFidelity {
+    let pooled = |nodes: &[&[Vec3]]| {
+        let d: Vec<f64> = nodes
+            .iter()
+            .zip(yarns)
+            .flat_map(|(x, y)| yarn_distances(asset, x, y))
+            .collect();
+        rms_max(&d).0
+    };
+    TrainingFidelity {
+        y2v_floor_rms_yarn_diameters: pooled(start),
+        before_rms_yarn_diameters: pooled(states[0]),
+        uniform_rms_yarn_diameters: pooled(states[1]),
+        fitted_rms_yarn_diameters: pooled(states[2]),
+    }
+}
+
+/// Per pose (`yarns[k]`, `samples[k]`, `equilibria[k]` of pose k), then
+/// pooled over all of them.
+fn training_fidelity_of_poses(
+    asset: &Asset,
+    yarns: &[Vec<Vec<Vec3>>],
+    samples: &[Sample],
+    equilibria: &[[Vec<Vec<Vec3>>; 3]],
+) -> (Vec<TrainingFidelity>, TrainingFidelity) {
+    type Refs<'a> = (Vec<&'a [Vec3]>, Vec<&'a [Vec3]>, [Vec<&'a [Vec3]>; 3]);
+    let refs = |k: usize| -> Refs<'_> {
+        (
+            yarns[k].iter().map(Vec::as_slice).collect(),
+            samples[k]
+                .frames
+                .iter()
+                .map(|f| f.start.as_slice())
+                .collect(),
+            std::array::from_fn(|m| equilibria[k][m].iter().map(Vec::as_slice).collect()),
+        )
+    };
+    let measure = |(y, s, x): &Refs<'_>| training_fidelity(asset, y, s, [&x[0], &x[1], &x[2]]);
+    let per_pose: Vec<Refs<'_>> = (0..samples.len()).map(refs).collect();
+    let mut all: Refs<'_> = Default::default();
+    for (y, s, x) in &per_pose {
+        all.0.extend(y);
+        all.1.extend(s);
+        for (pooled, state) in all.2.iter_mut().zip(x) {
+            pooled.extend(state);
+        }
+    }
+    (per_pose.iter().map(measure).collect(), measure(&all))
 }
 
 /// What `fit` did.
@@ -158,6 +222,9 @@ pub struct FitJobReport {
     pub loss_before: f64,
     pub loss_uniform: f64,
     pub loss_fitted: f64,
+    /// [`TrainingFidelity`] pooled over every pose's fitted frames (each
+    /// pose's in `poses[].training`).
+    pub training: TrainingFidelity,
     /// The best uniform material (r = 1).
     pub uniform: UniformMaterial,
     /// The reaction-matched γ scale applied to the uniform material and to
@@ -298,12 +365,24 @@ fn invalid(path: &Path, message: String) -> Error {
 }
 
 /// Reads one pose file into a sample (see the module documentation).
+/// One training pose as `fit` uses it.
+struct PoseInput {
+    sample: Sample,
+    summary: PoseSummary,
+    /// Clamp reactions per fitted frame, on the mesh nodes (None: not
+    /// recorded).
+    reactions: Vec<Option<Vec<Vec3>>>,
+    /// The yarn positions of each fitted frame (m), for the training
+    /// fidelity.
+    yarns: Vec<Vec<Vec3>>,
+}
+
 fn read_pose(
     cx: &Context<'_>,
     path: &Path,
     read: &ReadOptions,
     observer: &mut dyn Observer,
-) -> Result<(Sample, PoseSummary, Vec<Option<Vec<Vec3>>>), Error> {
+) -> Result<PoseInput, Error> {
     let asset = cx.asset;
     let data = io::read_path(path, read)?;
     let rest = &asset.rest_yarns;
@@ -409,6 +488,7 @@ fn read_pose(
     let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
         (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
     let mut used = Vec::with_capacity(chosen.len());
+    let mut yarns = Vec::with_capacity(chosen.len());
     for &want in &chosen {
         // A frame whose shape fit inverts tets cannot be a target: the
         // nearest earlier frame after the previous choice replaces it.
@@ -436,6 +516,7 @@ fn read_pose(
             ));
         }
         used.push(f);
+        yarns.push(frames.frame(f).to_vec());
         let held_f = held_at(f);
         rms_max = rms_max.max(st.rms_error);
         min_det = min_det.min(st.min_det_f);
@@ -514,16 +595,18 @@ fn read_pose(
         y2v_rms_max: rms_max,
         y2v_min_det_f: min_det,
         dynamic: damping.is_some(),
+        training: None,
     };
-    Ok((
-        Sample {
+    Ok(PoseInput {
+        sample: Sample {
             name,
             frames: out,
             energy,
         },
         summary,
-        node_reactions,
-    ))
+        reactions: node_reactions,
+        yarns,
+    })
 }
 
 /// [`inertia_forces`] of frame `f` (shape fit `x_hat`) of a dynamic pose:
@@ -709,8 +792,20 @@ pub fn sample_losses(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Vec<f64>, ElasticFitError> {
+    Ok(sample_equilibria(mesh, mass, samples, gamma, anchors, params)?.0)
+}
+
+/// [`sample_losses`] and the equilibria they measure, per sample and frame.
+pub fn sample_equilibria(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
+    params: &ElasticFitParams,
+) -> Result<(Vec<f64>, Vec<Vec<Vec<Vec3>>>), ElasticFitError> {
     let (model, xs) = settle_samples(mesh, mass, samples, gamma, anchors, params)?;
-    Ok(samples
+    let losses = samples
         .iter()
         .zip(&xs)
         .map(|(s, xs)| {
@@ -720,7 +815,8 @@ pub fn sample_losses(
                 .map(|(f, x)| f.target.loss(&model, x))
                 .sum()
         })
-        .collect())
+        .collect();
+    Ok((losses, xs))
 }
 
 /// The uniform γ scale that the clamp reactions call for.
@@ -952,6 +1048,10 @@ pub struct Fitted {
     pub fit: FitReport,
     /// Per sample: loss before, at the uniform material, fitted.
     pub losses: Vec<[f64; 3]>,
+    /// Per sample and frame: the mesh's equilibrium (node positions, m)
+    /// before, at the uniform material and fitted, the states `losses`
+    /// measure.
+    pub equilibria: Vec<[Vec<Vec<Vec3>>; 3]>,
     /// The reaction-matched scale applied to the uniform material, then to
     /// the fitted field (None: no reactions, or not applied).
     pub uniform_force_scale: Option<ForceScale>,
@@ -1073,11 +1173,17 @@ pub fn fit_samples(
         gamma_s: mean(&u.gamma_s),
         gamma_v: mean(&u.gamma_v),
     };
-    let before = sample_losses(mesh, mass, samples, init, &[], params)?;
-    let at_u = sample_losses(mesh, mass, samples, &u, &at_uniform, params)?;
-    let after = sample_losses(mesh, mass, samples, &gamma, &at_field, params)?;
+    let (before, x_before) = sample_equilibria(mesh, mass, samples, init, &[], params)?;
+    let (at_u, x_u) = sample_equilibria(mesh, mass, samples, &u, &at_uniform, params)?;
+    let (after, x_after) = sample_equilibria(mesh, mass, samples, &gamma, &at_field, params)?;
     let losses = (0..samples.len())
         .map(|k| [before[k], at_u[k], after[k]])
+        .collect();
+    let equilibria = x_before
+        .into_iter()
+        .zip(x_u)
+        .zip(x_after)
+        .map(|((b, u), a)| [b, u, a])
         .collect();
     Ok(Fitted {
         gamma,
@@ -1085,6 +1191,7 @@ pub fn fit_samples(
         uniform_fit,
         fit,
         losses,
+        equilibria,
         uniform_force_scale,
         field_force_scale,
     })
@@ -1146,11 +1253,13 @@ impl Stage for FitJob {
         let mut samples = Vec::new();
         let mut poses = Vec::new();
         let mut reactions = Vec::new();
+        let mut pose_yarns = Vec::new();
         for p in &self.train {
-            let (s, summary, r) = read_pose(&cx, p, &self.read, observer)?;
-            samples.push(s);
-            poses.push(summary);
-            reactions.push(r);
+            let pose = read_pose(&cx, p, &self.read, observer)?;
+            samples.push(pose.sample);
+            poses.push(pose.summary);
+            reactions.push(pose.reactions);
+            pose_yarns.push(pose.yarns);
         }
         let init = MaterialFields {
             gamma_s: asset.gamma_s.clone(),
@@ -1171,6 +1280,11 @@ impl Stage for FitJob {
             )
         }
         .map_err(|e| fit_error(&self.train, e))?;
+        let (per_pose, training) =
+            training_fidelity_of_poses(&asset, &pose_yarns, &samples, &fitted.equilibria);
+        for (p, t) in poses.iter_mut().zip(per_pose) {
+            p.training = Some(t);
+        }
         let loaded = samples
             .iter()
             .flat_map(|s| &s.frames)
@@ -1211,6 +1325,7 @@ impl Stage for FitJob {
                     before: l[0],
                     uniform: l[1],
                     fitted: l[2],
+                    training: p.training,
                     stages: s
                         .stages
                         .iter()
@@ -1248,6 +1363,7 @@ impl Stage for FitJob {
             loss_before: sum(0),
             loss_uniform: sum(1),
             loss_fitted: sum(2),
+            training,
             uniform: fitted.uniform,
             uniform_force_scale: fitted.uniform_force_scale,
             field_force_scale: fitted.field_force_scale,

@@ -28,7 +28,7 @@ use std::time::Instant;
 
 use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
-use crate::pipeline::asset::check_asset_ext;
+use crate::pipeline::asset::{check_asset_ext, rms_max, yarn_distances};
 use crate::pipeline::fit::held_nodes;
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
@@ -495,24 +495,6 @@ pub fn yarn_mass(yarns: &crate::geom::Yarns, density: f64) -> f64 {
         .sum()
 }
 
-/// Per-vertex distances in yarn diameters between V2Y of `nodes` and `yarn`.
-fn distances(asset: &Asset, nodes: &[Vec3], yarn: &[Vec3]) -> Vec<f64> {
-    let y = asset.embedding.v2y(&asset.mesh, nodes);
-    y.iter()
-        .zip(yarn)
-        .enumerate()
-        .map(|(v, (a, b))| crate::geom::dist(*a, *b) / (2.0 * asset.rest_yarns.radius_at(v)))
-        .collect()
-}
-
-fn rms_max(d: &[f64]) -> (f64, f64) {
-    let n = d.len().max(1) as f64;
-    (
-        (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        d.iter().copied().fold(0.0, f64::max),
-    )
-}
-
 /// The scene table without `[swatch]` (the rest yarns are compared
 /// separately, point by point).
 fn scene_without_swatch(text: &str, file: &Path) -> Result<toml::Table, Error> {
@@ -769,18 +751,18 @@ impl Stage for ValidateJob {
             let (x_hat, _) = fitter
                 .fit(frames.frame(k))
                 .map_err(|e| setup(&self.scene, format!("frame {k}: Y2V: {e}")))?;
-            let d = distances(&asset, &x_hat, frames.frame(k));
+            let d = yarn_distances(&asset, &x_hat, frames.frame(k));
             floor_rms.push(rms_max(&d).0);
             floor.extend(d);
         }
         let (mut all, mut all_u) = (Vec::new(), Vec::new());
         let mut per_frame = Vec::with_capacity(nf.saturating_sub(1));
         for k in 1..nf {
-            let d = distances(&asset, &xs[k], frames.frame(k));
+            let d = yarn_distances(&asset, &xs[k], frames.frame(k));
             let (rms, max) = rms_max(&d);
             all.extend(d);
             let uniform_rms = xu.as_ref().map(|xu| {
-                let du = distances(&asset, &xu[k], frames.frame(k));
+                let du = yarn_distances(&asset, &xu[k], frames.frame(k));
                 let r = rms_max(&du).0;
                 all_u.extend(du);
                 r
@@ -799,7 +781,7 @@ impl Stage for ValidateJob {
         let (frms, fmax) = rms_max(&floor);
         let placeholder_rms = placeholder.map(|p| {
             let d: Vec<f64> = (1..nf)
-                .flat_map(|k| distances(&asset, &p.frames[k], frames.frame(k)))
+                .flat_map(|k| yarn_distances(&asset, &p.frames[k], frames.frame(k)))
                 .collect();
             rms_max(&d).0
         });
