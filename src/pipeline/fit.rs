@@ -364,7 +364,6 @@ fn invalid(path: &Path, message: String) -> Error {
     .into()
 }
 
-/// Reads one pose file into a sample (see the module documentation).
 /// One training pose as `fit` uses it.
 struct PoseInput {
     sample: Sample,
@@ -377,6 +376,7 @@ struct PoseInput {
     yarns: Vec<Vec<Vec3>>,
 }
 
+/// Reads one pose file into a sample (see the module documentation).
 fn read_pose(
     cx: &Context<'_>,
     path: &Path,
@@ -485,7 +485,7 @@ fn read_pose(
     };
     let mut out = Vec::with_capacity(chosen.len());
     let mut node_reactions = Vec::with_capacity(chosen.len());
-    let (mut energy, mut rms_max, mut min_det, mut held_v, mut held_n) =
+    let (mut energy, mut y2v_rms, mut min_det, mut held_v, mut held_n) =
         (0.0, 0.0f64, f64::INFINITY, 0usize, 0usize);
     let mut used = Vec::with_capacity(chosen.len());
     let mut yarns = Vec::with_capacity(chosen.len());
@@ -518,7 +518,7 @@ fn read_pose(
         used.push(f);
         yarns.push(frames.frame(f).to_vec());
         let held_f = held_at(f);
-        rms_max = rms_max.max(st.rms_error);
+        y2v_rms = y2v_rms.max(st.rms_error);
         min_det = min_det.min(st.min_det_f);
         let target = FrameTarget::from_nodes(
             &cx.model,
@@ -592,7 +592,7 @@ fn read_pose(
         forces_source,
         energy,
         energy_source,
-        y2v_rms_max: rms_max,
+        y2v_rms_max: y2v_rms,
         y2v_min_det_f: min_det,
         dynamic: damping.is_some(),
         training: None,
