@@ -152,62 +152,56 @@ pub struct PoseSummary {
     pub training: Option<TrainingFidelity>,
 }
 
-/// Pooled over frames: `yarns[i]` the yarn positions of frame i,
-/// `start[i]` its shape fit (mesh nodes), `states[m][i]` the
-/// equilibrium of frame i under material m (before, uniform, fitted).
-pub fn training_fidelity(
+/// Distances (yarn diameters) of every vertex of every frame between the
+/// yarns `yarns[i]` and V2Y of the node positions `nodes[i]`.
+fn frame_distances<'a>(
     asset: &Asset,
-    yarns: &[&[Vec3]],
-    start: &[&[Vec3]],
-    states: [&[&[Vec3]]; 3],
-) -> TrainingFidelity {
-    let pooled = |nodes: &[&[Vec3]]| {
-        let d: Vec<f64> = nodes
-            .iter()
-            .zip(yarns)
-            .flat_map(|(x, y)| yarn_distances(asset, x, y))
-            .collect();
-        rms_max(&d).0
-    };
-    TrainingFidelity {
-        y2v_floor_rms_yarn_diameters: pooled(start),
-        before_rms_yarn_diameters: pooled(states[0]),
-        uniform_rms_yarn_diameters: pooled(states[1]),
-        fitted_rms_yarn_diameters: pooled(states[2]),
-    }
+    yarns: &[Vec<Vec3>],
+    nodes: impl Iterator<Item = &'a [Vec3]>,
+) -> Vec<f64> {
+    nodes
+        .zip(yarns)
+        .flat_map(|(x, y)| yarn_distances(asset, x, y))
+        .collect()
 }
 
-/// Per pose (`yarns[k]`, `samples[k]`, `equilibria[k]` of pose k), then
-/// pooled over all of them.
+/// [`TrainingFidelity`] of each pose (`yarns[k]`: the yarns of its fitted
+/// frames, `samples[k]` their shape fits, `equilibria[k]` the mesh under
+/// the earlier, uniform and fitted material), then pooled over all poses.
 fn training_fidelity_of_poses(
     asset: &Asset,
     yarns: &[Vec<Vec<Vec3>>],
     samples: &[Sample],
     equilibria: &[[Vec<Vec<Vec3>>; 3]],
 ) -> (Vec<TrainingFidelity>, TrainingFidelity) {
-    type Refs<'a> = (Vec<&'a [Vec3]>, Vec<&'a [Vec3]>, [Vec<&'a [Vec3]>; 3]);
-    let refs = |k: usize| -> Refs<'_> {
-        (
-            yarns[k].iter().map(Vec::as_slice).collect(),
-            samples[k]
-                .frames
-                .iter()
-                .map(|f| f.start.as_slice())
-                .collect(),
-            std::array::from_fn(|m| equilibria[k][m].iter().map(Vec::as_slice).collect()),
-        )
+    // Per pose: the floor's distances, then each material's.
+    let per_pose: Vec<[Vec<f64>; 4]> = (0..samples.len())
+        .map(|k| {
+            let starts = samples[k].frames.iter().map(|f| f.start.as_slice());
+            let states = |m: usize| equilibria[k][m].iter().map(Vec::as_slice);
+            [
+                frame_distances(asset, &yarns[k], starts),
+                frame_distances(asset, &yarns[k], states(0)),
+                frame_distances(asset, &yarns[k], states(1)),
+                frame_distances(asset, &yarns[k], states(2)),
+            ]
+        })
+        .collect();
+    let fidelity = |d: [&[f64]; 4]| TrainingFidelity {
+        y2v_floor_rms_yarn_diameters: rms_max(d[0]).0,
+        before_rms_yarn_diameters: rms_max(d[1]).0,
+        uniform_rms_yarn_diameters: rms_max(d[2]).0,
+        fitted_rms_yarn_diameters: rms_max(d[3]).0,
     };
-    let measure = |(y, s, x): &Refs<'_>| training_fidelity(asset, y, s, [&x[0], &x[1], &x[2]]);
-    let per_pose: Vec<Refs<'_>> = (0..samples.len()).map(refs).collect();
-    let mut all: Refs<'_> = Default::default();
-    for (y, s, x) in &per_pose {
-        all.0.extend(y);
-        all.1.extend(s);
-        for (pooled, state) in all.2.iter_mut().zip(x) {
-            pooled.extend(state);
-        }
-    }
-    (per_pose.iter().map(measure).collect(), measure(&all))
+    let pooled: [Vec<f64>; 4] =
+        std::array::from_fn(|m| per_pose.iter().flat_map(|p| p[m].iter().copied()).collect());
+    (
+        per_pose
+            .iter()
+            .map(|p| fidelity(std::array::from_fn(|m| p[m].as_slice())))
+            .collect(),
+        fidelity(std::array::from_fn(|m| pooled[m].as_slice())),
+    )
 }
 
 /// What `fit` did.
@@ -782,20 +776,8 @@ fn settle_samples(
     Ok((model, xs))
 }
 
-/// Loss (m³) of each sample at material `gamma`: every frame brought to
-/// equilibrium ([`settle_samples`]).
-pub fn sample_losses(
-    mesh: &TetMesh,
-    mass: &[f64],
-    samples: &[Sample],
-    gamma: &MaterialFields,
-    anchors: &[Vec<Anchor>],
-    params: &ElasticFitParams,
-) -> Result<Vec<f64>, ElasticFitError> {
-    Ok(sample_equilibria(mesh, mass, samples, gamma, anchors, params)?.0)
-}
-
-/// [`sample_losses`] and the equilibria they measure, per sample and frame.
+/// Loss (m³) of each sample at material `gamma`, and the equilibria it
+/// measures, per sample and frame ([`settle_samples`]).
 pub fn sample_equilibria(
     mesh: &TetMesh,
     mass: &[f64],
@@ -987,7 +969,8 @@ fn lowers_loss(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<bool, ElasticFitError> {
-    let before: f64 = sample_losses(mesh, mass, samples, from, anchors, params)?
+    let before: f64 = sample_equilibria(mesh, mass, samples, from, anchors, params)?
+        .0
         .iter()
         .sum();
     let model = ElasticModel::new(mesh, &to.gamma_s, &to.gamma_v)
