@@ -14,8 +14,10 @@ use knitvox::embed::tetrahedralize;
 use knitvox::geom::{TetMesh, Vec3, VoxelGrid};
 use knitvox::sim::backend::{ElasticRhs, JacobiSolve};
 use knitvox::sim::cholesky::SparseCholesky;
+use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::sim::csr::CsrMatrix;
 use knitvox::sim::energy::{node_gradients, ElasticModel};
+use knitvox::sim::fibre::FibreFamily;
 use knitvox::sim::gpu::{
     chebyshev_omegas, GpuContext, GpuElasticRhs, GpuError, GpuJacobi, GpuJacobiParams,
 };
@@ -853,6 +855,67 @@ fn gpu_elastic_rhs_takes_new_materials_in_place() {
     // Another mesh's materials are refused (the caller falls back to the CPU).
     let other = model(&block([2, 2, 2]), &mut rng);
     assert!(!gpu_rhs.update_materials(&other).unwrap());
+}
+
+/// Fibre families (`sim::fibre`) on the GPU: the same right-hand side and
+/// energy as the CPU backend, slack and stretched fibres both present, and
+/// a material update that adds or drops them goes in place.
+#[test]
+fn gpu_elastic_rhs_with_fibres_matches_cpu_backend() {
+    let Some(ctx) = gpu() else { return };
+    let mesh = block([3, 3, 2]);
+    let nt = mesh.num_tets();
+    let mut rng = Rng(23);
+    let plain = model(&mesh, &mut rng);
+    let s = 0.5f64.sqrt();
+    let fam = |d: [f64; 3], rng: &mut Rng| FibreFamily {
+        directions: vec![d; nt],
+        gamma: (0..nt).map(|_| 5e3 * rng.next()).collect(),
+    };
+    let fibred = plain
+        .clone()
+        .with_fibres(vec![
+            fam([1.0, 0.0, 0.0], &mut rng),
+            fam([0.0, s, s], &mut rng),
+        ])
+        .unwrap();
+    // Stretched along x, compressed along y-z: some fibres taut, some slack.
+    let x: Vec<Vec3> = mesh
+        .nodes
+        .iter()
+        .map(|p| {
+            [
+                1.3 * p[0] + 0.2 * H * rng.sym(),
+                0.8 * p[1] + 0.1 * p[0] + 0.2 * H * rng.sym(),
+                1.1 * p[2] + 0.2 * H * rng.sym(),
+            ]
+        })
+        .collect();
+    let cpu = |m: &ElasticModel| {
+        let mut out = vec![[0.0; 3]; mesh.num_nodes()];
+        let ev = CpuElasticRhs::new(m).evaluate(&x, &mut out).unwrap();
+        (out, ev.elastic_energy)
+    };
+    let (cpu_plain, _) = cpu(&plain);
+    let (cpu_fibred, e_fibred) = cpu(&fibred);
+    assert!(
+        rel_diff(&cpu_plain, &cpu_fibred) > 0.05,
+        "the fibres matter"
+    );
+    let mut gpu_rhs = GpuElasticRhs::new(&ctx, &fibred).unwrap();
+    let mut out = vec![[f64::NAN; 3]; mesh.num_nodes()];
+    let ev = gpu_rhs.evaluate(&x, &mut out).unwrap();
+    let err = rel_diff(&out, &cpu_fibred);
+    let e_err = (ev.elastic_energy - e_fibred).abs() / e_fibred;
+    eprintln!("fibres: rhs rel err {err:.2e}, energy rel err {e_err:.2e}");
+    assert!(err <= 1e-4 && e_err <= 1e-4, "rhs {err}, energy {e_err}");
+    // Dropping the fibres in place gives the plain model's rhs, and back.
+    assert!(gpu_rhs.update_materials(&plain).unwrap());
+    gpu_rhs.evaluate(&x, &mut out).unwrap();
+    assert!(rel_diff(&out, &cpu_plain) <= 1e-4);
+    assert!(gpu_rhs.update_materials(&fibred).unwrap());
+    gpu_rhs.evaluate(&x, &mut out).unwrap();
+    assert!(rel_diff(&out, &cpu_fibred) <= 1e-4);
 }
 
 /// Friction lives in the time loop shared by both backends (`sim::pd`

@@ -10,6 +10,7 @@ use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, LocalEval};
 use super::energy::{node_gradients, ElasticModel};
+use super::fibre::fibre_target;
 use super::local::{
     project_diag_sl3, project_volume_detailed, signed_svd_warm, signed_svd_warm_x4, SignedSvd,
     SVD_LANES,
@@ -166,6 +167,7 @@ impl ElasticRhs for CpuElasticRhs {
         let model = &self.model;
         let rest = model.rest();
         let (gs, gv) = (model.gamma_s(), model.gamma_v());
+        let fibres = model.fibres();
         self.per_tet
             .par_chunks_mut(TET_CHUNK)
             .zip(self.per_tet_energy.par_chunks_mut(TET_CHUNK))
@@ -185,7 +187,7 @@ impl ElasticRhs for CpuElasticRhs {
                 };
                 let finish = |e: usize, f: &Matrix3<f64>, svd: Option<SignedSvd>| {
                     let r = &rest[e];
-                    let (energy, target, clamped) = match svd {
+                    let (mut energy, mut target, clamped) = match svd {
                         Some(svd) => targets_from_svd(&svd, r.volume, gs[e], gv[e]),
                         None => {
                             let (rot, vol, clamped) = project_from_svd(f, None);
@@ -196,6 +198,11 @@ impl ElasticRhs for CpuElasticRhs {
                             (energy, target, clamped)
                         }
                     };
+                    for fam in fibres {
+                        let (t, en) = fibre_target(f, &fam.directions[e], r.volume, fam.gamma[e]);
+                        target += t;
+                        energy += en;
+                    }
                     ((energy, clamped), node_gradients(&target, &r.dm_inv))
                 };
                 // Four tets per SVD call (latency: see the x4 doc), the

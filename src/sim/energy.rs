@@ -22,6 +22,7 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use super::fibre::{fibre_energy, fibre_stress, FibreFamily, MAX_FIBRE_FAMILIES};
 use super::local::{project_rotation, project_volume};
 use super::SimError;
 use crate::geom::{TetMesh, Vec3};
@@ -37,13 +38,15 @@ pub struct TetRest {
     pub volume: f64,
 }
 
-/// The elastic model of a mesh: rest shapes and per-tet stiffnesses
-/// `γs`, `γv` (Pa). Validated once on construction.
+/// The elastic model of a mesh: rest shapes, per-tet stiffnesses `γs`, `γv`
+/// (Pa) and up to [`MAX_FIBRE_FAMILIES`] tension-only fibre families
+/// ([`super::fibre`]; none by default). Validated once on construction.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ElasticModel {
     rest: Vec<TetRest>,
     gamma_s: Vec<f64>,
     gamma_v: Vec<f64>,
+    fibres: Vec<FibreFamily>,
     num_nodes: usize,
 }
 
@@ -124,8 +127,51 @@ impl ElasticModel {
             rest,
             gamma_s: gamma_s.to_vec(),
             gamma_v: gamma_v.to_vec(),
+            fibres: Vec::new(),
             num_nodes: n,
         })
+    }
+
+    /// The same model with the fibre families `fibres` (at most
+    /// [`MAX_FIBRE_FAMILIES`], each checked: one unit direction and one
+    /// finite stiffness `>= 0` per tet) in place of its own.
+    pub fn with_fibres(mut self, fibres: Vec<FibreFamily>) -> Result<Self, SimError> {
+        if fibres.len() > MAX_FIBRE_FAMILIES {
+            return Err(SimError::Inconsistent(format!(
+                "{} fibre families; at most {MAX_FIBRE_FAMILIES} are supported",
+                fibres.len()
+            )));
+        }
+        for (k, fam) in fibres.iter().enumerate() {
+            fam.check(self.rest.len(), k)?;
+        }
+        self.fibres = fibres;
+        Ok(self)
+    }
+
+    /// The fibre families (empty: Eq. 7 alone).
+    pub fn fibres(&self) -> &[FibreFamily] {
+        &self.fibres
+    }
+
+    /// Energy (J) of tet `e` at deformation gradient `f`: Eq. 7 plus its fibres.
+    pub fn tet_energy(&self, e: usize, f: &Matrix3<f64>) -> f64 {
+        let v = self.rest[e].volume;
+        let mut en = element_energy(f, v, self.gamma_s[e], self.gamma_v[e]);
+        for fam in &self.fibres {
+            en += fibre_energy(f, &fam.directions[e], v, fam.gamma[e]);
+        }
+        en
+    }
+
+    /// `∂E_e/∂F` (J) of tet `e` at `f`: Eq. 7 plus its fibres.
+    pub fn tet_stress(&self, e: usize, f: &Matrix3<f64>) -> Matrix3<f64> {
+        let v = self.rest[e].volume;
+        let mut p = element_stress(f, v, self.gamma_s[e], self.gamma_v[e]);
+        for fam in &self.fibres {
+            p += fibre_stress(f, &fam.directions[e], v, fam.gamma[e]);
+        }
+        p
     }
 
     /// Rest data of every tet.
@@ -167,7 +213,7 @@ impl ElasticModel {
             .collect())
     }
 
-    /// Total energy `Σ_e E_e` (J) of VH Eq. 7 for node positions `x` (m).
+    /// Total energy `Σ_e E_e` (J) of VH Eq. 7 and the fibres for node positions `x` (m).
     /// Deterministic: per-tet values are summed in tet order.
     pub fn energy(&self, x: &[Vec3]) -> Result<f64, SimError> {
         self.check(x)?;
@@ -175,8 +221,7 @@ impl ElasticModel {
             .into_par_iter()
             .map(|e| {
                 let r = &self.rest[e];
-                let f = shape_matrix(x, &r.nodes) * r.dm_inv;
-                element_energy(&f, r.volume, self.gamma_s[e], self.gamma_v[e])
+                self.tet_energy(e, &(shape_matrix(x, &r.nodes) * r.dm_inv))
             })
             .collect();
         Ok(per_tet.iter().sum())
@@ -193,8 +238,7 @@ impl ElasticModel {
             .map(|e| {
                 let r = &self.rest[e];
                 let f = shape_matrix(x, &r.nodes) * r.dm_inv;
-                let p = element_stress(&f, r.volume, self.gamma_s[e], self.gamma_v[e]);
-                node_gradients(&p, &r.dm_inv)
+                node_gradients(&self.tet_stress(e, &f), &r.dm_inv)
             })
             .collect();
         let mut g = vec![[0.0; 3]; self.num_nodes];

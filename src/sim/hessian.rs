@@ -238,6 +238,20 @@ pub fn element_hessian(
     h
 }
 
+impl super::energy::ElasticModel {
+    /// [`element_hessian`] of tet `e` at deformation gradient `f` plus its
+    /// fibres' Hessians ([`super::fibre::fibre_element_hessian`], PSD
+    /// without projection).
+    pub fn tet_hessian(&self, e: usize, f: &Matrix3<f64>, project: bool) -> Mat12 {
+        let rest = &self.rest()[e];
+        let mut h = element_hessian(f, rest, self.gamma_s()[e], self.gamma_v()[e], project);
+        for fam in self.fibres() {
+            h += super::fibre::fibre_element_hessian(f, rest, &fam.directions[e], fam.gamma[e]);
+        }
+        h
+    }
+}
+
 /// Derivatives (N/Pa) of one tet's node gradients with respect to its `γs`
 /// and `γv`: the energy is linear in both, so these are the node gradients of
 /// `2 V_e (F - R(F))` and `2 V_e (F - V(F))`.

@@ -4,6 +4,7 @@
 //! * [`anderson`]: Anderson acceleration of the PD iterations (Peng et al.
 //!   2018).
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
+//! * [`fibre`]: tension-only fibre families, the anisotropy Eq. 7 lacks.
 //! * [`hessian`]: its force Jacobian (exact and PSD-projected) and the
 //!   derivatives of the force with respect to `γs`, `γv`.
 //! * [`statics`]: Newton equilibrium of the tet mesh (VH Eq. 13-14).
@@ -34,6 +35,7 @@ pub mod cpu;
 pub mod csr;
 pub mod dd;
 pub mod energy;
+pub mod fibre;
 pub mod gpu;
 pub mod hessian;
 pub mod jacobi;

@@ -512,12 +512,23 @@ fn assemble(
     for (e, r) in model.rest().iter().enumerate() {
         let w = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]);
         let g = shape_gradients(&r.dm_inv);
+        // Fibre selections F d = Σ c_a x_a, weight 2 γ V (super::fibre).
+        let fibres: Vec<(f64, [f64; 4])> = model
+            .fibres()
+            .iter()
+            .filter(|fam| fam.gamma[e] > 0.0)
+            .map(|fam| {
+                let c = super::fibre::node_coefficients(r, &fam.directions[e]);
+                (2.0 * r.volume * fam.gamma[e], c)
+            })
+            .collect();
         for a in 0..4 {
             let Some(fi) = free_index[r.nodes[a]] else {
                 continue;
             };
             for b in 0..4 {
-                let val = w * g[a].dot(&g[b]);
+                let val = w * g[a].dot(&g[b])
+                    + fibres.iter().map(|(wf, c)| wf * c[a] * c[b]).sum::<f64>();
                 match free_index[r.nodes[b]] {
                     Some(fj) => {
                         if fi >= fj {
@@ -768,7 +779,19 @@ impl PdSolver {
     /// of the domain-decomposed solver goes back to the CPU one (`K`
     /// changed): call [`Self::set_backend`] with a new one for the GPU.
     pub fn refactor(&mut self, gamma_s: &[f64], gamma_v: &[f64]) -> Result<(), SimError> {
-        let model = ElasticModel::new(&self.mesh, gamma_s, gamma_v)?;
+        let model = ElasticModel::new(&self.mesh, gamma_s, gamma_v)?
+            .with_fibres(self.model.fibres().to_vec())?;
+        self.replace_model(model)
+    }
+
+    /// New fibre families ([`super::fibre`]; empty: none), keeping `γs`,
+    /// `γv`; refactors as [`Self::refactor`].
+    pub fn set_fibres(&mut self, fibres: Vec<super::fibre::FibreFamily>) -> Result<(), SimError> {
+        let model = self.model.clone().with_fibres(fibres)?;
+        self.replace_model(model)
+    }
+
+    fn replace_model(&mut self, model: ElasticModel) -> Result<(), SimError> {
         let old = std::mem::replace(&mut self.model, model);
         let r = self.factorize(false);
         if r.is_err() {

@@ -34,7 +34,6 @@ use rayon::prelude::*;
 
 use super::cholesky::SparseCholesky;
 use super::energy::ElasticModel;
-use super::hessian::element_hessian;
 use super::SimError;
 use crate::geom::Vec3;
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
@@ -244,10 +243,9 @@ impl StaticSolver {
     fn assemble(&self, x: &[Vec3], mass_scale: f64) -> Result<SparseColMat<usize, f64>, SimError> {
         let f = self.model.deformation_gradients(x)?;
         let rest = self.model.rest();
-        let (gs, gv) = (self.model.gamma_s(), self.model.gamma_v());
         let blocks: Vec<_> = (0..rest.len())
             .into_par_iter()
-            .map(|e| element_hessian(&f[e], &rest[e], gs[e], gv[e], true))
+            .map(|e| self.model.tet_hessian(e, &f[e], true))
             .collect();
         let mut trip = Vec::with_capacity(rest.len() * 78 + self.ndof);
         for (r, h) in rest.iter().zip(&blocks) {

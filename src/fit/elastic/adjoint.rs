@@ -20,7 +20,7 @@ use super::loss::FrameTarget;
 use super::Frame;
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
-use crate::sim::hessian::{element_gamma_derivatives, element_hessian};
+use crate::sim::hessian::element_gamma_derivatives;
 use crate::sim::statics::{StaticParams, StaticSolver, StaticStats};
 
 /// Free DOFs of a frame: 3 per unpinned node, in node order.
@@ -259,10 +259,9 @@ fn assemble_k(
 ) -> Result<Vec<(usize, usize, f64)>, String> {
     let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
     let rest = model.rest();
-    let (gs, gv) = (model.gamma_s(), model.gamma_v());
     let blocks: Vec<_> = (0..rest.len())
         .into_par_iter()
-        .map(|e| element_hessian(&f[e], &rest[e], gs[e], gv[e], false))
+        .map(|e| model.tet_hessian(e, &f[e], false))
         .collect();
     let mut k = Vec::with_capacity(rest.len() * 144);
     for (r, h) in rest.iter().zip(&blocks) {

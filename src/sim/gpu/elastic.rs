@@ -64,10 +64,18 @@ fn f32_checked(v: f64, what: &str, tet: usize) -> Result<f32, GpuError> {
 }
 
 /// Per tet: the three columns of `Dm⁻¹`, each followed by one of rest
-/// volume, `γs`, `γv` (12 `f32`, the `rest` buffer's layout).
+/// volume, `γs`, `γv`, then two fibre families, each its unit direction
+/// followed by its `γ` (zeros for a family the model lacks): 20 `f32`, the
+/// `rest` buffer's layout.
 fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
     let rest = model.rest();
-    let mut data: Vec<f32> = Vec::with_capacity(12 * rest.len());
+    if model.fibres().len() > 2 {
+        return Err(GpuError::Inconsistent(format!(
+            "{} fibre families; the GPU kernel packs two",
+            model.fibres().len()
+        )));
+    }
+    let mut data: Vec<f32> = Vec::with_capacity(REST_F32_PER_TET * rest.len());
     for (e, r) in rest.iter().enumerate() {
         let extra = [
             (r.volume, "rest volume"),
@@ -80,9 +88,23 @@ fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
             }
             data.push(f32_checked(*w, what, e)?);
         }
+        for k in 0..2 {
+            match model.fibres().get(k) {
+                Some(fam) => {
+                    for c in fam.directions[e] {
+                        data.push(c as f32);
+                    }
+                    data.push(f32_checked(fam.gamma[e], "fibre gamma", e)?);
+                }
+                None => data.extend_from_slice(&[0.0; 4]),
+            }
+        }
     }
     Ok(data)
 }
+
+/// `f32` per tet in the `rest` buffer (see [`rest_data`]).
+const REST_F32_PER_TET: usize = 20;
 
 impl GpuElasticRhs {
     /// Uploads the rest data of `model` (node indices, `Dm⁻¹`, rest volumes,

@@ -21,7 +21,9 @@ struct Params {
 @group(0) @binding(0) var<uniform> params: Params;
 // Node indices of every tet.
 @group(0) @binding(1) var<storage, read> tets: array<vec4<u32>>;
-// Per tet three vec4: the columns of Dm^-1 in .xyz; .w = rest volume, γs, γv.
+// Per tet five vec4: the columns of Dm^-1 in .xyz, .w = rest volume, γs, γv;
+// then two fibre families (src/sim/fibre.rs), unit rest direction in .xyz and
+// γ in .w (0 for none).
 @group(0) @binding(2) var<storage, read> rest: array<vec4<f32>>;
 // Node positions, n x 3 row-major.
 @group(0) @binding(3) var<storage, read> x: array<f32>;
@@ -449,9 +451,9 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
         return;
     }
     let ids = tets[e];
-    let r0 = rest[3u * e];
-    let r1 = rest[3u * e + 1u];
-    let r2 = rest[3u * e + 2u];
+    let r0 = rest[5u * e];
+    let r1 = rest[5u * e + 1u];
+    let r2 = rest[5u * e + 2u];
     let dm_inv = mat3x3<f32>(r0.xyz, r1.xyz, r2.xyz);
     let vol = r0.w;
     let gs = r1.w;
@@ -483,7 +485,22 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
         energy = vol * (gs * dot(er, er) + gv * dot(ev, ev));
         clamped = p.floored;
     }
-    let pm = 2.0 * vol * (gs * rot + gv * vol_target);
+    var pm = 2.0 * vol * (gs * rot + gv * vol_target);
+    // Tension-only fibres: target 2 γ V π(F d) dᵀ, energy γ V dist²(F d, B).
+    for (var k = 0u; k < 2u; k++) {
+        let fib = rest[5u * e + 3u + k];
+        if (fib.w > 0.0 && finite) {
+            let y = f * fib.xyz;
+            let len = length(y);
+            var p = y;
+            if (len > 1.0) {
+                p = y / len;
+                energy += vol * fib.w * (len - 1.0) * (len - 1.0);
+            }
+            let w = 2.0 * vol * fib.w;
+            pm += mat3x3<f32>(w * fib.x * p, w * fib.y * p, w * fib.z * p);
+        }
+    }
     let h = pm * transpose(dm_inv);
     let c0 = -(h[0] + h[1] + h[2]);
     corners[4u * e] = vec4<f32>(c0, energy);

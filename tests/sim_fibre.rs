@@ -1,0 +1,238 @@
+//! Tension-only fibre families in the tet model (`sim::fibre`): the full
+//! model's energy, gradient and Hessian, the PD local step's right-hand side,
+//! the PD time loop's rest state against Newton statics, and what a fibre
+//! does to a cantilever.
+
+use knitvox::geom::Vec3;
+use knitvox::sim::backend::ElasticRhs;
+use knitvox::sim::cpu::CpuElasticRhs;
+use knitvox::sim::energy::{node_gradients, ElasticModel};
+use knitvox::sim::fibre::FibreFamily;
+use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+use knitvox::sim::statics::{StaticParams, StaticSolver};
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn sym(&mut self) -> f64 {
+        2.0 * self.next() - 1.0
+    }
+}
+
+fn family(nt: usize, d: [f64; 3], gamma: impl Fn(usize) -> f64) -> FibreFamily {
+    FibreFamily {
+        directions: vec![d; nt],
+        gamma: (0..nt).map(gamma).collect(),
+    }
+}
+
+/// A 3x2x2 block with random Eq. 7 stiffnesses and two fibre families
+/// (x and an oblique direction), stretched along x by 25% with noise.
+fn stretched_block(seed: u64) -> (ElasticModel, Vec<Vec3>) {
+    let (mesh, _) = box_mesh([3, 2, 2], 0.01, 120.0);
+    let nt = mesh.num_tets();
+    let mut rng = Rng(seed);
+    let gs: Vec<f64> = (0..nt).map(|_| 100.0 * (1.0 + rng.next())).collect();
+    let gv: Vec<f64> = (0..nt).map(|_| 300.0 * (1.0 + rng.next())).collect();
+    let g1: Vec<f64> = (0..nt).map(|_| 2e3 * rng.next()).collect();
+    let g2: Vec<f64> = (0..nt).map(|_| 1e3 * rng.next()).collect();
+    let s = 1.0 / 3f64.sqrt();
+    let model = ElasticModel::new(&mesh, &gs, &gv)
+        .unwrap()
+        .with_fibres(vec![
+            family(nt, [1.0, 0.0, 0.0], |e| g1[e]),
+            family(nt, [s, s, -s], |e| g2[e]),
+        ])
+        .unwrap();
+    let x = mesh
+        .nodes
+        .iter()
+        .map(|p| {
+            [
+                1.25 * p[0] + 0.002 * rng.sym(),
+                p[1] + 0.1 * p[0] + 0.002 * rng.sym(),
+                0.95 * p[2] + 0.002 * rng.sym(),
+            ]
+        })
+        .collect();
+    (model, x)
+}
+
+#[test]
+fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
+    let (model, x) = stretched_block(1);
+    let e0 = model.energy(&x).unwrap();
+    let no_fibres = model.clone().with_fibres(Vec::new()).unwrap();
+    let fibre_part = e0 - no_fibres.energy(&x).unwrap();
+    assert!(fibre_part > 0.2 * e0, "fibres carry {fibre_part} of {e0} J");
+
+    // Gradient against central differences of the energy, every coordinate.
+    let g = model.gradient(&x).unwrap();
+    let eps = 1e-7;
+    let gmax = g.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..x.len() {
+        for c in 0..3 {
+            let mut p = x.clone();
+            p[i][c] += eps;
+            let mut q = x.clone();
+            q[i][c] -= eps;
+            let fd = (model.energy(&p).unwrap() - model.energy(&q).unwrap()) / (2.0 * eps);
+            assert!(
+                (fd - g[i][c]).abs() <= 1e-5 * gmax,
+                "node {i} coord {c}: fd {fd} vs {}",
+                g[i][c]
+            );
+        }
+    }
+
+    // Element Hessians against differences of the element stresses.
+    let fs = model.deformation_gradients(&x).unwrap();
+    for e in (0..model.rest().len()).step_by(7) {
+        let h = model.tet_hessian(e, &fs[e], false);
+        let r = &model.rest()[e];
+        for col in 0..12 {
+            let (a, c) = (col / 3, col % 3);
+            let mut df = nalgebra::Matrix3::zeros();
+            // δF of a unit move of node a along c.
+            let dsum: nalgebra::RowVector3<f64> = if a == 0 {
+                -(r.dm_inv.row(0) + r.dm_inv.row(1) + r.dm_inv.row(2))
+            } else {
+                r.dm_inv.row(a - 1).into_owned()
+            };
+            df.set_row(c, &dsum);
+            let step = 1e-7;
+            let gp = node_gradients(&model.tet_stress(e, &(fs[e] + step * df)), &r.dm_inv);
+            let gm = node_gradients(&model.tet_stress(e, &(fs[e] - step * df)), &r.dm_inv);
+            for b in 0..4 {
+                for k in 0..3 {
+                    let fd = (gp[b][k] - gm[b][k]) / (2.0 * step);
+                    let exact = h[(3 * b + k, col)];
+                    assert!(
+                        (fd - exact).abs() <= 1e-5 * h.norm(),
+                        "tet {e} ({b},{k})/({a},{c}): fd {fd} vs {exact}"
+                    );
+                }
+            }
+        }
+    }
+
+    // The PD right-hand side: its energy is the model's, and the model's
+    // gradient is K_el x - rhs with K_el's F-space form
+    // 2 V ((γs + γv) F + Σ γ_k (F d_k) d_kᵀ).
+    let mut rhs = CpuElasticRhs::new(&model);
+    let mut out = vec![[0.0; 3]; x.len()];
+    let ev = rhs.evaluate(&x, &mut out).unwrap();
+    assert!(
+        (ev.elastic_energy - e0).abs() <= 1e-12 * e0,
+        "{} vs {e0}",
+        ev.elastic_energy
+    );
+    let mut from_rhs = vec![[0.0; 3]; x.len()];
+    for (e, r) in model.rest().iter().enumerate() {
+        let f = fs[e];
+        let mut p = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]) * f;
+        for fam in model.fibres() {
+            let d = nalgebra::Vector3::from(fam.directions[e]);
+            p += 2.0 * r.volume * fam.gamma[e] * (f * d) * d.transpose();
+        }
+        for (a, gr) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
+            for k in 0..3 {
+                from_rhs[r.nodes[a]][k] += gr[k];
+            }
+        }
+    }
+    for (i, (fr, o)) in from_rhs.iter().zip(&out).enumerate() {
+        for k in 0..3 {
+            let v = fr[k] - o[k];
+            assert!(
+                (v - g[i][k]).abs() <= 1e-9 * gmax,
+                "node {i}: {v} vs {}",
+                g[i][k]
+            );
+        }
+    }
+}
+
+/// A 10x2x3-voxel cantilever (x along its length, y up), clamped at x = 0,
+/// under gravity: soft Eq. 7 (1 kPa, 3 kPa) with fibres of stiffness `gamma`
+/// along `d`. Returns its Newton equilibrium's tip sag (m) and the model.
+fn cantilever(d: [f64; 3], gamma: f64) -> (f64, ElasticModel, Vec<f64>, Vec<usize>, Vec<Vec3>) {
+    let (mesh, mass) = box_mesh([10, 2, 3], 0.005, 120.0);
+    let nt = mesh.num_tets();
+    let model = ElasticModel::new(&mesh, &vec![1e3; nt], &vec![3e3; nt])
+        .unwrap()
+        .with_fibres(vec![family(nt, d, |_| gamma)])
+        .unwrap();
+    let pinned: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let f_ext: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
+    let mut s = StaticSolver::new(model.clone(), &mass, &pinned).unwrap();
+    let (xs, st) = s
+        .solve(&mesh.nodes, &f_ext, None, &StaticParams::default())
+        .unwrap();
+    assert!(*st.residuals.last().unwrap() <= 1e-6, "{st:?}");
+    let sag = mesh
+        .nodes
+        .iter()
+        .zip(&xs)
+        .map(|(p, q)| p[1] - q[1])
+        .fold(0.0f64, f64::max);
+    (sag, model, mass, pinned, xs)
+}
+
+#[test]
+fn fibres_along_a_cantilever_hold_it_up_and_pd_settles_at_newtons_equilibrium() {
+    let (sag_none, ..) = cantilever([1.0, 0.0, 0.0], 0.0);
+    let (sag_across, ..) = cantilever([0.0, 0.0, 1.0], 3e4);
+    let (sag_along, model, mass, pinned, x_newton) = cantilever([1.0, 0.0, 0.0], 3e4);
+    eprintln!("tip sag: no fibres {sag_none:.5} m, across {sag_across:.5}, along {sag_along:.5}");
+    // Fibres along the length carry the bending tension; across it, nothing
+    // is stretched far enough to matter.
+    assert!(sag_along < 0.6 * sag_none, "{sag_along} vs {sag_none}");
+    assert!(sag_across > 0.9 * sag_none, "{sag_across} vs {sag_none}");
+
+    // The PD time loop, heavily damped, comes to rest at the same shape.
+    let mesh = knitvox::geom::TetMesh {
+        nodes: box_mesh([10, 2, 3], 0.005, 120.0).0.nodes,
+        tets: box_mesh([10, 2, 3], 0.005, 120.0).0.tets,
+    };
+    let params = PdParams {
+        mass_damping: 40.0,
+        max_iterations: 30,
+        tolerance: 0.0,
+        ..PdParams::default()
+    };
+    let mut pd = PdSolver::new(
+        &mesh,
+        &mass,
+        model.gamma_s(),
+        model.gamma_v(),
+        &pinned,
+        params,
+    )
+    .unwrap();
+    pd.set_fibres(model.fibres().to_vec()).unwrap();
+    assert_eq!(pd.model(), &model);
+    let held: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
+    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+    for _ in 0..600 {
+        pd.step(&mut x, &mut v, &held).unwrap();
+    }
+    let gap = x
+        .iter()
+        .zip(&x_newton)
+        .map(|(a, b)| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        })
+        .fold(0.0f64, f64::max);
+    let speed = v.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+    eprintln!("PD rest vs Newton: largest gap {gap:.2e} m, speed left {speed:.2e} m/s");
+    assert!(gap <= 1e-5 * sag_along, "gap {gap} against sag {sag_along}");
+}
