@@ -708,14 +708,14 @@ pub fn anchors_of(report: &FitReport, samples: &[Sample], joint: bool) -> Vec<Ve
     }
 }
 
-/// Equilibrium of `frame` under `model` (material `gamma`, stacked): by continuation
+/// Equilibrium of `frame` under `model` (material `gamma`): by continuation
 /// from the fit's `anchor` when there is one (the equilibrium the fit itself
 /// reached, so losses agree with the fit's), else, or when that fails, by
 /// Newton from the frame's start.
 fn settle(
     mesh: &TetMesh,
     model: &ElasticModel,
-    gamma: &[f64],
+    gamma: &MaterialFields,
     mass: &[f64],
     frame: &Frame,
     anchor: Option<&Anchor>,
@@ -750,10 +750,9 @@ fn settle_samples(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<SettledSamples, ElasticFitError> {
-    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+    let model = gamma.model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let stacked = gamma.stacked();
-    let xs = samples
+        let xs = samples
         .iter()
         .enumerate()
         .map(|(k, s)| {
@@ -762,7 +761,7 @@ fn settle_samples(
                 .enumerate()
                 .map(|(i, f)| {
                     let anchor = anchors.get(k).and_then(|a| a.get(i));
-                    settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
+                    settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
                         ElasticFitError::Sample {
                             sample: s.name.clone(),
                             frame: i,
@@ -872,10 +871,9 @@ pub fn force_scale(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Option<ForceScale>, ElasticFitError> {
-    let model = ElasticModel::new(mesh, &gamma.gamma_s, &gamma.gamma_v)
+    let model = gamma.model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let stacked = gamma.stacked();
-    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+        let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
         crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
     });
     let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
@@ -894,7 +892,7 @@ pub fn force_scale(
                 continue;
             }
             let anchor = anchors.get(k).and_then(|a| a.get(i));
-            let x = settle(mesh, &model, &stacked, mass, f, anchor, params).map_err(|message| {
+            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
                 ElasticFitError::Sample {
                     sample: s.name.clone(),
                     frame: i,
@@ -947,10 +945,7 @@ fn range(v: &[f64]) -> [f64; 2] {
 }
 
 fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
-    MaterialFields {
-        gamma_s: g.gamma_s.iter().map(|v| v * s).collect(),
-        gamma_v: g.gamma_v.iter().map(|v| v * s).collect(),
-    }
+    g.with_stacked(&g.stacked().iter().map(|v| v * s).collect::<Vec<_>>())
 }
 
 /// Whether the training loss at `to` is at most that at `from` (both
@@ -973,7 +968,7 @@ fn lowers_loss(
         .0
         .iter()
         .sum();
-    let model = ElasticModel::new(mesh, &to.gamma_s, &to.gamma_v)
+    let model = to.model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
     let mut after = 0.0;
     for (k, s) in samples.iter().enumerate() {
@@ -1247,6 +1242,7 @@ impl Stage for FitJob {
         let init = MaterialFields {
             gamma_s: asset.gamma_s.clone(),
             gamma_v: asset.gamma_v.clone(),
+            fibres: Vec::new(),
         };
         let fitted = {
             let cell = std::cell::RefCell::new(&mut *observer);
@@ -1609,6 +1605,7 @@ mod tests {
         let truth = MaterialFields {
             gamma_s: vec![2e4; nt],
             gamma_v: vec![5e4; nt],
+            fibres: Vec::new(),
         };
         let lx = 6.0 * h;
         let mut pinned = Vec::new();
@@ -1670,10 +1667,7 @@ mod tests {
             .filter(|&i| mesh.nodes[i][0] < 1e-9)
             .collect();
         let weight: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
-        let material = MaterialFields {
-            gamma_s: vec![gamma; nt],
-            gamma_v: vec![gamma; nt],
-        };
+        let material = MaterialFields::uniform(nt, gamma, gamma);
         let model = ElasticModel::new(&mesh, &material.gamma_s, &material.gamma_v).unwrap();
         let frame = Frame {
             target: FrameTarget::from_nodes(&model, &mesh.nodes, &mass, LOSS_ALPHA, h).unwrap(),

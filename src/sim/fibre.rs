@@ -41,7 +41,7 @@ pub const MAX_FIBRE_FAMILIES: usize = 2;
 
 /// One family of tension-only fibres: per tet a unit rest direction and a
 /// stiffness.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FibreFamily {
     /// Unit rest direction per tet (dimensionless, rest configuration).
     pub directions: Vec<[f64; 3]>,

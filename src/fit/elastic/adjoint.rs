@@ -17,9 +17,10 @@ use faer::{Conj, Mat};
 use rayon::prelude::*;
 
 use super::loss::FrameTarget;
-use super::Frame;
+use super::{Frame, MaterialFields};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
+use crate::sim::fibre::fibre_gamma_derivative;
 use crate::sim::hessian::element_gamma_derivatives;
 use crate::sim::statics::{StaticParams, StaticSolver, StaticStats};
 
@@ -170,12 +171,13 @@ pub fn equilibrium_continued(
     mesh: &TetMesh,
     mass: &[f64],
     frame: &Frame,
-    gamma: &[f64],
+    fields: &MaterialFields,
     anchor: &Anchor,
     params: &StaticParams,
 ) -> Result<(Vec<Vec3>, u32), String> {
-    let ne = mesh.num_tets();
-    if gamma.len() != 2 * ne || anchor.gamma.len() != 2 * ne || anchor.x.len() != mesh.num_nodes() {
+    let gamma = &fields.stacked();
+    let len = fields.num_fields() * mesh.num_tets();
+    if gamma.len() != len || anchor.gamma.len() != len || anchor.x.len() != mesh.num_nodes() {
         return Err("continuation anchor does not match the mesh".into());
     }
     let (mut t, mut h, mut solves) = (0.0f64, 1.0f64, 0u32);
@@ -194,7 +196,7 @@ pub fn equilibrium_continued(
                 }
             })
             .collect();
-        let m = ElasticModel::new(mesh, &g[..ne], &g[ne..]).map_err(|e| e.to_string())?;
+        let m = fields.with_stacked(&g).model(mesh).map_err(|e| e.to_string())?;
         solves += 1;
         match equilibrium(&m, mass, frame, &x, params) {
             Ok((xn, _)) => {
@@ -289,7 +291,8 @@ pub struct FrameLinearization {
     pub free: FreeDofs,
     /// `K = ∂g/∂x` on free DOFs, entries (row, col, value), duplicates summed.
     pub k: Vec<(usize, usize, f64)>,
-    /// `C = ∂g/∂γ`: (free DOF, index in the stacked `γ` of length 2 n_E, value).
+    /// `C = ∂g/∂γ`: (free DOF, index in the stacked `γ` of length n_F n_E
+    /// for n_F fields, value).
     pub c: Vec<(usize, usize, f64)>,
     /// `G = ∂²ε/∂x²` on free DOFs (row, col, value).
     pub g: Vec<(usize, usize, f64)>,
@@ -297,7 +300,7 @@ pub struct FrameLinearization {
     pub de_dx: Vec<f64>,
     /// The adjoint state `λ` (Eq. 17).
     pub lambda: Vec<f64>,
-    /// `∂ε/∂γ` (Eq. 16), stacked `[γs; γv]`.
+    /// `∂ε/∂γ` (Eq. 16), stacked `[γs; γv; γ_fibres...]`.
     pub grad: Vec<f64>,
     /// The sparse LU of `K` (the adjoint's), reused by the Gauss-Newton
     /// solves that need `K⁻¹`.
@@ -329,9 +332,15 @@ pub fn linearize(
     let rest = model.rest();
     let ne = rest.len();
     let k = assemble_k(model, x, &free)?;
-    let mut c = Vec::with_capacity(ne * 24);
+    let nf = 2 + model.fibres().len();
+    let mut c = Vec::with_capacity(ne * 12 * nf);
     for (e, r) in rest.iter().enumerate() {
         let (ds, dv) = element_gamma_derivatives(&f[e], r);
+        let fibre: Vec<_> = model
+            .fibres()
+            .iter()
+            .map(|fam| fibre_gamma_derivative(&f[e], r, &fam.directions[e]))
+            .collect();
         for b in 0..4 {
             let Some(ib) = free.index[r.nodes[b]] else {
                 continue;
@@ -339,6 +348,9 @@ pub fn linearize(
             for kk in 0..3 {
                 c.push((ib + kk, e, ds[3 * b + kk]));
                 c.push((ib + kk, ne + e, dv[3 * b + kk]));
+                for (k, df) in fibre.iter().enumerate() {
+                    c.push((ib + kk, (2 + k) * ne + e, df[3 * b + kk]));
+                }
             }
         }
     }
@@ -357,7 +369,7 @@ pub fn linearize(
     if !lambda.iter().all(|v| v.is_finite()) {
         return Err("the force Jacobian is singular (adjoint not finite)".into());
     }
-    let mut grad = vec![0.0; 2 * ne];
+    let mut grad = vec![0.0; nf * ne];
     for &(row, j, v) in &c {
         grad[j] -= lambda[row] * v;
     }

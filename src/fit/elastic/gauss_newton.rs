@@ -47,18 +47,19 @@ use crate::sim::energy::ElasticModel;
 /// The parametrization of a stage: `γ` itself or harmonic coefficients.
 #[derive(Debug, Clone)]
 pub enum Basis {
-    /// One parameter per `γs_e` and `γv_e`.
+    /// One parameter per tet and field (`γs_e`, `γv_e`, fibre `γ_e`).
     Full,
-    /// `γ = diag(H, H) q` (Eq. 23), `H` of size `n_E x r`.
+    /// `γ = diag(H, H, ...) q` (Eq. 23; one block per field), `H` of size
+    /// `n_E x r`.
     Harmonic(DMatrix<f64>),
 }
 
 impl Basis {
-    /// Number of parameters for `ne` tets.
-    pub fn dim(&self, ne: usize) -> usize {
+    /// Number of parameters for `ne` tets and `nf` fields.
+    pub fn dim(&self, ne: usize, nf: usize) -> usize {
         match self {
-            Basis::Full => 2 * ne,
-            Basis::Harmonic(h) => 2 * h.ncols(),
+            Basis::Full => nf * ne,
+            Basis::Harmonic(h) => nf * h.ncols(),
         }
     }
     /// `γ` (stacked) of the parameters `q`.
@@ -67,8 +68,9 @@ impl Basis {
             Basis::Full => q.to_vec(),
             Basis::Harmonic(h) => {
                 let r = h.ncols();
-                let mut g = vec![0.0; 2 * ne];
-                for half in 0..2 {
+                let nf = q.len() / r;
+                let mut g = vec![0.0; nf * ne];
+                for half in 0..nf {
                     for e in 0..ne {
                         g[half * ne + e] = (0..r).map(|k| h[(e, k)] * q[half * r + k]).sum();
                     }
@@ -84,14 +86,15 @@ impl Basis {
             Basis::Harmonic(_) => self.pull(gamma, ne),
         }
     }
-    /// `diag(H, H)ᵀ v` (the chain rule of §6.5): gradients to parameters.
+    /// `diag(H, H, ...)ᵀ v` (the chain rule of §6.5): gradients to parameters.
     pub fn pull(&self, v: &[f64], ne: usize) -> Vec<f64> {
         match self {
             Basis::Full => v.to_vec(),
             Basis::Harmonic(h) => {
                 let r = h.ncols();
-                let mut q = vec![0.0; 2 * r];
-                for half in 0..2 {
+                let nf = v.len() / ne;
+                let mut q = vec![0.0; nf * r];
+                for half in 0..nf {
                     for k in 0..r {
                         q[half * r + k] = (0..ne).map(|e| h[(e, k)] * v[half * ne + e]).sum();
                     }
@@ -100,14 +103,20 @@ impl Basis {
             }
         }
     }
-    /// `C diag(H, H)` of a harmonic basis as a dense `ndof x 2r` matrix
-    /// (an empty one for the full basis).
-    fn dense_columns(&self, c: &[(usize, usize, f64)], ndof: usize, ne: usize) -> DMatrix<f64> {
+    /// `C diag(H, H, ...)` of a harmonic basis as a dense `ndof x m` matrix
+    /// (`m = n_F r` parameters; an empty one for the full basis).
+    fn dense_columns(
+        &self,
+        c: &[(usize, usize, f64)],
+        ndof: usize,
+        ne: usize,
+        m: usize,
+    ) -> DMatrix<f64> {
         let Basis::Harmonic(h) = self else {
             return DMatrix::zeros(0, 0);
         };
         let r = h.ncols();
-        let mut dense = DMatrix::<f64>::zeros(ndof, 2 * r);
+        let mut dense = DMatrix::<f64>::zeros(ndof, m);
         for &(row, j, v) in c {
             let (half, e) = (j / ne, j % ne);
             for k in 0..r {
@@ -117,17 +126,18 @@ impl Basis {
         dense
     }
 
-    /// `C diag(H, H)` of the triplets `c` (`ndof` rows).
+    /// `C diag(H, H, ...)` of the triplets `c` (`ndof` rows, `m` parameters).
     fn columns(
         &self,
         c: &[(usize, usize, f64)],
         ndof: usize,
         ne: usize,
+        m: usize,
     ) -> Vec<(usize, usize, f64)> {
         match self {
             Basis::Full => c.to_vec(),
             Basis::Harmonic(_) => {
-                let dense = self.dense_columns(c, ndof, ne);
+                let dense = self.dense_columns(c, ndof, ne, m);
                 let mut out = Vec::new();
                 for col in 0..dense.ncols() {
                     for row in 0..ndof {
@@ -193,7 +203,7 @@ pub fn gn_solve_damped(
             t.push((off + c, off + n + r, -v));
             t.push((off + n + r, off + c, -v));
         }
-        for (r, j, v) in basis.columns(&l.c, n, ne) {
+        for (r, j, v) in basis.columns(&l.c, n, ne, m) {
             if !fixed[j] {
                 t.push((off + n + r, dcol + j, v));
                 t.push((dcol + j, off + n + r, v));
@@ -254,7 +264,7 @@ fn gn_solve_subspace(
         .par_iter()
         .map(|l| -> Result<DMatrix<f64>, String> {
             let n = l.free.ndof;
-            let dense = basis.dense_columns(&l.c, n, ne);
+            let dense = basis.dense_columns(&l.c, n, ne, m);
             let mut j = Mat::<f64>::from_fn(n, m, |row, col| dense[(row, col)]);
             // K⁻¹ C; the sign of J cancels in Jᵀ G J.
             l.k_lu.solve_in_place_with_conj(Conj::No, j.as_mut());
@@ -543,13 +553,28 @@ pub(super) struct SampleFit<'a> {
     pub(super) sample: &'a Sample,
     pub(super) params: &'a ElasticFitParams,
     pub(super) progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
-    /// The initial material `[γs; γv]` (Pa), the reference of `max_contrast`.
+    /// The initial material `[γs; γv; ...]` (Pa), the reference of
+    /// `max_contrast`.
     init: Vec<f64>,
+    /// The initial fields: the layout (fibre directions) of every `γ`.
+    fields: &'a MaterialFields,
 }
 
 impl SampleFit<'_> {
     fn ne(&self) -> usize {
         self.mesh.num_tets()
+    }
+
+    fn nf(&self) -> usize {
+        self.fields.num_fields()
+    }
+
+    /// The elastic model of the stacked stiffnesses `gamma`.
+    pub(super) fn model(&self, gamma: &[f64]) -> Result<ElasticModel, String> {
+        self.fields
+            .with_stacked(gamma)
+            .model(self.mesh)
+            .map_err(|e| e.to_string())
     }
 
     /// Equilibria and loss at `gamma`, warm-started from `starts`. The error
@@ -559,9 +584,7 @@ impl SampleFit<'_> {
         gamma: &[f64],
         starts: &[Vec<Vec3>],
     ) -> Result<Evaluated, (usize, String)> {
-        let ne = self.ne();
-        let model = ElasticModel::new(self.mesh, &gamma[..ne], &gamma[ne..])
-            .map_err(|e| (0, e.to_string()))?;
+        let model = self.model(gamma).map_err(|e| (0, e))?;
         let frames: Vec<Result<(Vec<Vec3>, f64, f64, u64), (usize, String)>> = self
             .sample
             .frames
@@ -638,7 +661,7 @@ impl SampleFit<'_> {
             .map(|(i, fr)| linearize(&ev.model, fr, &ev.xs[i]).map_err(|e| (i, e)))
             .collect();
         let mut out = Vec::with_capacity(lins.len());
-        let mut grad = vec![0.0; 2 * self.ne()];
+        let mut grad = vec![0.0; self.nf() * self.ne()];
         for l in lins {
             let l = l.map_err(|(i, e)| self.error(i, e))?;
             for (g, v) in grad.iter_mut().zip(&l.grad) {
@@ -660,7 +683,7 @@ impl SampleFit<'_> {
         let start = Instant::now();
         let ne = self.ne();
         let p = self.params;
-        let m = basis.dim(ne);
+        let m = basis.dim(ne, self.nf());
         let full = matches!(basis, Basis::Full);
         let mut rep = StageReport {
             name,
@@ -996,7 +1019,8 @@ pub fn fit_sample_observed(
 ) -> Result<(MaterialFields, Vec<StageReport>, f64, Vec<Vec<Vec3>>), ElasticFitError> {
     params.check()?;
     let ne = mesh.num_tets();
-    let model = ElasticModel::new(mesh, &init.gamma_s, &init.gamma_v)
+    let model = init
+        .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(format!("initial material: {e}")))?;
     if init.stacked().iter().any(|g| *g < params.gamma_floor) {
         return Err(ElasticFitError::Inconsistent(format!(
@@ -1011,6 +1035,7 @@ pub fn fit_sample_observed(
         params,
         progress,
         init: init.stacked(),
+        fields: init,
     };
     validate(mesh, mass, sample, &model).map_err(|(i, e)| fit.error(i, e))?;
     let starts: Vec<Vec<Vec3>> = sample.frames.iter().map(|f| f.start.clone()).collect();
@@ -1054,7 +1079,7 @@ pub fn fit_sample_observed(
         return Err(fit.error(0, format!("fit produced gamma {g}")));
     }
     Ok((
-        MaterialFields::from_stacked(&ev.gamma),
+        init.with_stacked(&ev.gamma),
         reports,
         loss0,
         ev.xs,

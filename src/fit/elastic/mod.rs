@@ -30,7 +30,9 @@ mod scale_search;
 #[cfg(test)]
 mod tests;
 
-use crate::geom::Vec3;
+use crate::geom::{TetMesh, Vec3};
+use crate::sim::energy::ElasticModel;
+use crate::sim::fibre::FibreFamily;
 use crate::sim::statics::StaticParams;
 
 pub use gauss_newton::{fit_sample, StageReport};
@@ -56,34 +58,63 @@ pub enum ElasticFitError {
     Harmonic(String),
 }
 
-/// Per-element materials (Pa), one value per tet.
+/// Per-element materials (Pa), one value per tet: VH Eq. 7's `γs`, `γv`
+/// and the fibre families' stiffnesses ([`crate::sim::fibre`]; their rest
+/// directions are fixed by the asset, only their `γ` are fitted).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MaterialFields {
     pub gamma_s: Vec<f64>,
     pub gamma_v: Vec<f64>,
+    /// Fibre families (empty: Eq. 7 alone).
+    #[serde(skip)]
+    pub fibres: Vec<FibreFamily>,
 }
 
 impl MaterialFields {
-    /// The same `gamma_s`, `gamma_v` (Pa) on `n` tets.
+    /// The same `gamma_s`, `gamma_v` (Pa) on `n` tets, no fibres.
     pub fn uniform(n: usize, gamma_s: f64, gamma_v: f64) -> Self {
         MaterialFields {
             gamma_s: vec![gamma_s; n],
             gamma_v: vec![gamma_v; n],
+            fibres: Vec::new(),
         }
     }
-    /// `[γs; γv]` stacked (the `γ` of VH Eq. 23).
+    /// Number of fitted fields: `γs`, `γv` and one per fibre family.
+    pub fn num_fields(&self) -> usize {
+        2 + self.fibres.len()
+    }
+    /// `[γs; γv; γ_1; ...]` stacked (the `γ` of VH Eq. 23, fibre families
+    /// appended).
     pub fn stacked(&self) -> Vec<f64> {
         let mut g = self.gamma_s.clone();
         g.extend_from_slice(&self.gamma_v);
+        for f in &self.fibres {
+            g.extend_from_slice(&f.gamma);
+        }
         g
     }
-    /// Inverse of [`Self::stacked`].
-    pub fn from_stacked(g: &[f64]) -> Self {
-        let n = g.len() / 2;
+    /// These fields (fibre directions included) with the stiffnesses of
+    /// `g`, stacked as [`Self::stacked`] gives them.
+    pub fn with_stacked(&self, g: &[f64]) -> Self {
+        let n = self.gamma_s.len();
+        debug_assert_eq!(g.len(), n * self.num_fields());
         MaterialFields {
             gamma_s: g[..n].to_vec(),
-            gamma_v: g[n..].to_vec(),
+            gamma_v: g[n..2 * n].to_vec(),
+            fibres: self
+                .fibres
+                .iter()
+                .enumerate()
+                .map(|(k, f)| FibreFamily {
+                    directions: f.directions.clone(),
+                    gamma: g[(2 + k) * n..(3 + k) * n].to_vec(),
+                })
+                .collect(),
         }
+    }
+    /// The elastic model of `mesh` with these materials.
+    pub fn model(&self, mesh: &TetMesh) -> Result<ElasticModel, crate::sim::SimError> {
+        ElasticModel::new(mesh, &self.gamma_s, &self.gamma_v)?.with_fibres(self.fibres.clone())
     }
 }
 

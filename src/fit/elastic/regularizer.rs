@@ -54,7 +54,7 @@ impl Regularizer {
             r.theta0 = start.gamma.iter().map(|g| g.ln()).collect();
         }
         if params.smooth_weight > 0.0 {
-            r.edges = parameter_edges(mesh);
+            r.edges = parameter_edges(mesh, start.gamma.len() / mesh.num_tets().max(1));
             if !r.edges.is_empty() {
                 r.smooth_w = params.smooth_weight * start.loss / r.edges.len() as f64;
             }
@@ -132,17 +132,18 @@ impl Regularizer {
     }
 }
 
-/// Face-adjacent tet pairs as parameter pairs of `[γs; γv]` (both halves).
-fn parameter_edges(mesh: &TetMesh) -> Vec<(usize, usize)> {
+/// Face-adjacent tet pairs as parameter pairs of the stacked `[γs; γv;
+/// ...]` (every one of the `nf` fields).
+fn parameter_edges(mesh: &TetMesh, nf: usize) -> Vec<(usize, usize)> {
     let ne = mesh.num_tets();
     let pairs: Vec<(usize, usize)> = tet_laplacian(mesh)
         .into_iter()
         .filter(|&(a, b, _)| a < b)
         .map(|(a, b, _)| (a, b))
         .collect();
-    let mut out = pairs.clone();
-    out.extend(pairs.iter().map(|&(a, b)| (a + ne, b + ne)));
-    out
+    (0..nf)
+        .flat_map(|f| pairs.iter().map(move |&(a, b)| (a + f * ne, b + f * ne)))
+        .collect()
 }
 
 #[cfg(test)]
@@ -237,8 +238,8 @@ mod tests {
         assert!(p.value(&[1.0, 1.0, 1.0]) > 0.0);
     }
 
-    /// Both halves (γs, γv) of a two-tet mesh sharing a face are coupled,
-    /// and nothing else is.
+    /// Every field (γs, γv, fibres) of a two-tet mesh sharing a face is
+    /// coupled, and nothing else is.
     #[test]
     fn edges_couple_face_neighbours_in_both_fields() {
         let mesh = TetMesh {
@@ -255,6 +256,8 @@ mod tests {
             ],
             tets: vec![[0, 1, 2, 3], [1, 2, 3, 4], [5, 6, 7, 8]],
         };
-        assert_eq!(parameter_edges(&mesh), vec![(0, 1), (3, 4)]);
+        assert_eq!(parameter_edges(&mesh, 2), vec![(0, 1), (3, 4)]);
+        // A fibre family's field is coupled the same way.
+        assert_eq!(parameter_edges(&mesh, 3), vec![(0, 1), (3, 4), (6, 7)]);
     }
 }

@@ -101,14 +101,13 @@ pub struct FitReport {
 /// returns the fold weight `w_k / (w + w_k)`. `w = 0` takes `gamma_k`.
 pub fn fold(gamma: &mut MaterialFields, w: f64, gamma_k: &MaterialFields, w_k: f64) -> f64 {
     let a = if w + w_k > 0.0 { w_k / (w + w_k) } else { 1.0 };
-    for (g, gk) in gamma
-        .gamma_s
-        .iter_mut()
-        .chain(gamma.gamma_v.iter_mut())
-        .zip(gamma_k.gamma_s.iter().chain(&gamma_k.gamma_v))
-    {
-        *g = (1.0 - a) * *g + a * gk;
-    }
+    let folded: Vec<f64> = gamma
+        .stacked()
+        .iter()
+        .zip(gamma_k.stacked())
+        .map(|(g, gk)| (1.0 - a) * g + a * gk)
+        .collect();
+    *gamma = gamma.with_stacked(&folded);
     a
 }
 
@@ -137,6 +136,10 @@ pub fn fit_materials(
             inputs.init.gamma_s.len(),
             inputs.init.gamma_v.len()
         )));
+    }
+    for (k, f) in inputs.init.fibres.iter().enumerate() {
+        f.check(ne, k)
+            .map_err(|e| ElasticFitError::Inconsistent(format!("initial material: {e}")))?;
     }
     let t = Instant::now();
     let rmax = params
