@@ -10,7 +10,7 @@ use std::process::Command;
 use std::str::FromStr;
 use std::time::Instant;
 
-use knitvox::geom::{
+use knitvox::geom::{AssetFibres, 
     Asset, Embedding, InputFile, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid, Yarns,
 };
 use knitvox::io::vtkhdf::{self, read_asset, read_step, summary, write_asset};
@@ -145,6 +145,7 @@ fn box_asset(nx: i32, ny: i32, nz: i32, steps: usize) -> Asset {
         gamma_s: (0..t).map(|i| 1e4 * (1.0 + i as f64 / 11.0)).collect(),
         gamma_v: (0..t).map(|i| 2e4 / (1.0 + i as f64 / 13.0)).collect(),
         domain: (0..t).map(|i| (i % 3) as i32).collect(),
+        fibres: None,
         embedding,
         rest_yarns,
         parameters: serde_json::json!({"voxel_size": h, "alpha": 0.1, "note": "écharpe ✓"}),
@@ -396,6 +397,89 @@ fn vtk_reads_a_static_asset() {
     let steps = v["steps"].as_array().unwrap();
     assert_eq!(steps.len(), 1);
     check_vtk_step(&steps[0], &a, &a.mesh.nodes);
+}
+
+/// `box_asset` with course and wale fibres (tilted unit directions, varied
+/// stiffnesses).
+fn fibred_asset(steps: usize) -> Asset {
+    let mut a = box_asset(2, 1, 1, steps);
+    let t = a.mesh.num_tets();
+    let unit = |v: Vec3| {
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        [v[0] / n, v[1] / n, v[2] / n]
+    };
+    a.fibres = Some(AssetFibres {
+        course: (0..t).map(|i| unit([1.0, 0.1 * i as f64, 0.0])).collect(),
+        wale: (0..t).map(|i| unit([-0.1 * i as f64, 1.0, 0.0])).collect(),
+        gamma_course: (0..t).map(|i| 3e3 * (1.0 + i as f64)).collect(),
+        gamma_wale: (0..t).map(|i| if i == 0 { 0.0 } else { 5e3 / i as f64 }).collect(),
+    });
+    a
+}
+
+#[test]
+fn fibres_round_trip_and_vtk_sees_them() {
+    let dir = tempfile::tempdir().unwrap();
+    for steps in [0, 3] {
+        let p = dir.path().join(format!("fibres{steps}.vtkhdf"));
+        let a = fibred_asset(steps);
+        write_asset(&p, &a).unwrap();
+        assert_eq!(read_asset(&p).unwrap(), a, "{steps} steps");
+    }
+    if !common::require_tool(python_vtk(), "python3 with the vtk package") {
+        return;
+    }
+    let v = vtk_check(&dir.path().join("fibres3.vtkhdf"));
+    assert_eq!(v["number_of_steps"], 3, "{v}");
+    for step in v["steps"].as_array().unwrap() {
+        assert_eq!(
+            step["cell_arrays"],
+            serde_json::json!([
+                "course_direction",
+                "domain",
+                "gamma_course",
+                "gamma_s",
+                "gamma_v",
+                "gamma_wale",
+                "wale_direction"
+            ]),
+            "{step}"
+        );
+    }
+}
+
+#[test]
+fn broken_fibres_name_the_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.vtkhdf");
+    let a = fibred_asset(0);
+    write_asset(&good, &a).unwrap();
+    let t = a.mesh.num_tets();
+    let copy = |name: &str| {
+        let p = dir.path().join(name);
+        std::fs::copy(&good, &p).unwrap();
+        p
+    };
+    let p = copy("long.vtkhdf");
+    let mut d: Vec<f64> = a.fibres.as_ref().unwrap().course.as_flattened().to_vec();
+    d[3] *= 1.5;
+    replace(&p, "VTKHDF/CellData/course_direction", &[t, 3], &d);
+    expect_at(&p, "/VTKHDF/CellData/course_direction", "unit vector");
+    let p = copy("negative.vtkhdf");
+    let mut g = a.fibres.as_ref().unwrap().gamma_wale.clone();
+    g[2] = -1.0;
+    replace(&p, "VTKHDF/CellData/gamma_wale", &[t], &g);
+    expect_at(&p, "/VTKHDF/CellData/gamma_wale", "negative");
+    let p = copy("half.vtkhdf");
+    {
+        let f = hdf5::File::open_rw(&p).unwrap();
+        f.unlink("VTKHDF/CellData/wale_direction").unwrap();
+    }
+    expect_at(&p, "/VTKHDF/CellData/wale_direction", "missing");
+    // Writing refuses what it could not read back.
+    let mut bad = a.clone();
+    bad.fibres.as_mut().unwrap().gamma_course[1] = f64::NAN;
+    assert!(write_asset(&dir.path().join("nan.vtkhdf"), &bad).is_err());
 }
 
 // ---------------------------------------------------------------------------

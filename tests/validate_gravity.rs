@@ -54,10 +54,9 @@ fn hang_sag(asset: &Asset, gamma: f64) -> f64 {
     )
     .unwrap();
     let ne = asset.mesh.num_tets();
-    let (gs, gv) = (vec![gamma; ne], vec![gamma; ne]);
+    let m = knitvox::fit::elastic::MaterialFields::uniform(ne, gamma, gamma);
     let times = [0.0, 0.1, 0.25, 0.5, 1.0, 2.0];
-    let run =
-        homogenized_frames(asset, (&gs, &gv), &driver, [0.0, -9.81, 0.0], &times, &[]).unwrap();
+    let run = homogenized_frames(asset, &m, &driver, [0.0, -9.81, 0.0], &times, &[]).unwrap();
     let last = run.frames.last().unwrap();
     let y = asset.embedding.v2y(&asset.mesh, last);
     let rest = &asset.rest_yarns.points;

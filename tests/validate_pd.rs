@@ -4,6 +4,7 @@
 //! hang where the backward-Euler Newton reference does.
 mod common;
 
+use knitvox::fit::elastic::MaterialFields;
 use std::sync::Arc;
 
 use knitvox::embed::EmbedParams;
@@ -74,7 +75,7 @@ fn pd_contacts_keep_every_yarn_vertex_its_radius_above_a_plane() {
     let run = homogenized_run(
         &HomogenizedRunParams::default(),
         &asset,
-        (&vec![1e3; ne], &vec![1e3; ne]),
+        &MaterialFields::uniform(ne, 1e3, 1e3),
         &free(&asset),
         [0.0, -9.81, 0.0],
         2.0,
@@ -133,7 +134,7 @@ fn slide(asset: &Asset, mu: f64) -> f64 {
             ..Default::default()
         },
         asset,
-        (&vec![1e4; ne], &vec![1e4; ne]),
+        &MaterialFields::uniform(ne, 1e4, 1e4),
         &free(asset),
         [0.0, -9.81, 0.0],
         0.0,
@@ -175,7 +176,11 @@ fn pd_settles_a_hang_where_the_newton_reference_does() {
                 ..Default::default()
             },
             &asset,
-            (&gs, &gv),
+            &MaterialFields {
+                gamma_s: gs.clone(),
+                gamma_v: gv.clone(),
+                fibres: Vec::new(),
+            },
             &driver,
             [0.0, -9.81, 0.0],
             5.0,

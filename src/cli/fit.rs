@@ -63,6 +63,11 @@ pub struct FitArgs {
     /// fitted frame and the two before it) load every node.
     #[arg(long)]
     pub quasi_static: bool,
+    /// Also fit tension-only fibres along the courses and wales (directions
+    /// from the rest yarns), next to VH Eq. 7's isotropic gamma_s, gamma_v:
+    /// knit is far stiffer along its yarn lines than in shear.
+    #[arg(long)]
+    pub fibres: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -125,6 +130,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         report: a.report.clone(),
         joint: a.joint,
         quasi_static: a.quasi_static,
+        fibres: a.fibres,
         command: command_line(),
     };
     // A bar has no length to show here: plain lines without --json.
@@ -153,6 +159,17 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             r.gamma_v_range[1],
             r.wall_s
         );
+        if let (Some(c), Some(w)) = (r.gamma_course_range, r.gamma_wale_range) {
+            println!(
+                "fibres: uniform course {:.4e}, wale {:.4e} Pa; course {:.3e}..{:.3e}, wale {:.3e}..{:.3e} Pa",
+                r.uniform.gamma_course.unwrap_or(f64::NAN),
+                r.uniform.gamma_wale.unwrap_or(f64::NAN),
+                c[0],
+                c[1],
+                w[0],
+                w[1]
+            );
+        }
         let t = &r.training;
         println!(
             "training poses, RMS in yarn diameters: fitted {:.3}, uniform {:.3}, before {:.3} (Y2V floor {:.3})",

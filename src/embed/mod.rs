@@ -4,6 +4,7 @@
 
 mod keys;
 mod mass;
+pub mod orientation;
 mod size;
 mod tetrahedralize;
 mod voxelize;

@@ -63,6 +63,9 @@ pub struct Asset {
     pub gamma_v: Vec<f64>,
     /// Per-tet domain id (for domain-decomposed solvers); 0 by default.
     pub domain: Vec<i32>,
+    /// Tension-only fibres along the courses and wales (`knitvox fit
+    /// --fibres`); `None`: VH Eq. 7 alone.
+    pub fibres: Option<AssetFibres>,
     /// Yarn vertices in the mesh (V2Y).
     pub embedding: Embedding,
     /// Rest yarns (m, +Y up).
@@ -72,6 +75,17 @@ pub struct Asset {
     pub provenance: Provenance,
     /// Node positions over time.
     pub steps: NodeSteps,
+}
+
+/// Fibre families of an asset ([`crate::sim::fibre`]): per tet the unit
+/// rest directions of the course and the wale and their stiffnesses (Pa,
+/// finite, `>= 0`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AssetFibres {
+    pub course: Vec<Vec3>,
+    pub wale: Vec<Vec3>,
+    pub gamma_course: Vec<f64>,
+    pub gamma_wale: Vec<f64>,
 }
 
 /// The elasticity fit an asset records (`knitvox fit`, VH §6): stored as
@@ -117,6 +131,12 @@ pub struct FitPose {
 pub struct UniformMaterial {
     pub gamma_s: f64,
     pub gamma_v: f64,
+    /// Fibre stiffnesses along the course and the wale (Pa) of a fit with
+    /// fibres (`knitvox fit --fibres`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma_course: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma_wale: Option<f64>,
 }
 
 /// In-sample fidelity: the RMS distance (yarn diameters, over every yarn

@@ -32,7 +32,7 @@ use hdf5::Group;
 
 use super::h5::{self, Ds, Kind};
 use super::{FormatError, IoError, ReadOptions};
-use crate::geom::{Asset, Embedding, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid};
+use crate::geom::{Asset, AssetFibres, Embedding, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid};
 
 /// Value of the `/knitvox` attribute `knitvox_format` in an asset file.
 pub const FORMAT_NAME: &str = "asset";
@@ -142,6 +142,9 @@ fn check_asset(a: &Asset) -> Result<(), String> {
     }
     if let Some(i) = all_finite(&a.gamma_v) {
         return Err(format!("tet {i}: gamma_v is not finite"));
+    }
+    if let Some(f) = &a.fibres {
+        check_fibres(f, t)?;
     }
     if all_finite(&a.grid.origin).is_some() || !a.grid.h.is_finite() {
         return Err("voxel grid origin or size is not finite".into());
@@ -274,6 +277,12 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
     h5::write_1d(&cd, "gamma_s", &a.gamma_s, Some("Pa"))?;
     h5::write_1d(&cd, "gamma_v", &a.gamma_v, Some("Pa"))?;
     h5::write_1d(&cd, "domain", &a.domain, None)?;
+    if let Some(f) = &a.fibres {
+        write_2d(&cd, "course_direction", f.course.as_flattened(), 3, None)?;
+        write_2d(&cd, "wale_direction", f.wale.as_flattened(), 3, None)?;
+        h5::write_1d(&cd, "gamma_course", &f.gamma_course, Some("Pa"))?;
+        h5::write_1d(&cd, "gamma_wale", &f.gamma_wale, Some("Pa"))?;
+    }
     let pd = h5::new_group(&g, "PointData")?;
     h5::write_1d(&pd, "mass", &a.node_mass, Some("kg"))?;
     if s > 0 {
@@ -291,7 +300,12 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
         write_2d(&st, "CellOffsets", &zeros, 1, None)?;
         write_2d(&st, "ConnectivityIdOffsets", &zeros, 1, None)?;
         let cdo = h5::new_group(&st, "CellDataOffsets")?;
-        for name in ["gamma_s", "gamma_v", "domain"] {
+        let fibre_names: &[&str] = if a.fibres.is_some() {
+            &FIBRE_CELL_DATA
+        } else {
+            &[]
+        };
+        for name in ["gamma_s", "gamma_v", "domain"].iter().chain(fibre_names) {
             h5::write_1d(&cdo, name, &zeros, None)?;
         }
         let pdo = h5::new_group(&st, "PointDataOffsets")?;
@@ -449,6 +463,79 @@ pub fn summary(path: &Path) -> Result<AssetSummary, IoError> {
         provenance: a.provenance,
         parameters: a.parameters,
     })
+}
+
+/// CellData arrays of the fibre families: all four or none.
+const FIBRE_CELL_DATA: [&str; 4] = ["course_direction", "wale_direction", "gamma_course", "gamma_wale"];
+
+/// Unit directions (to 1e-6) and finite stiffnesses `>= 0`, one per tet.
+fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
+    for (name, n) in [
+        ("course_direction", f.course.len()),
+        ("wale_direction", f.wale.len()),
+        ("gamma_course", f.gamma_course.len()),
+        ("gamma_wale", f.gamma_wale.len()),
+    ] {
+        if n != t {
+            return Err(format!("{name} has {n} entries for {t} tets"));
+        }
+    }
+    for (name, d) in [("course_direction", &f.course), ("wale_direction", &f.wale)] {
+        if let Some(i) = d.iter().position(|v| {
+            let n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+            !(n2.is_finite() && (n2 - 1.0).abs() <= 2e-6)
+        }) {
+            return Err(format!("tet {i}: {name} {:?} is not a unit vector", d[i]));
+        }
+    }
+    for (name, g) in [("gamma_course", &f.gamma_course), ("gamma_wale", &f.gamma_wale)] {
+        if let Some(i) = g.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(format!("tet {i}: {name} {} is not a finite value >= 0", g[i]));
+        }
+    }
+    Ok(())
+}
+
+/// The fibre families of `CellData`, if it has them (all four arrays or
+/// none; unit directions, stiffnesses finite and `>= 0`).
+fn read_fibres(cd: &Group, cdp: &str, t: usize) -> Result<Option<AssetFibres>, FormatError> {
+    let present: Vec<bool> = FIBRE_CELL_DATA.iter().map(|n| cd.link_exists(n)).collect();
+    if !present.iter().any(|&p| p) {
+        return Ok(None);
+    }
+    if let Some(k) = present.iter().position(|&p| !p) {
+        return Err(FormatError::at_path(
+            format!("{cdp}/{}", FIBRE_CELL_DATA[k]),
+            "missing: fibre data needs course_direction, wale_direction, gamma_course and gamma_wale",
+        ));
+    }
+    let per_tet = format!("[{t}] (one per tet)");
+    let dirs = |name: &str| -> Result<Vec<Vec3>, FormatError> {
+        let ds = required(cd, cdp, name)?;
+        let v = read_floats(&ds, &[t, 3], &format!("[{t}, 3] (one unit vector per tet)"))?;
+        let d: Vec<Vec3> = v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        if let Some(i) = d
+            .iter()
+            .position(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - 1.0).abs() > 2e-6)
+        {
+            return Err(ds.err(format!("entry {i}: {:?} is not a unit vector", d[i])));
+        }
+        Ok(d)
+    };
+    let gammas = |name: &str| -> Result<Vec<f64>, FormatError> {
+        let ds = required(cd, cdp, name)?;
+        let g = read_floats(&ds, &[t], &per_tet)?;
+        if let Some(i) = g.iter().position(|v| *v < 0.0) {
+            return Err(ds.err(format!("entry {i}: stiffness {} is negative", g[i])));
+        }
+        Ok(g)
+    };
+    Ok(Some(AssetFibres {
+        course: dirs("course_direction")?,
+        wale: dirs("wale_direction")?,
+        gamma_course: gammas("gamma_course")?,
+        gamma_wale: gammas("gamma_wale")?,
+    }))
 }
 
 fn required(g: &Group, gp: &str, name: &str) -> Result<Ds, FormatError> {
@@ -818,7 +905,18 @@ impl Layout {
         check_offsets(st, "CellOffsets", s, true, |_| 0, fixed)?;
         check_offsets(st, "ConnectivityIdOffsets", s, true, |_| 0, fixed)?;
         for (group, names) in [
-            ("CellDataOffsets", &["gamma_s", "gamma_v", "domain"][..]),
+            (
+                "CellDataOffsets",
+                &[
+                    "gamma_s",
+                    "gamma_v",
+                    "domain",
+                    FIBRE_CELL_DATA[0],
+                    FIBRE_CELL_DATA[1],
+                    FIBRE_CELL_DATA[2],
+                    FIBRE_CELL_DATA[3],
+                ][..],
+            ),
             ("PointDataOffsets", &["mass"][..]),
         ] {
             if let Some(g) = h5::open_group(st, group, &format!("{STEPS}/{group}"))? {
@@ -937,6 +1035,7 @@ fn read_contents(l: &Layout, positions: bool) -> Result<Asset, FormatError> {
     let gamma_s = read_floats(&required(&cd, &cdp, "gamma_s")?, &[t], &per_tet)?;
     let gamma_v = read_floats(&required(&cd, &cdp, "gamma_v")?, &[t], &per_tet)?;
     let domain = read_i32(&required(&cd, &cdp, "domain")?, &[t], &per_tet)?;
+    let fibres = read_fibres(&cd, &cdp, t)?;
     let pd = required_group(&l.vtk, VTK, "PointData")?;
     let mass_ds = required(&pd, &format!("{VTK}/PointData"), "mass")?;
     let node_mass = read_floats(&mass_ds, &[n], &format!("[{n}] (one per node)"))?;
@@ -1028,6 +1127,7 @@ fn read_contents(l: &Layout, positions: bool) -> Result<Asset, FormatError> {
         gamma_s,
         gamma_v,
         domain,
+        fibres,
         embedding,
         rest_yarns,
         parameters,
@@ -1136,6 +1236,7 @@ mod tests {
             gamma_s: vec![1e4; 6],
             gamma_v: vec![2e4; 6],
             domain: vec![0; 6],
+            fibres: None,
             embedding: Embedding {
                 tet: vec![0, 1, 5],
                 weights: vec![[0.25; 4], [0.1, 0.2, 0.3, 0.4], [1.0, 0.0, 0.0, 0.0]],

@@ -112,6 +112,7 @@ pub fn build_asset(
         gamma_s: vec![DEFAULT_GAMMA_S; nt],
         gamma_v: vec![DEFAULT_GAMMA_V; nt],
         domain: vec![0; nt],
+        fibres: None,
         embedding: e.embedding,
         rest_yarns,
         parameters,
@@ -571,6 +572,78 @@ impl Stage for ExportJob {
             written,
         })
     }
+}
+
+/// The uniform material of a fit record on `asset`'s tets: with fibres along
+/// the asset's course and wale directions where the record has their
+/// stiffnesses and the asset their directions.
+pub fn uniform_material(
+    asset: &Asset,
+    u: &crate::geom::UniformMaterial,
+) -> crate::fit::elastic::MaterialFields {
+    let ne = asset.mesh.num_tets();
+    let mut m = crate::fit::elastic::MaterialFields::uniform(ne, u.gamma_s, u.gamma_v);
+    if let (Some(f), Some(gc), Some(gw)) = (&asset.fibres, u.gamma_course, u.gamma_wale) {
+        use crate::sim::fibre::FibreFamily;
+        m.fibres = vec![
+            FibreFamily {
+                directions: f.course.clone(),
+                gamma: vec![gc; ne],
+            },
+            FibreFamily {
+                directions: f.wale.clone(),
+                gamma: vec![gw; ne],
+            },
+        ];
+    }
+    m
+}
+
+/// The asset's materials as fitted fields: `γs`, `γv` and, where it has
+/// them, its fibre families (course first, then wale).
+pub fn asset_materials(asset: &Asset) -> crate::fit::elastic::MaterialFields {
+    use crate::sim::fibre::FibreFamily;
+    crate::fit::elastic::MaterialFields {
+        gamma_s: asset.gamma_s.clone(),
+        gamma_v: asset.gamma_v.clone(),
+        fibres: asset
+            .fibres
+            .as_ref()
+            .map(|f| {
+                vec![
+                    FibreFamily {
+                        directions: f.course.clone(),
+                        gamma: f.gamma_course.clone(),
+                    },
+                    FibreFamily {
+                        directions: f.wale.clone(),
+                        gamma: f.gamma_wale.clone(),
+                    },
+                ]
+            })
+            .unwrap_or_default(),
+    }
+}
+
+/// Writes `m` into the asset's materials (the inverse of
+/// [`asset_materials`]); `m` has no fibre families or two (course, wale).
+pub fn set_asset_materials(
+    asset: &mut Asset,
+    m: &crate::fit::elastic::MaterialFields,
+) -> Result<(), String> {
+    asset.gamma_s = m.gamma_s.clone();
+    asset.gamma_v = m.gamma_v.clone();
+    asset.fibres = match m.fibres.as_slice() {
+        [] => None,
+        [c, w] => Some(crate::geom::AssetFibres {
+            course: c.directions.clone(),
+            wale: w.directions.clone(),
+            gamma_course: c.gamma.clone(),
+            gamma_wale: w.gamma.clone(),
+        }),
+        f => return Err(format!("{} fibre families; an asset keeps a course and a wale", f.len())),
+    };
+    Ok(())
 }
 
 #[cfg(test)]

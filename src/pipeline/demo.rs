@@ -281,6 +281,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         report: Some(dir.join("fit-report")),
         joint: true,
         quasi_static: false,
+        fibres: false,
         command: command.into(),
     }
     .run(&mut super::Quiet)?;

@@ -52,7 +52,8 @@ use crate::geom::{
 };
 use crate::io::{self, plot, IoError, ReadOptions};
 use crate::pipeline::asset::{
-    check_asset_ext, re_embed, rms_max, sha256_file, yarn_distances, StageError,
+    asset_materials, check_asset_ext, re_embed, rms_max, set_asset_materials, sha256_file,
+    yarn_distances, StageError,
 };
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
@@ -91,6 +92,12 @@ pub struct FitJob {
     /// without the inertia and damping forces of VH Eq. 13-14. Default
     /// false.
     pub quasi_static: bool,
+    /// Fit tension-only fibres along the courses and wales
+    /// ([`crate::sim::fibre`]) next to VH Eq. 7: their directions from the
+    /// rest yarns ([`crate::embed::orientation`]) unless the asset has
+    /// them, their stiffnesses starting at the asset's `γs`. An asset with
+    /// fibres refits them either way. Default false.
+    pub fibres: bool,
     /// The command line, for provenance.
     pub command: String,
 }
@@ -227,6 +234,14 @@ pub struct FitJobReport {
     pub field_force_scale: Option<ForceScale>,
     pub gamma_s_range: [f64; 2],
     pub gamma_v_range: [f64; 2],
+    /// Fitted fibre stiffnesses along the course and the wale (Pa), with
+    /// fibres.
+    pub gamma_course_range: Option<[f64; 2]>,
+    pub gamma_wale_range: Option<[f64; 2]>,
+    /// Mean chord anisotropy of the fibre directions found for this fit
+    /// ([`crate::embed::orientation::CourseWale::mean_anisotropy`]); null
+    /// when the asset brought its own or the fit has none.
+    pub fibre_anisotropy: Option<f64>,
     /// The fitter's reports: the uniform stage, then the field.
     pub uniform_fit: FitReport,
     pub fit: FitReport,
@@ -1056,13 +1071,16 @@ pub fn joint_sample(samples: &[Sample]) -> Sample {
 /// (`params.harmonic_ranks`, full stage), rescaled the same way when no
 /// frame carries an external force; either sample by sample with the Eq.
 /// 22 fold or, with `joint`, all samples as one ([`joint_sample`]). Losses
-/// are reported per sample either way.
+/// are reported per sample either way, "before" at `earlier` (the asset's
+/// material; `init` adds the fibre families a fit with fibres starts from).
+#[allow(clippy::too_many_arguments)]
 pub fn fit_samples(
     mesh: &TetMesh,
     mass: &[f64],
     samples: &[Sample],
     reactions: &[Vec<Option<Vec<Vec3>>>],
     joint: bool,
+    earlier: &MaterialFields,
     init: &MaterialFields,
     params: &ElasticFitParams,
     progress: Option<&dyn Fn(&crate::fit::elastic::FitProgress)>,
@@ -1150,8 +1168,10 @@ pub fn fit_samples(
     let uniform = UniformMaterial {
         gamma_s: mean(&u.gamma_s),
         gamma_v: mean(&u.gamma_v),
+        gamma_course: u.fibres.first().map(|f| mean(&f.gamma)),
+        gamma_wale: u.fibres.get(1).map(|f| mean(&f.gamma)),
     };
-    let (before, x_before) = sample_equilibria(mesh, mass, samples, init, &[], params)?;
+    let (before, x_before) = sample_equilibria(mesh, mass, samples, earlier, &[], params)?;
     let (at_u, x_u) = sample_equilibria(mesh, mass, samples, &u, &at_uniform, params)?;
     let (after, x_after) = sample_equilibria(mesh, mass, samples, &gamma, &at_field, params)?;
     let losses = (0..samples.len())
@@ -1173,6 +1193,34 @@ pub fn fit_samples(
         uniform_force_scale,
         field_force_scale,
     })
+}
+
+/// The material a fit starts from: the asset's own (`earlier`), plus course
+/// and wale fibres with stiffnesses at its `γs` when `fibres` asks for them
+/// and it has none, their directions from its rest yarns; and the mean
+/// chord anisotropy of directions found here.
+fn fit_start(
+    asset: &Asset,
+    earlier: &MaterialFields,
+    fibres: bool,
+) -> Result<(MaterialFields, Option<f64>), String> {
+    if !fibres || !earlier.fibres.is_empty() {
+        return Ok((earlier.clone(), None));
+    }
+    let cw = crate::embed::orientation::course_and_wale(
+        &asset.rest_yarns,
+        &asset.grid,
+        &asset.tet_voxel,
+        &Default::default(),
+    )
+    .map_err(|e| e.to_string())?;
+    let family = |directions: Vec<Vec3>| crate::sim::fibre::FibreFamily {
+        directions,
+        gamma: earlier.gamma_s.clone(),
+    };
+    let mut init = earlier.clone();
+    init.fibres = vec![family(cw.course), family(cw.wale)];
+    Ok((init, Some(cw.mean_anisotropy)))
 }
 
 fn fit_error(poses: &[PathBuf], e: ElasticFitError) -> Error {
@@ -1239,11 +1287,9 @@ impl Stage for FitJob {
             reactions.push(pose.reactions);
             pose_yarns.push(pose.yarns);
         }
-        let init = MaterialFields {
-            gamma_s: asset.gamma_s.clone(),
-            gamma_v: asset.gamma_v.clone(),
-            fibres: Vec::new(),
-        };
+        let earlier = asset_materials(&asset);
+        let (init, fibre_anisotropy) = fit_start(&asset, &earlier, self.fibres)
+            .map_err(|e| invalid(&self.asset, format!("fibre directions: {e}")))?;
         let fitted = {
             let cell = std::cell::RefCell::new(&mut *observer);
             let progress = |p: &crate::fit::elastic::FitProgress| cell.borrow_mut().iteration(p);
@@ -1253,6 +1299,7 @@ impl Stage for FitJob {
                 &samples,
                 &reactions,
                 self.joint,
+                &earlier,
                 &init,
                 &self.params,
                 Some(&progress),
@@ -1320,8 +1367,7 @@ impl Stage for FitJob {
             params: serde_json::to_value(&self.params)
                 .map_err(|e| Error::Internal(e.to_string()))?,
         };
-        asset.gamma_s = fitted.gamma.gamma_s.clone();
-        asset.gamma_v = fitted.gamma.gamma_v.clone();
+        set_asset_materials(&mut asset, &fitted.gamma).map_err(Error::Internal)?;
         asset.set_fit_record(&record);
         for p in &self.train {
             asset.provenance.inputs.push(crate::geom::InputFile {
@@ -1348,6 +1394,9 @@ impl Stage for FitJob {
             field_force_scale: fitted.field_force_scale,
             gamma_s_range: range(&fitted.gamma.gamma_s),
             gamma_v_range: range(&fitted.gamma.gamma_v),
+            gamma_course_range: fitted.gamma.fibres.first().map(|f| range(&f.gamma)),
+            gamma_wale_range: fitted.gamma.fibres.get(1).map(|f| range(&f.gamma)),
+            fibre_anisotropy,
             uniform_fit: fitted.uniform_fit,
             fit: fitted.fit,
             report_files: Vec::new(),
@@ -1766,7 +1815,8 @@ mod tests {
         };
         let (mesh, mass, truth, samples) = sagged_sample(&params);
         let init = scaled(&truth, 100.0);
-        let fitted = fit_samples(&mesh, &mass, &samples, &[], true, &init, &params, None).unwrap();
+        let fitted =
+            fit_samples(&mesh, &mass, &samples, &[], true, &init, &init, &params, None).unwrap();
         let names = |r: &crate::fit::elastic::FitReport| -> Vec<String> {
             r.samples[0].stages.iter().map(|s| s.name.clone()).collect()
         };

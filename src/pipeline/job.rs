@@ -86,6 +86,10 @@ pub struct FitSection {
     pub harmonic: Option<Vec<usize>>,
     /// Fit every pose's frames together (VH Eq. 9) [default false].
     pub joint: Option<bool>,
+    /// Also fit course and wale fibres (`fit --fibres`) [default false].
+    /// Left out of the stage key when unset, so earlier jobs keep theirs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fibres: Option<bool>,
 }
 
 impl Manifest {
@@ -923,6 +927,7 @@ impl Job {
             report: None,
             joint: f.joint.unwrap_or(false),
             quasi_static: false,
+            fibres: f.fibres.unwrap_or(false),
             command: command.into(),
         };
         Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))

@@ -982,11 +982,13 @@ fn build_solver(
     setup: &shot_setup::ShotSetup,
 ) -> Result<(PdSolver, &'static str, Option<(usize, &'static str)>), SimulateError> {
     let stored = stored_domains(&asset.domain);
-    let mut solver = PdSolver::new_partitioned(
+    let model = super::asset::asset_materials(asset)
+        .model(&asset.mesh)
+        .map_err(|e| invalid(asset_path, e.to_string()))?;
+    let mut solver = PdSolver::with_model(
         &asset.mesh,
+        model,
         &asset.node_mass,
-        &asset.gamma_s,
-        &asset.gamma_v,
         &setup.pinned,
         pd_params(sim, setup.schedule.dt),
         stored.as_deref(),

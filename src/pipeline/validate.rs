@@ -28,7 +28,10 @@ use std::time::Instant;
 
 use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
-use crate::pipeline::asset::{check_asset_ext, rms_max, yarn_distances};
+use crate::fit::elastic::MaterialFields;
+use crate::pipeline::asset::{
+    asset_materials, check_asset_ext, rms_max, uniform_material, yarn_distances,
+};
 use crate::pipeline::fit::held_nodes;
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
@@ -39,7 +42,6 @@ use std::sync::Arc;
 
 use crate::fit::{ShapeFitParams, ShapeFitter};
 use crate::pipeline::asset::re_embed;
-use crate::sim::energy::ElasticModel;
 use crate::sim::statics::{
     ContactPenalty, EmbeddedPoint, Inertia, SignedDistance, StaticParams, StaticSolver,
 };
@@ -289,7 +291,7 @@ fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {
 pub fn homogenized_run(
     how: &HomogenizedRunParams,
     asset: &Asset,
-    gamma: (&[f64], &[f64]),
+    gamma: &MaterialFields,
     driver: &PoseDriver,
     gravity: Vec3,
     damping: f64,
@@ -386,7 +388,7 @@ fn frame_steps(
 /// the module documentation). Pure.
 pub fn homogenized_frames(
     asset: &Asset,
-    gamma: (&[f64], &[f64]),
+    gamma: &MaterialFields,
     driver: &PoseDriver,
     gravity: Vec3,
     times: &[f64],
@@ -396,14 +398,13 @@ pub fn homogenized_frames(
     let n = mesh.num_nodes();
     let group = node_groups(asset, driver);
     let pinned: Vec<usize> = (0..n).filter(|&i| group[i].is_some()).collect();
-    let model = ElasticModel::new(mesh, gamma.0, gamma.1).map_err(|e| e.to_string())?;
+    let model = gamma.model(mesh).map_err(|e| e.to_string())?;
     let mut solver =
         StaticSolver::new(model, &asset.node_mass, &pinned).map_err(|e| e.to_string())?;
-    let stiffest = gamma
-        .0
-        .iter()
-        .zip(gamma.1)
-        .map(|(s, v)| s + v)
+    let stiffest = (0..mesh.num_tets())
+        .map(|e| {
+            gamma.gamma_s[e] + gamma.gamma_v[e] + gamma.fibres.iter().map(|f| f.gamma[e]).sum::<f64>()
+        })
         .fold(0.0, f64::max);
     let stiffness = CONTACT_STIFFNESS_FACTOR * stiffest * asset.grid.h;
     let points: Vec<EmbeddedPoint> = (0..asset.embedding.num_vertices())
@@ -705,7 +706,7 @@ impl Stage for ValidateJob {
             .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
         // Homogenized, with the asset's material, then the uniform one.
         let t = Instant::now();
-        let run_with = |gamma: (&[f64], &[f64])| {
+        let run_with = |gamma: &MaterialFields| {
             homogenized_run(
                 &self.homogenized,
                 &asset,
@@ -717,18 +718,17 @@ impl Stage for ValidateJob {
                 &colliders,
             )
         };
-        let hr = run_with((&asset.gamma_s, &asset.gamma_v))
+        let hr = run_with(&asset_materials(&asset))
             .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
         // The same scene with one material everywhere (uniform, placeholder).
         let ne = asset.mesh.num_tets();
-        let run_uniform = |gamma_s: f64, gamma_v: f64, what: &str| {
-            let (gs, gv) = (vec![gamma_s; ne], vec![gamma_v; ne]);
-            run_with((&gs, &gv)).map_err(|m| setup(&self.scene, format!("{what} run: {m}")))
+        let run_uniform = |m: &MaterialFields, what: &str| {
+            run_with(m).map_err(|e| setup(&self.scene, format!("{what} run: {e}")))
         };
         let xu = match uniform {
-            Some(u) => Some(run_uniform(u.gamma_s, u.gamma_v, "uniform")?.frames),
+            Some(u) => Some(run_uniform(&uniform_material(&asset, &u), "uniform")?.frames),
             None => None,
         };
         // The Y2V floor (VH Eq. 5-6) of every yarn frame.
@@ -742,7 +742,12 @@ impl Stage for ValidateJob {
             })?;
         let placeholder = (asset.gamma_s.iter().any(|g| *g != DEFAULT_GAMMA_S)
             || asset.gamma_v.iter().any(|g| *g != DEFAULT_GAMMA_V))
-        .then(|| run_uniform(DEFAULT_GAMMA_S, DEFAULT_GAMMA_V, "placeholder"))
+        .then(|| {
+            run_uniform(
+                &MaterialFields::uniform(ne, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V),
+                "placeholder",
+            )
+        })
         .transpose()?;
         let nf = frames.num_frames();
         let mut floor = Vec::new();

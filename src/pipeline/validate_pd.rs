@@ -199,7 +199,7 @@ fn run_backend(solver: &mut PdSolver, backend: BackendChoice) -> Result<(), Stri
 #[allow(clippy::too_many_arguments)]
 pub fn pd_frames(
     asset: &Asset,
-    gamma: (&[f64], &[f64]),
+    gamma: &crate::fit::elastic::MaterialFields,
     pinned: &[usize],
     target: &dyn Fn(usize, f64) -> Vec3,
     gravity: Vec3,
@@ -238,7 +238,8 @@ pub fn pd_frames(
         global: global_solver(params.global),
         ..PdParams::default()
     };
-    let mut solver = PdSolver::new(mesh, &asset.node_mass, gamma.0, gamma.1, pinned, pd)
+    let model = gamma.model(mesh).map_err(|e| e.to_string())?;
+    let mut solver = PdSolver::with_model(mesh, model, &asset.node_mass, pinned, pd, None)
         .map_err(|e| e.to_string())?;
     run_backend(&mut solver, params.backend)?;
     let stars = NodeStars::new(asset);

@@ -641,7 +641,30 @@ impl PdSolver {
         params: PdParams,
         tet_domains: Option<&[u32]>,
     ) -> Result<PdSolver, SimError> {
+        let model = ElasticModel::new(mesh, gamma_s, gamma_v)?;
+        Self::with_model(mesh, model, node_mass, pinned, params, tet_domains)
+    }
+
+    /// [`Self::new_partitioned`] with the elastic model given whole (fibre
+    /// families included, [`super::fibre`]); `model` must be `mesh`'s.
+    pub fn with_model(
+        mesh: &TetMesh,
+        model: ElasticModel,
+        node_mass: &[f64],
+        pinned: &[usize],
+        params: PdParams,
+        tet_domains: Option<&[u32]>,
+    ) -> Result<PdSolver, SimError> {
         params.validate()?;
+        if model.rest().len() != mesh.num_tets() || model.num_nodes() != mesh.num_nodes() {
+            return Err(SimError::Inconsistent(format!(
+                "a model of {} tets and {} nodes for a mesh of {} and {}",
+                model.rest().len(),
+                model.num_nodes(),
+                mesh.num_tets(),
+                mesh.num_nodes()
+            )));
+        }
         if let Some(ids) = tet_domains {
             if ids.len() != mesh.num_tets() {
                 return Err(SimError::Inconsistent(format!(
@@ -651,7 +674,6 @@ impl PdSolver {
                 )));
             }
         }
-        let model = ElasticModel::new(mesh, gamma_s, gamma_v)?;
         let n = mesh.num_nodes();
         if node_mass.len() != n {
             return Err(SimError::Inconsistent(format!(
