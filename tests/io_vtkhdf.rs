@@ -10,8 +10,9 @@ use std::process::Command;
 use std::str::FromStr;
 use std::time::Instant;
 
-use knitvox::geom::{AssetFibres, 
-    Asset, Embedding, InputFile, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid, Yarns,
+use knitvox::geom::{
+    Asset, AssetFibres, Embedding, InputFile, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid,
+    Yarns,
 };
 use knitvox::io::vtkhdf::{self, read_asset, read_step, summary, write_asset};
 use knitvox::io::{ErrorClass, IoError, Location};
@@ -412,7 +413,9 @@ fn fibred_asset(steps: usize) -> Asset {
         course: (0..t).map(|i| unit([1.0, 0.1 * i as f64, 0.0])).collect(),
         wale: (0..t).map(|i| unit([-0.1 * i as f64, 1.0, 0.0])).collect(),
         gamma_course: (0..t).map(|i| 3e3 * (1.0 + i as f64)).collect(),
-        gamma_wale: (0..t).map(|i| if i == 0 { 0.0 } else { 5e3 / i as f64 }).collect(),
+        gamma_wale: (0..t)
+            .map(|i| if i == 0 { 0.0 } else { 5e3 / i as f64 })
+            .collect(),
     });
     a
 }

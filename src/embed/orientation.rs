@@ -77,7 +77,12 @@ fn chords(yarns: &Yarns, w: f64) -> Vec<Option<Vector3<f64>>> {
         let mut s = vec![0.0; n + 1];
         for i in 1..=n {
             let j = if i == n { 0 } else { i };
-            s[i] = s[i - 1] + if i < n || closed { (p(j) - p(i - 1)).norm() } else { 0.0 };
+            s[i] = s[i - 1]
+                + if i < n || closed {
+                    (p(j) - p(i - 1)).norm()
+                } else {
+                    0.0
+                };
         }
         let total = s[n];
         // Point at arc length t along the curve (t clamped or wrapped).
@@ -112,7 +117,9 @@ pub fn course_and_wale(
     tet_voxel: &[u32],
     params: &OrientationParams,
 ) -> Result<CourseWale, EmbedError> {
-    if !(params.window_voxels.is_finite() && params.window_voxels > 0.0 && params.radius_voxels >= 0)
+    if !(params.window_voxels.is_finite()
+        && params.window_voxels > 0.0
+        && params.radius_voxels >= 0)
     {
         return Err(EmbedError::Parameter(format!(
             "orientation window {} voxels and radius {}: both must be positive",
@@ -133,7 +140,11 @@ pub fn course_and_wale(
     for (p, ct) in yarns.points.iter().zip(chords(yarns, w)) {
         let Some(c) = ct else { continue };
         let g = grid.to_grid(*p);
-        let k = [g[0].floor() as i32, g[1].floor() as i32, g[2].floor() as i32];
+        let k = [
+            g[0].floor() as i32,
+            g[1].floor() as i32,
+            g[2].floor() as i32,
+        ];
         if let Some(v) = index(k) {
             // Positions relative to the voxel's grid origin, in voxels:
             // well scaled whatever the asset's placement.
@@ -294,7 +305,10 @@ mod tests {
                 d.iter().filter(|v| v[k].abs() > 0.9).count() as f64 / d.len() as f64
             };
             let (cx, wy) = (along(&cw.course, 0), along(&cw.wale, 1));
-            eprintln!("{pattern}: course along x {cx:.3}, wale along y {wy:.3}, anisotropy {:.3}", cw.mean_anisotropy);
+            eprintln!(
+                "{pattern}: course along x {cx:.3}, wale along y {wy:.3}, anisotropy {:.3}",
+                cw.mean_anisotropy
+            );
             assert!(cx > 0.9 && wy > 0.9, "{pattern}: {cx} {wy}");
             for (c, w) in cw.course.iter().zip(&cw.wale) {
                 let (c, w) = (v3(c), v3(w));

@@ -15,7 +15,9 @@ mod units;
 pub(crate) mod vec3;
 mod yarns;
 
-pub use asset::{Asset, AssetFibres, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+pub use asset::{
+    Asset, AssetFibres, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V,
+};
 pub use asset::{
     FitPose, FitRecord, PoseLosses, TrainingFidelity, UniformMaterial, FIT_RECORD_KEY,
 };

@@ -466,7 +466,12 @@ pub fn summary(path: &Path) -> Result<AssetSummary, IoError> {
 }
 
 /// CellData arrays of the fibre families: all four or none.
-const FIBRE_CELL_DATA: [&str; 4] = ["course_direction", "wale_direction", "gamma_course", "gamma_wale"];
+const FIBRE_CELL_DATA: [&str; 4] = [
+    "course_direction",
+    "wale_direction",
+    "gamma_course",
+    "gamma_wale",
+];
 
 /// Unit directions (to 1e-6) and finite stiffnesses `>= 0`, one per tet.
 fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
@@ -488,9 +493,15 @@ fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
             return Err(format!("tet {i}: {name} {:?} is not a unit vector", d[i]));
         }
     }
-    for (name, g) in [("gamma_course", &f.gamma_course), ("gamma_wale", &f.gamma_wale)] {
+    for (name, g) in [
+        ("gamma_course", &f.gamma_course),
+        ("gamma_wale", &f.gamma_wale),
+    ] {
         if let Some(i) = g.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(format!("tet {i}: {name} {} is not a finite value >= 0", g[i]));
+            return Err(format!(
+                "tet {i}: {name} {} is not a finite value >= 0",
+                g[i]
+            ));
         }
     }
     Ok(())

@@ -641,7 +641,12 @@ pub fn set_asset_materials(
             gamma_course: c.gamma.clone(),
             gamma_wale: w.gamma.clone(),
         }),
-        f => return Err(format!("{} fibre families; an asset keeps a course and a wale", f.len())),
+        f => {
+            return Err(format!(
+                "{} fibre families; an asset keeps a course and a wale",
+                f.len()
+            ))
+        }
     };
     Ok(())
 }

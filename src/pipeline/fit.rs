@@ -765,9 +765,10 @@ fn settle_samples(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<SettledSamples, ElasticFitError> {
-    let model = gamma.model(mesh)
+    let model = gamma
+        .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-        let xs = samples
+    let xs = samples
         .iter()
         .enumerate()
         .map(|(k, s)| {
@@ -886,9 +887,10 @@ pub fn force_scale(
     anchors: &[Vec<Anchor>],
     params: &ElasticFitParams,
 ) -> Result<Option<ForceScale>, ElasticFitError> {
-    let model = gamma.model(mesh)
+    let model = gamma
+        .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-        let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
         crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
     });
     let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
@@ -983,7 +985,8 @@ fn lowers_loss(
         .0
         .iter()
         .sum();
-    let model = to.model(mesh)
+    let model = to
+        .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
     let mut after = 0.0;
     for (k, s) in samples.iter().enumerate() {
@@ -1815,8 +1818,18 @@ mod tests {
         };
         let (mesh, mass, truth, samples) = sagged_sample(&params);
         let init = scaled(&truth, 100.0);
-        let fitted =
-            fit_samples(&mesh, &mass, &samples, &[], true, &init, &init, &params, None).unwrap();
+        let fitted = fit_samples(
+            &mesh,
+            &mass,
+            &samples,
+            &[],
+            true,
+            &init,
+            &init,
+            &params,
+            None,
+        )
+        .unwrap();
         let names = |r: &crate::fit::elastic::FitReport| -> Vec<String> {
             r.samples[0].stages.iter().map(|s| s.name.clone()).collect()
         };

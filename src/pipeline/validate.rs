@@ -26,9 +26,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::fit::elastic::MaterialFields;
 use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
-use crate::fit::elastic::MaterialFields;
 use crate::pipeline::asset::{
     asset_materials, check_asset_ext, rms_max, uniform_material, yarn_distances,
 };
@@ -403,7 +403,9 @@ pub fn homogenized_frames(
         StaticSolver::new(model, &asset.node_mass, &pinned).map_err(|e| e.to_string())?;
     let stiffest = (0..mesh.num_tets())
         .map(|e| {
-            gamma.gamma_s[e] + gamma.gamma_v[e] + gamma.fibres.iter().map(|f| f.gamma[e]).sum::<f64>()
+            gamma.gamma_s[e]
+                + gamma.gamma_v[e]
+                + gamma.fibres.iter().map(|f| f.gamma[e]).sum::<f64>()
         })
         .fold(0.0, f64::max);
     let stiffness = CONTACT_STIFFNESS_FACTOR * stiffest * asset.grid.h;

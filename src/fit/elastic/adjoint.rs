@@ -196,7 +196,10 @@ pub fn equilibrium_continued(
                 }
             })
             .collect();
-        let m = fields.with_stacked(&g).model(mesh).map_err(|e| e.to_string())?;
+        let m = fields
+            .with_stacked(&g)
+            .model(mesh)
+            .map_err(|e| e.to_string())?;
         solves += 1;
         match equilibrium(&m, mass, frame, &x, params) {
             Ok((xn, _)) => {

@@ -1078,10 +1078,5 @@ pub fn fit_sample_observed(
     {
         return Err(fit.error(0, format!("fit produced gamma {g}")));
     }
-    Ok((
-        init.with_stacked(&ev.gamma),
-        reports,
-        loss0,
-        ev.xs,
-    ))
+    Ok((init.with_stacked(&ev.gamma), reports, loss0, ev.xs))
 }

@@ -101,7 +101,7 @@ fn boundary(mesh: &TetMesh, load: Load) -> (Vec<usize>, Vec<[f64; 3]>) {
 
 /// The equilibrium of `load` under `truth` and the frame asking for it.
 fn frame_of(mesh: &TetMesh, mass: &[f64], truth: &MaterialFields, load: Load) -> (Frame, f64) {
-    let model = ElasticModel::new(mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
+    let model = truth.model(mesh).unwrap();
     let (pinned, f_ext) = boundary(mesh, load);
     let probe = Frame {
         target: FrameTarget {
@@ -259,8 +259,8 @@ fn identified(
     sample: &Sample,
     eps: f64,
     bound: f64,
-) -> [Vec<bool>; 2] {
-    let model = ElasticModel::new(mesh, &truth.gamma_s, &truth.gamma_v).unwrap();
+) -> Vec<Vec<bool>> {
+    let model = truth.model(mesh).unwrap();
     let g = truth.stacked();
     let m = g.len();
     let mut p = DMatrix::<f64>::zeros(m, m);
@@ -281,8 +281,7 @@ fn identified(
     let ok: Vec<bool> = (0..m)
         .map(|j| (eps * inv[(j, j)]).sqrt() <= bound)
         .collect();
-    let ne = m / 2;
-    [ok[..ne].to_vec(), ok[ne..].to_vec()]
+    ok.chunks(mesh.num_tets()).map(|c| c.to_vec()).collect()
 }
 
 /// What a synthetic recovery reached: loss ratio, and per field (γs, γv)
@@ -358,7 +357,8 @@ fn recovery_on(
     let marked = match marking {
         Marking::Energy(cutoff) => deformed(&mesh, &truth, &sample, cutoff),
         Marking::Identified { loss, bound } => {
-            identified(&mesh, &truth, &sample, loss * s.initial_loss, bound)
+            let v = identified(&mesh, &truth, &sample, loss * s.initial_loss, bound);
+            [v[0].clone(), v[1].clone()]
         }
     };
     let (max_error, count) = recovery_error(&fit, &truth, &marked);
@@ -424,6 +424,74 @@ fn strict_recovery(factor: f64) -> Recovery {
             bound: 0.1,
         },
     )
+}
+
+/// Fibres along the bar, 10x stiffer in the middle band, over a soft
+/// uniform Eq. 7: fitted from a uniform start with the same fibre
+/// directions, the loss falls >= 1e4x and every fibre stiffness the poses
+/// determine ([`identified`]) is within 10%. Measured: loss 3.4e12x down;
+/// identified in 16 of 192 tets (the poses leave fibre and shear
+/// stiffness trading off elsewhere), exact there to 6e-7; 142 of all 192
+/// within 10% (guarded at 12 and 70%).
+#[test]
+fn synthetic_recovery_of_a_fibre_band() {
+    use crate::sim::fibre::FibreFamily;
+    let (mesh, mass) = bar([8, 2, 2]);
+    let ne = mesh.num_tets();
+    let lx = mesh.nodes.iter().fold(0.0f64, |m, p| m.max(p[0]));
+    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
+    truth.fibres = vec![FibreFamily {
+        directions: vec![[1.0, 0.0, 0.0]; ne],
+        gamma: (0..ne)
+            .map(|e| {
+                let c = centroid_x(&mesh, e) / lx;
+                if (0.35..=0.65).contains(&c) {
+                    2e5
+                } else {
+                    2e4
+                }
+            })
+            .collect(),
+    }];
+    let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
+    let mut init = MaterialFields::uniform(ne, 1e4, 1e4);
+    init.fibres = vec![FibreFamily {
+        directions: vec![[1.0, 0.0, 0.0]; ne],
+        gamma: vec![1e4; ne],
+    }];
+    let inputs = FitInputs {
+        mesh: &mesh,
+        mass: &mass,
+        samples: std::slice::from_ref(&sample),
+        init: &init,
+        progress: None,
+    };
+    let params = ElasticFitParams::default();
+    let (fit, report) = fit_materials(&inputs, &params).unwrap();
+    assert!(fit
+        .stacked()
+        .iter()
+        .all(|g| g.is_finite() && *g >= params.gamma_floor));
+    let s = &report.samples[0];
+    let ratio = s.initial_loss / s.final_loss;
+    // The fibre stiffnesses the poses determine ([`identified`], as the
+    // strict Eq. 7 checks: misfit 1e-8 of the initial loss, bound 10%).
+    let marked = identified(&mesh, &truth, &sample, 1e-8 * s.initial_loss, 0.1);
+    let ids: Vec<usize> = (0..ne).filter(|&e| marked[2][e]).collect();
+    let err = |e: usize| (fit.fibres[0].gamma[e] / truth.fibres[0].gamma[e] - 1.0).abs();
+    let worst = ids.iter().map(|&e| err(e)).fold(0.0f64, f64::max);
+    let all_within = (0..ne).filter(|&e| err(e) <= 0.1).count();
+    eprintln!(
+        "fibre band: loss {:.3e} -> {:.3e} ({ratio:.2e}x); fibre gamma identified in {} of {ne} tets, worst error there {worst:.2e}; all tets within 10%: {all_within}; {:.1} s",
+        s.initial_loss,
+        s.final_loss,
+        ids.len(),
+        report.total_ms / 1e3
+    );
+    assert!(ratio >= 1e4, "loss fell only {ratio:e}x");
+    assert!(ids.len() >= 12, "only {} identified", ids.len());
+    assert!(worst <= 0.1, "identified fibre gamma off by {worst}");
+    assert!(all_within * 10 >= ne * 7, "{all_within} of {ne} within 10%");
 }
 
 /// Issue 11, synthetic recovery, 10x band. "The elements the poses deform"
@@ -591,20 +659,8 @@ fn loss_gradient_matches_central_differences() {
             plus[j] += h;
             let mut minus = base;
             minus[j] -= h;
-            let lp = loss_at(
-                &mesh,
-                &mass,
-                &g.with_stacked(&plus),
-                &sample,
-                &xs,
-            );
-            let lm = loss_at(
-                &mesh,
-                &mass,
-                &g.with_stacked(&minus),
-                &sample,
-                &xs,
-            );
+            let lp = loss_at(&mesh, &mass, &g.with_stacked(&plus), &sample, &xs);
+            let lm = loss_at(&mesh, &mass, &g.with_stacked(&minus), &sample, &xs);
             let fd = (lp - lm) / (2.0 * h);
             let err = (fd - grad[j]).abs();
             assert!(
@@ -1005,8 +1061,7 @@ fn continuation_from_an_anchor_reaches_what_newton_from_the_start_misses() {
         gamma: std::sync::Arc::new(known.stacked()),
         x: frame.start.clone(),
     };
-    let (x, solves) =
-        equilibrium_continued(&mesh, &mass, &frame, &far, &anchor, &capped).unwrap();
+    let (x, solves) = equilibrium_continued(&mesh, &mass, &frame, &far, &anchor, &capped).unwrap();
     assert!(
         solves > 1,
         "one solve would mean no continuation was needed"
