@@ -473,6 +473,82 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     }
 }
 
+/// `fit --fibres`: course and wale directions found from the rest yarns
+/// (the analytic swatch's courses run along x), stiffnesses fitted with
+/// Eq. 7's, kept in the output (and refitted, directions unchanged, when
+/// that output is fitted again without the flag); the before figure is the
+/// earlier material's, the same as a fit without fibres reports.
+#[test]
+fn fit_with_fibres_finds_course_and_wale_and_keeps_them() {
+    let c = case();
+    let out = c.dir.join("fibres.vtkhdf");
+    let o = knitvox(&fit_args(&c, &out, &["--joint", "--fibres", "--json"]));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let r: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    let an = r["fibre_anisotropy"].as_f64().unwrap();
+    assert!(an > 0.3, "chord anisotropy {an}");
+    let a = io::vtkhdf::read_asset(&out).unwrap();
+    let f = a.fibres.as_ref().expect("fibres in the output");
+    let along = |d: &[Vec3], k: usize| {
+        d.iter().filter(|v| v[k].abs() > 0.9).count() as f64 / d.len() as f64
+    };
+    let (cx, wy) = (along(&f.course, 0), along(&f.wale, 1));
+    eprintln!(
+        "fibres: anisotropy {an:.3}, course along x {cx:.3}, wale along y {wy:.3}; uniform {:?}",
+        a.fit_record().unwrap().unwrap().uniform
+    );
+    assert!(cx > 0.8 && wy > 0.8, "course {cx}, wale {wy}");
+    assert!(f
+        .gamma_course
+        .iter()
+        .chain(&f.gamma_wale)
+        .all(|g| g.is_finite() && *g > 0.0));
+    let rec = a.fit_record().unwrap().unwrap();
+    assert!(rec.uniform.gamma_course.is_some() && rec.uniform.gamma_wale.is_some());
+    let (before, uniform, fitted) = (
+        r["loss_before"].as_f64().unwrap(),
+        r["loss_uniform"].as_f64().unwrap(),
+        r["loss_fitted"].as_f64().unwrap(),
+    );
+    assert!(
+        fitted <= uniform && uniform < before,
+        "{before:e} {uniform:e} {fitted:e}"
+    );
+    // The earlier material is the placeholder, fibres or not: a fit without
+    // them reports the same loss before.
+    let plain = c.dir.join("plain.vtkhdf");
+    let o = knitvox(&fit_args(&c, &plain, &["--joint", "--json"]));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rp: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).lines().last().unwrap()).unwrap();
+    let bp = rp["loss_before"].as_f64().unwrap();
+    assert!((bp - before).abs() <= 1e-9 * before, "{bp:e} vs {before:e}");
+    assert!(io::vtkhdf::read_asset(&plain).unwrap().fibres.is_none());
+    // Refitting the fibred asset keeps its directions.
+    let again = c.dir.join("again.vtkhdf");
+    let mut args = vec!["fit", s(&out), "--train"];
+    args.extend(c.poses.iter().map(|p| s(p)));
+    args.extend([
+        "--samples",
+        "1",
+        "--harmonic",
+        "1",
+        "--gn-iterations",
+        "2",
+        "--joint",
+        "-o",
+        s(&again),
+    ]);
+    let o = knitvox(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let b = io::vtkhdf::read_asset(&again).unwrap();
+    let fb = b.fibres.as_ref().expect("kept");
+    assert_eq!(fb.course, f.course);
+    assert_eq!(fb.wale, f.wale);
+}
+
 #[test]
 fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     let tmp = tempfile::tempdir().unwrap();
