@@ -428,7 +428,17 @@ fn fibres_round_trip_and_vtk_sees_them() {
         let a = fibred_asset(steps);
         write_asset(&p, &a).unwrap();
         assert_eq!(read_asset(&p).unwrap(), a, "{steps} steps");
+        let sm = summary(&p).unwrap();
+        let t = a.mesh.num_tets() as f64;
+        assert_eq!(sm.gamma_course_range, Some([3e3, 3e3 * t]));
+        assert_eq!(sm.gamma_wale_range, Some([0.0, 5e3]));
     }
+    assert_eq!(
+        summary(&good_file(dir.path(), "plain.vtkhdf", 0))
+            .unwrap()
+            .gamma_course_range,
+        None
+    );
     if !common::require_tool(python_vtk(), "python3 with the vtk package") {
         return;
     }

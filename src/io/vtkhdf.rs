@@ -407,6 +407,10 @@ pub struct AssetSummary {
     pub gamma_s_range: Option<[f64; 2]>,
     /// Smallest and largest gamma_v (Pa).
     pub gamma_v_range: Option<[f64; 2]>,
+    /// Smallest and largest fibre stiffness along the course and the wale
+    /// (Pa); `None` for an asset without fibres.
+    pub gamma_course_range: Option<[f64; 2]>,
+    pub gamma_wale_range: Option<[f64; 2]>,
     /// Number of distinct domain ids.
     pub domains: usize,
     pub provenance: Provenance,
@@ -459,6 +463,8 @@ pub fn summary(path: &Path) -> Result<AssetSummary, IoError> {
         total_mass: a.node_mass.iter().sum(),
         gamma_s_range: range(&a.gamma_s),
         gamma_v_range: range(&a.gamma_v),
+        gamma_course_range: a.fibres.as_ref().and_then(|f| range(&f.gamma_course)),
+        gamma_wale_range: a.fibres.as_ref().and_then(|f| range(&f.gamma_wale)),
         domains: domains.len(),
         provenance: a.provenance,
         parameters: a.parameters,
