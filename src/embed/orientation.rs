@@ -151,7 +151,7 @@ pub fn course_and_wale(
             own[v].add(&c, &Vector3::new(g[0], g[1], g[2]));
         }
     }
-    let mut frames: Vec<Option<(Vector3<f64>, Vector3<f64>, f64)>> = vec![None; nv];
+    let mut frames: Vec<Option<LocalFrame>> = vec![None; nv];
     let global = own.iter().fold(Acc::default(), |mut a, o| {
         a.merge(o);
         a
@@ -201,6 +201,9 @@ pub fn course_and_wale(
     Ok(out)
 }
 
+/// Course, wale (unit) and the chord anisotropy of one voxel.
+type LocalFrame = (Vector3<f64>, Vector3<f64>, f64);
+
 /// Sums over yarn vertices: chord tensor, count, positions and their
 /// second moments (grid units).
 #[derive(Debug, Clone, Default)]
@@ -233,7 +236,7 @@ impl Acc {
 
 /// Course, wale and the chord anisotropy from the chord tensor and the
 /// positions' covariance.
-fn frame_of(chords: &Matrix3<f64>, covariance: &Matrix3<f64>) -> (Vector3<f64>, Vector3<f64>, f64) {
+fn frame_of(chords: &Matrix3<f64>, covariance: &Matrix3<f64>) -> LocalFrame {
     let ce = SymmetricEigen::new(*chords);
     let order = |e: &SymmetricEigen<f64, nalgebra::U3>| {
         let mut i = [0usize, 1, 2];
