@@ -195,3 +195,63 @@ fn pd_settles_a_hang_where_the_newton_reference_does() {
     assert!(newton > 0.0 && pd > 0.0);
     assert!((pd - newton).abs() < 0.01 * newton, "{pd} vs {newton}");
 }
+
+/// Fibres in the homogenized runs (`fit --fibres` assets): a soft swatch
+/// hung by an edge sags less with taut course and wale fibres, and PD
+/// settles where the Newton reference does, fibres included.
+#[test]
+fn fibres_hold_up_a_hang_alike_in_pd_and_newton() {
+    use knitvox::embed::orientation::{course_and_wale, OrientationParams};
+    use knitvox::sim::fibre::FibreFamily;
+    let asset = flat_asset();
+    let driver = PoseDriver::new(
+        &asset.rest_yarns.points,
+        PoseParams::new(PoseKind::Hang, 0.0),
+    )
+    .unwrap();
+    let ne = asset.mesh.num_tets();
+    let cw = course_and_wale(
+        &asset.rest_yarns,
+        &asset.grid,
+        &asset.tet_voxel,
+        &OrientationParams::default(),
+    )
+    .unwrap();
+    let soft = MaterialFields::uniform(ne, 1e3, 1e3);
+    let mut fibred = soft.clone();
+    fibred.fibres = [cw.course, cw.wale]
+        .into_iter()
+        .map(|directions| FibreFamily {
+            directions,
+            gamma: vec![3e4; ne],
+        })
+        .collect();
+    let times: Vec<f64> = (0..=20).map(|k| k as f64 * 0.1).collect();
+    let sag = |m: &MaterialFields, solver| {
+        let run = homogenized_run(
+            &HomogenizedRunParams {
+                solver,
+                ..Default::default()
+            },
+            &asset,
+            m,
+            &driver,
+            [0.0, -9.81, 0.0],
+            5.0,
+            &times,
+            &[],
+        )
+        .unwrap();
+        -mean_displacement(&asset, &run.frames[0], run.frames.last().unwrap())[1]
+    };
+    let plain = sag(&soft, HomogenizedSolver::Pd);
+    let (pd, newton) = (
+        sag(&fibred, HomogenizedSolver::Pd),
+        sag(&fibred, HomogenizedSolver::Newton),
+    );
+    eprintln!(
+        "mean sag after 2 s: soft {plain:.6e} m; with fibres PD {pd:.6e}, Newton {newton:.6e}"
+    );
+    assert!(pd < 0.9 * plain, "{pd} vs {plain}");
+    assert!((pd - newton).abs() < 0.01 * newton, "{pd} vs {newton}");
+}
