@@ -2,6 +2,9 @@
 //! projections (VH §7.1, Eq. 26), on random tets and a small Kuhn-split
 //! voxel mesh.
 
+mod common;
+
+use common::Rng;
 use knitvox::geom::{TetMesh, Vec3};
 use knitvox::sim::energy::{element_energy, ElasticModel};
 use knitvox::sim::local::{project_volume_detailed, signed_svd, SINGULAR_VALUE_FLOOR};
@@ -10,30 +13,6 @@ use knitvox::sim::{
     SimError,
 };
 use nalgebra::{Matrix3, Rotation3, Vector3};
-
-/// splitmix64: a tiny deterministic generator.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn sym(&mut self) -> f64 {
-        2.0 * self.next() - 1.0
-    }
-    fn vec(&mut self) -> Vector3<f64> {
-        Vector3::new(self.sym(), self.sym(), self.sym())
-    }
-    fn mat(&mut self) -> Matrix3<f64> {
-        Matrix3::from_fn(|_, _| self.sym())
-    }
-    fn rotation(&mut self) -> Matrix3<f64> {
-        Rotation3::new(self.vec() * 3.0).into_inner()
-    }
-}
 
 fn arr(v: Vector3<f64>) -> Vec3 {
     [v[0], v[1], v[2]]

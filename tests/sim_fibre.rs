@@ -3,6 +3,9 @@
 //! the PD time loop's rest state against Newton statics, and what a fibre
 //! does to a cantilever.
 
+mod common;
+
+use common::Rng;
 use knitvox::geom::Vec3;
 use knitvox::sim::backend::ElasticRhs;
 use knitvox::sim::cpu::CpuElasticRhs;
@@ -10,20 +13,6 @@ use knitvox::sim::energy::{node_gradients, ElasticModel};
 use knitvox::sim::fibre::FibreFamily;
 use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
 use knitvox::sim::statics::{StaticParams, StaticSolver};
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn sym(&mut self) -> f64 {
-        2.0 * self.next() - 1.0
-    }
-}
 
 fn family(nt: usize, d: [f64; 3], gamma: impl Fn(usize) -> f64) -> FibreFamily {
     FibreFamily {

@@ -8,6 +8,7 @@
 
 mod common;
 
+use common::Rng;
 use faer::sparse::{SparseColMat, Triplet};
 use faer::Mat;
 use knitvox::embed::tetrahedralize;
@@ -44,21 +45,6 @@ fn gpu() -> Option<GpuContext> {
             None
         }
         Err(e) => panic!("GPU context failed: {e}"),
-    }
-}
-
-/// splitmix64: a tiny deterministic generator.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn sym(&mut self) -> f64 {
-        2.0 * self.next() - 1.0
     }
 }
 

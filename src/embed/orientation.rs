@@ -151,7 +151,6 @@ pub fn course_and_wale(
             own[v].add(&c, &Vector3::new(g[0], g[1], g[2]));
         }
     }
-    let mut frames: Vec<Option<LocalFrame>> = vec![None; nv];
     let global = own.iter().fold(Acc::default(), |mut a, o| {
         a.merge(o);
         a
@@ -161,38 +160,24 @@ pub fn course_and_wale(
             "no yarn vertex lies in the asset's voxels".into(),
         ));
     }
-    for (v, frame) in frames.iter_mut().enumerate() {
-        let mut r = params.radius_voxels;
-        let sum = loop {
-            let mut acc = Acc::default();
-            let c = grid.voxels[v];
-            for di in -r..=r {
-                for dj in -r..=r {
-                    for dk in -r..=r {
-                        if let Some(u) = index([c[0] + di, c[1] + dj, c[2] + dk]) {
-                            acc.merge(&own[u]);
-                        }
-                    }
-                }
-            }
-            // Enough points for a covariance with a clear least direction.
-            if acc.n >= 8 {
-                break acc;
-            }
-            if r > params.radius_voxels + 4 {
-                break global.clone();
-            }
-            r += 1;
-        };
-        *frame = Some(frame_of(&sum.chords, &sum.covariance()));
-    }
+    let frames: Vec<LocalFrame> = (0..nv)
+        .map(|v| {
+            // Widen until there are enough points for a covariance with a
+            // clear least direction.
+            let sum = (params.radius_voxels..=params.radius_voxels + 5)
+                .map(|r| neighbourhood(grid, &own, v, r))
+                .find(|acc| acc.n >= 8)
+                .unwrap_or_else(|| global.clone());
+            frame_of(&sum.chords, &sum.covariance())
+        })
+        .collect();
     let mut out = CourseWale {
         course: Vec::with_capacity(tet_voxel.len()),
         wale: Vec::with_capacity(tet_voxel.len()),
         mean_anisotropy: 0.0,
     };
     for &v in tet_voxel {
-        let (c, wl, an) = frames[v as usize].expect("every voxel has a frame");
+        let (c, wl, an) = frames[v as usize];
         out.course.push([c[0], c[1], c[2]]);
         out.wale.push([wl[0], wl[1], wl[2]]);
         out.mean_anisotropy += an;
@@ -232,6 +217,25 @@ impl Acc {
         let mean = self.sum / n;
         self.second / n - mean * mean.transpose()
     }
+}
+
+/// The sums of voxel `v` and its neighbours within Chebyshev distance `r`.
+fn neighbourhood(grid: &VoxelGrid, own: &[Acc], v: usize, r: i32) -> Acc {
+    let mut acc = Acc::default();
+    let c = grid.voxels[v];
+    for di in -r..=r {
+        for dj in -r..=r {
+            for dk in -r..=r {
+                if let Ok(u) = grid
+                    .voxels
+                    .binary_search(&[c[0] + di, c[1] + dj, c[2] + dk])
+                {
+                    acc.merge(&own[u]);
+                }
+            }
+        }
+    }
+    acc
 }
 
 /// Course, wale and the chord anisotropy from the chord tensor and the

@@ -27,7 +27,7 @@ pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::RestShape;
 pub use units::{Units, UpAxis};
-pub use yarns::{bounds_of, dist, Bounds, GeomError, YarnFrames, Yarns};
+pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, GeomError, YarnFrames, Yarns};
 
 /// A 3D point or vector in metres.
 pub type Vec3 = [f64; 3];

@@ -464,6 +464,13 @@ pub fn dist(a: Vec3, b: Vec3) -> f64 {
     norm(sub(a, b))
 }
 
+/// Whether `v` is a unit vector: finite, its squared norm within 2e-6 of 1
+/// (the tolerance of stored fibre directions).
+pub fn is_unit_vector(v: &Vec3) -> bool {
+    let n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    n2.is_finite() && (n2 - 1.0).abs() <= 2e-6
+}
+
 /// The bounding box of `points` (None when empty).
 pub fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
     let first = *points.first()?;

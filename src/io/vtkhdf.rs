@@ -32,7 +32,9 @@ use hdf5::Group;
 
 use super::h5::{self, Ds, Kind};
 use super::{FormatError, IoError, ReadOptions};
-use crate::geom::{Asset, AssetFibres, Embedding, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid};
+use crate::geom::{
+    is_unit_vector, Asset, AssetFibres, Embedding, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid,
+};
 
 /// Value of the `/knitvox` attribute `knitvox_format` in an asset file.
 pub const FORMAT_NAME: &str = "asset";
@@ -492,10 +494,7 @@ fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
         }
     }
     for (name, d) in [("course_direction", &f.course), ("wale_direction", &f.wale)] {
-        if let Some(i) = d.iter().position(|v| {
-            let n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-            !(n2.is_finite() && (n2 - 1.0).abs() <= 2e-6)
-        }) {
+        if let Some(i) = d.iter().position(|v| !is_unit_vector(v)) {
             return Err(format!("tet {i}: {name} {:?} is not a unit vector", d[i]));
         }
     }
@@ -531,10 +530,7 @@ fn read_fibres(cd: &Group, cdp: &str, t: usize) -> Result<Option<AssetFibres>, F
         let ds = required(cd, cdp, name)?;
         let v = read_floats(&ds, &[t, 3], &format!("[{t}, 3] (one unit vector per tet)"))?;
         let d: Vec<Vec3> = v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        if let Some(i) = d
-            .iter()
-            .position(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - 1.0).abs() > 2e-6)
-        {
+        if let Some(i) = d.iter().position(|v| !is_unit_vector(v)) {
             return Err(ds.err(format!("entry {i}: {:?} is not a unit vector", d[i])));
         }
         Ok(d)

@@ -584,43 +584,40 @@ pub fn uniform_material(
     let ne = asset.mesh.num_tets();
     let mut m = crate::fit::elastic::MaterialFields::uniform(ne, u.gamma_s, u.gamma_v);
     if let (Some(f), Some(gc), Some(gw)) = (&asset.fibres, u.gamma_course, u.gamma_wale) {
-        use crate::sim::fibre::FibreFamily;
-        m.fibres = vec![
-            FibreFamily {
-                directions: f.course.clone(),
-                gamma: vec![gc; ne],
-            },
-            FibreFamily {
-                directions: f.wale.clone(),
-                gamma: vec![gw; ne],
-            },
-        ];
+        m.fibres = fibre_families(f, vec![gc; ne], vec![gw; ne]);
     }
     m
+}
+
+/// The course and wale families of `f` with the stiffnesses given.
+fn fibre_families(
+    f: &crate::geom::AssetFibres,
+    gamma_course: Vec<f64>,
+    gamma_wale: Vec<f64>,
+) -> Vec<crate::sim::fibre::FibreFamily> {
+    use crate::sim::fibre::FibreFamily;
+    vec![
+        FibreFamily {
+            directions: f.course.clone(),
+            gamma: gamma_course,
+        },
+        FibreFamily {
+            directions: f.wale.clone(),
+            gamma: gamma_wale,
+        },
+    ]
 }
 
 /// The asset's materials as fitted fields: `γs`, `γv` and, where it has
 /// them, its fibre families (course first, then wale).
 pub fn asset_materials(asset: &Asset) -> crate::fit::elastic::MaterialFields {
-    use crate::sim::fibre::FibreFamily;
     crate::fit::elastic::MaterialFields {
         gamma_s: asset.gamma_s.clone(),
         gamma_v: asset.gamma_v.clone(),
         fibres: asset
             .fibres
             .as_ref()
-            .map(|f| {
-                vec![
-                    FibreFamily {
-                        directions: f.course.clone(),
-                        gamma: f.gamma_course.clone(),
-                    },
-                    FibreFamily {
-                        directions: f.wale.clone(),
-                        gamma: f.gamma_wale.clone(),
-                    },
-                ]
-            })
+            .map(|f| fibre_families(f, f.gamma_course.clone(), f.gamma_wale.clone()))
             .unwrap_or_default(),
     }
 }

@@ -60,10 +60,12 @@ impl FibreFamily {
                 self.gamma.len()
             )));
         }
-        if let Some((t, d)) = self.directions.iter().enumerate().find(|(_, d)| {
-            let n2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-            !(n2.is_finite() && (n2 - 1.0).abs() <= 2e-6)
-        }) {
+        if let Some((t, d)) = self
+            .directions
+            .iter()
+            .enumerate()
+            .find(|(_, d)| !crate::geom::is_unit_vector(d))
+        {
             return Err(SimError::Inconsistent(format!(
                 "fibre family {which}: direction of tet {t} is {d:?}; it must be a unit vector"
             )));
@@ -150,13 +152,13 @@ pub fn fibre_stress_differential(
 /// node positions (node-major, as [`super::hessian::element_hessian`]).
 pub fn fibre_element_hessian(f: &Matrix3<f64>, rest: &TetRest, d: &[f64; 3], gamma: f64) -> Mat12 {
     let mut h = Mat12::zeros();
-    // y = Σ_a c_a x_a with c = ∇N · d, so H = c cᵀ ⊗ ∂²(γ V dist²)/∂y².
-    let c = node_coefficients(rest, d);
     let y = f * v3(d);
     let len = y.norm();
     if len <= 1.0 || gamma == 0.0 {
         return h;
     }
+    // y = Σ_a c_a x_a with c = ∇N · d, so H = c cᵀ ⊗ ∂²(γ V dist²)/∂y².
+    let c = node_coefficients(rest, d);
     let yh = y / len;
     let hy = (2.0 * gamma * rest.volume)
         * (Matrix3::identity() - (Matrix3::identity() - yh * yh.transpose()) / len);
@@ -185,45 +187,8 @@ pub fn fibre_gamma_derivative(f: &Matrix3<f64>, rest: &TetRest, d: &[f64; 3]) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Rotation3;
 
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn sym(&mut self) -> f64 {
-            2.0 * self.next() - 1.0
-        }
-        fn mat(&mut self) -> Matrix3<f64> {
-            Matrix3::from_fn(|_, _| self.sym())
-        }
-        fn unit(&mut self) -> [f64; 3] {
-            let v = Vector3::new(self.sym(), self.sym(), self.sym()).normalize();
-            [v[0], v[1], v[2]]
-        }
-        fn rotation(&mut self) -> Matrix3<f64> {
-            Rotation3::new(Vector3::new(self.sym(), self.sym(), self.sym()) * 3.0).into_inner()
-        }
-    }
-
-    fn rest_of(scale: f64, rng: &mut Rng) -> TetRest {
-        loop {
-            let dm = rng.mat() * scale;
-            let det = dm.determinant();
-            if det > 0.05 * scale.powi(3) {
-                return TetRest {
-                    nodes: [0, 1, 2, 3],
-                    dm_inv: dm.try_inverse().unwrap(),
-                    volume: det / 6.0,
-                };
-            }
-        }
-    }
+    use crate::sim::test_util::{random_rest as rest_of, Rng};
 
     /// Node positions of `rest` deformed by `f` (node 0 at the origin).
     fn ds_of(f: &Matrix3<f64>, rest: &TetRest) -> Matrix3<f64> {

@@ -272,41 +272,8 @@ pub fn element_gamma_derivatives(f: &Matrix3<f64>, rest: &TetRest) -> (Vec12, Ve
 mod tests {
     use super::*;
     use crate::sim::energy::element_stress;
-    use nalgebra::Rotation3;
 
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn sym(&mut self) -> f64 {
-            2.0 * self.next() - 1.0
-        }
-        fn mat(&mut self) -> Matrix3<f64> {
-            Matrix3::from_fn(|_, _| self.sym())
-        }
-        fn rotation(&mut self) -> Matrix3<f64> {
-            Rotation3::new(Vector3::new(self.sym(), self.sym(), self.sym()) * 3.0).into_inner()
-        }
-    }
-
-    fn rest_of(scale: f64, rng: &mut Rng) -> TetRest {
-        loop {
-            let dm = rng.mat() * scale;
-            let det = dm.determinant();
-            if det > 0.05 * scale.powi(3) {
-                return TetRest {
-                    nodes: [0, 1, 2, 3],
-                    dm_inv: dm.try_inverse().unwrap(),
-                    volume: det / 6.0,
-                };
-            }
-        }
-    }
+    use crate::sim::test_util::{random_rest as rest_of, Rng};
 
     /// Central FD of the node gradients along every node coordinate vs the
     /// exact Jacobian; returns the relative error.

@@ -888,20 +888,7 @@ pub fn local_step(
 mod tests {
     use super::*;
 
-    /// splitmix64: a tiny deterministic generator for tests.
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn log_uniform(&mut self, lo: f64, hi: f64) -> f64 {
-            (lo.ln() + (hi.ln() - lo.ln()) * self.next()).exp()
-        }
-    }
+    use crate::sim::test_util::Rng;
 
     fn cost(d: [f64; 3], s: [f64; 3]) -> f64 {
         let s = s.map(clamp_floor);

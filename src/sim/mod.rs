@@ -44,6 +44,8 @@ pub mod partition;
 pub mod pd;
 pub mod shot;
 pub mod statics;
+#[cfg(test)]
+mod test_util;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};
 pub use local::{

@@ -180,3 +180,33 @@ pub fn files_under(dir: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
     walk(dir, dir, &mut m);
     m
 }
+
+/// splitmix64: a tiny deterministic generator.
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// Uniform in [0, 1).
+    pub fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in [-1, 1).
+    pub fn sym(&mut self) -> f64 {
+        2.0 * self.next() - 1.0
+    }
+    /// Components uniform in [-1, 1).
+    pub fn vec(&mut self) -> nalgebra::Vector3<f64> {
+        nalgebra::Vector3::new(self.sym(), self.sym(), self.sym())
+    }
+    /// Entries uniform in [-1, 1).
+    pub fn mat(&mut self) -> nalgebra::Matrix3<f64> {
+        nalgebra::Matrix3::from_fn(|_, _| self.sym())
+    }
+    /// A rotation about a random axis by up to ~5 rad.
+    pub fn rotation(&mut self) -> nalgebra::Matrix3<f64> {
+        nalgebra::Rotation3::new(self.vec() * 3.0).into_inner()
+    }
+}

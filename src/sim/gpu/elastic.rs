@@ -28,6 +28,7 @@ pub struct GpuElasticRhs {
     num_nodes: usize,
     num_tets: usize,
     x_buf: wgpu::Buffer,
+    params_buf: wgpu::Buffer,
     rest_buf: wgpu::Buffer,
     out_buf: wgpu::Buffer,
     partials_buf: wgpu::Buffer,
@@ -103,6 +104,12 @@ fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
     Ok(data)
 }
 
+/// The `Params` uniform of `elastic.wgsl`: tet and node counts and the
+/// number of fibre families the kernel reads (0: it skips their data).
+fn params_of(nt: usize, nn: usize, model: &ElasticModel) -> [u32; 4] {
+    [nt as u32, nn as u32, model.fibres().len() as u32, 0]
+}
+
 /// `f32` per tet in the `rest` buffer (see [`rest_data`]).
 const REST_F32_PER_TET: usize = 20;
 
@@ -149,14 +156,15 @@ impl GpuElasticRhs {
         let n_partials = grid_groups(reduce_grid);
 
         let none = wgpu::BufferUsages::empty();
-        let params: [u32; 4] = [nt as u32, nn as u32, 0, 0];
+        let params = params_of(nt, nn, model);
         let params_buf = {
             use wgpu::util::DeviceExt;
             ctx.device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some("elastic params"),
                     contents: bytemuck::cast_slice(&params),
-                    usage: wgpu::BufferUsages::UNIFORM,
+                    // COPY_DST: a material update may add or drop fibres.
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 })
         };
         let tets_buf = ctx.storage_init("tets", bytemuck::cast_slice(&tets), none);
@@ -217,6 +225,7 @@ impl GpuElasticRhs {
             num_nodes: nn,
             num_tets: nt,
             x_buf,
+            params_buf,
             rest_buf,
             out_buf,
             partials_buf,
@@ -340,6 +349,10 @@ impl ElasticRhs for GpuElasticRhs {
         self.ctx
             .queue
             .write_buffer(&self.rest_buf, 0, bytemuck::cast_slice(&data));
+        let params = params_of(self.num_tets, self.num_nodes, model);
+        self.ctx
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::cast_slice(&params));
         Ok(true)
     }
 }

@@ -14,7 +14,8 @@
 struct Params {
     num_tets: u32,
     num_nodes: u32,
-    _pad0: u32,
+    // Fibre families with data in `rest` (0-2); none read when 0.
+    num_fibres: u32,
     _pad1: u32,
 }
 
@@ -487,7 +488,7 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     var pm = 2.0 * vol * (gs * rot + gv * vol_target);
     // Tension-only fibres: target 2 γ V π(F d) dᵀ, energy γ V dist²(F d, B).
-    for (var k = 0u; k < 2u; k++) {
+    for (var k = 0u; k < params.num_fibres; k++) {
         let fib = rest[5u * e + 3u + k];
         if (fib.w > 0.0 && finite) {
             let y = f * fib.xyz;
