@@ -942,3 +942,14 @@ fn gpu_backend_keeps_coulomb_friction_on_a_slope() {
         assert!((slid - cpu_slid).abs() < 0.05 * cpu_slid);
     }
 }
+
+/// `--backend auto`'s cached probe agrees with opening a context: it reports
+/// a hardware adapter exactly when `GpuContext::new` opens a non-CPU one
+/// (lavapipe here and on CI: false), and asking again gives the same answer.
+#[test]
+fn hardware_probe_agrees_with_the_context() {
+    let Some(ctx) = gpu() else { return };
+    let probed = knitvox::sim::gpu::hardware_adapter_available();
+    assert_eq!(probed, !ctx.is_cpu_adapter(), "adapter {}", ctx.adapter_name());
+    assert_eq!(knitvox::sim::gpu::hardware_adapter_available(), probed);
+}

@@ -57,6 +57,10 @@ pub struct SwatchArgs {
     /// relaxation into contact is always frictionless).
     #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
     pub friction: f64,
+    /// Friction's stick distance (m): tangential slip below it is elastic
+    /// sticking (the fibre bundle's tangential compliance), above it sliding.
+    #[arg(long, value_name = "METRES", default_value_t = FabricParams::default().friction.stick_distance, value_parser = super::guard::parse_positive)]
+    pub stick_distance: f64,
     /// Output folder: TEST.h5 (frames with energy and clamp forces) and, for
     /// stretch and bend, TEST.csv and the plot TEST.png.
     #[arg(short, long, value_name = "DIR")]
@@ -139,6 +143,7 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
         fabric: {
             let mut f = FabricParams::default();
             f.friction.mu = s.friction;
+            f.friction.stick_distance = s.stick_distance;
             f
         },
         relax: RelaxParams {

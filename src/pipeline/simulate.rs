@@ -141,7 +141,11 @@ pub fn attach_backend(
     backend: BackendChoice,
 ) -> Result<&'static str, SimulateError> {
     use crate::sim::gpu::{GpuContext, GpuElasticRhs, GpuError, GpuJacobi, GpuJacobiParams};
-    if backend == BackendChoice::Cpu {
+    // `auto` runs on the CPU unless a hardware adapter is present (probed
+    // once per process, no device created).
+    if backend == BackendChoice::Cpu
+        || (backend == BackendChoice::Auto && !crate::sim::gpu::hardware_adapter_available())
+    {
         return Ok("cpu");
     }
     let ctx = match GpuContext::new() {

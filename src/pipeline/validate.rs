@@ -125,6 +125,11 @@ pub struct ValidateReport {
     pub pd_global_s: f64,
     pub pd_contact_cg_iterations: u64,
     pub pd_contact_refactors: u64,
+    /// PD only: local steps evaluated (one per iteration, one more per step
+    /// for its last iterate, one per rejected Anderson iterate) and the
+    /// Anderson iterates rejected by the safeguard.
+    pub pd_local_steps: u64,
+    pub pd_accelerations_rejected: u64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd") that ran; "" for Newton.
     pub pd_backend: &'static str,
@@ -215,6 +220,10 @@ pub struct HomogenizedRun {
     pub global_s: f64,
     pub contact_cg_iterations: u64,
     pub contact_refactors: u64,
+    /// PD only: local steps evaluated and Anderson iterates rejected
+    /// ([`ValidateReport::pd_local_steps`]).
+    pub local_steps: u64,
+    pub accelerations_rejected: u64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd"); "" for Newton.
     pub backend: &'static str,
@@ -235,6 +244,8 @@ impl HomogenizedRun {
             global_s: 0.0,
             contact_cg_iterations: 0,
             contact_refactors: 0,
+            local_steps: 0,
+            accelerations_rejected: 0,
             backend: "",
             global_solver: "",
         }
@@ -649,6 +660,14 @@ impl Stage for ValidateJob {
                 ))
             })?;
         }
+        // `auto` settles its backend here as well (a probe once per process,
+        // [`crate::sim::gpu::hardware_adapter_available`]): setup, like
+        // reading the asset, outside the timed runs.
+        if self.homogenized.solver == HomogenizedSolver::Pd
+            && self.homogenized.backend == BackendChoice::Auto
+        {
+            crate::sim::gpu::hardware_adapter_available();
+        }
         let colliders: Vec<Arc<dyn PointCollider>> =
             yls::scene_colliders(&scene.colliders, &asset.rest_yarns)?
                 .into_iter()
@@ -819,6 +838,8 @@ impl Stage for ValidateJob {
             pd_global_s: hr.global_s,
             pd_contact_cg_iterations: hr.contact_cg_iterations,
             pd_contact_refactors: hr.contact_refactors,
+            pd_local_steps: hr.local_steps,
+            pd_accelerations_rejected: hr.accelerations_rejected,
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,
             colliders: colliders.len(),

@@ -115,9 +115,27 @@ struct YarnColliders<'a> {
     /// Node positions and V2Y yarn vertices at the start of the step (m).
     x0: &'a [Vec3],
     y0: &'a [Vec3],
+    /// Per node, the largest yarn radius and offset length `|o_v|` over its
+    /// star (m): its thickness along a normal `n` is at most `r + o |n|`, so
+    /// a node at least that far outside a collider cannot touch it and its
+    /// star is not walked.
+    reach: &'a [[f64; 2]],
     /// End time of the step (s) and its length (s).
     t: f64,
     dt: f64,
+}
+
+/// [`YarnColliders::reach`] of every node for node positions `x0` and V2Y
+/// yarn vertices `y0` (zeros for a node that carries no yarn vertex).
+fn node_reach(stars: &NodeStars, radius: &[f64], x0: &[Vec3], y0: &[Vec3]) -> Vec<[f64; 2]> {
+    (0..x0.len())
+        .map(|i| {
+            stars.of(i).iter().fold([0.0f64; 2], |[r, o], &v| {
+                let d = sub(y0[v], x0[i]);
+                [r.max(radius[v]), o.max(dot(d, d).sqrt())]
+            })
+        })
+        .collect()
 }
 
 impl YarnColliders<'_> {
@@ -145,6 +163,11 @@ impl NodeProjector for YarnColliders<'_> {
             let mut moved = false;
             for c in self.colliders {
                 let (d, n) = c.signed_distance(q, self.t);
+                // Far outside (the common case): the thickness cannot reach.
+                let [rm, om] = self.reach[node];
+                if d >= rm + om * dot(n, n).sqrt() {
+                    continue;
+                }
                 let r = self.thickness(node, n);
                 if d.is_finite() && r.is_finite() && d < r {
                     q = std::array::from_fn(|k| q[k] + (r - d) * n[k]);
@@ -268,10 +291,12 @@ pub fn pd_frames(
             let t = t0 + dt * j as f64;
             let pins: Vec<Vec3> = pinned.iter().map(|&i| target(i, t)).collect();
             let x0 = x.clone();
-            let y0 = if colliders.is_empty() {
-                Vec::new()
+            let (y0, reach) = if colliders.is_empty() {
+                (Vec::new(), Vec::new())
             } else {
-                asset.embedding.v2y(mesh, &x0)
+                let y0 = asset.embedding.v2y(mesh, &x0);
+                let reach = node_reach(&stars, &radius, &x0, &y0);
+                (y0, reach)
             };
             let proj = YarnColliders {
                 colliders,
@@ -279,6 +304,7 @@ pub fn pd_frames(
                 radius: &radius,
                 x0: &x0,
                 y0: &y0,
+                reach: &reach,
                 t,
                 dt,
             };
@@ -291,6 +317,9 @@ pub fn pd_frames(
             run.global_s += st.global_ms * 1e-3;
             run.contact_cg_iterations += st.global_iterations as u64;
             run.contact_refactors += u64::from(st.contact_refactors);
+            run.local_steps +=
+                u64::from(st.iterations) + 1 + u64::from(st.accelerations_rejected);
+            run.accelerations_rejected += u64::from(st.accelerations_rejected);
             run.max_contacts = run.max_contacts.max(st.contacts);
         }
         if !colliders.is_empty() {

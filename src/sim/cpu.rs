@@ -185,10 +185,10 @@ impl ElasticRhs for CpuElasticRhs {
                     ]);
                     ds * r.dm_inv
                 };
-                let finish = |e: usize, f: &Matrix3<f64>, svd: Option<SignedSvd>| {
+                let finish = |e: usize, f: &Matrix3<f64>, svd: Option<&SignedSvd>| {
                     let r = &rest[e];
                     let (mut energy, mut target, clamped) = match svd {
-                        Some(svd) => targets_from_svd(&svd, r.volume, gs[e], gv[e]),
+                        Some(svd) => targets_from_svd(svd, r.volume, gs[e], gv[e]),
                         None => {
                             let (rot, vol, clamped) = project_from_svd(f, None);
                             let energy = r.volume
@@ -219,7 +219,8 @@ impl ElasticRhs for CpuElasticRhs {
                         if let Some(svd) = &svds[l] {
                             w_chunk[j + l] = svd.v;
                         }
-                        (e_chunk[j + l], g_chunk[j + l]) = finish(base + j + l, &fs[l], svds[l]);
+                        (e_chunk[j + l], g_chunk[j + l]) =
+                            finish(base + j + l, &fs[l], svds[l].as_ref());
                     }
                     j += SVD_LANES;
                 }
@@ -229,7 +230,7 @@ impl ElasticRhs for CpuElasticRhs {
                     if let Some(svd) = &svd {
                         w_chunk[j] = svd.v;
                     }
-                    (e_chunk[j], g_chunk[j]) = finish(base + j, &f, svd);
+                    (e_chunk[j], g_chunk[j]) = finish(base + j, &f, svd.as_ref());
                 }
             });
         let per_tet = &self.per_tet;

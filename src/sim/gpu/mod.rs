@@ -100,32 +100,51 @@ impl std::fmt::Debug for GpuContext {
     }
 }
 
+/// The adapter [`GpuContext::new`] opens, its information and limits, once
+/// it is known to offer what the kernels need.
+fn open_adapter() -> Result<(wgpu::Adapter, wgpu::AdapterInfo, wgpu::Limits), GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::VULKAN,
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    });
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    }))
+    .map_err(|e| GpuError::Unavailable(format!("no Vulkan adapter: {e}")))?;
+    let info = adapter.get_info();
+    // The adapter's own limits: the kernels need 8 storage buffers per
+    // stage (the WebGPU default) and large storage bindings for big meshes.
+    let limits = adapter.limits();
+    if limits.max_storage_buffers_per_shader_stage < 8 {
+        return Err(GpuError::Unavailable(format!(
+            "adapter {} offers {} storage buffers per shader stage; 8 are needed",
+            info.name, limits.max_storage_buffers_per_shader_stage
+        )));
+    }
+    Ok((adapter, info, limits))
+}
+
+/// Whether [`GpuContext::new`] would open a hardware adapter (not a CPU
+/// implementation such as lavapipe), without creating a device. Probed once
+/// per process and remembered: opening a Vulkan instance and enumerating
+/// its adapters costs 0.05-0.3 s, which `--backend auto` used to pay (and
+/// then create a device to throw away) before every CPU run.
+pub fn hardware_adapter_available() -> bool {
+    static PROBE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *PROBE.get_or_init(|| {
+        open_adapter().is_ok_and(|(_, info, _)| info.device_type != wgpu::DeviceType::Cpu)
+    })
+}
+
 impl GpuContext {
     /// Opens the first high-performance Vulkan adapter (a discrete GPU when
     /// there is one, else any, including lavapipe), blocking on wgpu's futures
     /// with `pollster`. No adapter: [`GpuError::Unavailable`].
     pub fn new() -> Result<GpuContext, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-            backends: wgpu::Backends::VULKAN,
-            ..wgpu::InstanceDescriptor::new_without_display_handle()
-        });
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        }))
-        .map_err(|e| GpuError::Unavailable(format!("no Vulkan adapter: {e}")))?;
-        let info = adapter.get_info();
-        // The adapter's own limits: the kernels need 8 storage buffers per
-        // stage (the WebGPU default) and large storage bindings for big meshes.
-        let limits = adapter.limits();
-        if limits.max_storage_buffers_per_shader_stage < 8 {
-            return Err(GpuError::Unavailable(format!(
-                "adapter {} offers {} storage buffers per shader stage; 8 are needed",
-                info.name, limits.max_storage_buffers_per_shader_stage
-            )));
-        }
+        let (adapter, info, limits) = open_adapter()?;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("knitvox-pd"),
             required_features: wgpu::Features::empty(),
