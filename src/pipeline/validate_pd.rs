@@ -331,3 +331,67 @@ pub fn pd_frames(
     }
     Ok(run)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::yarn::sim::SphereCollider;
+
+    /// Skipping nodes by their reach changes no contact: every node's
+    /// projection equals the one with the full star walk (reach infinite),
+    /// for nodes inside, near and far outside a sphere.
+    #[test]
+    fn culling_by_reach_changes_no_contact() {
+        let sphere: Arc<dyn PointCollider> = Arc::new(SphereCollider {
+            center: [0.0, 0.0, 0.0],
+            radius: 0.04,
+            velocity: [0.0, 0.1, 0.0],
+            friction: 0.5,
+        });
+        let colliders = [sphere];
+        // Node i sits on the x axis at 40 mm + (i - 10) mm; its star holds
+        // three yarn vertices offset by up to 3 mm, radii 0.8-1.2 mm.
+        let n = 40;
+        let x0: Vec<Vec3> = (0..n).map(|i| [0.04 + 1e-3 * (i as f64 - 10.0), 0.0, 0.0]).collect();
+        let offsets = [[-3e-3, 0.0, 0.0], [0.0, 2e-3, 1e-3], [1e-3, -1e-3, 0.0]];
+        let mut y0 = Vec::new();
+        let mut radius = Vec::new();
+        for x in &x0 {
+            for (k, o) in offsets.iter().enumerate() {
+                y0.push(std::array::from_fn(|j| x[j] + o[j]));
+                radius.push(8e-4 + 2e-4 * k as f64);
+            }
+        }
+        let stars = NodeStars {
+            start: (0..=n).map(|i| 3 * i).collect(),
+            verts: (0..3 * n).collect(),
+        };
+        let reach = node_reach(&stars, &radius, &x0, &y0);
+        let unbounded = vec![[f64::INFINITY; 2]; n];
+        let culled = YarnColliders {
+            colliders: &colliders,
+            stars: &stars,
+            radius: &radius,
+            x0: &x0,
+            y0: &y0,
+            reach: &reach,
+            t: 0.0,
+            dt: 1.0 / 150.0,
+        };
+        let full = YarnColliders {
+            reach: &unbounded,
+            ..culled
+        };
+        let mut touching = 0;
+        let mut skipped = 0;
+        for (i, &p) in x0.iter().enumerate() {
+            let c = culled.contact(i, p);
+            assert_eq!(c, full.contact(i, p), "node {i}");
+            touching += usize::from(c.is_some());
+            let (d, _) = colliders[0].signed_distance(p, 0.0);
+            skipped += usize::from(d >= reach[i][0] + reach[i][1]);
+        }
+        // The case covers both sides of the bound.
+        assert!(touching >= 10 && skipped >= 10, "{touching} touching, {skipped} skipped");
+    }
+}
