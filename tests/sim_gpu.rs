@@ -950,6 +950,11 @@ fn gpu_backend_keeps_coulomb_friction_on_a_slope() {
 fn hardware_probe_agrees_with_the_context() {
     let Some(ctx) = gpu() else { return };
     let probed = knitvox::sim::gpu::hardware_adapter_available();
-    assert_eq!(probed, !ctx.is_cpu_adapter(), "adapter {}", ctx.adapter_name());
+    assert_eq!(
+        probed,
+        !ctx.is_cpu_adapter(),
+        "adapter {}",
+        ctx.adapter_name()
+    );
     assert_eq!(knitvox::sim::gpu::hardware_adapter_available(), probed);
 }

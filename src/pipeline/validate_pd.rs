@@ -317,8 +317,7 @@ pub fn pd_frames(
             run.global_s += st.global_ms * 1e-3;
             run.contact_cg_iterations += st.global_iterations as u64;
             run.contact_refactors += u64::from(st.contact_refactors);
-            run.local_steps +=
-                u64::from(st.iterations) + 1 + u64::from(st.accelerations_rejected);
+            run.local_steps += u64::from(st.iterations) + 1 + u64::from(st.accelerations_rejected);
             run.accelerations_rejected += u64::from(st.accelerations_rejected);
             run.max_contacts = run.max_contacts.max(st.contacts);
         }
@@ -352,7 +351,9 @@ mod tests {
         // Node i sits on the x axis at 40 mm + (i - 10) mm; its star holds
         // three yarn vertices offset by up to 3 mm, radii 0.8-1.2 mm.
         let n = 40;
-        let x0: Vec<Vec3> = (0..n).map(|i| [0.04 + 1e-3 * (i as f64 - 10.0), 0.0, 0.0]).collect();
+        let x0: Vec<Vec3> = (0..n)
+            .map(|i| [0.04 + 1e-3 * (i as f64 - 10.0), 0.0, 0.0])
+            .collect();
         let offsets = [[-3e-3, 0.0, 0.0], [0.0, 2e-3, 1e-3], [1e-3, -1e-3, 0.0]];
         let mut y0 = Vec::new();
         let mut radius = Vec::new();
@@ -392,6 +393,9 @@ mod tests {
             skipped += usize::from(d >= reach[i][0] + reach[i][1]);
         }
         // The case covers both sides of the bound.
-        assert!(touching >= 10 && skipped >= 10, "{touching} touching, {skipped} skipped");
+        assert!(
+            touching >= 10 && skipped >= 10,
+            "{touching} touching, {skipped} skipped"
+        );
     }
 }
