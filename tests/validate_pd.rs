@@ -158,39 +158,40 @@ fn friction_holds_the_mesh_on_a_slope_a_frictionless_one_slides_down() {
     assert!(stick.abs() < 0.05 * free_slide, "{stick} vs {free_slide}");
 }
 
-#[test]
-fn pd_settles_a_hang_where_the_newton_reference_does() {
-    let asset = flat_asset();
+/// Mean downward displacement (m) of a hang of `asset` (an edge held,
+/// gravity, global damping 5 1/s) after 2 s with material `m`, by `solver`.
+fn hang_sag(asset: &Asset, m: &MaterialFields, solver: HomogenizedSolver) -> f64 {
     let driver = PoseDriver::new(
         &asset.rest_yarns.points,
         PoseParams::new(PoseKind::Hang, 0.0),
     )
     .unwrap();
-    let ne = asset.mesh.num_tets();
-    let (gs, gv) = (vec![1e4; ne], vec![1e4; ne]);
     let times: Vec<f64> = (0..=20).map(|k| k as f64 * 0.1).collect();
-    let sag = |solver| {
-        let run = homogenized_run(
-            &HomogenizedRunParams {
-                solver,
-                ..Default::default()
-            },
-            &asset,
-            &MaterialFields {
-                gamma_s: gs.clone(),
-                gamma_v: gv.clone(),
-                fibres: Vec::new(),
-            },
-            &driver,
-            [0.0, -9.81, 0.0],
-            5.0,
-            &times,
-            &[],
-        )
-        .unwrap();
-        -mean_displacement(&asset, &run.frames[0], run.frames.last().unwrap())[1]
-    };
-    let (pd, newton) = (sag(HomogenizedSolver::Pd), sag(HomogenizedSolver::Newton));
+    let run = homogenized_run(
+        &HomogenizedRunParams {
+            solver,
+            ..Default::default()
+        },
+        asset,
+        m,
+        &driver,
+        [0.0, -9.81, 0.0],
+        5.0,
+        &times,
+        &[],
+    )
+    .unwrap();
+    -mean_displacement(asset, &run.frames[0], run.frames.last().unwrap())[1]
+}
+
+#[test]
+fn pd_settles_a_hang_where_the_newton_reference_does() {
+    let asset = flat_asset();
+    let m = MaterialFields::uniform(asset.mesh.num_tets(), 1e4, 1e4);
+    let (pd, newton) = (
+        hang_sag(&asset, &m, HomogenizedSolver::Pd),
+        hang_sag(&asset, &m, HomogenizedSolver::Newton),
+    );
     eprintln!("mean sag after 2 s: PD {pd:.8e} m, Newton {newton:.8e} m");
     assert!(newton > 0.0 && pd > 0.0);
     assert!((pd - newton).abs() < 0.01 * newton, "{pd} vs {newton}");
@@ -204,11 +205,6 @@ fn fibres_hold_up_a_hang_alike_in_pd_and_newton() {
     use knitvox::embed::orientation::{course_and_wale, OrientationParams};
     use knitvox::sim::fibre::FibreFamily;
     let asset = flat_asset();
-    let driver = PoseDriver::new(
-        &asset.rest_yarns.points,
-        PoseParams::new(PoseKind::Hang, 0.0),
-    )
-    .unwrap();
     let ne = asset.mesh.num_tets();
     let cw = course_and_wale(
         &asset.rest_yarns,
@@ -226,24 +222,7 @@ fn fibres_hold_up_a_hang_alike_in_pd_and_newton() {
             gamma: vec![3e4; ne],
         })
         .collect();
-    let times: Vec<f64> = (0..=20).map(|k| k as f64 * 0.1).collect();
-    let sag = |m: &MaterialFields, solver| {
-        let run = homogenized_run(
-            &HomogenizedRunParams {
-                solver,
-                ..Default::default()
-            },
-            &asset,
-            m,
-            &driver,
-            [0.0, -9.81, 0.0],
-            5.0,
-            &times,
-            &[],
-        )
-        .unwrap();
-        -mean_displacement(&asset, &run.frames[0], run.frames.last().unwrap())[1]
-    };
+    let sag = |m: &MaterialFields, solver| hang_sag(&asset, m, solver);
     let plain = sag(&soft, HomogenizedSolver::Pd);
     let (pd, newton) = (
         sag(&fibred, HomogenizedSolver::Pd),

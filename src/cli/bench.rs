@@ -329,7 +329,7 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         local_ms.push(st.local_ms);
         global_ms.push(st.global_ms);
         gits += st.global_iterations as u64;
-        local_steps += st.iterations as u64 + 1 + st.accelerations_rejected as u64;
+        local_steps += u64::from(st.local_steps());
         gres = gres.max(st.global_residual);
         iters += st.iterations as u64;
         iters_max = iters_max.max(st.iterations);

@@ -164,6 +164,7 @@ impl NodeProjector for YarnColliders<'_> {
             for c in self.colliders {
                 let (d, n) = c.signed_distance(q, self.t);
                 // Far outside (the common case): the thickness cannot reach.
+                // (`reach` is empty without colliders: index inside the loop.)
                 let [rm, om] = self.reach[node];
                 if d >= rm + om * dot(n, n).sqrt() {
                     continue;
@@ -317,7 +318,7 @@ pub fn pd_frames(
             run.global_s += st.global_ms * 1e-3;
             run.contact_cg_iterations += st.global_iterations as u64;
             run.contact_refactors += u64::from(st.contact_refactors);
-            run.local_steps += u64::from(st.iterations) + 1 + u64::from(st.accelerations_rejected);
+            run.local_steps += u64::from(st.local_steps());
             run.accelerations_rejected += u64::from(st.accelerations_rejected);
             run.max_contacts = run.max_contacts.max(st.contacts);
         }

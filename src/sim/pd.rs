@@ -378,6 +378,14 @@ pub struct StepStats {
     pub ms: f64,
 }
 
+impl StepStats {
+    /// Local steps the step evaluated: one per PD iteration, one at its last
+    /// iterate, one per rejected Anderson iterate.
+    pub fn local_steps(&self) -> u32 {
+        self.iterations + 1 + self.accelerations_rejected
+    }
+}
+
 /// The PD simulator of one mesh with a fixed set of pinned nodes.
 pub struct PdSolver {
     mesh: TetMesh,
