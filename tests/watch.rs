@@ -340,6 +340,20 @@ fn kill_9_mid_shot_then_restart_completes_once_bit_for_bit() {
             p.display()
         );
     }
+    // The kill may land after the embed's record and before its unlock;
+    // make that case certain: the finished stage's lock, held by a dead
+    // process of this host, must be swept by the restart.
+    let embed_lock = out.join(".knitvox/embed.lock");
+    if !embed_lock.exists() {
+        let mut gone = Command::new("true").spawn().unwrap();
+        let pid = gone.id();
+        gone.wait().unwrap();
+        let holder = io::lock::Holder {
+            host: io::lock::host_name(),
+            pid,
+        };
+        std::fs::write(&embed_lock, serde_json::to_string(&holder).unwrap()).unwrap();
+    }
     // --status shows the orphaned claim.
     let st = Command::new(common::knitvox_bin())
         .args(["watch", "--status", "--json"])

@@ -108,6 +108,22 @@ impl Lock {
     }
 }
 
+/// Removes the lock file at `path` if its holder is a dead process of this
+/// host: a run killed between finishing its work and dropping its lock
+/// leaves the file behind, and a later run that finds the work done (so
+/// takes no lock) would otherwise leave it there for good. A live holder,
+/// one on another host or an unreadable file is left alone. Returns whether
+/// a file was removed.
+pub fn remove_if_orphaned(path: &Path) -> bool {
+    let holder: Option<Holder> = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    match holder {
+        Some(h) if h.host == host_name() && !alive(h.pid) => std::fs::remove_file(path).is_ok(),
+        _ => false,
+    }
+}
+
 impl Drop for Lock {
     fn drop(&mut self) {
         let _ = std::fs::remove_file(&self.path);
@@ -155,5 +171,27 @@ mod tests {
         std::fs::write(&p, text).unwrap();
         let e = Lock::acquire(&p).unwrap_err();
         assert!(e.to_string().contains("elsewhere-host"), "{e}");
+    }
+
+    #[test]
+    fn only_a_dead_local_holders_file_is_swept() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lock");
+        assert!(!remove_if_orphaned(&p), "no file");
+        let held = Lock::acquire(&p).unwrap();
+        assert!(!remove_if_orphaned(&p), "a live holder keeps its lock");
+        assert!(p.exists());
+        drop(held);
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        for (host, swept) in [("elsewhere-host".to_string(), false), (host_name(), true)] {
+            let text = serde_json::to_string(&Holder { host, pid: dead }).unwrap();
+            std::fs::write(&p, text).unwrap();
+            assert_eq!(remove_if_orphaned(&p), swept);
+            assert_eq!(p.exists(), !swept);
+        }
+        std::fs::write(&p, "not json").unwrap();
+        assert!(!remove_if_orphaned(&p), "an unreadable lock is left alone");
     }
 }

@@ -780,16 +780,19 @@ fn run_unit(
     // second shell) may be running the stage or have just finished it.
     let records = record_path(out, name);
     let records_dir = records.parent().unwrap_or(out);
+    let lock_path = records_dir.join(format!("{name}.lock"));
     let lock = match cached(out, name, &key) {
-        Some(_) => None,
+        Some(_) => {
+            // A run killed after its record but before its unlock.
+            io::lock::remove_if_orphaned(&lock_path);
+            None
+        }
         None => {
             std::fs::create_dir_all(records_dir).map_err(|source| IoError::Write {
                 path: records_dir.to_path_buf(),
                 source,
             })?;
-            Some(io::lock::Lock::acquire(
-                &records_dir.join(format!("{name}.lock")),
-            )?)
+            Some(io::lock::Lock::acquire(&lock_path)?)
         }
     };
     let result = run_locked(out, name, key, run_it, observer, outcome);
