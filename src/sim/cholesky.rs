@@ -91,6 +91,11 @@ impl SparseCholesky {
         Self::numeric(Self::symbolic(lower)?, lower)
     }
 
+    /// Order of the factored matrix.
+    pub fn dim(&self) -> usize {
+        self.symbolic.nrows()
+    }
+
     /// Gives back the symbolic analysis, to refactor a matrix with the same pattern.
     pub fn into_symbolic(self) -> SymbolicCholesky<usize> {
         self.symbolic

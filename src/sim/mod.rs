@@ -46,6 +46,7 @@ pub mod shot;
 pub mod statics;
 #[cfg(test)]
 mod test_util;
+pub mod woodbury;
 
 pub use energy::{gradient, total_energy, ElasticModel, TetRest};
 pub use local::{

@@ -142,6 +142,7 @@ use super::dd::{DdParams, DdSolver, DdStats, Interiors};
 use super::energy::ElasticModel;
 use super::jacobi::CpuJacobi;
 use super::partition::Partition;
+use super::woodbury::LowRankUpdate;
 use super::SimError;
 use crate::geom::vec3::norm;
 use crate::geom::{TetMesh, Vec3};
@@ -458,11 +459,62 @@ fn solve_xyz(factor: &SparseCholesky, b: &mut [f64]) {
     }
 }
 
-/// `K + W` factored for one set of contact weights (direct solver).
+/// Most nodes added to a factor of `K + W` by the Woodbury identity before
+/// a refactorization: each costs one column solve, and every later solve
+/// `O(n)` more work, against about five solves for a refactorization.
+const MAX_LOW_RANK_NODES: usize = 64;
+
+/// `K + W` factored for one set of contact weights (direct solver), and
+/// the nodes that joined the set later in the same step.
 struct ContactFactor {
-    /// The diagonal of `W` per free node.
+    /// The diagonal of `W` per free node, as factored.
     weights: Vec<f64>,
+    /// `weights` with the joined nodes' weights: the `W` it solves for.
+    effective: Vec<f64>,
     factor: SparseCholesky,
+    /// The step ([`PdSolver::steps`]) that factored it.
+    step: u64,
+    /// The joined nodes.
+    update: LowRankUpdate,
+}
+
+impl ContactFactor {
+    /// The free rows (and weights) that joined when the weights become
+    /// `w`: `Some` (maybe empty) when this factor can solve for `w` in
+    /// step `step`, `None` when `w` needs a refactorization.
+    fn joined(&self, w: &[f64], step: u64) -> Option<Vec<(usize, f64)>> {
+        if w.len() != self.effective.len() {
+            return None;
+        }
+        if self.update.is_empty() && w == self.weights {
+            return Some(Vec::new());
+        }
+        if self.step != step {
+            return None;
+        }
+        let mut rows = Vec::new();
+        for (i, (&wi, &ei)) in w.iter().zip(&self.effective).enumerate() {
+            if wi == ei {
+                continue;
+            }
+            if ei != 0.0 || !(wi > 0.0) || self.update.len() + rows.len() >= MAX_LOW_RANK_NODES {
+                return None;
+            }
+            rows.push((i, wi));
+        }
+        Some(rows)
+    }
+
+    /// Adds the joined `rows`; false when the update failed (refactor).
+    fn add(&mut self, rows: &[(usize, f64)]) -> bool {
+        if !self.update.extend(&self.factor, rows) {
+            return false;
+        }
+        for &(i, wi) in rows {
+            self.effective[i] = wi;
+        }
+        true
+    }
 }
 
 /// Positions of the diagonal entries among the values of a lower-triangular
@@ -1087,12 +1139,21 @@ impl PdSolver {
     }
 
     /// Solves `(K + W) x = b` in place (direct solver; `w`: the diagonal of
-    /// `W` per free node) with a Cholesky factor of `K + W`, refactored
-    /// numerically (symbolic analysis reused) only when the weights differ
-    /// from the last call's. Returns whether it refactored.
+    /// `W` per free node) with a Cholesky factor of `K + W`. Nodes that
+    /// joined the contact set since the factorization in the same step
+    /// (at most [`MAX_LOW_RANK_NODES`]) are added by the Woodbury identity
+    /// ([`super::woodbury`]); otherwise it refactors numerically (symbolic
+    /// analysis reused). A factor of another step is reused only for
+    /// exactly its weights, so a step's result does not depend on the steps
+    /// before it (checkpoint resume). Returns whether it refactored.
     fn contact_solve(&mut self, b: &mut [f64], w: &[f64]) -> Result<bool, SimError> {
-        let fresh = self.contact_factor.as_ref().is_some_and(|c| c.weights == w);
-        if !fresh {
+        let step = self.steps;
+        let joined = self.contact_factor.as_ref().and_then(|c| c.joined(w, step));
+        let refactor = match (&mut self.contact_factor, joined) {
+            (Some(c), Some(rows)) => !c.add(&rows),
+            _ => true,
+        };
+        if refactor {
             let (lower, diag) = self.k_lower.as_ref().ok_or_else(|| {
                 SimError::Inconsistent("no factor of K to add contacts to".into())
             })?;
@@ -1108,14 +1169,25 @@ impl PdSolver {
             let factor = SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?;
             self.contact_factor = Some(ContactFactor {
                 weights: w.to_vec(),
+                effective: w.to_vec(),
                 factor,
+                step,
+                update: LowRankUpdate::default(),
             });
         }
         let Some(c) = &self.contact_factor else {
             return Err(SimError::Inconsistent("contact factor missing".into()));
         };
-        solve_xyz(&c.factor, b);
-        Ok(!fresh)
+        let n = b.len() / 3;
+        let mut m = Mat::<f64>::from_fn(n, 3, |i, k| b[3 * i + k]);
+        c.factor.solve_in_place(m.as_mut());
+        c.update.correct(&mut m);
+        for i in 0..n {
+            for k in 0..3 {
+                b[3 * i + k] = m[(i, k)];
+            }
+        }
+        Ok(refactor)
     }
 
     /// One implicit-Euler time step (VH Eq. 25) by PD iterations with
