@@ -52,6 +52,14 @@ fn alive(pid: u32) -> bool {
         })
 }
 
+/// The holder named by the lock file at `path` (None: no file, or not a
+/// holder's JSON, e.g. half written).
+fn read_holder(path: &Path) -> Option<Holder> {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+}
+
 impl Lock {
     /// Takes the lock at `path` (its folder must exist).
     pub fn acquire(path: &Path) -> Result<Lock, IoError> {
@@ -76,10 +84,7 @@ impl Lock {
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
                 Err(e) => return Err(write_err(e)),
             }
-            let holder: Option<Holder> = std::fs::read_to_string(path)
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
-            match holder {
+            match read_holder(path) {
                 Some(h) if h.host == me.host && !alive(h.pid) => {
                     // Its holder was killed: nobody else is working here.
                     let _ = std::fs::remove_file(path);
@@ -115,10 +120,7 @@ impl Lock {
 /// one on another host or an unreadable file is left alone. Returns whether
 /// a file was removed.
 pub fn remove_if_orphaned(path: &Path) -> bool {
-    let holder: Option<Holder> = std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok());
-    match holder {
+    match read_holder(path) {
         Some(h) if h.host == host_name() && !alive(h.pid) => std::fs::remove_file(path).is_ok(),
         _ => false,
     }
