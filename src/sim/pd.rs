@@ -455,11 +455,15 @@ impl std::fmt::Debug for PdSolver {
 }
 
 /// Solves `A X = B` in place for the three coordinate columns of `b`
-/// (interleaved x, y, z per row) with the factor of `A`.
-fn solve_xyz(factor: &SparseCholesky, b: &mut [f64]) {
+/// (interleaved x, y, z per row) with the factor of `A`, or of `A` plus
+/// the diagonal entries of `update` (Woodbury).
+fn solve_xyz(factor: &SparseCholesky, update: Option<&LowRankUpdate>, b: &mut [f64]) {
     let n = b.len() / 3;
     let mut m = Mat::<f64>::from_fn(n, 3, |i, k| b[3 * i + k]);
     factor.solve_in_place(m.as_mut());
+    if let Some(update) = update {
+        update.correct(&mut m);
+    }
     for i in 0..n {
         for k in 0..3 {
             b[3 * i + k] = m[(i, k)];
@@ -475,10 +479,9 @@ const MAX_LOW_RANK_NODES: usize = 64;
 /// `K + W` factored for one set of contact weights (direct solver), and
 /// the nodes that joined the set later in the same step.
 struct ContactFactor {
-    /// The diagonal of `W` per free node, as factored.
+    /// The diagonal of `W` per free node that it solves for: as factored,
+    /// plus the joined nodes' weights (`update`).
     weights: Vec<f64>,
-    /// `weights` with the joined nodes' weights: the `W` it solves for.
-    effective: Vec<f64>,
     factor: SparseCholesky,
     /// The step ([`PdSolver::steps`]) that factored it.
     step: u64,
@@ -491,7 +494,7 @@ impl ContactFactor {
     /// `w`: `Some` (maybe empty) when this factor can solve for `w` in
     /// step `step`, `None` when `w` needs a refactorization.
     fn joined(&self, w: &[f64], step: u64, most: usize) -> Option<Vec<(usize, f64)>> {
-        if w.len() != self.effective.len() {
+        if w.len() != self.weights.len() {
             return None;
         }
         if self.update.is_empty() && w == self.weights {
@@ -501,7 +504,7 @@ impl ContactFactor {
             return None;
         }
         let mut rows = Vec::new();
-        for (i, (&wi, &ei)) in w.iter().zip(&self.effective).enumerate() {
+        for (i, (&wi, &ei)) in w.iter().zip(&self.weights).enumerate() {
             if wi == ei {
                 continue;
             }
@@ -519,7 +522,7 @@ impl ContactFactor {
             return false;
         }
         for &(i, wi) in rows {
-            self.effective[i] = wi;
+            self.weights[i] = wi;
         }
         true
     }
@@ -1085,7 +1088,7 @@ impl PdSolver {
         let solve = |r: &[f64], out: &mut [f64]| -> Result<(), SimError> {
             if let Some(f) = factor {
                 out.copy_from_slice(r);
-                solve_xyz(f, out);
+                solve_xyz(f, None, out);
                 Ok(())
             } else if let Some(dd) = dd {
                 dd.reduced_solve(r, out)
@@ -1182,7 +1185,6 @@ impl PdSolver {
             let factor = SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?;
             self.contact_factor = Some(ContactFactor {
                 weights: w.to_vec(),
-                effective: w.to_vec(),
                 factor,
                 step,
                 update: LowRankUpdate::default(),
@@ -1191,15 +1193,7 @@ impl PdSolver {
         let Some(c) = &self.contact_factor else {
             return Err(SimError::Inconsistent("contact factor missing".into()));
         };
-        let n = b.len() / 3;
-        let mut m = Mat::<f64>::from_fn(n, 3, |i, k| b[3 * i + k]);
-        c.factor.solve_in_place(m.as_mut());
-        c.update.correct(&mut m);
-        for i in 0..n {
-            for k in 0..3 {
-                b[3 * i + k] = m[(i, k)];
-            }
-        }
+        solve_xyz(&c.factor, Some(&c.update), b);
         Ok(refactor)
     }
 
