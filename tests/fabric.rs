@@ -266,6 +266,50 @@ fn friction_adds_hysteresis_to_a_stretch_and_release() {
     );
 }
 
+#[test]
+fn conditioning_cycles_run_before_the_measured_loading_and_return_to_rest() {
+    // One conditioning cycle (10% and back in 2 steps each way) before the
+    // measured loading of a relaxed rib with friction. The cycle must end
+    // with the clamp back at 0 and (nearly) no force, unload below its own
+    // loading (friction), and leave a swatch whose measured loading repeats
+    // the cycle's: friction in this model does not ratchet the swatch.
+    let fp = FabricParams::default();
+    let (relaxed, _) = relax_into_contact(&rib(6, 4), &fp, &RelaxParams::default()).unwrap();
+    let sp = StretchParams {
+        direction: Direction::Weft,
+        max_stretch: 0.1,
+        steps: 2,
+        hold_steps: 0,
+        conditioning_cycles: 1,
+        ..StretchParams::default()
+    };
+    let mut frames = 0;
+    let r = stretch_test(&relaxed, &fp, &sp, &mut |_| {
+        frames += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(frames, 3, "conditioning frames are not handed on");
+    assert_eq!(r.conditioning.len(), 1);
+    let c = &r.conditioning[0];
+    let stretches: Vec<f64> = c.iter().map(|p| p.stretch).collect();
+    assert_eq!(stretches.len(), 4);
+    for (s, want) in stretches.iter().zip([0.05, 0.1, 0.05, 0.0]) {
+        assert!((s - want).abs() < 1e-12, "{stretches:?}");
+    }
+    let top = c[1].force_n;
+    assert!(top > 0.0);
+    assert!(
+        c[2].force_n < c[0].force_n,
+        "unloading below loading: {c:?}"
+    );
+    assert!(c[3].force_n.abs() < 0.2 * top, "{c:?}");
+    assert_eq!(r.points.len(), 3);
+    let again = r.points[2].force_n;
+    assert!((again - top).abs() <= 0.05 * top, "{again} against {top}");
+    assert!(r.min_distance_ratio > 0.75);
+}
+
 /// Checks a PNG written by `-o DIR`: signature, IHDR size, decodes, and is
 /// not blank (white background plus at least axes and a coloured series).
 fn check_png(path: &std::path::Path, size: (u32, u32)) {
@@ -311,6 +355,10 @@ fn stretch_writes_a_force_and_compression_plot() {
             "0.04",
             "--steps",
             "2",
+            "--cycles",
+            "1",
+            "--release-steps",
+            "1",
             "-o",
         ])
         .arg(&out)
@@ -322,13 +370,19 @@ fn stretch_writes_a_force_and_compression_plot() {
         String::from_utf8_lossy(&run.stderr)
     );
     check_png(&out.join("stretch.png"), (800, 900));
-    assert_eq!(
-        std::fs::read_to_string(out.join("stretch.csv"))
-            .unwrap()
-            .lines()
-            .count(),
-        4
-    );
+    // Header, the conditioning cycle (2 steps up, 2 down), the measured
+    // loading (0, 2, 4%) and the release (back to 0), each row with its phase.
+    let csv = std::fs::read_to_string(out.join("stretch.csv")).unwrap();
+    let phases: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap())
+        .collect();
+    let mut want = vec!["conditioning 1"; 4];
+    want.extend(["load"; 3]);
+    want.push("release");
+    assert_eq!(phases, want, "{csv}");
+    assert!(csv.starts_with("stretch,force_n,compression,"), "{csv}");
 }
 
 #[test]

@@ -86,6 +86,16 @@ pub struct StretchArgs {
     /// Load steps.
     #[arg(long, value_name = "N", default_value_t = 10)]
     pub steps: usize,
+    /// Conditioning cycles before the measured loading: each stretches to
+    /// --max-stretch and back in --steps steps each way, as cyclic strip
+    /// tests (EN 14704-1) condition a specimen; compression stays relative
+    /// to the width before the first cycle.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub cycles: usize,
+    /// Unloading steps after the measured loading and its hold, back to 0
+    /// (with friction the unloading force is lower: hysteresis).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub release_steps: usize,
 }
 
 #[derive(Debug, Args)]
@@ -163,6 +173,8 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
                 direction: a.direction,
                 max_stretch: a.max_stretch,
                 steps: a.steps,
+                conditioning_cycles: a.cycles,
+                release_steps: a.release_steps,
                 ..StretchParams::default()
             }),
         ),

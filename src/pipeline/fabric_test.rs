@@ -380,10 +380,20 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<(), FabricTestError> {
 }
 
 fn stretch_csv(s: &StretchResult) -> String {
-    let mut text = String::from("stretch,force_n,compression,energy_j,newton_iterations,residual_n,contacts_per_vertex,min_distance_ratio\n");
-    for p in &s.points {
+    let mut text = String::from("stretch,force_n,compression,energy_j,newton_iterations,residual_n,contacts_per_vertex,min_distance_ratio,phase\n");
+    let phases = s
+        .conditioning
+        .iter()
+        .enumerate()
+        .flat_map(|(i, c)| {
+            c.iter()
+                .map(move |p| (p, format!("conditioning {}", i + 1)))
+        })
+        .chain(s.points.iter().map(|p| (p, "load".to_string())))
+        .chain(s.release.iter().map(|p| (p, "release".to_string())));
+    for (p, phase) in phases {
         text.push_str(&format!(
-            "{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{}\n",
             p.stretch,
             p.force_n,
             p.compression,
@@ -391,7 +401,8 @@ fn stretch_csv(s: &StretchResult) -> String {
             p.newton_iterations,
             p.residual_n,
             p.contacts_per_vertex,
-            p.min_distance_ratio
+            p.min_distance_ratio,
+            phase
         ));
     }
     text
@@ -426,10 +437,34 @@ fn bend_csv(b: &BendResult) -> String {
 
 /// Force and orthogonal compression against stretch (Sperl 2022 §4.3).
 fn stretch_figure(s: &StretchResult) -> Figure {
-    let series = |label: &str, f: &dyn Fn(&crate::yarn::fabric::StretchPoint) -> f64, c| Series {
+    type Point = crate::yarn::fabric::StretchPoint;
+    let curve = |label: &str, pts: &[Point], f: &dyn Fn(&Point) -> f64, c| Series {
         label: label.into(),
-        points: s.points.iter().map(|p| [p.stretch, f(p)]).collect(),
+        points: pts.iter().map(|p| [p.stretch, f(p)]).collect(),
         color: c,
+    };
+    // The conditioning cycles (when run), the measured loading drawn over
+    // them, then the unloading, in their own colours.
+    let series = |f: &dyn Fn(&Point) -> f64, what: &str, colour| {
+        let mut v: Vec<Series> = s
+            .conditioning
+            .iter()
+            .enumerate()
+            .map(|(i, c)| curve(&format!("conditioning {}", i + 1), c, f, PALETTE[2]))
+            .collect();
+        v.push(curve(what, &s.points, f, colour));
+        if !s.release.is_empty() {
+            // From the top of the loading, so the loop closes.
+            let from_top: Vec<Point> = s
+                .points
+                .last()
+                .into_iter()
+                .chain(&s.release)
+                .copied()
+                .collect();
+            v.push(curve("release", &from_top, f, PALETTE[3]));
+        }
+        v
     };
     Figure {
         title: format!(
@@ -443,12 +478,12 @@ fn stretch_figure(s: &StretchResult) -> Figure {
             Panel {
                 x_label: "stretch l/l0 - 1".into(),
                 y_label: "clamp force (N)".into(),
-                series: vec![series("force", &|p| p.force_n, PALETTE[0])],
+                series: series(&|p| p.force_n, "force", PALETTE[0]),
             },
             Panel {
                 x_label: "stretch l/l0 - 1".into(),
                 y_label: "orthogonal compression 1 - w/w0".into(),
-                series: vec![series("compression", &|p| p.compression, PALETTE[1])],
+                series: series(&|p| p.compression, "compression", PALETTE[1]),
             },
         ],
         size: (800, 900),

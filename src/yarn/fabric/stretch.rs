@@ -30,6 +30,14 @@ pub struct StretchParams {
     /// (friction makes the unloading force lower than the loading one: the
     /// hysteresis of Sperl 2022 §3, Miguel 2013). Default 0: none.
     pub release_steps: usize,
+    /// Conditioning cycles before the measured loading: each loads to
+    /// `max_stretch` and unloads to 0 in `steps` steps each way, as cyclic
+    /// strip tests condition a specimen before they read it (EN 14704-1).
+    /// With friction the fabric keeps part of each cycle's rearrangement.
+    /// The measured curve's compression stays relative to the width before
+    /// any cycle. Default 0: the first loading is measured (Sperl 2022
+    /// §4.3).
+    pub conditioning_cycles: usize,
 }
 
 impl Default for StretchParams {
@@ -42,6 +50,7 @@ impl Default for StretchParams {
             settle: Settle::default(),
             hold_steps: 4,
             release_steps: 0,
+            conditioning_cycles: 0,
         }
     }
 }
@@ -81,6 +90,10 @@ pub struct StretchResult {
     /// stretch down to 0; empty when none.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub release: Vec<StretchPoint>,
+    /// Per conditioning cycle, its load and unload steps in order (empty
+    /// when `conditioning_cycles` is 0); their frames are not written.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub conditioning: Vec<Vec<StretchPoint>>,
     /// Smallest contact distance ratio over every step (pull-through < 0.75).
     pub min_distance_ratio: f64,
     pub seconds: f64,
@@ -109,12 +122,13 @@ impl StretchParams {
             && self.clamp_depth.is_finite()
             && self.clamp_depth > 0.0
             && self.hold_steps <= 1000
-            && self.release_steps <= 1000;
+            && self.release_steps <= 1000
+            && self.conditioning_cycles <= 100;
         if ok {
             Ok(())
         } else {
             Err(FabricError::Setup(format!(
-                "stretch test parameters out of range (max stretch in (0, 3], steps 1-1000, clamp depth > 0, hold steps <= 1000): {self:?}"
+                "stretch test parameters out of range (max stretch in (0, 3], steps 1-1000, clamp depth > 0, hold and release steps <= 1000, conditioning cycles <= 100): {self:?}"
             )))
         }
     }
@@ -161,8 +175,9 @@ pub fn stretch_test(
     let mut points = Vec::with_capacity(params.steps + 1);
     let mut min_ratio = f64::INFINITY;
     let mut offset = 0.0;
+    // `index` None: a conditioning step, whose frame is not handed on.
     let mut step_to = |fabric: &mut Fabric,
-                       index: usize,
+                       index: Option<usize>,
                        stretch: f64,
                        offset: &mut f64|
      -> Result<StretchPoint, FabricError> {
@@ -189,14 +204,16 @@ pub fn stretch_test(
         min_ratio = min_ratio
             .min(st.min_distance_ratio)
             .min(cst.min_distance_ratio);
-        on_frame(&RigFrame {
-            index,
-            parameter: stretch,
-            points: &x,
-            energy,
-            reactions,
-            external: vec![[0.0; 3]; x.len()],
-        })?;
+        if let Some(index) = index {
+            on_frame(&RigFrame {
+                index,
+                parameter: stretch,
+                points: &x,
+                energy,
+                reactions,
+                external: vec![[0.0; 3]; x.len()],
+            })?;
+        }
         Ok(StretchPoint {
             stretch,
             force_n: force,
@@ -208,9 +225,17 @@ pub fn stretch_test(
             min_distance_ratio: cst.min_distance_ratio,
         })
     };
+    let at = |k: usize| params.max_stretch * k as f64 / params.steps as f64;
+    let mut conditioning = Vec::with_capacity(params.conditioning_cycles);
+    for _ in 0..params.conditioning_cycles {
+        let path = (1..=params.steps).chain((0..params.steps).rev());
+        let cycle = path
+            .map(|k| step_to(&mut fabric, None, at(k), &mut offset))
+            .collect::<Result<Vec<_>, _>>()?;
+        conditioning.push(cycle);
+    }
     for step in 0..=params.steps {
-        let stretch = params.max_stretch * step as f64 / params.steps as f64;
-        points.push(step_to(&mut fabric, step, stretch, &mut offset)?);
+        points.push(step_to(&mut fabric, Some(step), at(step), &mut offset)?);
     }
     let hold_energy_change = hold(&mut fabric, &fixed, params)?;
     let mut release = Vec::with_capacity(params.release_steps);
@@ -218,7 +243,7 @@ pub fn stretch_test(
         let stretch = params.max_stretch * (1.0 - k as f64 / params.release_steps as f64);
         release.push(step_to(
             &mut fabric,
-            params.steps + k,
+            Some(params.steps + k),
             stretch,
             &mut offset,
         )?);
@@ -232,6 +257,7 @@ pub fn stretch_test(
         points,
         hold_energy_change,
         release,
+        conditioning,
         min_distance_ratio: min_ratio,
         seconds: t0.elapsed().as_secs_f64(),
     })
