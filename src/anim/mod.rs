@@ -775,21 +775,23 @@ mod tests {
 
     #[test]
     fn cycles_and_bad_refs_do_not_panic() {
-        let mut c = Character::default();
-        c.skeleton = vec![
-            Node {
-                parent: Some(1),
-                ..Default::default()
-            },
-            Node {
-                parent: Some(0),
-                ..Default::default()
-            },
-            Node {
-                parent: Some(99),
-                ..Default::default()
-            },
-        ];
+        let mut c = Character {
+            skeleton: vec![
+                Node {
+                    parent: Some(1),
+                    ..Default::default()
+                },
+                Node {
+                    parent: Some(0),
+                    ..Default::default()
+                },
+                Node {
+                    parent: Some(99),
+                    ..Default::default()
+                },
+            ],
+            ..Default::default()
+        };
         assert!(c.validate().is_err());
         assert_eq!(c.node_world_matrices(Some(3), 0.0).len(), 3);
         c.skeleton[2].parent = None;

@@ -1151,7 +1151,7 @@ fn write_yarns(file: &hdf5::File, y: &Yarns) -> hdf5::Result<()> {
         "generator",
         &format!("knitvox {}", env!("CARGO_PKG_VERSION")),
     )?;
-    write_yarns_group(&new_group(&file, "yarns")?, y)
+    write_yarns_group(&new_group(file, "yarns")?, y)
 }
 
 /// The datasets of a yarns group (`points`, `offsets`, `closed`, `radius`, and
@@ -1221,7 +1221,7 @@ fn read_rest_group(rg: &Group, gp: &str, y: &Yarns) -> Result<RestShape, FormatE
 
 /// Writes a rest shape as `<yarns>/rest` (lengths in metres).
 fn write_rest_group(g: &Group, rest: &RestShape) -> hdf5::Result<()> {
-    let rg = new_group(&g, "rest")?;
+    let rg = new_group(g, "rest")?;
     write_1d(&rg, "lengths", &rest.lengths, Some("m"))?;
     let dirs = rg
         .new_dataset::<f64>()
@@ -1287,7 +1287,7 @@ impl MechanicsOut {
 
 impl FramesOut {
     fn create(file: &hdf5::File, n: usize) -> hdf5::Result<FramesOut> {
-        let g = new_group(&file, "frames")?;
+        let g = new_group(file, "frames")?;
         // Frames grow along the first axis; with no vertices the vertex axis must be
         // resizable too, since a chunk may not exceed a fixed extent of 0.
         let vert_extent = if n == 0 {
@@ -1601,7 +1601,7 @@ impl FrameWriter {
         let write = || -> hdf5::Result<()> {
             let g = match file.group("metadata") {
                 Ok(g) => g,
-                Err(_) => new_group(&file, "metadata")?,
+                Err(_) => new_group(file, "metadata")?,
             };
             let ds = g.new_dataset::<u8>().shape([text.len()]).create(name)?;
             if !text.is_empty() {

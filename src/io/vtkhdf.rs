@@ -240,7 +240,7 @@ fn i64_of(x: usize) -> i64 {
 
 /// `/VTKHDF`: what VTK reads.
 fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
-    let g = h5::new_group(&file, "VTKHDF")?;
+    let g = h5::new_group(file, "VTKHDF")?;
     g.new_attr::<i64>()
         .shape([2])
         .create("Version")?
@@ -323,7 +323,7 @@ fn write_knitvox(
     parameters: &[u8],
     provenance: &[u8],
 ) -> hdf5::Result<()> {
-    let g = h5::new_group(&file, "knitvox")?;
+    let g = h5::new_group(file, "knitvox")?;
     h5::write_str_attr(&g, "knitvox_format", FORMAT_NAME)?;
     g.new_attr::<i64>()
         .shape(())

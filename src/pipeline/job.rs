@@ -1053,6 +1053,20 @@ impl Job {
     }
 }
 
+/// Removes the checkpoint files in a job's own checkpoint folder (nothing
+/// else lives there); failures only leave files behind.
+fn remove_checkpoints(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == io::checkpoint::EXT) {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1067,7 +1081,9 @@ mod tests {
     fn key_follows_params_inputs_and_upstream() {
         let dir = tempfile::tempdir().unwrap();
         let a = write(dir.path(), "a.txt", "one");
-        let k = |p: &str, up: Option<&str>| stage_key("embed", &p, &[a.clone()], up).unwrap();
+        let k = |p: &str, up: Option<&str>| {
+            stage_key("embed", &p, std::slice::from_ref(&a), up).unwrap()
+        };
         let base = k("x", None);
         assert_eq!(base.len(), 64);
         assert_eq!(base, k("x", None));
@@ -1148,20 +1164,6 @@ mod tests {
             assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");
             let m = e.to_string();
             assert!(m.contains("j.toml") && m.contains(key), "{m}");
-        }
-    }
-}
-
-/// Removes the checkpoint files in a job's own checkpoint folder (nothing
-/// else lives there); failures only leave files behind.
-fn remove_checkpoints(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        if path.extension().is_some_and(|e| e == io::checkpoint::EXT) {
-            let _ = std::fs::remove_file(path);
         }
     }
 }

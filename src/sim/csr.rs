@@ -24,7 +24,7 @@ impl CsrMatrix {
             return Err(format!("entry ({r}, {c}) outside a {n} x {n} matrix"));
         }
         let mut sorted: Vec<(usize, usize, f64)> = entries.to_vec();
-        sorted.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        sorted.sort_by_key(|a| (a.0, a.1));
         let mut row_ptr = vec![0usize; n + 1];
         let mut col = Vec::with_capacity(sorted.len());
         let mut val: Vec<f64> = Vec::with_capacity(sorted.len());

@@ -3,8 +3,9 @@
 //! materials `γs`, `γv`.
 //!
 //! # What is differentiated
-//! The simulator's force is `-∂E/∂x` with `∂E/∂F = P(F) = 2 V_e (γs (F - R(F))
-//! + γv (F - V(F)))` ([`super::energy::element_stress`], the envelope-theorem
+//! The simulator's force is `-∂E/∂x` with
+//! `∂E/∂F = P(F) = 2 V_e (γs (F - R(F)) + γv (F - V(F)))`
+//! ([`super::energy::element_stress`], the envelope-theorem
 //! gradient). Here we differentiate *that* `P` once more, so the Hessian is the
 //! exact Jacobian of the force the solvers use — also where the 0.01 floor of
 //! Eq. 26 is active (there `P` is the PD force, not the exact gradient of

@@ -493,7 +493,7 @@ fn ruiz_scaling(n: usize, t: &[(usize, usize, f64)]) -> Vec<f64> {
         *sum.entry((r, c)).or_insert(0.0) += v;
     }
     let mut entries: Vec<((usize, usize), f64)> = sum.into_iter().collect();
-    entries.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    entries.sort_unstable_by_key(|a| a.0);
     let mut d = vec![1.0; n];
     for _ in 0..8 {
         let mut rmax = vec![0.0f64; n];

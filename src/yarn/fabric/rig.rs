@@ -327,6 +327,6 @@ mod tests {
             [true, true, true, false, false, false]
         );
         // A tighter contact threshold drops the crossing yarn 2.1r away.
-        assert_eq!(held_together(&y, 1.0)[2], false);
+        assert!(!held_together(&y, 1.0)[2]);
     }
 }

@@ -588,7 +588,7 @@ fn project_psd(h: &[[f64; 8]; 8]) -> [[f64; 8]; 8] {
     }
     let eig = m.symmetric_eigen();
     let lam = eig.eigenvalues.map(|l| l.max(0.0));
-    let p = &eig.eigenvectors
+    let p = eig.eigenvectors
         * nalgebra::SMatrix::<f64, 8, 8>::from_diagonal(&lam)
         * eig.eigenvectors.transpose();
     std::array::from_fn(|i| std::array::from_fn(|j| 0.5 * (p[(i, j)] + p[(j, i)])))
