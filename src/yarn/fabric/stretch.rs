@@ -33,7 +33,7 @@ pub struct StretchParams {
     /// Conditioning cycles before the measured loading: each loads to
     /// `max_stretch` and unloads to 0 in `steps` steps each way, as cyclic
     /// strip tests condition a specimen before they read it (EN 14704-1).
-    /// With friction the fabric keeps part of each cycle's rearrangement.
+    /// With friction each cycle unloads along a lower path (hysteresis).
     /// The measured curve's compression stays relative to the width before
     /// any cycle. Default 0: the first loading is measured (Sperl 2022
     /// §4.3).
