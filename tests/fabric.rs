@@ -8,12 +8,27 @@ use knitvox::geom::Yarns;
 use knitvox::io::{self, h5};
 use knitvox::pipeline::fabric_test::{run, FabricTest, FabricTestJob, SwatchSource, TestFigures};
 use knitvox::yarn::fabric::{
-    relax_into_contact, stretch_test, Direction, Fabric, FabricParams, RelaxParams, Rig,
-    StretchParams,
+    relax_into_contact, stretch_test, Direction, Fabric, FabricParams, RelaxIntoContactStats,
+    RelaxParams, Rig, StretchParams,
 };
 
 fn rib(courses: usize, wales: usize) -> Yarns {
     common::flat_swatch("rib1x1", courses, wales)
+}
+
+/// The 6 x 4 rib relaxed into contact with the default fabric and
+/// relaxation, computed once for the tests that load it.
+fn relaxed_rib_6x4() -> &'static (Yarns, RelaxIntoContactStats) {
+    static RELAXED: std::sync::OnceLock<(Yarns, RelaxIntoContactStats)> =
+        std::sync::OnceLock::new();
+    RELAXED.get_or_init(|| {
+        relax_into_contact(
+            &rib(6, 4),
+            &FabricParams::default(),
+            &RelaxParams::default(),
+        )
+        .unwrap()
+    })
 }
 
 #[test]
@@ -21,7 +36,7 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     let fp = FabricParams::default();
     let generated = rib(6, 4);
     let before = Fabric::new(&generated, &fp).unwrap().contact_stats();
-    let (relaxed, rs) = relax_into_contact(&generated, &fp, &RelaxParams::default()).unwrap();
+    let (relaxed, rs) = relaxed_rib_6x4();
     // Into contact: many more vertices touch a non-adjacent yarn than in the
     // loose generated swatch; nothing passes through.
     assert!(
@@ -222,7 +237,7 @@ fn friction_adds_hysteresis_to_a_stretch_and_release() {
     // returns to (nearly) no force.
     let fp = FabricParams::default();
     assert!(fp.friction.mu > 0.0, "friction is on by default");
-    let (relaxed, _) = relax_into_contact(&rib(6, 4), &fp, &RelaxParams::default()).unwrap();
+    let (relaxed, _) = relaxed_rib_6x4();
     let sp = StretchParams {
         direction: Direction::Weft,
         max_stretch: 0.1,
@@ -274,7 +289,7 @@ fn conditioning_cycles_run_before_the_measured_loading_and_return_to_rest() {
     // loading (friction), and leave a swatch whose measured loading repeats
     // the cycle's: friction in this model does not ratchet the swatch.
     let fp = FabricParams::default();
-    let (relaxed, _) = relax_into_contact(&rib(6, 4), &fp, &RelaxParams::default()).unwrap();
+    let (relaxed, _) = relaxed_rib_6x4();
     let sp = StretchParams {
         direction: Direction::Weft,
         max_stretch: 0.1,
