@@ -38,6 +38,11 @@ pub struct StretchParams {
     /// any cycle. Default 0: the first loading is measured (Sperl 2022
     /// §4.3).
     pub conditioning_cycles: usize,
+    /// Start each load step's Newton solve from the last step's motion
+    /// scaled to this one (a secant predictor) where it is safe, instead of
+    /// the affine stretch. Default true: the rib's 5% steps to 30% need
+    /// about 15% fewer Newton iterations, to the same equilibria.
+    pub secant_predictor: bool,
 }
 
 impl Default for StretchParams {
@@ -51,6 +56,7 @@ impl Default for StretchParams {
             hold_steps: 4,
             release_steps: 0,
             conditioning_cycles: 0,
+            secant_predictor: true,
         }
     }
 }
@@ -175,6 +181,7 @@ pub fn stretch_test(
     let mut points = Vec::with_capacity(params.steps + 1);
     let mut min_ratio = f64::INFINITY;
     let mut offset = 0.0;
+    let mut last_step: Option<LoadIncrement> = None;
     // `index` None: a conditioning step, whose frame is not handed on.
     let mut step_to = |fabric: &mut Fabric,
                        index: Option<usize>,
@@ -182,14 +189,21 @@ pub fn stretch_test(
                        offset: &mut f64|
      -> Result<StretchPoint, FabricError> {
         let target = stretch * rig.gauge();
+        let start = fabric.q.clone();
         // The load step starts at the last equilibrium (friction lags
         // there), before the predictor moves anything.
         fabric.begin_step();
-        predict(fabric, &rig, *offset, target);
+        let last = last_step.as_ref().filter(|_| params.secant_predictor);
+        predict_step(fabric, &rig, last, *offset, target);
+        let du = target - *offset;
         *offset = target;
         let stage = format!("stretch {stretch:.3}");
         let st = fabric.settle(&mut [], &fixed, &params.settle, &stage)?;
         params.settle.require(&st, &stage)?;
+        last_step = Some(LoadIncrement {
+            dq: fabric.q.iter().zip(&start).map(|(a, b)| a - b).collect(),
+            du,
+        });
         let (_, g) = fabric.gradient(&mut []);
         let energy = fabric.elastic_energy();
         let reactions = vertex_forces(&g, &clamped);
@@ -261,6 +275,46 @@ pub fn stretch_test(
         min_distance_ratio: min_ratio,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// The motion of the last load step: coordinates `dq` (positions, then
+/// twists) for a clamp move of `du` (m).
+struct LoadIncrement {
+    dq: Vec<f64>,
+    du: f64,
+}
+
+/// Smallest distance ratio (to 2r) a secant prediction may bring a contact
+/// to before the affine one is used instead.
+const SECANT_MIN_DISTANCE_RATIO: f64 = 0.8;
+
+/// Predicts the equilibrium after moving the high clamp from `from` to `to`:
+/// while loading, the last step's motion scaled to this one (a secant
+/// predictor: knit does not stretch affinely, its loops turn and the
+/// swatch narrows, and the last step's motion carries that) when the last
+/// step loaded too and the prediction keeps every contact above
+/// [`SECANT_MIN_DISTANCE_RATIO`]; else the affine stretch. Unloading stays
+/// affine: extrapolated, a release step pushed loops back past where they
+/// had come from, and a frictionless rib released from 10% settled at -2.3e-4
+/// N instead of -4.4e-5 N (another of the knit's equilibria). The clamps
+/// move exactly either way (the last step's motion held the low clamp and
+/// moved the high one by `du`).
+fn predict_step(fabric: &mut Fabric, rig: &Rig, last: Option<&LoadIncrement>, from: f64, to: f64) {
+    let du = to - from;
+    if let Some(inc) = last.filter(|inc| inc.du > 0.0 && du > 0.0) {
+        let start = fabric.q.clone();
+        let ratio_before = fabric.contact_stats().min_distance_ratio;
+        let scale = du / inc.du;
+        for (q, d) in fabric.q.iter_mut().zip(&inc.dq) {
+            *q += scale * d;
+        }
+        let ratio = fabric.contact_stats().min_distance_ratio;
+        if ratio >= SECANT_MIN_DISTANCE_RATIO.min(ratio_before) {
+            return;
+        }
+        fabric.q = start;
+    }
+    predict(fabric, rig, from, to);
 }
 
 /// Moves the high clamp from `from` to `to` (m along the axis) and the free
