@@ -57,7 +57,7 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         (rest_length / generated_length - RelaxParams::default().length_scale).abs() < 1e-9,
         "rest length {rest_length} m for {generated_length} m generated"
     );
-    let mut with_rest = Fabric::new(&relaxed, &fp).unwrap();
+    let mut with_rest = Fabric::new(relaxed, &fp).unwrap();
     let gauge = with_rest.twist_gauge();
     let r_with = with_rest.static_residual(&gauge);
     assert!(
@@ -81,7 +81,7 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         [0.0, 1.0, 0.0],
         sp.clamp_depth,
     );
-    let r = stretch_test(&relaxed, &fp, &sp, &mut |f| {
+    let r = stretch_test(relaxed, &fp, &sp, &mut |f| {
         let sum = |mask: &[bool]| -> f64 {
             f.reactions
                 .iter()
@@ -269,7 +269,7 @@ fn friction_adds_hysteresis_to_a_stretch_and_release() {
             friction,
             ..fp.clone()
         };
-        let r = stretch_test(&relaxed, &p, &sp, &mut |_| Ok(())).unwrap();
+        let r = stretch_test(relaxed, &p, &sp, &mut |_| Ok(())).unwrap();
         assert_eq!(r.release.len(), 2);
         assert!(r.release[1].stretch.abs() < 1e-12);
         let f: Vec<f64> = r
@@ -360,7 +360,7 @@ fn conditioning_cycles_run_before_the_measured_loading_and_return_to_rest() {
         ..StretchParams::default()
     };
     let mut frames = 0;
-    let r = stretch_test(&relaxed, &fp, &sp, &mut |_| {
+    let r = stretch_test(relaxed, &fp, &sp, &mut |_| {
         frames += 1;
         Ok(())
     })
