@@ -38,10 +38,12 @@ pub struct StretchParams {
     /// any cycle. Default 0: the first loading is measured (Sperl 2022
     /// §4.3).
     pub conditioning_cycles: usize,
-    /// Start each load step's Newton solve from the last step's motion
-    /// scaled to this one (a secant predictor) where it is safe, instead of
-    /// the affine stretch. Default true: the rib's 5% steps to 30% need
-    /// about 15% fewer Newton iterations, to the same equilibria.
+    /// Start each loading step's Newton solve from the last step's motion
+    /// scaled to this one (a secant predictor) where it keeps contacts
+    /// apart, instead of the affine stretch; unloading stays affine.
+    /// Default true: a rib's 5% steps to 30% need 10-13% fewer Newton
+    /// iterations (26x26 rib: 136 against 152), to the same forces and
+    /// compressions to 3 digits.
     pub secant_predictor: bool,
 }
 
