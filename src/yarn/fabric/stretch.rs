@@ -202,10 +202,6 @@ pub fn stretch_test(
         let stage = format!("stretch {stretch:.3}");
         let st = fabric.settle(&mut [], &fixed, &params.settle, &stage)?;
         params.settle.require(&st, &stage)?;
-        last_step = Some(LoadIncrement {
-            dq: fabric.q.iter().zip(&start).map(|(a, b)| a - b).collect(),
-            du,
-        });
         let (_, g) = fabric.gradient(&mut []);
         let energy = fabric.elastic_energy();
         let reactions = vertex_forces(&g, &clamped);
@@ -217,6 +213,11 @@ pub fn stretch_test(
             .sum();
         let x = fabric.points();
         let cst = fabric.contact_stats();
+        last_step = Some(LoadIncrement {
+            dq: fabric.q.iter().zip(&start).map(|(a, b)| a - b).collect(),
+            du,
+            end_distance_ratio: cst.min_distance_ratio,
+        });
         min_ratio = min_ratio
             .min(st.min_distance_ratio)
             .min(cst.min_distance_ratio);
@@ -280,10 +281,12 @@ pub fn stretch_test(
 }
 
 /// The motion of the last load step: coordinates `dq` (positions, then
-/// twists) for a clamp move of `du` (m).
+/// twists) for a clamp move of `du` (m), and the smallest contact distance
+/// ratio of the equilibrium it ended at (where the next step starts).
 struct LoadIncrement {
     dq: Vec<f64>,
     du: f64,
+    end_distance_ratio: f64,
 }
 
 /// Smallest distance ratio (to 2r) a secant prediction may bring a contact
@@ -305,13 +308,12 @@ fn predict_step(fabric: &mut Fabric, rig: &Rig, last: Option<&LoadIncrement>, fr
     let du = to - from;
     if let Some(inc) = last.filter(|inc| inc.du > 0.0 && du > 0.0) {
         let start = fabric.q.clone();
-        let ratio_before = fabric.contact_stats().min_distance_ratio;
         let scale = du / inc.du;
         for (q, d) in fabric.q.iter_mut().zip(&inc.dq) {
             *q += scale * d;
         }
         let ratio = fabric.contact_stats().min_distance_ratio;
-        if ratio >= SECANT_MIN_DISTANCE_RATIO.min(ratio_before) {
+        if ratio >= SECANT_MIN_DISTANCE_RATIO.min(inc.end_distance_ratio) {
             return;
         }
         fabric.q = start;
