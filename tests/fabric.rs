@@ -51,6 +51,11 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     // The stored rest shape is the scaled one (not the relaxed positions),
     // and the relaxed positions are its equilibrium.
     let rest = relaxed.rest.as_ref().unwrap();
+    assert_eq!(
+        rest.material,
+        Some(fp.material()),
+        "recorded with the shape"
+    );
     let generated_length = generated.total_length();
     let rest_length: f64 = rest.lengths.iter().sum();
     assert!(
@@ -129,6 +134,7 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
             ..StretchParams::default()
         }),
         fabric: fp.clone(),
+        material: Default::default(),
         relax: RelaxParams::default(),
         output_dir: Some(dir.path().join("out")),
     };
@@ -137,6 +143,9 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         report.relaxation.is_none(),
         "a file with a rest shape is not relaxed again"
     );
+    assert_eq!(report.material.source, "yarn file");
+    assert_eq!(report.material.material, fp.material());
+    assert!(report.material.rest_material.is_none() && report.warnings.is_empty());
     let TestFigures::Stretch(s) = &report.figures else {
         panic!("not a stretch report")
     };
@@ -157,6 +166,28 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     );
     let csv = std::fs::read_to_string(dir.path().join("out/stretch.csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "{csv}");
+
+    // A field replaced on the file's material: the test runs under it and
+    // says the stored state is not at rest under it.
+    let softer = FabricTestJob {
+        material: knitvox::geom::MaterialOverrides {
+            bend_scale: Some(0.5),
+            ..Default::default()
+        },
+        output_dir: None,
+        ..job
+    };
+    let report = run(&softer).unwrap();
+    let c = &report.material;
+    assert_eq!(c.material.bend_scale, 0.5);
+    assert_eq!(c.material.young_modulus, fp.rods.young_modulus);
+    assert_eq!(c.overridden, ["bend_scale"]);
+    assert_eq!(c.rest_material, Some(fp.material()));
+    assert!(
+        report.warnings.len() == 1 && report.warnings[0].contains("settles first"),
+        "{:?}",
+        report.warnings
+    );
 }
 
 #[test]
@@ -235,6 +266,102 @@ fn fabric_test_command_prints_the_stretch_curve_as_json() {
         assert_eq!(bad.status.code(), Some(2), "{flag} {value}: {err}");
         assert!(err.contains(flag), "{flag} {value}: {err}");
     }
+}
+
+#[test]
+fn the_yarn_material_travels_with_the_rest_shape_from_pattern_to_fabric_test() {
+    let dir = tempfile::tempdir().unwrap();
+    let cmd = |args: &[&str]| {
+        std::process::Command::new(common::knitvox_bin())
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let json = |out: &std::process::Output| -> serde_json::Value {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let file = dir.path().join("rib.h5");
+    let f = file.to_str().unwrap();
+    let p = json(&cmd(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "2",
+        "--wales",
+        "4",
+        "--young-modulus",
+        "5e6",
+        "--bend-scale",
+        "0.1",
+        "-o",
+        f,
+        "--json",
+    ]));
+    assert_eq!(p["material"]["young_modulus"], 5e6, "{p}");
+    assert_eq!(p["material"]["bend_scale"], 0.1, "{p}");
+    assert_eq!(p["material"]["shear_modulus"], 2e5, "{p}");
+    let inspect = cmd(&["inspect", f]);
+    let text = String::from_utf8_lossy(&inspect.stdout);
+    assert!(
+        text.contains("relaxed under E 5e6 Pa, G 2e5 Pa, bend scale 0.1"),
+        "{text}"
+    );
+    // The test runs under the recorded yarn without being told; an option
+    // replaces one field and is reported.
+    let t = json(&cmd(&[
+        "fabric-test",
+        "stretch",
+        f,
+        "--max-stretch",
+        "0.05",
+        "--steps",
+        "1",
+        "--json",
+    ]));
+    assert_eq!(t["material"]["source"], "yarn file", "{t}");
+    assert_eq!(t["material"]["material"]["young_modulus"], 5e6, "{t}");
+    assert!(t["material"].get("rest_material").is_none(), "{t}");
+    let out = cmd(&[
+        "fabric-test",
+        "stretch",
+        f,
+        "--max-stretch",
+        "0.05",
+        "--steps",
+        "1",
+        "--json",
+        "--contact-stiffness",
+        "120",
+    ]);
+    let t = json(&out);
+    assert_eq!(t["material"]["material"]["contact_stiffness"], 120.0, "{t}");
+    assert_eq!(
+        t["material"]["rest_material"]["contact_stiffness"], 60.0,
+        "{t}"
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("settles first"));
+    // No rest shape, no material to record it with.
+    let loose = dir.path().join("loose.h5");
+    let out = cmd(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "2",
+        "--wales",
+        "4",
+        "--no-relax",
+        "--young-modulus",
+        "5e6",
+        "-o",
+        loose.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!loose.exists());
 }
 
 #[test]
@@ -522,6 +649,7 @@ fn bias_stretch_cuts_relaxes_and_pulls_back() {
             ..StretchParams::default()
         }),
         fabric: FabricParams::default(),
+        material: Default::default(),
         relax: RelaxParams::default(),
         output_dir: None,
     };
@@ -557,10 +685,11 @@ fn pear_loop_elongates_as_the_clamps_close_and_is_rounder_when_stiffer() {
         },
         test: FabricTest::Bend(bp.clone()),
         fabric: fp.clone(),
+        material: Default::default(),
         relax: RelaxParams::default(),
         output_dir: None,
     };
-    let (relaxed, _, _, _) = knitvox::pipeline::fabric_test::swatch(&job).unwrap();
+    let relaxed = knitvox::pipeline::fabric_test::swatch(&job).unwrap().yarns;
     let mut up = Vec::new();
     let stiff = bend_test(&relaxed, &fp, &bp, &mut |f| {
         up.push(f.reactions.iter().map(|r| r[2]).sum::<f64>());

@@ -23,6 +23,7 @@ fn relaxed(pattern: &str, courses: usize, wales: usize) -> PatternReport {
         },
         params: PatternParams::default(),
         relax: Some(RelaxParams::with_character()),
+        material: knitvox::yarn::fabric::FabricParams::default().material(),
     };
     generate(&job).unwrap().1
 }
@@ -92,6 +93,7 @@ fn unrelaxed_and_tube_swatches_report_no_character() {
         },
         params: PatternParams::default(),
         relax: None,
+        material: knitvox::yarn::fabric::FabricParams::default().material(),
     };
     let (_, r) = generate(&job).unwrap();
     assert!(r.character.is_none() && r.contacts_per_vertex.is_none());

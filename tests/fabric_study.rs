@@ -202,6 +202,7 @@ fn fabric_checks() {
             },
             test,
             fabric: fabric.clone(),
+            material: Default::default(),
             relax: RelaxParams {
                 rest_curvature: env_f("FC_KAPPA", RelaxParams::default().rest_curvature),
                 ..RelaxParams::default()
@@ -335,6 +336,7 @@ fn bend_study() {
                     ..BendParams::default()
                 }),
                 fabric: FabricParams::default(),
+                material: Default::default(),
                 relax: RelaxParams::default(),
                 output_dir: None,
             };
@@ -458,6 +460,7 @@ fn compression_study() {
         },
         test: FabricTest::Stretch(sp.clone()),
         fabric: fp.clone(),
+        material: Default::default(),
         relax: RelaxParams {
             rest_curvature: env_f("FX_KAPPA", RelaxParams::default().rest_curvature),
             ..RelaxParams::default()
@@ -465,7 +468,7 @@ fn compression_study() {
         output_dir: None,
     };
     let t = Instant::now();
-    let (y, name, _, _) = swatch(&job).unwrap();
+    let knitvox::pipeline::fabric_test::Swatch { yarns: y, name, .. } = swatch(&job).unwrap();
     println!(
         "{name}: {} vertices, relaxed in {:.1} s",
         y.num_points(),

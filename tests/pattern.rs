@@ -473,6 +473,7 @@ fn every_builtin_relaxes_into_contact() {
             },
             params: Default::default(),
             relax,
+            material: knitvox::yarn::fabric::FabricParams::default().material(),
         };
         let (loose, _) = generate(&job(None)).unwrap();
         assert!(loose.rest.is_none());

@@ -92,6 +92,9 @@ fn stretch_courses_moves_the_band_pulls_back_harder_each_step_and_records_its_me
     assert_eq!(r["pose"], "stretch_courses");
     assert_eq!(r["rest_shape"], "stored", "{r}");
     assert_eq!(r["fabric_plane"], "xy", "{r}");
+    // The material `pattern` relaxed the yarns under came through `embed`.
+    assert_eq!(r["material"]["source"], "yarn file", "{r}");
+    assert_eq!(r["material"]["material"]["young_modulus"], 5e5, "{r}");
 
     // The frames have the asset's topology and the mechanics datasets.
     let asset = io::vtkhdf::read_asset(asset_path).unwrap();

@@ -459,6 +459,7 @@ fn generated_swatch(a: &super::BenchYlsArgs) -> anyhow::Result<(crate::geom::Yar
         },
         params: PatternParams::default(),
         relax: None,
+        material: crate::yarn::fabric::FabricParams::default().material(),
     };
     // About 32 vertices per stitch for the knits; one correction from the
     // first swatch's count.

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Subcommand};
 
+use super::yarn_material::YarnMaterialArgs;
 use super::ExitCode;
 use crate::pipeline::fabric_test::{
     run, FabricTest, FabricTestJob, FabricTestReport, SwatchSource, TestFigures,
@@ -61,23 +62,8 @@ pub struct SwatchArgs {
     /// sticking (the fibre bundle's tangential compliance), above it sliding.
     #[arg(long, value_name = "METRES", default_value_t = FabricParams::default().friction.stick_distance, value_parser = super::guard::parse_positive)]
     pub stick_distance: f64,
-    /// Yarn Young's modulus E (Pa): stretch stiffness E pi r^2 per yarn;
-    /// bending and twisting scale with it too (times --bend-scale).
-    #[arg(long, value_name = "PA", default_value_t = FabricParams::default().rods.young_modulus, value_parser = super::guard::parse_positive)]
-    pub young_modulus: f64,
-    /// Yarn shear modulus G (Pa): twist stiffness --bend-scale x G pi r^4 / 2.
-    #[arg(long, value_name = "PA", default_value_t = FabricParams::default().rods.shear_modulus, value_parser = super::guard::parse_positive)]
-    pub shear_modulus: f64,
-    /// Bending and twisting stiffness relative to a solid rod of modulus E
-    /// (HYLC's gamma): bending gamma E pi r^4 / 4 (N m^2). Lowering it with
-    /// a raised --young-modulus keeps the bending and makes the yarn less
-    /// extensible (real yarns are far stiffer in tension than a solid rod
-    /// of their bending stiffness).
-    #[arg(long, value_name = "GAMMA", default_value_t = FabricParams::default().rods.bend_scale, value_parser = super::guard::parse_positive)]
-    pub bend_scale: f64,
-    /// Kaldor contact stiffness (J/m^2).
-    #[arg(long, value_name = "K", default_value_t = FabricParams::default().contact_stiffness, value_parser = super::guard::parse_positive)]
-    pub contact_stiffness: f64,
+    #[command(flatten)]
+    pub material: YarnMaterialArgs,
     /// Output folder: TEST.h5 (frames with energy and clamp forces) and, for
     /// stretch and bend, TEST.csv and the plot TEST.png.
     #[arg(short, long, value_name = "DIR")]
@@ -152,19 +138,6 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
             s.width, s.length
         ));
     }
-    // Beyond these the solver's tolerances (1e-5 N) and step bounds are
-    // meaningless: refuse absurd materials instead of iterating on them.
-    let ranges = [
-        ("--young-modulus", s.young_modulus, 1e3, 1e12),
-        ("--shear-modulus", s.shear_modulus, 1e3, 1e12),
-        ("--bend-scale", s.bend_scale, 1e-6, 10.0),
-        ("--contact-stiffness", s.contact_stiffness, 1e-3, 1e6),
-    ];
-    for (name, v, lo, hi) in ranges {
-        if !(lo..=hi).contains(&v) {
-            return Err(format!("{name} must be in [{lo:e}, {hi:e}], got {v}"));
-        }
-    }
     let swatch = match (&s.yarns, &s.pattern, &s.grid) {
         (Some(p), _, _) => SwatchSource::Yarns(p.clone()),
         (None, Some(n), _) => SwatchSource::Pattern {
@@ -184,12 +157,9 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
             let mut f = FabricParams::default();
             f.friction.mu = s.friction;
             f.friction.stick_distance = s.stick_distance;
-            f.rods.young_modulus = s.young_modulus;
-            f.rods.shear_modulus = s.shear_modulus;
-            f.rods.bend_scale = s.bend_scale;
-            f.contact_stiffness = s.contact_stiffness;
             f
         },
+        material: s.material.overrides(),
         relax: RelaxParams {
             length_scale: s.length_scale,
             rest_curvature: s.rest_curvature,
@@ -245,6 +215,9 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
         }
         Err(e) => return Err(e.into()),
     };
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
     if swatch.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
@@ -254,6 +227,7 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
 }
 
 fn print_report(r: &FabricTestReport) {
+    println!("yarn material: {}", super::describe_choice(&r.material));
     if let Some(x) = &r.relaxation {
         println!(
             "relaxed {} ({} vertices) into contact: rest length scale {}, {} Newton iterations, residual {:.1e} N, \

@@ -14,6 +14,8 @@ mod run;
 mod simulate;
 mod train;
 mod watch;
+mod yarn_material;
+use yarn_material::describe_choice;
 mod yls;
 
 use std::path::PathBuf;

@@ -7,7 +7,7 @@ use clap::Args;
 use super::ExitCode;
 use crate::io::{self, WriteOptions};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
-use crate::yarn::fabric::RelaxParams;
+use crate::yarn::fabric::{FabricParams, RelaxParams};
 use crate::yarn::pattern::{Layout, PatternParams, BUILTIN_NAMES};
 
 #[derive(Debug, Args)]
@@ -61,6 +61,8 @@ pub struct PatternArgs {
     /// character: stockinette curls, a rib draws in, garter shortens).
     #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::guard::parse_fraction)]
     pub rest_curvature: f64,
+    #[command(flatten)]
+    pub material: super::yarn_material::YarnMaterialArgs,
     /// Output yarn file (bcc, obj, ply, gltf, glb, h5).
     #[arg(long, short, value_name = "FILE")]
     pub output: PathBuf,
@@ -103,7 +105,18 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
             rest_curvature: a.rest_curvature,
             ..RelaxParams::default()
         }),
+        material: a
+            .material
+            .overrides()
+            .apply(&FabricParams::default().material()),
     };
+    if a.no_relax && !a.material.overrides().names().is_empty() {
+        eprintln!(
+            "error: the yarn material is recorded with the rest shape the relaxation makes; \
+             --no-relax writes none"
+        );
+        return Ok(ExitCode::Usage);
+    }
     if let Some(rp) = &job.relax {
         if !(rp.length_scale > 0.5 && rp.length_scale <= 1.0) {
             eprintln!(
@@ -120,7 +133,8 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
     if yarns.rest.is_some() && !format.is_some_and(|f| f.holds_rest_shape()) {
         eprintln!(
             "warning: {} keeps the relaxed positions but not their rest shape (rest lengths, \
-             curvatures): a simulation from it starts from positions alone; write .h5 to keep it",
+             curvatures, the yarn material they were relaxed under): a simulation from it \
+             starts from positions alone; write .h5 to keep it",
             a.output.display()
         );
     }
@@ -168,6 +182,9 @@ pub fn pattern(a: &PatternArgs) -> anyhow::Result<ExitCode> {
                 x.newton_iterations,
                 x.seconds
             );
+        }
+        if let Some(m) = &report.material {
+            println!("yarn material: {m}");
         }
         for p in &report.written {
             println!("{}", p.display());

@@ -49,6 +49,8 @@ pub struct TrainArgs {
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless).
     #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
     pub friction: f64,
+    #[command(flatten)]
+    pub material: super::yarn_material::YarnMaterialArgs,
     /// Output knitvox HDF5 file: frames with energy, clamp reactions and the pose record.
     #[arg(short, long, value_name = "POSE.h5")]
     pub output: PathBuf,
@@ -79,6 +81,7 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
         output: a.output.clone(),
         pose,
         fabric,
+        material: a.material.overrides(),
     };
     let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
     let mut console = super::Console::new(show, a.steps as usize, "train");

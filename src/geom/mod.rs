@@ -25,7 +25,7 @@ pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
 pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
-pub use rest::RestShape;
+pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
 pub use units::{Units, UpAxis};
 pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, GeomError, YarnFrames, Yarns};
 

@@ -29,6 +29,117 @@ pub struct RestShape {
     pub curvature: Vec<[f64; 4]>,
     /// Per vertex: rest twist (rad); zero at open ends.
     pub twist: Vec<f64>,
+    /// The material the rest shape was relaxed under, when recorded: the
+    /// stored positions are an equilibrium of this rest shape under this
+    /// material only (files written before it was recorded have none).
+    pub material: Option<YarnMaterial>,
+}
+
+/// A yarn's rod and contact material (the parameters a relaxed rest shape
+/// depends on; friction and density are the tests' and the yarns' own).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct YarnMaterial {
+    /// Young's modulus `E` (Pa): stretch stiffness `E pi r^2` per yarn.
+    pub young_modulus: f64,
+    /// Shear modulus `G` (Pa).
+    pub shear_modulus: f64,
+    /// HYLC's `gamma` (dimensionless): bending `gamma E pi r^4 / 4` and
+    /// twist `gamma G pi r^4 / 2` (N m^2).
+    pub bend_scale: f64,
+    /// Kaldor contact stiffness (J/m^2).
+    pub contact_stiffness: f64,
+}
+
+impl YarnMaterial {
+    /// Field names (as stored in files) with their accepted range: beyond
+    /// them the yarn solvers' tolerances (1e-5 N) and step bounds are
+    /// meaningless, so absurd values are refused instead of iterated on.
+    pub const RANGES: [(&'static str, f64, f64); 4] = [
+        ("young_modulus", 1e3, 1e12),
+        ("shear_modulus", 1e3, 1e12),
+        ("bend_scale", 1e-6, 10.0),
+        ("contact_stiffness", 1e-3, 1e6),
+    ];
+
+    /// The values in the order of [`Self::RANGES`].
+    pub fn values(&self) -> [f64; 4] {
+        [
+            self.young_modulus,
+            self.shear_modulus,
+            self.bend_scale,
+            self.contact_stiffness,
+        ]
+    }
+
+    /// The material of values in the order of [`Self::RANGES`].
+    pub fn from_values(v: [f64; 4]) -> YarnMaterial {
+        YarnMaterial {
+            young_modulus: v[0],
+            shear_modulus: v[1],
+            bend_scale: v[2],
+            contact_stiffness: v[3],
+        }
+    }
+
+    /// The first field out of its range, as `(name, value, lo, hi)`.
+    pub fn out_of_range(&self) -> Option<(&'static str, f64, f64, f64)> {
+        Self::RANGES
+            .iter()
+            .zip(self.values())
+            .find(|((_, lo, hi), v)| !(*lo..=*hi).contains(v))
+            .map(|(&(name, lo, hi), v)| (name, v, lo, hi))
+    }
+}
+
+impl std::fmt::Display for YarnMaterial {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "E {:e} Pa, G {:e} Pa, bend scale {}, contact stiffness {} J/m^2",
+            self.young_modulus, self.shear_modulus, self.bend_scale, self.contact_stiffness
+        )
+    }
+}
+
+/// Per-field replacements of a yarn material (`None`: keep the field).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct MaterialOverrides {
+    pub young_modulus: Option<f64>,
+    pub shear_modulus: Option<f64>,
+    pub bend_scale: Option<f64>,
+    pub contact_stiffness: Option<f64>,
+}
+
+impl MaterialOverrides {
+    fn values(&self) -> [Option<f64>; 4] {
+        [
+            self.young_modulus,
+            self.shear_modulus,
+            self.bend_scale,
+            self.contact_stiffness,
+        ]
+    }
+
+    /// `base` with the given fields replaced.
+    pub fn apply(&self, base: &YarnMaterial) -> YarnMaterial {
+        let mut v = base.values();
+        for (x, o) in v.iter_mut().zip(self.values()) {
+            if let Some(o) = o {
+                *x = o;
+            }
+        }
+        YarnMaterial::from_values(v)
+    }
+
+    /// Names of the replaced fields (as in [`YarnMaterial::RANGES`]).
+    pub fn names(&self) -> Vec<&'static str> {
+        YarnMaterial::RANGES
+            .iter()
+            .zip(self.values())
+            .filter(|(_, o)| o.is_some())
+            .map(|((n, _, _), _)| *n)
+            .collect()
+    }
 }
 
 impl RestShape {
@@ -75,6 +186,11 @@ impl RestShape {
         if let Some(v) = bad_k.or(bad_t) {
             return Err(GeomError::Layout(format!(
                 "rest shape: vertex {v}: curvature or twist is not finite"
+            )));
+        }
+        if let Some((name, v, lo, hi)) = self.material.as_ref().and_then(|m| m.out_of_range()) {
+            return Err(GeomError::Layout(format!(
+                "rest shape: material {name} = {v} is outside [{lo:e}, {hi:e}]"
             )));
         }
         Ok(())

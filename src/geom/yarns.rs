@@ -326,7 +326,10 @@ impl Yarns {
         let mut out = Yarns::new();
         let mut vertex_radius = Vec::new();
         let mut density = Vec::new();
-        let mut rest = self.rest.as_ref().map(|_| RestShape::default());
+        let mut rest = self.rest.as_ref().map(|r| RestShape {
+            material: r.material,
+            ..RestShape::default()
+        });
         let mut seg0 = 0;
         for c in 0..self.num_curves() {
             let range = self.curve_range(c);
@@ -488,6 +491,7 @@ pub fn bounds_of(points: &[Vec3]) -> Option<Bounds> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::YarnMaterial;
 
     fn square(closed: bool) -> Yarns {
         let mut y = Yarns::new();
@@ -573,6 +577,7 @@ mod tests {
             directors: vec![[0.0, 0.0, 1.0]; ns],
             curvature: vec![[0.5, -0.25, 0.5, -0.25]; nv],
             twist: vec![0.0; nv],
+            material: None,
         });
         y.validate().unwrap();
         // A Z-up file in centimetres: lengths scale to metres, the director
@@ -610,6 +615,7 @@ mod tests {
             directors: (0..ns).map(|i| [0.0, 0.0, i as f64]).collect(),
             curvature: (0..nv).map(|v| [v as f64; 4]).collect(),
             twist: (0..nv).map(|v| -(v as f64)).collect(),
+            material: Some(YarnMaterial::from_values([1e6, 4e5, 0.5, 30.0])),
         });
         // (Synthetic rest data: only where each datum goes is checked.)
         let s = y.select_curves(&[false, true, true]);
@@ -624,6 +630,7 @@ mod tests {
         assert_eq!(r.directors[4], [0.0, 0.0, 7.0]);
         assert_eq!(r.curvature[0], [4.0; 4]);
         assert_eq!(r.twist[5], -9.0);
+        assert_eq!(r.material, y.rest.as_ref().unwrap().material);
         assert_eq!(y.select_curves(&[true, true, true]), y);
         assert_eq!(y.select_curves(&[false; 3]).num_curves(), 0);
     }

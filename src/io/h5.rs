@@ -26,7 +26,7 @@ use hdf5::types::{FixedAscii, FixedUnicode, TypeDescriptor, VarLenAscii, VarLenU
 use hdf5::{Dataset, Extent, Group, LinkType, LocationType};
 
 use super::{Decoded, Format, FormatError, IoError, ReadOptions};
-use crate::geom::{RestShape, Units, UpAxis, Vec3, YarnFrames, Yarns};
+use crate::geom::{RestShape, Units, UpAxis, Vec3, YarnFrames, YarnMaterial, Yarns};
 
 /// Value of the root attribute `knitvox_format` in a yarns file.
 pub const FORMAT_NAME: &str = "yarns";
@@ -592,6 +592,33 @@ pub(crate) fn read_int_attr(
         ));
     }
     let v: Vec<i64> = attr.read_raw().map_err(|e| loc_err(&loc, &e))?;
+    Ok(v.first().copied())
+}
+
+/// A scalar floating-point attribute, if present.
+pub(crate) fn read_float_attr(
+    obj: &hdf5::Location,
+    owner: &str,
+    name: &str,
+) -> Result<Option<f64>, FormatError> {
+    let loc = attr_loc(owner, name);
+    let names = obj.attr_names().map_err(|e| loc_err(owner, &e))?;
+    if !names.iter().any(|n| n == name) {
+        return Ok(None);
+    }
+    let attr = obj.attr(name).map_err(|e| loc_err(&loc, &e))?;
+    let ty = type_info(&attr.dtype().map_err(|e| loc_err(&loc, &e))?);
+    if attr.size() != 1 || !matches!(ty.kind, Kind::Float) {
+        return Err(FormatError::at_path(
+            &loc,
+            format!(
+                "expected one floating-point number, found {} of shape {:?}",
+                ty.describe(),
+                attr.shape()
+            ),
+        ));
+    }
+    let v: Vec<f64> = attr.read_raw().map_err(|e| loc_err(&loc, &e))?;
     Ok(v.first().copied())
 }
 
@@ -1213,10 +1240,40 @@ fn read_rest_group(rg: &Group, gp: &str, y: &Yarns) -> Result<RestShape, FormatE
             .map(|c| [c[0], c[1], c[2], c[3]])
             .collect(),
         twist,
+        material: read_material(rg, gp)?,
     };
     rest.validate(ns, nv)
         .map_err(|e| FormatError::at_path(gp, e.to_string()))?;
     Ok(rest)
+}
+
+/// The material a rest shape was relaxed under: the group's four
+/// attributes named as in [`YarnMaterial::RANGES`] (SI units whatever the
+/// file's length unit), all or none.
+fn read_material(rg: &Group, gp: &str) -> Result<Option<YarnMaterial>, FormatError> {
+    let mut values = [None; 4];
+    for (v, (name, lo, hi)) in values.iter_mut().zip(YarnMaterial::RANGES) {
+        *v = read_float_attr(rg, gp, name)?;
+        if let Some(x) = *v {
+            if !(lo..=hi).contains(&x) {
+                return Err(FormatError::at_path(
+                    attr_loc(gp, name),
+                    format!("{x} is outside the accepted [{lo:e}, {hi:e}]"),
+                ));
+            }
+        }
+    }
+    match values.iter().position(Option::is_none) {
+        None => Ok(Some(YarnMaterial::from_values(
+            values.map(|v| v.unwrap_or(0.0)),
+        ))),
+        Some(_) if values.iter().all(Option::is_none) => Ok(None),
+        Some(i) => Err(FormatError::at_path(
+            attr_loc(gp, YarnMaterial::RANGES[i].0),
+            "missing: a rest shape's material needs all of young_modulus, shear_modulus, \
+             bend_scale and contact_stiffness",
+        )),
+    }
 }
 
 /// Writes a rest shape as `<yarns>/rest` (lengths in metres).
@@ -1238,6 +1295,14 @@ fn write_rest_group(g: &Group, rest: &RestShape) -> hdf5::Result<()> {
         k.write_raw(rest.curvature.as_flattened())?;
     }
     write_1d(&rg, "twist", &rest.twist, Some("rad"))?;
+    if let Some(m) = &rest.material {
+        for ((name, _, _), v) in YarnMaterial::RANGES.iter().zip(m.values()) {
+            rg.new_attr::<f64>()
+                .shape(())
+                .create(*name)?
+                .write_scalar(&v)?;
+        }
+    }
     Ok(())
 }
 
@@ -1856,6 +1921,7 @@ mod tests {
                 .map(|v| [v as f64, -0.5, 0.25 * v as f64, 1.0])
                 .collect(),
             twist: (0..nv).map(|v| 0.1 * v as f64).collect(),
+            material: Some(YarnMaterial::from_values([5e6, 2e6, 0.1, 60.0])),
         }
     }
 
@@ -1888,6 +1954,36 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("/yarns/rest/lengths"), "{e}");
+        // The material: absurd or incomplete is refused, naming the attribute.
+        let edited = |name: &str, edit: &dyn Fn(&Group)| -> String {
+            let q = dir.path().join(format!("{name}.h5"));
+            write_file(&q, &y, None).unwrap();
+            let f = hdf5::File::open_rw(&q).unwrap();
+            edit(&f.group("yarns/rest").unwrap());
+            drop(f);
+            read_file(&q, &ReadOptions::default())
+                .unwrap_err()
+                .to_string()
+        };
+        let e = edited("absurd", &|g| {
+            g.attr("bend_scale").unwrap().write_scalar(&1e3).unwrap()
+        });
+        assert!(
+            e.contains("/yarns/rest@bend_scale") && e.contains("outside"),
+            "{e}"
+        );
+        let e = edited("partial", &|g| g.delete_attr("shear_modulus").unwrap());
+        assert!(
+            e.contains("/yarns/rest@shear_modulus") && e.contains("missing"),
+            "{e}"
+        );
+        // A rest shape without one (written before it was recorded) reads as none.
+        let old = dir.path().join("old.h5");
+        let mut unrecorded = y.clone();
+        unrecorded.rest.as_mut().unwrap().material = None;
+        write_file(&old, &unrecorded, None).unwrap();
+        let d = read_file(&old, &ReadOptions::default()).unwrap();
+        assert_eq!(d.yarns.rest, unrecorded.rest);
     }
 
     #[test]

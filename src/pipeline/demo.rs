@@ -226,6 +226,7 @@ fn fabric_stretch(out_dir: &Path) -> Result<super::fabric_test::FabricTestReport
             ..Default::default()
         }),
         fabric: Default::default(),
+        material: Default::default(),
         relax: Default::default(),
         output_dir: Some(out_dir.join("fabric-stretch")),
     };
@@ -254,6 +255,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         },
         params: Default::default(),
         relax: Some(Default::default()),
+        material: crate::yarn::fabric::FabricParams::default().material(),
     };
     let (rib, _) = generate(&pattern).map_err(super::Error::from)?;
     io::write_path(&dir.join("rib.h5"), &rib, None, &WriteOptions::default())?;

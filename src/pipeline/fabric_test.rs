@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::geom::Yarns;
+use crate::geom::{MaterialOverrides, Yarns};
 use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
@@ -18,7 +18,8 @@ use crate::yarn::fabric::bend::{bend_test, BendParams, BendResult};
 use crate::yarn::fabric::rig::{cut_rectangle, held_together};
 use crate::yarn::fabric::{
     hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams, HangParams,
-    HangResult, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams, StretchResult,
+    HangResult, MaterialChoice, RelaxIntoContactStats, RelaxParams, RigFrame, StretchParams,
+    StretchResult,
 };
 use crate::yarn::pattern::{build_tile, lay_out, Layout, PatternParams};
 
@@ -76,7 +77,12 @@ impl FabricTest {
 pub struct FabricTestJob {
     pub swatch: SwatchSource,
     pub test: FabricTest,
+    /// Friction, density and solver controls; its material applies where
+    /// the yarns record none (a generated pattern, a file without a rest
+    /// shape's material).
     pub fabric: FabricParams,
+    /// Material fields that replace the yarns' recorded (or `fabric`'s) ones.
+    pub material: MaterialOverrides,
     pub relax: RelaxParams,
     /// Output folder for the CSV and the frames (none: figures only).
     pub output_dir: Option<PathBuf>,
@@ -146,6 +152,11 @@ pub struct FabricTestReport {
     /// Pieces of a bias cut left out after the relaxation because no
     /// contact held them to the test piece (`rig::held_together`).
     pub offcuts: usize,
+    /// The yarn material the test ran under and where it came from.
+    pub material: MaterialChoice,
+    /// Warnings also printed on stderr.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     #[serde(flatten)]
     pub figures: TestFigures,
     pub written: Vec<PathBuf>,
@@ -199,8 +210,18 @@ const MIN_PIECE: usize = 8;
 /// of their radii (relaxed contacts sit at 0.98-1.02).
 const TOUCH: f64 = 1.1;
 
-/// A loaded or generated swatch: yarns, name, relaxation, offcuts dropped.
-type Swatch = (Yarns, String, Option<RelaxIntoContactStats>, usize);
+/// A loaded or generated swatch, ready for its test.
+pub struct Swatch {
+    pub yarns: Yarns,
+    pub name: String,
+    /// The relaxation into contact (none when the yarns carried a rest shape).
+    pub relaxation: Option<RelaxIntoContactStats>,
+    /// Bias-cut pieces dropped after the relaxation.
+    pub offcuts: usize,
+    /// The job's parameters with the material chosen for these yarns.
+    pub fabric: FabricParams,
+    pub material: MaterialChoice,
+}
 
 /// Loads or generates the swatch, relaxing it when it has no rest shape; a
 /// bias-cut piece then loses the offcuts no contact holds to it.
@@ -238,11 +259,19 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
             (y, format!("{name} {}x{}", layout.courses, layout.wales))
         }
     };
+    let (fabric, material) = job.fabric.for_yarns(&yarns, &job.material);
     if yarns.rest.is_some() {
-        return Ok((yarns, name, None, 0));
+        return Ok(Swatch {
+            yarns,
+            name,
+            relaxation: None,
+            offcuts: 0,
+            fabric,
+            material,
+        });
     }
     let (mut relaxed, stats) =
-        relax_into_contact(&yarns, &job.fabric, &job.relax).map_err(fabric_err("relaxation"))?;
+        relax_into_contact(&yarns, &fabric, &job.relax).map_err(fabric_err("relaxation"))?;
     let mut offcuts = 0;
     if cut {
         let keep = held_together(&relaxed, TOUCH);
@@ -251,7 +280,14 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
             relaxed = relaxed.select_curves(&keep);
         }
     }
-    Ok((relaxed, name, Some(stats), offcuts))
+    Ok(Swatch {
+        yarns: relaxed,
+        name,
+        relaxation: Some(stats),
+        offcuts,
+        fabric,
+        material,
+    })
 }
 
 /// Runs the job: swatch, test, outputs.
@@ -264,7 +300,15 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     .and_then(|_| job.relax.check())
     .map_err(fabric_err("parameters"))?;
     refuse_input_overwrite(job)?;
-    let (yarns, name, relaxation, offcuts) = swatch(job)?;
+    let Swatch {
+        yarns,
+        name,
+        relaxation,
+        offcuts,
+        fabric,
+        material,
+    } = swatch(job)?;
+    let warnings: Vec<String> = material.warning(&name).into_iter().collect();
     let mut written = Vec::new();
     let mut writer = match &job.output_dir {
         Some(dir) => {
@@ -276,7 +320,7 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
             let mut w = FrameWriter::create(&target, &yarns)?;
             w.add_text(
                 "fabric_parameters_json",
-                &serde_json::to_string(&job.fabric).unwrap_or_default(),
+                &serde_json::to_string(&fabric).unwrap_or_default(),
             )?;
             Some(w)
         }
@@ -301,14 +345,10 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
     };
     let figures = match &job.test {
         FabricTest::Stretch(p) => {
-            stretch_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Stretch)
+            stretch_test(&yarns, &fabric, p, &mut on_frame).map(TestFigures::Stretch)
         }
-        FabricTest::Bend(p) => {
-            bend_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Bend)
-        }
-        FabricTest::Hang(p) => {
-            hang_test(&yarns, &job.fabric, p, &mut on_frame).map(TestFigures::Hang)
-        }
+        FabricTest::Bend(p) => bend_test(&yarns, &fabric, p, &mut on_frame).map(TestFigures::Bend),
+        FabricTest::Hang(p) => hang_test(&yarns, &fabric, p, &mut on_frame).map(TestFigures::Hang),
     };
     if let Some(e) = io_error {
         return Err(e.into());
@@ -347,6 +387,8 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
         vertices: yarns.num_points(),
         relaxation,
         offcuts,
+        material,
+        warnings,
         figures,
         written,
     })

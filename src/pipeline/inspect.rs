@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use crate::geom::Bounds;
+use crate::geom::{Bounds, YarnMaterial};
 use crate::io::{Provenance, YarnData};
 
 /// What `knitvox inspect` reports about one yarn file (lengths in metres,
@@ -25,6 +25,10 @@ pub struct YarnReport {
     pub radius_source: Provenance,
     pub per_vertex_radius: bool,
     pub linear_density: bool,
+    /// Whether the yarns carry a rest shape (knitvox HDF5 only) and the
+    /// yarn material it was relaxed under, when recorded.
+    pub rest_shape: bool,
+    pub rest_material: Option<YarnMaterial>,
     pub units: String,
     pub units_source: Provenance,
     pub up_axis: String,
@@ -89,6 +93,8 @@ pub fn summarize(path: &str, d: &YarnData) -> YarnReport {
         radius_source: d.radius,
         per_vertex_radius: y.vertex_radius.is_some(),
         linear_density: y.linear_density.is_some(),
+        rest_shape: y.rest.is_some(),
+        rest_material: y.rest.as_ref().and_then(|r| r.material),
         units: d.units.0.name(),
         units_source: d.units.1,
         up_axis: d.up_axis.0.name().to_string(),
@@ -150,6 +156,14 @@ impl YarnReport {
             },
             src(self.radius_source)
         );
+        if self.rest_shape {
+            let m = self
+                .rest_material
+                .map_or("no material recorded".into(), |m| {
+                    format!("relaxed under {m}")
+                });
+            let _ = writeln!(s, "  rest shape    stored ({m})");
+        }
         let _ = writeln!(
             s,
             "  file units    {} ({})",

@@ -896,6 +896,7 @@ impl Job {
             output: output.clone(),
             pose,
             fabric,
+            material: Default::default(),
         };
         let run = move |o: &mut dyn Observer| {
             if let Some(dir) = output.parent() {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::geom::Yarns;
+use crate::geom::{YarnMaterial, Yarns};
 use crate::pipeline::ErrorClass;
 use crate::yarn::fabric::{
     relax_into_contact, FabricError, FabricParams, RelaxIntoContactStats, RelaxParams,
@@ -36,6 +36,9 @@ pub struct PatternJob {
     /// Relax the swatch into contact with these controls (none: the
     /// generated, loose curves without a rest shape).
     pub relax: Option<RelaxParams>,
+    /// The yarn material the relaxation runs under, recorded with the rest
+    /// shape (default: `FabricParams::default().material()`).
+    pub material: YarnMaterial,
 }
 
 /// Why the stage failed; [`PatternStageError::class`] classifies it.
@@ -124,6 +127,9 @@ pub struct PatternReport {
     /// contacts at the end (contacts per vertex, fraction of vertices
     /// touching, minimum distance ratio), size before and after (m).
     pub relaxation: Option<RelaxIntoContactStats>,
+    /// The yarn material the relaxation ran under (stored with the rest
+    /// shape); null when not relaxed.
+    pub material: Option<YarnMaterial>,
     /// Relaxed flat swatches: contacts per vertex at the end of the
     /// relaxation (segment pairs closer than the radii sum, x 2 / vertices)
     /// and the fraction of vertices touching a non-adjacent segment (within
@@ -190,8 +196,9 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
     let mut shape = None;
     let relaxation = match &job.relax {
         Some(rp) => {
-            let (relaxed, stats) = relax_into_contact(&yarns, &FabricParams::default(), rp)
-                .map_err(PatternStageError::Relax)?;
+            let fabric = FabricParams::default().with_material(&job.material);
+            let (relaxed, stats) =
+                relax_into_contact(&yarns, &fabric, rp).map_err(PatternStageError::Relax)?;
             if job.layout.tube_radius.is_none() {
                 shape = character(&yarns.points, &relaxed.points, tile.pitch);
             }
@@ -231,6 +238,7 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
         contacts_per_vertex: relaxation.as_ref().map(|r| r.contact.contacts_per_vertex),
         near_fraction: relaxation.as_ref().map(|r| r.contact.near_fraction),
         character: shape,
+        material: relaxation.as_ref().map(|_| job.material),
         relaxation,
         tile_curves: tile.tile.yarns.num_curves(),
         tile_vertices: tile.tile.yarns.num_points(),
@@ -257,6 +265,7 @@ mod tests {
             },
             params: PatternParams::default(),
             relax: None,
+            material: FabricParams::default().material(),
         };
         let (y, r) = generate(&job).unwrap();
         // One yarn knitted back and forth, with the model's linear density.

@@ -12,12 +12,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::geom::Vec3;
+use crate::geom::{MaterialOverrides, Vec3};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::asset::{check_asset_ext, sha256_file, StageError};
 use crate::pipeline::{Error, Observer, Stage};
 use crate::yarn::fabric::pose::{kind_name, run_pose, FabricPlane, PoseRunParams, PoseStep};
-use crate::yarn::fabric::{FabricParams, RigFrame};
+use crate::yarn::fabric::{FabricParams, MaterialChoice, RigFrame};
 use crate::yarn::poses::PoseKind;
 
 /// The training-pose stage: an asset -> one pose's equilibrium frames.
@@ -29,8 +29,11 @@ pub struct TrainJob {
     pub output: PathBuf,
     /// The pose and its load steps.
     pub pose: PoseRunParams,
-    /// Yarn model (rods, contact, friction, Newton controls).
+    /// Yarn model (rods, contact, friction, Newton controls); its material
+    /// applies where the rest yarns record none.
     pub fabric: FabricParams,
+    /// Material fields that replace the rest yarns' recorded ones.
+    pub material: MaterialOverrides,
 }
 
 /// What a run did (`--json` prints it).
@@ -53,6 +56,8 @@ pub struct TrainReport {
     /// The coordinate plane the swatch lies in (turned into the pose
     /// frame, fabric in XZ, for the run).
     pub fabric_plane: FabricPlane,
+    /// The yarn material the pose ran under and where it came from.
+    pub material: MaterialChoice,
     /// `stored` (the asset's rest yarns carry rest lengths and curvatures)
     /// or `positions` (rest state taken from the positions).
     pub rest_shape: &'static str,
@@ -140,13 +145,15 @@ impl Stage for TrainJob {
             ));
             "positions"
         };
+        let (fabric, material) = self.fabric.for_yarns(rest, &self.material);
+        warnings.extend(material.warning(&self.asset.display().to_string()));
         warnings.iter().for_each(|w| observer.warning(w));
         let plane = FabricPlane::of(&rest.points);
         let mut writer = FrameWriter::create(&self.output, rest)?;
         writer.add_text("pose_json", &pose_record(self, &sha, plane, rest_shape))?;
         let parameters = serde_json::json!({
             "generator": format!("knitvox {}", env!("CARGO_PKG_VERSION")),
-            "fabric": self.fabric,
+            "fabric": fabric,
             "settle": self.pose.settle,
         });
         writer.add_text("parameters_json", &parameters.to_string())?;
@@ -163,7 +170,7 @@ impl Stage for TrainJob {
                 m
             })
         };
-        let result = run_pose(rest, &self.fabric, &self.pose, &mut on_frame);
+        let result = run_pose(rest, &fabric, &self.pose, &mut on_frame);
         if let Some(e) = io_error {
             return Err(e.into());
         }
@@ -201,6 +208,7 @@ impl Stage for TrainJob {
             curves: rest.num_curves(),
             clamped_vertices: run.clamped_vertices,
             fabric_plane: run.plane,
+            material,
             rest_shape,
             final_force_n: last.force_n,
             final_clamp_forces_n: last.clamp_forces_n.clone(),

@@ -181,13 +181,19 @@ impl Runner {
 /// The rods model's parameters for `scene`: `knitvox train`'s yarn model
 /// (friction from `[rods]`), the scene's gravity, and the density and
 /// global damping the explicit simulator would use (`[sim]`), so both
-/// models and `validate`'s mesh see the same mass and damping.
-pub fn rods_params(scene: &YlsScene, sim: &YarnSimParams) -> (FabricParams, RodDynamicsParams) {
+/// models and `validate`'s mesh see the same mass and damping; the yarn
+/// material that `rest`'s rest shape was relaxed under, when recorded.
+pub fn rods_params(
+    scene: &YlsScene,
+    sim: &YarnSimParams,
+    rest: &Yarns,
+) -> (FabricParams, RodDynamicsParams) {
     let spec = scene.rods.clone().unwrap_or_default();
-    let mut fabric = FabricParams {
+    let (mut fabric, _) = FabricParams {
         density: sim.density,
         ..FabricParams::default()
-    };
+    }
+    .for_yarns(rest, &Default::default());
     if let Some(mu) = spec.friction {
         fabric.friction.mu = mu;
     }
@@ -242,6 +248,7 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
         },
         params,
         relax: s.relax.unwrap_or(true).then(RelaxParams::default),
+        material: crate::yarn::fabric::FabricParams::default().material(),
     };
     let t = Instant::now();
     let (mut yarns, _) = generate(&job).map_err(|source| YlsError::Pattern {
@@ -428,7 +435,7 @@ pub fn run_observed(
             (Runner::Explicit(Box::new(sim)), format!("{params:?}"))
         }
         YarnModel::Rods => {
-            let (fabric, dynamics) = rods_params(scene, &params);
+            let (fabric, dynamics) = rods_params(scene, &params, &rest);
             let record = format!("{fabric:?} {dynamics:?}");
             let d = RodDynamics::new(
                 &rest,
@@ -619,4 +626,33 @@ pub fn scene_colliders(
         });
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::{RestShape, YarnMaterial};
+
+    #[test]
+    fn the_rods_model_runs_under_the_rest_shapes_material() {
+        let text =
+            "model = \"rods\"\nduration = 0.1\nframe_rate = 30\n[swatch]\npattern = \"rib1x1\"\n\
+                    [pose]\nkind = \"stretch_courses\"\namount = 0.1\n";
+        let scene = YlsScene::parse(text, Path::new("s.toml")).unwrap();
+        let sim = YarnSimParams {
+            density: 60.0,
+            ..YarnSimParams::default()
+        };
+        let mut y = Yarns::new();
+        y.push_curve(&[[0.0; 3], [1e-3, 0.0, 0.0]], false, 1e-3);
+        let (f, _) = rods_params(&scene, &sim, &y);
+        assert_eq!(f.material(), FabricParams::default().material());
+        let m = YarnMaterial::from_values([5e6, 2e6, 0.1, 30.0]);
+        y.rest = Some(RestShape {
+            material: Some(m),
+            ..Default::default()
+        });
+        let (f, _) = rods_params(&scene, &sim, &y);
+        assert_eq!((f.material(), f.density), (m, 60.0));
+    }
 }

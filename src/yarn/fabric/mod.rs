@@ -19,7 +19,9 @@ pub mod stretch;
 pub use dynamics::{RodAdvanceStats, RodDynamics, RodDynamicsParams};
 pub use hang::{hang_test, HangParams, HangResult};
 pub use inertia::InertiaTerm;
-pub use model::{lumped_masses, Fabric, FabricError, FabricParams, Settle, SettleStats};
+pub use model::{
+    lumped_masses, Fabric, FabricError, FabricParams, MaterialChoice, Settle, SettleStats,
+};
 pub use relax::{relax_into_contact, RelaxIntoContactStats, RelaxParams};
 pub use rig::{Direction, Rig};
 pub use stretch::{stretch_test, RigFrame, StretchParams, StretchPoint, StretchResult};

@@ -3,7 +3,7 @@
 //! (`yarn::statics::ContactTerm`) and lumped masses, over one coordinate
 //! vector `q` (positions, then one twist per edge).
 
-use crate::geom::{RestShape, Vec3, Yarns};
+use crate::geom::{MaterialOverrides, RestShape, Vec3, YarnMaterial, Yarns};
 use crate::yarn::rods::{RodEnergy, RodError, RodParams, RodRest, RodTopology};
 use crate::yarn::sim::{YarnSimError, YarnSimParams};
 use crate::yarn::statics::{
@@ -58,6 +58,78 @@ impl Default for FabricParams {
                 ..StaticParams::default()
             },
         }
+    }
+}
+
+impl FabricParams {
+    /// The rod and contact material of these parameters.
+    pub fn material(&self) -> YarnMaterial {
+        YarnMaterial {
+            young_modulus: self.rods.young_modulus,
+            shear_modulus: self.rods.shear_modulus,
+            bend_scale: self.rods.bend_scale,
+            contact_stiffness: self.contact_stiffness,
+        }
+    }
+
+    /// These parameters with the rods' and the contact's material set to `m`.
+    pub fn with_material(&self, m: &YarnMaterial) -> FabricParams {
+        let mut p = self.clone();
+        p.rods.young_modulus = m.young_modulus;
+        p.rods.shear_modulus = m.shear_modulus;
+        p.rods.bend_scale = m.bend_scale;
+        p.contact_stiffness = m.contact_stiffness;
+        p
+    }
+
+    /// These parameters with the material `yarns` were relaxed under (when
+    /// their rest shape records one, else this one's), then `overrides`
+    /// applied; with the record of where each came from.
+    pub fn for_yarns(
+        &self,
+        yarns: &Yarns,
+        overrides: &MaterialOverrides,
+    ) -> (FabricParams, MaterialChoice) {
+        let recorded = yarns.rest.as_ref().and_then(|r| r.material);
+        let material = overrides.apply(&recorded.unwrap_or_else(|| self.material()));
+        let choice = MaterialChoice {
+            material,
+            source: if recorded.is_some() {
+                "yarn file"
+            } else {
+                "defaults"
+            },
+            overridden: overrides.names(),
+            rest_material: recorded.filter(|r| *r != material),
+        };
+        (self.with_material(&material), choice)
+    }
+}
+
+/// The material a run used and where it came from (reports print it).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MaterialChoice {
+    pub material: YarnMaterial,
+    /// `"yarn file"` (the rest shape's recorded material) or `"defaults"`.
+    pub source: &'static str,
+    /// Fields given on the command line (or in a job) instead.
+    pub overridden: Vec<&'static str>,
+    /// The material the yarns' rest shape was relaxed under, when it
+    /// differs from `material`: the stored state is then not at rest and
+    /// settles first.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rest_material: Option<YarnMaterial>,
+}
+
+impl MaterialChoice {
+    /// A warning when the run's material is not the rest shape's.
+    pub fn warning(&self, what: &str) -> Option<String> {
+        let r = self.rest_material?;
+        Some(format!(
+            "{what}: its rest shape was relaxed under {r} and runs under {}: the stored state is \
+             not at rest under this material and settles first",
+            self.material
+        ))
     }
 }
 
@@ -558,4 +630,45 @@ pub fn lumped_masses(yarns: &Yarns, density: f64) -> Vec<f64> {
         }
     }
     m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn material_comes_from_the_rest_shape_then_the_overrides() {
+        let mut y = Yarns::new();
+        y.push_curve(&[[0.0; 3], [1e-3, 0.0, 0.0], [2e-3, 0.0, 0.0]], false, 1e-3);
+        let base = FabricParams::default();
+        let soft = MaterialOverrides {
+            young_modulus: Some(1e5),
+            ..Default::default()
+        };
+        // No rest shape: the base parameters' material, then the override.
+        let (p, c) = base.for_yarns(&y, &soft);
+        assert_eq!(
+            (c.source, c.overridden.clone()),
+            ("defaults", vec!["young_modulus"])
+        );
+        assert_eq!(p.rods.young_modulus, 1e5);
+        assert_eq!(p.rods.bend_scale, base.rods.bend_scale);
+        assert!(c.rest_material.is_none() && c.warning("y").is_none());
+        // A recorded material wins over the base; an override over both.
+        let recorded = YarnMaterial::from_values([5e6, 2e6, 0.1, 30.0]);
+        y.rest = Some(RestShape {
+            material: Some(recorded),
+            ..Default::default()
+        });
+        let (p, c) = base.for_yarns(&y, &MaterialOverrides::default());
+        assert_eq!((p.material(), c.source), (recorded, "yarn file"));
+        assert!(c.warning("y").is_none());
+        let (p, c) = base.for_yarns(&y, &soft);
+        assert_eq!(p.rods.young_modulus, 1e5);
+        assert_eq!(p.contact_stiffness, 30.0);
+        assert_eq!(c.rest_material, Some(recorded));
+        assert!(c.warning("y").unwrap().contains("E 5e6 Pa"));
+        // Friction and solver controls stay the base's.
+        assert_eq!(p.friction, base.friction);
+    }
 }

@@ -20,7 +20,7 @@
 use std::time::Instant;
 
 use super::model::{Fabric, FabricError, FabricParams, Settle};
-use crate::geom::Yarns;
+use crate::geom::{RestShape, Yarns};
 use crate::yarn::rods::RodRest;
 use crate::yarn::statics::{ContactStats, EnergyTerm, FrictionParams};
 
@@ -209,7 +209,11 @@ pub fn relax_into_contact(
     let mut out = yarns
         .with_points(&relaxed_points)
         .map_err(|e| FabricError::Setup(e.to_string()))?;
-    out.rest = Some(rest.to_shape(&topo));
+    // Recorded with the shape: it is at rest under this material only.
+    out.rest = Some(RestShape {
+        material: Some(fabric_params.material()),
+        ..rest.to_shape(&topo)
+    });
     let contact = fabric.contact_stats();
     let energy = fabric.elastic_energy();
     let size = |y: &Yarns| y.bounds().map_or([0.0; 3], |b| b.size());

@@ -21,6 +21,7 @@ impl RodRest {
             directors: self.d1.clone(),
             curvature,
             twist,
+            material: None,
         }
     }
 
