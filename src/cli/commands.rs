@@ -210,9 +210,9 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
     let warnings = super::warn_all(warnings);
     if d.yarns.rest.is_some() && out_format != io::Format::Hdf5 {
         eprintln!(
-            "note: {} carries a rest shape (rest lengths, curvatures, material frames) that {} \
-             cannot hold: it is dropped (only .h5 keeps it; simulations from the output start \
-             from its positions)",
+            "note: {} carries a rest shape (rest lengths, curvatures, material frames, the yarn \
+             material it was relaxed under) that {} cannot hold: it is dropped (only .h5 keeps \
+             it; simulations from the output start from its positions under the default yarn)",
             a.input.display(),
             a.output.display()
         );
