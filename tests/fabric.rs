@@ -124,7 +124,7 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
     // reactions in HDF5, the curve in CSV.
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("relaxed.h5");
-    io::write_path(&input, &relaxed, None, &Default::default()).unwrap();
+    io::write_path(&input, relaxed, None, &Default::default()).unwrap();
     let job = FabricTestJob {
         swatch: SwatchSource::Yarns(input.clone()),
         test: FabricTest::Stretch(StretchParams {
