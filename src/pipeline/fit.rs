@@ -965,6 +965,19 @@ fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
     g.with_stacked(&g.stacked().iter().map(|v| v * s).collect::<Vec<_>>())
 }
 
+/// `g` scaled by `s`, every γ kept at or above `floor` (the fit's
+/// non-negativity projection, VH §6.3): a γ that a fit drove to the floor
+/// (measured: the demo's uniform `γv` at 0.035 Pa next to `γs` 15 kPa) stays
+/// there when the reactions scale the material down.
+fn scaled_above(g: &MaterialFields, s: f64, floor: f64) -> MaterialFields {
+    g.with_stacked(
+        &g.stacked()
+            .iter()
+            .map(|v| (v * s).max(floor))
+            .collect::<Vec<_>>(),
+    )
+}
+
 /// Whether the training loss at `to` is at most that at `from` (both
 /// started from `anchors`, the equilibria under `from`; `to` by Newton from
 /// there, without continuation, so a far material costs one solve per
@@ -1115,7 +1128,7 @@ pub fn fit_samples(
     let mut uniform_force_scale =
         force_scale(mesh, mass, samples, reactions, &u, &at_uniform, params)?;
     if let Some(fs) = uniform_force_scale {
-        let rescaled = scaled(&u, fs.scale);
+        let rescaled = scaled_above(&u, fs.scale, params.gamma_floor);
         if !loaded || lowers_loss(mesh, mass, samples, (&u, &rescaled), &at_uniform, params)? {
             u = rescaled;
         } else {
@@ -1165,7 +1178,7 @@ pub fn fit_samples(
         force_scale(mesh, mass, samples, reactions, &gamma, &at_field, params)?
     };
     if let Some(fs) = field_force_scale {
-        gamma = scaled(&gamma, fs.scale);
+        gamma = scaled_above(&gamma, fs.scale, params.gamma_floor);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let uniform = UniformMaterial {
@@ -1644,6 +1657,24 @@ mod tests {
         assert_eq!(firsts(joint), vec![vec![1.0, 2.0], vec![3.0]]);
         let apart = anchors_of(&report(vec![vec![1.0, 2.0], vec![3.0]]), &samples, false);
         assert_eq!(firsts(apart), vec![vec![1.0, 2.0], vec![3.0]]);
+    }
+
+    /// The reactions' scale keeps a γ the fit drove to the floor there (the
+    /// demo's uniform γv sat at 0.035-0.13 Pa and a 0.026 scale took it
+    /// below the 1e-3 floor, which the next stage refused), and scales the
+    /// rest exactly.
+    #[test]
+    fn the_reaction_scale_keeps_the_material_above_the_floor() {
+        let g = MaterialFields {
+            gamma_s: vec![15e3, 2e3],
+            gamma_v: vec![0.035, 1e-3],
+            fibres: Vec::new(),
+        };
+        let s = scaled_above(&g, 0.026, 1e-3);
+        assert_eq!(s.gamma_s, vec![15e3 * 0.026, 2e3 * 0.026]);
+        assert_eq!(s.gamma_v, vec![1e-3, 1e-3]);
+        let up = scaled_above(&g, 10.0, 1e-3);
+        assert_eq!(up.stacked(), scaled(&g, 10.0).stacked());
     }
 
     /// A slab held at both ends and stretched 20 %: the clamp forces at a
