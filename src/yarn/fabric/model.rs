@@ -158,7 +158,8 @@ pub enum FabricError {
 /// vertices' moves (`ContactTerm::limit_vertex_moves`). One radius, not
 /// two: every iteration tests the candidate pairs within the radii plus two
 /// skins (728K at two radii on the 26x26 rib stretched 30%, for ~23K in
-/// contact), and the shorter steps do not cost iterations (README, stop 34).
+/// contact); the shorter steps save relaxation iterations and cost the
+/// stretch test a few (README, stop 33, second session).
 pub const MAX_MOVE_RADII: f64 = 1.0;
 
 /// Rods + contact + friction + masses of one yarn set, and its current
