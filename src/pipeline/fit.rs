@@ -961,10 +961,6 @@ fn range(v: &[f64]) -> [f64; 2] {
         })
 }
 
-fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
-    g.with_stacked(&g.stacked().iter().map(|v| v * s).collect::<Vec<_>>())
-}
-
 /// `g` scaled by `s`, every γ kept at or above `floor` (the fit's
 /// non-negativity projection, VH §6.3): a γ that a fit drove to the floor
 /// (measured: the demo's uniform `γv` at 0.035 Pa next to `γs` 15 kPa) stays
@@ -1567,6 +1563,10 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
+        g.with_stacked(&g.stacked().iter().map(|v| v * s).collect::<Vec<_>>())
+    }
 
     #[test]
     fn inertia_forces_cancel_gravity_in_free_fall_and_add_damping() {
