@@ -177,7 +177,18 @@ fn relaxed_rib_is_held_by_contact_pulls_back_when_stretched_and_records_its_mech
         output_dir: None,
         ..job
     };
-    let report = run(&softer).unwrap();
+    struct Heard(Vec<String>);
+    impl knitvox::pipeline::Observer for Heard {
+        fn warning(&mut self, message: &str) {
+            self.0.push(message.to_string());
+        }
+    }
+    let mut heard = Heard(Vec::new());
+    let report = knitvox::pipeline::fabric_test::run_observed(&softer, &mut heard).unwrap();
+    assert_eq!(
+        heard.0, report.warnings,
+        "the observer hears the report's warnings"
+    );
     let c = &report.material;
     assert_eq!(c.material.bend_scale, 0.5);
     assert_eq!(c.material.young_modulus, fp.rods.young_modulus);

@@ -7,7 +7,7 @@ use clap::{Args, Subcommand};
 use super::yarn_material::YarnMaterialArgs;
 use super::ExitCode;
 use crate::pipeline::fabric_test::{
-    run, FabricTest, FabricTestJob, FabricTestReport, SwatchSource, TestFigures,
+    run_observed, FabricTest, FabricTestJob, FabricTestReport, SwatchSource, TestFigures,
 };
 use crate::pipeline::pattern::PatternSource;
 use crate::yarn::fabric::bend::BendParams;
@@ -207,7 +207,9 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
             return Ok(ExitCode::Usage);
         }
     };
-    let report = match run(&job) {
+    // Warnings print as soon as the swatch is ready, not after the test.
+    let mut console = super::Console::new(false, 0, "fabric-test");
+    let report = match run_observed(&job, &mut console) {
         Ok(r) => r,
         Err(e) if e.is_usage() => {
             eprintln!("error: {e}");
@@ -215,9 +217,6 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
         }
         Err(e) => return Err(e.into()),
     };
-    for w in &report.warnings {
-        eprintln!("warning: {w}");
-    }
     if swatch.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -292,6 +292,16 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
 
 /// Runs the job: swatch, test, outputs.
 pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
+    run_observed(job, &mut super::Quiet)
+}
+
+/// [`run`], telling `observer` its warnings as soon as the swatch is ready,
+/// before the test (a stretch of a large swatch runs for minutes); the
+/// report keeps them too.
+pub fn run_observed(
+    job: &FabricTestJob,
+    observer: &mut dyn super::Observer,
+) -> Result<FabricTestReport, FabricTestError> {
     match &job.test {
         FabricTest::Stretch(p) => p.check(),
         FabricTest::Bend(p) => p.check(),
@@ -309,6 +319,7 @@ pub fn run(job: &FabricTestJob) -> Result<FabricTestReport, FabricTestError> {
         material,
     } = swatch(job)?;
     let warnings: Vec<String> = material.warning(&name).into_iter().collect();
+    warnings.iter().for_each(|w| observer.warning(w));
     let mut written = Vec::new();
     let mut writer = match &job.output_dir {
         Some(dir) => {
