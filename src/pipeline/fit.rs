@@ -1564,8 +1564,9 @@ fn write_report(dir: &Path, asset: &Asset, r: &FitJobReport) -> Result<Vec<PathB
 mod tests {
     use super::*;
 
+    /// `g` scaled by `s > 0` (every γ here is positive: no floor bites).
     fn scaled(g: &MaterialFields, s: f64) -> MaterialFields {
-        g.with_stacked(&g.stacked().iter().map(|v| v * s).collect::<Vec<_>>())
+        scaled_above(g, s, 0.0)
     }
 
     #[test]
@@ -1674,7 +1675,8 @@ mod tests {
         assert_eq!(s.gamma_s, vec![15e3 * 0.026, 2e3 * 0.026]);
         assert_eq!(s.gamma_v, vec![1e-3, 1e-3]);
         let up = scaled_above(&g, 10.0, 1e-3);
-        assert_eq!(up.stacked(), scaled(&g, 10.0).stacked());
+        assert_eq!(up.gamma_s, vec![15e3 * 10.0, 2e3 * 10.0]);
+        assert_eq!(up.gamma_v, vec![0.035 * 10.0, 1e-3 * 10.0]);
     }
 
     /// A slab held at both ends and stretched 20 %: the clamp forces at a
