@@ -4,7 +4,7 @@
 //! vector `q` (positions, then one twist per edge).
 
 use crate::geom::{MaterialOverrides, RestShape, Vec3, YarnMaterial, Yarns};
-use crate::yarn::rods::{RodEnergy, RodError, RodParams, RodRest, RodTopology};
+use crate::yarn::rods::{HingeHessian, RodEnergy, RodError, RodParams, RodRest, RodTopology};
 use crate::yarn::sim::{YarnSimError, YarnSimParams};
 use crate::yarn::statics::{
     evaluate, solve_static, Carry, ContactStats, ContactTerm, EnergyTerm, FrictionParams,
@@ -38,6 +38,10 @@ pub struct FabricParams {
     /// [`MAX_MOVE_RADII`] smallest yarn radii (set by [`Fabric::new`] when
     /// infinite), lowered near contacts.
     pub solver: StaticParams,
+    /// How Newton's matrix takes the hinges' bend/twist Hessians. Default
+    /// Gauss-Newton (PSD from first derivatives; the gradient and so every
+    /// equilibrium are exact either way).
+    pub hinge_hessian: HingeHessian,
 }
 
 impl Default for FabricParams {
@@ -57,6 +61,7 @@ impl Default for FabricParams {
                 clip_per_vertex: true,
                 ..StaticParams::default()
             },
+            hinge_hessian: HingeHessian::default(),
         }
     }
 }
@@ -217,7 +222,8 @@ impl Fabric {
         };
         let q = topo.q_from_points(&yarns.points);
         let topo_vertices = topo.n_vertices;
-        let rods = RodEnergy::new(topo, rest, &params.rods, &q)?;
+        let mut rods = RodEnergy::new(topo, rest, &params.rods, &q)?;
+        rods.set_hinge_hessian(params.hinge_hessian);
         let r_min = (0..yarns.num_points())
             .map(|v| yarns.radius_at(v))
             .fold(f64::INFINITY, f64::min);

@@ -212,8 +212,40 @@ pub(crate) fn unwrap_near<R: Real>(raw: R, prev: f64) -> R {
     raw.add_c(k * tau)
 }
 
-/// Bend and twist energies (J) of one hinge as functions of its two edge
-/// vectors and twist angles, with the reference directors time-parallel
+/// The hinge's strains minus their rest values, `d = (kappa^(0) -
+/// kappa_bar^(0), kappa^(1) - kappa_bar^(1), m - m_bar)` (four curvature
+/// components, then the twist), and the unwrapped reference twist.
+#[inline]
+pub(crate) fn hinge_strains<R: Real>(
+    f0: &EdgeFrame<R>,
+    f1: &EdgeFrame<R>,
+    c: &HingeConst,
+) -> ([R; 5], R) {
+    let (kappa, raw) = hinge_terms(f0, f1);
+    let reft = unwrap_near(raw, c.ref_prev);
+    let m = (f1.theta - f0.theta + reft).add_c(-c.m_bar);
+    let d = [
+        kappa[0].add_c(-c.kappa_bar[0]),
+        kappa[1].add_c(-c.kappa_bar[1]),
+        kappa[2].add_c(-c.kappa_bar[2]),
+        kappa[3].add_c(-c.kappa_bar[3]),
+        m,
+    ];
+    (d, reft)
+}
+
+impl HingeConst {
+    /// The weights `w` of `E_b + E_t = sum_k w_k d_k^2` over the strains of
+    /// [`hinge_strains`]: `B / (4 lbar)` for the curvatures, `beta / (2
+    /// lbar)` for the twist (J per strain^2).
+    pub fn strain_weights(&self) -> [f64; 5] {
+        let (wb, wt) = (0.25 * self.bend / self.lbar, 0.5 * self.twist / self.lbar);
+        [wb, wb, wb, wb, wt]
+    }
+}
+
+/// Bend and twist energies (J) of one hinge from its two edge frames (edge vectors
+/// and twist angles), with the reference directors time-parallel
 /// transported from the stored state to the current tangents:
 ///
 /// `E_b = 1/(2 lbar) sum_j 1/2 B |kappa^(j) - kappa_bar^(j)|^2` (Bergou 2010,
@@ -221,28 +253,23 @@ pub(crate) fn unwrap_near<R: Real>(raw: R, prev: f64) -> R {
 /// `m = theta_i - theta_{i-1} + reference twist` (Bergou 2008 §4.2.2).
 /// Also returns the (unwrapped) reference twist.
 #[inline]
-pub(crate) fn hinge_energy<R: Real>(e: [V<R>; 2], theta: [R; 2], c: &HingeConst) -> (R, R, R) {
-    let f0 = edge_frame(e[0], theta[0], c.tp[0], c.up[0]);
-    let f1 = edge_frame(e[1], theta[1], c.tp[1], c.up[1]);
-    hinge_energy_frames(&f0, &f1, c)
-}
-
-/// [`hinge_energy`] from the two edge frames.
-#[inline]
 pub(crate) fn hinge_energy_frames<R: Real>(
     f0: &EdgeFrame<R>,
     f1: &EdgeFrame<R>,
     c: &HingeConst,
 ) -> (R, R, R) {
-    let (kappa, raw) = hinge_terms(f0, f1);
-    let mut sq = R::cst(0.0);
-    for k in 0..4 {
-        let d = kappa[k].add_c(-c.kappa_bar[k]);
-        sq = sq + d * d;
-    }
-    let bend = sq.scale(0.25 * c.bend / c.lbar);
-    let reft = unwrap_near(raw, c.ref_prev);
-    let m = (f1.theta - f0.theta + reft).add_c(-c.m_bar);
-    let twist = (m * m).scale(0.5 * c.twist / c.lbar);
+    let (d, reft) = hinge_strains(f0, f1, c);
+    let (bend, twist) = strain_energies(&d, c);
     (bend, twist, reft)
+}
+
+/// Bend and twist energies (J) of the strains `d` of [`hinge_strains`].
+#[inline]
+pub(crate) fn strain_energies<R: Real>(d: &[R; 5], c: &HingeConst) -> (R, R) {
+    let mut sq = R::cst(0.0);
+    for dk in &d[..4] {
+        sq = sq + *dk * *dk;
+    }
+    let w = c.strain_weights();
+    (sq.scale(w[0]), (d[4] * d[4]).scale(w[4]))
 }

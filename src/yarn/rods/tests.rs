@@ -205,7 +205,7 @@ fn exact_hessian_matches_finite_differences_of_gradient() {
         ] {
             let (en, q0) = rods(&pts, closed, &params);
             let mut en = only(en, s, b, t);
-            en.project = false;
+            en.hessian = HingeHessian::Exact;
             let q = perturb(&q0, n_pos, 3e-4, 0.3, 3);
             let h = dense_hessian(&en, &q);
             let v = perturb(&vec![0.0; q.len()], n_pos, 1.0, 1.0, 4);
@@ -264,17 +264,94 @@ fn pushed_hessian_is_positive_semidefinite() {
         // Hessian indefinite.
         let q = perturb(&q0, n_pos, 5e-4, 1.5, 5);
         let mut exact = en.clone();
-        exact.project = false;
+        exact.hessian = HingeHessian::Exact;
         let (lo_exact, _) = min_eigenvalue(&dense_hessian(&exact, &q));
-        let (lo, scale) = min_eigenvalue(&dense_hessian(&en, &q));
+        for model in [HingeHessian::Projected, HingeHessian::GaussNewton] {
+            let mut en = en.clone();
+            en.set_hinge_hessian(model);
+            let (lo, scale) = min_eigenvalue(&dense_hessian(&en, &q));
+            assert!(
+                lo_exact < -1e-6 * scale,
+                "{name}: test should start indefinite"
+            );
+            assert!(
+                lo >= -1e-10 * scale,
+                "{name} {model:?}: min eigenvalue {lo:e} (scale {scale:e})"
+            );
+        }
+    }
+}
+
+/// Every hinge's strains `d` (`frame::hinge_strains`) at `q` in the frames
+/// of the rods' current state, and their weights.
+fn strains(en: &RodEnergy, q: &[f64]) -> Vec<([f64; 5], [f64; 5])> {
+    (0..en.topo.num_hinges())
+        .map(|k| {
+            let c = en.hinge_const(k);
+            let (e, th) = en.hinge_vars(q, k);
+            let f0 = edge_frame(e[0], th[0], c.tp[0], c.up[0]);
+            let f1 = edge_frame(e[1], th[1], c.tp[1], c.up[1]);
+            (hinge_strains(&f0, &f1, &c).0, c.strain_weights())
+        })
+        .collect()
+}
+
+/// The Gauss-Newton hinge Hessian is `2 sum_k w_k grad d_k grad d_k^T`:
+/// its quadratic form along a direction `v` equals `2 sum w_k (D d_k[v])^2`
+/// with the strains' directional derivatives taken by central differences.
+/// At a rest configuration (all strains zero) it is the exact Hessian.
+#[test]
+fn gauss_newton_hessian_is_the_strain_jacobian_product() {
+    let params = RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    };
+    for (name, pts, closed) in cases() {
+        let n_pos = 3 * pts.len();
+        let (en, q0) = rods(&pts, closed, &params);
+        let mut gn = only(en, false, true, true);
+        gn.set_hinge_hessian(HingeHessian::GaussNewton);
+        let mut exact = gn.clone();
+        exact.hessian = HingeHessian::Exact;
+        let (h_rest, h_exact) = (dense_hessian(&gn, &q0), dense_hessian(&exact, &q0));
+        let scale = max_abs(&h_exact.concat());
+        let diff = h_rest
+            .iter()
+            .flatten()
+            .zip(h_exact.iter().flatten())
+            .fold(0.0, |m: f64, (a, b)| m.max((a - b).abs()));
         assert!(
-            lo_exact < -1e-6 * scale,
-            "{name}: test should start indefinite"
+            diff <= 1e-9 * scale,
+            "{name}: at rest GN - exact {diff:e} (scale {scale:e})"
         );
-        assert!(
-            lo >= -1e-10 * scale,
-            "{name}: min eigenvalue {lo:e} (scale {scale:e})"
-        );
+        let q = perturb(&q0, n_pos, 3e-4, 0.3, 7);
+        let h = dense_hessian(&gn, &q);
+        for seed in [11, 12] {
+            let v = perturb(&vec![0.0; q.len()], n_pos, 1.0, 1.0, seed);
+            let vhv: f64 = h
+                .iter()
+                .zip(&v)
+                .map(|(row, vi)| vi * row.iter().zip(&v).map(|(a, b)| a * b).sum::<f64>())
+                .sum();
+            let step = 1e-7;
+            let at = |t: f64| -> Vec<([f64; 5], [f64; 5])> {
+                let qt: Vec<f64> = q.iter().zip(&v).map(|(a, b)| a + t * b).collect();
+                strains(&gn, &qt)
+            };
+            let (plus, minus) = (at(step), at(-step));
+            let mut fd = 0.0;
+            for ((dp, w), (dm, _)) in plus.iter().zip(&minus) {
+                for k in 0..5 {
+                    let dd = (dp[k] - dm[k]) / (2.0 * step);
+                    fd += 2.0 * w[k] * dd * dd;
+                }
+            }
+            assert!(
+                (vhv - fd).abs() <= 1e-6 * fd.abs(),
+                "{name} v{seed}: v^T H v {vhv:e} against {fd:e}"
+            );
+            assert!(vhv > 0.0, "{name}: no bend/twist along v");
+        }
     }
 }
 
@@ -631,7 +708,7 @@ fn bench_eval_22k_vertices() {
         ts[2] * 1e3
     };
     let mut exact = en.clone();
-    exact.project = false;
+    exact.hessian = HingeHessian::Exact;
     println!(
         "rods eval {n} vertices, {} threads (median of 5): E+g+H {:.1} ms, E+g {:.1} ms, \
          E+g+H without PSD projection {:.1} ms",
