@@ -525,6 +525,8 @@ fn replace<T: hdf5::H5Type>(p: &Path, name: &str, shape: &[usize], data: &[T]) {
     if !data.is_empty() {
         ds.write_raw(data).unwrap();
     }
+    // The dataset's handle keeps the file open (and locked) past `close`.
+    drop(ds);
     f.close().unwrap();
 }
 

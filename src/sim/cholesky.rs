@@ -7,8 +7,10 @@
 //! way, [`SparseCholesky::solve_in_place`]).
 
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::perm::{Perm, PermRef};
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+    SymmetricOrdering,
 };
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SparseColMatRef;
@@ -30,13 +32,16 @@ fn symbolic_with(
     lower: SparseColMatRef<'_, usize, f64>,
     params: CholeskySymbolicParams<'_>,
 ) -> Result<SymbolicCholesky<usize>, String> {
-    factorize_symbolic_cholesky(
-        lower.symbolic(),
-        faer::Side::Lower,
-        Default::default(),
-        params,
-    )
-    .map_err(|e| format!("{e:?}"))
+    symbolic_ordered_with(lower, SymmetricOrdering::Amd, params)
+}
+
+fn symbolic_ordered_with(
+    lower: SparseColMatRef<'_, usize, f64>,
+    ordering: SymmetricOrdering<'_, usize>,
+    params: CholeskySymbolicParams<'_>,
+) -> Result<SymbolicCholesky<usize>, String> {
+    factorize_symbolic_cholesky(lower.symbolic(), faer::Side::Lower, ordering, params)
+        .map_err(|e| format!("{e:?}"))
 }
 
 impl SparseCholesky {
@@ -63,13 +68,56 @@ impl SparseCholesky {
         )
     }
 
+    /// [`Self::symbolic`] with a given fill-reducing `ordering` instead of
+    /// AMD's (e.g. the AMD ordering of a nearby pattern: the analysis then
+    /// costs about a third).
+    pub fn symbolic_ordered(
+        lower: SparseColMatRef<'_, usize, f64>,
+        ordering: PermRef<'_, usize>,
+    ) -> Result<SymbolicCholesky<usize>, String> {
+        symbolic_ordered_with(
+            lower,
+            SymmetricOrdering::Custom(ordering),
+            Default::default(),
+        )
+    }
+
+    /// The fill-reducing ordering of an analysis (identity when it has none).
+    pub fn ordering(symbolic: &SymbolicCholesky<usize>) -> Perm<usize> {
+        let n = symbolic.nrows();
+        match symbolic.perm() {
+            Some(p) => {
+                let (fwd, inv) = p.arrays();
+                Perm::new_checked(fwd.into(), inv.into(), n)
+            }
+            None => Perm::new_checked((0..n).collect(), (0..n).collect(), n),
+        }
+    }
+
     /// Numeric factorization of `lower` with a symbolic analysis of its pattern.
     pub fn numeric(
         symbolic: SymbolicCholesky<usize>,
         lower: SparseColMatRef<'_, usize, f64>,
     ) -> Result<Self, String> {
+        Self::numeric_into(symbolic, lower, Vec::new())
+    }
+
+    /// [`Self::numeric`] writing the factor into `values` (the values of an
+    /// earlier factor, [`Self::into_parts`]: a refactorization then touches
+    /// no fresh pages).
+    pub fn numeric_into(
+        symbolic: SymbolicCholesky<usize>,
+        lower: SparseColMatRef<'_, usize, f64>,
+        mut values: Vec<f64>,
+    ) -> Result<Self, String> {
         let par = Par::Seq;
-        let mut values = vec![0.0; symbolic.len_val()];
+        let len = symbolic.len_val();
+        if values.capacity() >= len {
+            values.clear();
+            values.resize(len, 0.0);
+        } else {
+            values = vec![0.0; len];
+        }
         symbolic
             .factorize_numeric_llt::<f64>(
                 &mut values,
@@ -99,6 +147,12 @@ impl SparseCholesky {
     /// Gives back the symbolic analysis, to refactor a matrix with the same pattern.
     pub fn into_symbolic(self) -> SymbolicCholesky<usize> {
         self.symbolic
+    }
+
+    /// The symbolic analysis and the factor's value buffer (for
+    /// [`Self::numeric_into`]).
+    pub fn into_parts(self) -> (SymbolicCholesky<usize>, Vec<f64>) {
+        (self.symbolic, self.values)
     }
 
     /// Solves A X = B in place for every column of `rhs`.

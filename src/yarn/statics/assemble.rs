@@ -120,6 +120,11 @@ impl LowerCsc {
         }
     }
 
+    /// Order of the matrix (free coordinates).
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
     /// Column pointers and row indices (the sparsity pattern).
     pub fn pattern(&self) -> (&[usize], &[usize]) {
         (&self.col_ptr, &self.row_idx)
