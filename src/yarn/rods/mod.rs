@@ -495,22 +495,7 @@ impl RodEnergy {
         let c = self.hinge_const(k);
         let (e, th) = self.hinge_vars(q, k);
         if want_h && self.hessian != HingeHessian::GaussNewton {
-            // Each edge frame depends on 4 of the 8 variables: build it
-            // over those (a quarter of the Hessian work), then embed.
-            let frame = |j: usize| {
-                let ev: [D2<4>; 3] = std::array::from_fn(|i| D2::var(e[j][i], i));
-                let f = edge_frame(ev, D2::var(th[j], 3), c.tp[j], c.up[j]);
-                let map = if j == 0 { [0, 1, 2, 6] } else { [3, 4, 5, 7] };
-                f.map(|x| D2::<8>::embed(x, map))
-            };
-            let (b, t, _) = hinge_energy_frames(&frame(0), &frame(1), &c);
-            let s = b + t;
-            let h = s.hessian();
-            let h = match self.hessian {
-                HingeHessian::Projected => project_psd(&h),
-                _ => h,
-            };
-            return (b.v, t.v, s.g, Some(h));
+            return self.hinge_second_order(&c, e, th);
         }
         let ed: [[D1<8>; 3]; 2] =
             std::array::from_fn(|j| std::array::from_fn(|i| D1::var(e[j][i], 3 * j + i)));
@@ -519,29 +504,34 @@ impl RodEnergy {
         let f1 = edge_frame(ed[1], td[1], c.tp[1], c.up[1]);
         let (d, _) = hinge_strains(&f0, &f1, &c);
         let (b, t) = strain_energies(&d, &c);
-        let h = want_h.then(|| {
-            // Gauss-Newton: E = sum_k w_k d_k^2 without the d_k grad^2 d_k
-            // terms, PSD by construction.
-            let w = c.strain_weights();
-            let mut h = [[0.0; 8]; 8];
-            for (dk, wk) in d.iter().zip(w) {
-                for (i, row) in h.iter_mut().enumerate() {
-                    let a = 2.0 * wk * dk.g[i];
-                    for (hij, gj) in row.iter_mut().zip(&dk.g).skip(i) {
-                        *hij += a * gj;
-                    }
-                }
-            }
-            // Mirror the upper triangle (an exactly symmetric block).
-            let upper = h;
-            for (i, row) in h.iter_mut().enumerate() {
-                for (j, hij) in row.iter_mut().enumerate().take(i) {
-                    *hij = upper[j][i];
-                }
-            }
-            h
-        });
+        let h = want_h.then(|| gauss_newton_block(&d, c.strain_weights()));
         (b.val(), t.val(), (b + t).g, h)
+    }
+
+    /// [`Self::hinge_local`] with the exact Hessian by second-order duals,
+    /// projected to PSD unless [`HingeHessian::Exact`].
+    fn hinge_second_order(
+        &self,
+        c: &HingeConst,
+        e: [Vec3; 2],
+        th: [f64; 2],
+    ) -> (f64, f64, [f64; 8], Option<[[f64; 8]; 8]>) {
+        // Each edge frame depends on 4 of the 8 variables: build it over
+        // those (a quarter of the Hessian work), then embed.
+        let frame = |j: usize| {
+            let ev: [D2<4>; 3] = std::array::from_fn(|i| D2::var(e[j][i], i));
+            let f = edge_frame(ev, D2::var(th[j], 3), c.tp[j], c.up[j]);
+            let map = if j == 0 { [0, 1, 2, 6] } else { [3, 4, 5, 7] };
+            f.map(|x| D2::<8>::embed(x, map))
+        };
+        let (b, t, _) = hinge_energy_frames(&frame(0), &frame(1), c);
+        let s = b + t;
+        let h = s.hessian();
+        let h = match self.hessian {
+            HingeHessian::Projected => project_psd(&h),
+            _ => h,
+        };
+        (b.v, t.v, s.g, Some(h))
     }
 
     fn hinge_chunk(
@@ -635,6 +625,28 @@ fn stiffnesses(
         })
         .collect();
     (ks, hinge_k)
+}
+
+/// Gauss-Newton Hessian `2 sum_k w_k grad d_k grad d_k^T` of `E = sum_k
+/// w_k d_k^2` over the hinge's strains (the `d_k grad^2 d_k` terms
+/// dropped): PSD by construction, exactly symmetric.
+fn gauss_newton_block(d: &[D1<8>; 5], w: [f64; 5]) -> [[f64; 8]; 8] {
+    let mut h = [[0.0; 8]; 8];
+    for (dk, wk) in d.iter().zip(w) {
+        for (i, row) in h.iter_mut().enumerate() {
+            let a = 2.0 * wk * dk.g[i];
+            for (hij, gj) in row.iter_mut().zip(&dk.g).skip(i) {
+                *hij += a * gj;
+            }
+        }
+    }
+    let upper = h;
+    for (i, row) in h.iter_mut().enumerate() {
+        for (j, hij) in row.iter_mut().enumerate().take(i) {
+            *hij = upper[j][i];
+        }
+    }
+    h
 }
 
 /// Clamps the eigenvalues of a symmetric block at zero (a block already PSD

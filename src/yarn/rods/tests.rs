@@ -60,6 +60,15 @@ fn straight(n: usize, l: f64) -> Vec<Vec3> {
     (0..n).map(|i| [i as f64 * l, 0.0, 0.0]).collect()
 }
 
+/// Rod parameters with the bend/twist scale at 1 (the fabric's default; the
+/// rods' own default 1e-3 would leave bending drowned by stretch).
+fn full_bend() -> RodParams {
+    RodParams {
+        bend_scale: 1.0,
+        ..RodParams::default()
+    }
+}
+
 fn rods(points: &[Vec3], closed: bool, params: &RodParams) -> (RodEnergy, Vec<f64>) {
     let mut y = Yarns::new();
     y.push_curve(points, closed, R);
@@ -144,10 +153,7 @@ fn cases() -> Vec<(&'static str, Vec<Vec3>, bool)> {
 
 #[test]
 fn gradient_matches_finite_differences() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     for (name, pts, closed) in cases() {
         let n_pos = 3 * pts.len();
         for (part, s, b, t) in [
@@ -175,10 +181,7 @@ fn gradient_matches_finite_differences() {
 fn gradient_matches_finite_differences_after_frame_updates() {
     // The reference frames move by time-parallel transport; the gradient
     // must still be that of the evaluated energy.
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     let pts = knit_loop(12);
     let n_pos = 3 * pts.len();
     let (en, q0) = rods(&pts, false, &params);
@@ -192,10 +195,7 @@ fn gradient_matches_finite_differences_after_frame_updates() {
 
 #[test]
 fn exact_hessian_matches_finite_differences_of_gradient() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     for (name, pts, closed) in cases() {
         let n_pos = 3 * pts.len();
         for (part, s, b, t) in [
@@ -253,10 +253,7 @@ fn min_eigenvalue(h: &[Vec<f64>]) -> (f64, f64) {
 
 #[test]
 fn pushed_hessian_is_positive_semidefinite() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     for (name, pts, closed) in cases() {
         let n_pos = 3 * pts.len();
         let (en, q0) = rods(&pts, closed, &params);
@@ -302,10 +299,7 @@ fn strains(en: &RodEnergy, q: &[f64]) -> Vec<([f64; 5], [f64; 5])> {
 /// At a rest configuration (all strains zero) it is the exact Hessian.
 #[test]
 fn gauss_newton_hessian_is_the_strain_jacobian_product() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     for (name, pts, closed) in cases() {
         let n_pos = 3 * pts.len();
         let (en, q0) = rods(&pts, closed, &params);
@@ -357,10 +351,7 @@ fn gauss_newton_hessian_is_the_strain_jacobian_product() {
 
 #[test]
 fn rest_configuration_has_zero_energy_and_gradient() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     for (name, pts, closed) in cases() {
         let (en, q) = rods(&pts, closed, &params);
         let (e, g) = grad(&en, &q);
@@ -413,10 +404,7 @@ fn rot(m: &[[f64; 3]; 3], v: Vec3) -> Vec3 {
 
 #[test]
 fn rigid_motions_cost_nothing() {
-    let params = RodParams {
-        bend_scale: 1.0,
-        ..RodParams::default()
-    };
+    let params = full_bend();
     let m = rotation([0.48, -0.6, 0.64], 2.1);
     let shift = [0.3, -0.1, 0.25];
     for (name, pts, closed) in cases() {
