@@ -30,6 +30,11 @@ pub struct FitArgs {
     /// Gauss-Newton iterations per stage (VH §6.3: 20-30).
     #[arg(long, default_value_t = ElasticFitParams::default().gn_iterations, value_name = "N")]
     pub gn_iterations: u32,
+    /// Most conjugate-gradient iterations per Gauss-Newton direction of a
+    /// full field too large to factor (>= 1; fewer: faster, coarser
+    /// directions; README "Fit at VH's rib size").
+    #[arg(long, default_value_t = ElasticFitParams::default().cg_iterations as u64, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub cg_iterations: u64,
     /// Largest contrast of the fitted field: every gamma over its initial value
     /// stays within this factor of their geometric mean (>= 1; `inf` for no
     /// bound). Poses leave most of a field unobserved; unbounded, it drifts
@@ -121,6 +126,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             harmonic_ranks: a.harmonic.0.clone(),
             gd_iterations: a.gd_iterations,
             gn_iterations: a.gn_iterations,
+            cg_iterations: a.cg_iterations as usize,
             max_contrast: a.max_contrast,
             prior_weight: a.prior,
             smooth_weight: a.smooth,

@@ -21,9 +21,13 @@ use faer::{MatMut, Par};
 const PARALLEL_SOLVE_MIN_ROWS: usize = 2000;
 
 /// A Cholesky factor L L^T of a sparse SPD matrix given by its lower triangle.
+///
+/// `S` holds the symbolic analysis: owned (the default; given back by
+/// [`Self::into_symbolic`] for the next refactorization), or shared
+/// (`Arc<SymbolicCholesky<usize>>`) by factors that live side by side.
 #[derive(Debug)]
-pub struct SparseCholesky {
-    symbolic: SymbolicCholesky<usize>,
+pub struct SparseCholesky<S = SymbolicCholesky<usize>> {
+    symbolic: S,
     values: Vec<f64>,
 }
 
@@ -94,11 +98,15 @@ impl SparseCholesky {
         }
     }
 
+    /// Symbolic and numeric factorization in one go.
+    pub fn new(lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, String> {
+        Self::numeric(Self::symbolic(lower)?, lower)
+    }
+}
+
+impl<S: std::borrow::Borrow<SymbolicCholesky<usize>> + Sync> SparseCholesky<S> {
     /// Numeric factorization of `lower` with a symbolic analysis of its pattern.
-    pub fn numeric(
-        symbolic: SymbolicCholesky<usize>,
-        lower: SparseColMatRef<'_, usize, f64>,
-    ) -> Result<Self, String> {
+    pub fn numeric(symbolic: S, lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, String> {
         Self::numeric_into(symbolic, lower, Vec::new())
     }
 
@@ -106,52 +114,47 @@ impl SparseCholesky {
     /// earlier factor, [`Self::into_parts`]: a refactorization then touches
     /// no fresh pages).
     pub fn numeric_into(
-        symbolic: SymbolicCholesky<usize>,
+        symbolic: S,
         lower: SparseColMatRef<'_, usize, f64>,
         mut values: Vec<f64>,
     ) -> Result<Self, String> {
         let par = Par::Seq;
-        let len = symbolic.len_val();
+        let sym = symbolic.borrow();
+        let len = sym.len_val();
         if values.capacity() >= len {
             values.clear();
             values.resize(len, 0.0);
         } else {
             values = vec![0.0; len];
         }
-        symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut values,
-                lower,
-                faer::Side::Lower,
-                Default::default(),
-                par,
-                MemStack::new(&mut MemBuffer::new(
-                    symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-                )),
-                Default::default(),
-            )
-            .map_err(|e| format!("{e:?}"))?;
+        sym.factorize_numeric_llt::<f64>(
+            &mut values,
+            lower,
+            faer::Side::Lower,
+            Default::default(),
+            par,
+            MemStack::new(&mut MemBuffer::new(
+                sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+            )),
+            Default::default(),
+        )
+        .map_err(|e| format!("{e:?}"))?;
         Ok(SparseCholesky { symbolic, values })
-    }
-
-    /// Symbolic and numeric factorization in one go.
-    pub fn new(lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, String> {
-        Self::numeric(Self::symbolic(lower)?, lower)
     }
 
     /// Order of the factored matrix.
     pub fn dim(&self) -> usize {
-        self.symbolic.nrows()
+        self.symbolic.borrow().nrows()
     }
 
     /// Gives back the symbolic analysis, to refactor a matrix with the same pattern.
-    pub fn into_symbolic(self) -> SymbolicCholesky<usize> {
+    pub fn into_symbolic(self) -> S {
         self.symbolic
     }
 
     /// The symbolic analysis and the factor's value buffer (for
     /// [`Self::numeric_into`]).
-    pub fn into_parts(self) -> (SymbolicCholesky<usize>, Vec<f64>) {
+    pub fn into_parts(self) -> (S, Vec<f64>) {
         (self.symbolic, self.values)
     }
 
@@ -163,7 +166,7 @@ impl SparseCholesky {
     /// of the whole. The split does not depend on the thread count, so the
     /// result is the same with any number of threads.
     pub fn solve_in_place(&self, rhs: MatMut<'_, f64>) {
-        if rhs.ncols() >= 2 && self.symbolic.nrows() >= PARALLEL_SOLVE_MIN_ROWS {
+        if rhs.ncols() >= 2 && self.dim() >= PARALLEL_SOLVE_MIN_ROWS {
             let (first, rest) = rhs.split_at_col_mut(1);
             rayon::join(|| self.solve_seq(first), || self.solve_seq(rest));
         } else {
@@ -173,12 +176,13 @@ impl SparseCholesky {
 
     fn solve_seq(&self, rhs: MatMut<'_, f64>) {
         let ncols = rhs.ncols();
-        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+        let sym = self.symbolic.borrow();
+        LltRef::new(sym, &self.values).solve_in_place_with_conj(
             faer::Conj::No,
             rhs,
             Par::Seq,
             MemStack::new(&mut MemBuffer::new(
-                self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq),
+                sym.solve_in_place_scratch::<f64>(ncols, Par::Seq),
             )),
         );
     }

@@ -28,7 +28,7 @@
 
 use std::time::Instant;
 
-use faer::sparse::{SparseColMat, Triplet};
+use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat, Triplet};
 use faer::Mat;
 use rayon::prelude::*;
 
@@ -157,10 +157,27 @@ pub struct StaticSolver {
     /// DOF index (3 per free node) of each node, None when pinned.
     free_index: Vec<Option<usize>>,
     ndof: usize,
-    symbolic: Option<SymbolicCholesky<usize>>,
-    /// Symbolic analysis time (ms), paid once.
+    analysis: StaticAnalysis,
+    /// Symbolic analysis time (ms), paid once per [`StaticAnalysis`].
     pub symbolic_ms: f64,
     contact: Option<ContactPenalty>,
+}
+
+/// What a [`StaticSolver`] learns about its Newton matrix's pattern, which
+/// depends only on the mesh and the pin set: the symbolic Cholesky and where
+/// each assembled entry lands in the compressed lower triangle. A solver
+/// hands it on ([`StaticSolver::into_analysis`], [`StaticSolver::with_analysis`])
+/// to the next solver of the same mesh and pins: the elasticity fit solves
+/// each frame's equilibrium hundreds of times under changing materials.
+#[derive(Default)]
+pub struct StaticAnalysis {
+    /// The tets and the free-DOF map the analysis belongs to.
+    key: Option<(usize, Vec<Option<usize>>)>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    /// The lower triangle's pattern, the order of the elastic and mass
+    /// entries into it, and their number (collider entries, whose number
+    /// changes with the contacts, go through a fresh sort).
+    pattern: Option<(SymbolicSparseColMat<usize>, Argsort<usize>, usize)>,
 }
 
 impl StaticSolver {
@@ -191,15 +208,33 @@ impl StaticSolver {
                 ndof += 3;
             }
         }
+        let key = Some((model.rest().len(), free_index.clone()));
         Ok(StaticSolver {
             model,
             mass: mass.to_vec(),
             free_index,
             ndof,
-            symbolic: None,
+            analysis: StaticAnalysis {
+                key,
+                ..Default::default()
+            },
             symbolic_ms: 0.0,
             contact: None,
         })
+    }
+
+    /// Takes over `analysis` from an earlier solver when it was made for
+    /// the same tets and pins (else keeps its own, empty one).
+    pub fn with_analysis(mut self, analysis: StaticAnalysis) -> Self {
+        if analysis.key == self.analysis.key {
+            self.analysis = analysis;
+        }
+        self
+    }
+
+    /// The pattern analysis, for the next solver of this mesh and pin set.
+    pub fn into_analysis(self) -> StaticAnalysis {
+        self.analysis
     }
 
     /// Sets (or, with `None`, removes) the collider penalty. Its points must
@@ -240,7 +275,11 @@ impl StaticSolver {
     /// Lower triangle of the projected Newton matrix on free DOFs plus
     /// `mass_scale · M`. The triplet positions depend only on the mesh and pin
     /// set, so the sparsity pattern is the same at every call.
-    fn assemble(&self, x: &[Vec3], mass_scale: f64) -> Result<SparseColMat<usize, f64>, SimError> {
+    fn assemble(
+        &mut self,
+        x: &[Vec3],
+        mass_scale: f64,
+    ) -> Result<SparseColMat<usize, f64>, SimError> {
         let f = self.model.deformation_gradients(x)?;
         let rest = self.model.rest();
         let blocks: Vec<_> = (0..rest.len())
@@ -268,6 +307,14 @@ impl StaticSolver {
                 }
             }
         }
+        for (i, fi) in self.free_index.iter().enumerate() {
+            if let Some(d) = fi {
+                for c in 0..3 {
+                    trip.push(Triplet::new(d + c, d + c, mass_scale * self.mass[i]));
+                }
+            }
+        }
+        let fixed = trip.len();
         if let Some(cp) = &self.contact {
             // Gauss-Newton block k (w wᵀ) ⊗ (n nᵀ) of each active contact;
             // its node pairs share a tet, so the pattern is the elastic one.
@@ -294,15 +341,25 @@ impl StaticSolver {
                 }
             }
         }
-        for (i, fi) in self.free_index.iter().enumerate() {
-            if let Some(d) = fi {
-                for c in 0..3 {
-                    trip.push(Triplet::new(d + c, d + c, mass_scale * self.mass[i]));
-                }
-            }
+        let err = |e: String| SimError::Inconsistent(format!("assembling the Newton matrix: {e}"));
+        if trip.len() > fixed {
+            return SparseColMat::try_new_from_triplets(self.ndof, self.ndof, &trip)
+                .map_err(|e| err(format!("{e:?}")));
         }
-        SparseColMat::try_new_from_triplets(self.ndof, self.ndof, &trip)
-            .map_err(|e| SimError::Inconsistent(format!("assembling the Newton matrix: {e:?}")))
+        // No collider entries: the entries come in the same order every
+        // time, so the sort into columns is done once.
+        if self.analysis.pattern.as_ref().map(|p| p.2) != Some(fixed) {
+            let pairs: Vec<Pair<usize, usize>> =
+                trip.iter().map(|t| Pair::new(t.row, t.col)).collect();
+            let (sym, argsort) =
+                SymbolicSparseColMat::try_new_from_indices(self.ndof, self.ndof, &pairs)
+                    .map_err(|e| err(format!("{e:?}")))?;
+            self.analysis.pattern = Some((sym, argsort, fixed));
+        }
+        let (sym, argsort, _) = self.analysis.pattern.as_ref().expect("set above");
+        let vals: Vec<f64> = trip.iter().map(|t| t.val).collect();
+        SparseColMat::new_from_argsort(sym.clone(), argsort, &vals)
+            .map_err(|e| err(format!("{e:?}")))
     }
 
     /// Potential `Π` (J) and its gradient (N) at `x`.
@@ -372,16 +429,16 @@ impl StaticSolver {
         };
         let inert = x_tilde.as_ref().map(|(xt, k)| (xt.as_slice(), *k));
         let mass_scale = inert.map(|(_, k)| k).unwrap_or(0.0);
+        let free_index = self.free_index.clone();
         let force_scale = |g: &[Vec3]| {
             // Largest free-node external and elastic force. Without any
             // free-node external force (a pose held by its pins only) the
             // free-node elastic force is the residual itself: the pins'
             // reactions then give the problem its force scale.
             let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            let loaded =
-                (0..f_ext.len()).any(|i| self.free_index[i].is_some() && norm(f_ext[i]) > 0.0);
+            let loaded = (0..f_ext.len()).any(|i| free_index[i].is_some() && norm(f_ext[i]) > 0.0);
             let mut s = 0.0f64;
-            for (i, fi) in self.free_index.iter().enumerate() {
+            for (i, fi) in free_index.iter().enumerate() {
                 if fi.is_some() || !loaded {
                     let el = norm(std::array::from_fn(|c| g[i][c] + f_ext[i][c]));
                     s = s.max(norm(f_ext[i])).max(el);
@@ -391,7 +448,7 @@ impl StaticSolver {
         };
         let max_res = |g: &[Vec3]| {
             let mut m = 0.0f64;
-            for (i, fi) in self.free_index.iter().enumerate() {
+            for (i, fi) in free_index.iter().enumerate() {
                 if fi.is_some() {
                     m = m.max((g[i][0].powi(2) + g[i][1].powi(2) + g[i][2].powi(2)).sqrt());
                 }
@@ -427,18 +484,18 @@ impl StaticSolver {
             stats.iterations += 1;
             let t = Instant::now();
             let a = self.assemble(&x, mass_scale)?;
-            if self.symbolic.is_none() {
+            if self.analysis.symbolic.is_none() {
                 let ts = Instant::now();
-                self.symbolic = Some(
+                self.analysis.symbolic = Some(
                     SparseCholesky::symbolic(a.as_ref())
                         .map_err(|e| SimError::Inconsistent(format!("symbolic Cholesky: {e}")))?,
                 );
                 self.symbolic_ms = ts.elapsed().as_secs_f64() * 1e3;
             }
-            let sym = self
-                .symbolic
-                .take()
-                .ok_or_else(|| SimError::Inconsistent("symbolic factorization missing".into()))?;
+            let sym =
+                self.analysis.symbolic.take().ok_or_else(|| {
+                    SimError::Inconsistent("symbolic factorization missing".into())
+                })?;
             let chol = SparseCholesky::numeric(sym, a.as_ref()).map_err(|e| {
                 SimError::Inconsistent(format!(
                     "the Newton matrix is not positive definite ({e}); pin the mesh or give inertia"
@@ -455,7 +512,7 @@ impl StaticSolver {
             }
             chol.solve_in_place(rhs.as_mut());
             // Keep the symbolic analysis for the next iteration and solve.
-            self.symbolic = Some(chol.into_symbolic());
+            self.analysis.symbolic = Some(chol.into_symbolic());
             let slope: f64 = self
                 .free_index
                 .iter()

@@ -7,22 +7,24 @@
 //! without projection: the adjoint needs the true linearization) and
 //! `C = ∂g/∂γ` ([`crate::sim::hessian::element_gamma_derivatives`]):
 //! `Kᵀ λ = ∂ε/∂xᵀ` (Eq. 17) and `∂ε/∂γ = -λᵀ C` (Eq. 16). `K` is
-//! factorized by sparse LU (faer): it is symmetric except where the 0.01
-//! singular-value floor is active, and need not be definite away from a
-//! stable equilibrium; the LU solves with `Kᵀ` exactly.
+//! symmetric except where the 0.01 singular-value floor is active, and need
+//! not be definite away from a stable equilibrium: [`super::jacobian`]
+//! factors it by sparse Cholesky where it is symmetric positive definite,
+//! else by sparse LU, which solves with `Kᵀ` exactly.
 
 use faer::linalg::solvers::SolveCore;
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Conj, Mat};
 use rayon::prelude::*;
 
+use super::jacobian::{KFactor, KPatternCache, SYMMETRY_TOLERANCE};
 use super::loss::FrameTarget;
 use super::{Frame, MaterialFields};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
 use crate::sim::fibre::fibre_gamma_derivative;
 use crate::sim::hessian::element_gamma_derivatives;
-use crate::sim::statics::{StaticParams, StaticSolver, StaticStats};
+use crate::sim::statics::{StaticAnalysis, StaticParams, StaticSolver, StaticStats};
 
 /// Free DOFs of a frame: 3 per unpinned node, in node order.
 #[derive(Debug, Clone, PartialEq)]
@@ -78,8 +80,43 @@ pub fn equilibrium(
     start: &[Vec3],
     params: &StaticParams,
 ) -> Result<(Vec<Vec3>, StaticStats), String> {
-    let mut solver =
-        StaticSolver::new(model.clone(), mass, &frame.pinned).map_err(|e| e.to_string())?;
+    equilibrium_with(model, mass, frame, start, params, &FrameCache::default())
+}
+
+/// What the solves of one frame keep from one material to the next: the
+/// statics' pattern analysis and the force Jacobian's Cholesky analysis
+/// (both fixed by the mesh and the frame's pins).
+#[derive(Default)]
+pub struct FrameCache {
+    statics: std::sync::Mutex<StaticAnalysis>,
+    pub(super) jacobian: KPatternCache,
+}
+
+/// [`equilibrium`] with the frame's `cache`.
+pub fn equilibrium_with(
+    model: &ElasticModel,
+    mass: &[f64],
+    frame: &Frame,
+    start: &[Vec3],
+    params: &StaticParams,
+    cache: &FrameCache,
+) -> Result<(Vec<Vec3>, StaticStats), String> {
+    let analysis = std::mem::take(&mut *cache.statics.lock().unwrap_or_else(|e| e.into_inner()));
+    let mut solver = StaticSolver::new(model.clone(), mass, &frame.pinned)
+        .map_err(|e| e.to_string())?
+        .with_analysis(analysis);
+    let result = equilibrium_of(&mut solver, model, frame, start, params);
+    *cache.statics.lock().unwrap_or_else(|e| e.into_inner()) = solver.into_analysis();
+    result
+}
+
+fn equilibrium_of(
+    solver: &mut StaticSolver,
+    model: &ElasticModel,
+    frame: &Frame,
+    start: &[Vec3],
+    params: &StaticParams,
+) -> Result<(Vec<Vec3>, StaticStats), String> {
     let mut x0 = start.to_vec();
     for &p in &frame.pinned {
         x0[p] = frame.start[p];
@@ -262,12 +299,29 @@ fn assemble_k(
     x: &[Vec3],
     free: &FreeDofs,
 ) -> Result<Vec<(usize, usize, f64)>, String> {
+    Ok(assemble_k_checked(model, x, free)?.0)
+}
+
+/// Sparse matrix entries (row, col, value), duplicates summed.
+type Entries = Vec<(usize, usize, f64)>;
+
+/// [`assemble_k`], and whether every element block is symmetric to
+/// [`SYMMETRY_TOLERANCE`] of its largest entry (then so is `K`).
+fn assemble_k_checked(
+    model: &ElasticModel,
+    x: &[Vec3],
+    free: &FreeDofs,
+) -> Result<(Entries, bool), String> {
     let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
     let rest = model.rest();
     let blocks: Vec<_> = (0..rest.len())
         .into_par_iter()
         .map(|e| model.tet_hessian(e, &f[e], false))
         .collect();
+    let symmetric = blocks.par_iter().all(|h| {
+        let asymmetry = (h - h.transpose()).amax();
+        asymmetry <= SYMMETRY_TOLERANCE * h.amax()
+    });
     let mut k = Vec::with_capacity(rest.len() * 144);
     for (r, h) in rest.iter().zip(&blocks) {
         for b in 0..4 {
@@ -286,7 +340,7 @@ fn assemble_k(
             }
         }
     }
-    Ok(k)
+    Ok((k, symmetric))
 }
 
 /// Everything Eq. 16-21 need from one frame at its equilibrium.
@@ -305,9 +359,9 @@ pub struct FrameLinearization {
     pub lambda: Vec<f64>,
     /// `∂ε/∂γ` (Eq. 16), stacked `[γs; γv; γ_fibres...]`.
     pub grad: Vec<f64>,
-    /// The sparse LU of `K` (the adjoint's), reused by the Gauss-Newton
+    /// The factor of `K` (the adjoint's), reused by the Gauss-Newton
     /// solves that need `K⁻¹`.
-    pub k_lu: SparseLu,
+    pub k_factor: KFactor,
 }
 
 /// faer's sparse LU of a square `f64` matrix.
@@ -324,17 +378,19 @@ pub(crate) fn sparse_lu(n: usize, entries: &[(usize, usize, f64)]) -> Result<Spa
 }
 
 /// Linearizes `frame` at its equilibrium `x` under `model`: `K`, `C`, `G`,
-/// and the adjoint gradient.
+/// and the adjoint gradient. `cache` keeps the frame's Cholesky analysis
+/// from one linearization to the next ([`KFactor`]).
 pub fn linearize(
     model: &ElasticModel,
     frame: &Frame,
     x: &[Vec3],
+    cache: &FrameCache,
 ) -> Result<FrameLinearization, String> {
     let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
     let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
     let rest = model.rest();
     let ne = rest.len();
-    let k = assemble_k(model, x, &free)?;
+    let (k, symmetric) = assemble_k_checked(model, x, &free)?;
     let nf = 2 + model.fibres().len();
     let mut c = Vec::with_capacity(ne * 12 * nf);
     for (e, r) in rest.iter().enumerate() {
@@ -365,9 +421,10 @@ pub fn linearize(
             de_dx[*d..*d + 3].copy_from_slice(&dfull[i]);
         }
     }
-    let lu = sparse_lu(free.ndof, &k).map_err(|e| format!("force Jacobian: {e}"))?;
+    let factor = KFactor::new(free.ndof, &k, symmetric, &cache.jacobian)
+        .map_err(|e| format!("force Jacobian: {e}"))?;
     let mut rhs = Mat::<f64>::from_fn(free.ndof, 1, |i, _| de_dx[i]);
-    lu.solve_transpose_in_place_with_conj(Conj::No, rhs.as_mut());
+    factor.solve_transpose_in_place(rhs.as_mut());
     let lambda: Vec<f64> = (0..free.ndof).map(|i| rhs[(i, 0)]).collect();
     if !lambda.iter().all(|v| v.is_finite()) {
         return Err("the force Jacobian is singular (adjoint not finite)".into());
@@ -384,7 +441,7 @@ pub fn linearize(
         de_dx,
         lambda,
         grad,
-        k_lu: lu,
+        k_factor: factor,
     })
 }
 

@@ -38,8 +38,9 @@ use faer::{Conj, Mat};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use super::adjoint::{equilibrium, linearize, sparse_lu, FrameLinearization};
+use super::adjoint::{equilibrium_with, linearize, sparse_lu, FrameCache, FrameLinearization};
 use super::regularizer::Regularizer;
+use super::row_lists::RowLists;
 use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
@@ -181,6 +182,23 @@ pub fn gn_solve_damped(
     coupling: &[(usize, usize, f64)],
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
+    let cg = CgParams::default();
+    gn_solve_damped_with(lins, basis, ne, grad, damping, coupling, fixed, &cg)
+}
+
+/// [`gn_solve_damped`] with the conjugate gradients' parameters (used on
+/// full fields above [`KKT_MAX_UNKNOWNS`]).
+#[allow(clippy::too_many_arguments)]
+pub fn gn_solve_damped_with(
+    lins: &[FrameLinearization],
+    basis: &Basis,
+    ne: usize,
+    grad: &[f64],
+    damping: &[f64],
+    coupling: &[(usize, usize, f64)],
+    fixed: &[bool],
+    cg: &CgParams,
+) -> Result<Vec<f64>, String> {
     if let Basis::Harmonic(_) = basis {
         if !coupling.is_empty() {
             return Err("a parameter coupling needs the full basis".into());
@@ -189,8 +207,7 @@ pub fn gn_solve_damped(
     }
     let m = grad.len();
     if solved_by_cg(lins, m) {
-        return gn_solve_cg(lins, grad, damping, coupling, fixed, &CgParams::default())
-            .map(|(d, _)| d);
+        return gn_solve_cg(lins, grad, damping, coupling, fixed, cg).map(|(d, _)| d);
     }
     let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
     let dcol = total - m;
@@ -267,7 +284,7 @@ fn gn_solve_subspace(
             let dense = basis.dense_columns(&l.c, n, ne, m);
             let mut j = Mat::<f64>::from_fn(n, m, |row, col| dense[(row, col)]);
             // K⁻¹ C; the sign of J cancels in Jᵀ G J.
-            l.k_lu.solve_in_place_with_conj(Conj::No, j.as_mut());
+            l.k_factor.solve_in_place(j.as_mut());
             let mut gj = Mat::<f64>::zeros(n, m);
             for &(r, c, v) in &l.g {
                 for k in 0..m {
@@ -325,7 +342,8 @@ pub struct CgParams {
     /// Relative residual `|r| / |grad|` that ends the iteration. Default 1e-8.
     pub tolerance: f64,
     /// Most iterations (a truncated solve is still a descent direction:
-    /// every CG iterate from zero has `gradᵀ d > 0`). Default 300.
+    /// every CG iterate from zero has `gradᵀ d > 0`). Default 300
+    /// ([`super::ElasticFitParams::cg_iterations`]).
     pub max_iterations: usize,
 }
 
@@ -349,7 +367,7 @@ pub struct CgStats {
 /// The damped Gauss-Newton step of Eq. 20 on the full field without forming
 /// `P`: preconditioned conjugate gradients on `(Σ_i P_i + diag(damping)) d
 /// = grad`, each product `P_i v = C_iᵀ K_i⁻ᵀ G_i K_i⁻¹ C_i v` two solves
-/// with the adjoint's LU of `K_i` (Zehnder et al. 2021 use the same
+/// with the adjoint's factor of `K_i` (Zehnder et al. 2021 use the same
 /// products). Fixed parameters keep `d_j = 0`. The Jacobi preconditioner
 /// approximates `diag(P)` with `K ≈ diag(K)`.
 pub fn gn_solve_cg(
@@ -361,26 +379,33 @@ pub fn gn_solve_cg(
     params: &CgParams,
 ) -> Result<(Vec<f64>, CgStats), String> {
     let m = grad.len();
+    // Per frame: C, G and Cᵀ as row lists (the products below are then
+    // gathers; the same sums, bit for bit, as scattering the triplets).
+    let ops: Vec<[RowLists; 3]> = lins
+        .iter()
+        .map(|l| {
+            let n = l.free.ndof;
+            Ok([
+                RowLists::new(n, l.c.iter().copied())?,
+                RowLists::new(n, l.g.iter().copied())?,
+                RowLists::new(m, l.c.iter().map(|&(r, j, c)| (j, r, c)))?,
+            ])
+        })
+        .collect::<Result<_, String>>()?;
     let apply = |v: &[f64]| -> Vec<f64> {
         let parts: Vec<Vec<f64>> = lins
             .par_iter()
-            .map(|l| {
+            .zip(&ops)
+            .map(|(l, [c, g, ct])| {
                 let n = l.free.ndof;
                 let mut u = Mat::<f64>::zeros(n, 1);
-                for &(r, j, c) in &l.c {
-                    u[(r, 0)] += c * v[j];
-                }
-                l.k_lu.solve_in_place_with_conj(Conj::No, u.as_mut());
+                c.mul(v, u.col_as_slice_mut(0));
+                l.k_factor.solve_in_place(u.as_mut());
                 let mut z = Mat::<f64>::zeros(n, 1);
-                for &(r, c, g) in &l.g {
-                    z[(r, 0)] += g * u[(c, 0)];
-                }
-                l.k_lu
-                    .solve_transpose_in_place_with_conj(Conj::No, z.as_mut());
+                g.mul(u.col_as_slice(0), z.col_as_slice_mut(0));
+                l.k_factor.solve_transpose_in_place(z.as_mut());
                 let mut out = vec![0.0; m];
-                for &(r, j, c) in &l.c {
-                    out[j] += c * z[(r, 0)];
-                }
+                ct.mul(z.col_as_slice(0), &mut out);
                 out
             })
             .collect();
@@ -530,6 +555,10 @@ pub struct StageReport {
     pub pivoted: usize,
     /// Newton iterations of all equilibrium solves.
     pub newton_iterations: u64,
+    /// Linearized frames whose force Jacobian was factored by Cholesky
+    /// (symmetric, positive definite) and by LU (otherwise).
+    pub cholesky_factors: u64,
+    pub lu_factors: u64,
     /// Largest relative force residual of the frames at the stage end.
     pub final_residual: f64,
     /// Wall time (ms).
@@ -558,6 +587,8 @@ pub(super) struct SampleFit<'a> {
     init: Vec<f64>,
     /// The initial fields: the layout (fibre directions) of every `γ`.
     fields: &'a MaterialFields,
+    /// Per frame, the pattern analyses its solves share.
+    caches: Vec<FrameCache>,
 }
 
 impl SampleFit<'_> {
@@ -585,15 +616,15 @@ impl SampleFit<'_> {
         starts: &[Vec<Vec3>],
     ) -> Result<Evaluated, (usize, String)> {
         let model = self.model(gamma).map_err(|e| (0, e))?;
+        let (mass, statics, caches) = (self.mass, self.params.statics(), &self.caches);
         let frames: Vec<Result<(Vec<Vec3>, f64, f64, u64), (usize, String)>> = self
             .sample
             .frames
             .par_iter()
             .enumerate()
             .map(|(i, fr)| {
-                let (x, st) =
-                    equilibrium(&model, self.mass, fr, &starts[i], &self.params.statics())
-                        .map_err(|e| (i, e))?;
+                let (x, st) = equilibrium_with(&model, mass, fr, &starts[i], &statics, &caches[i])
+                    .map_err(|e| (i, e))?;
                 let loss = fr.target.loss(&model, &x);
                 if !loss.is_finite() {
                     return Err((i, "the loss is not finite".into()));
@@ -653,12 +684,13 @@ impl SampleFit<'_> {
         &self,
         ev: &Evaluated,
     ) -> Result<(Vec<FrameLinearization>, Vec<f64>), ElasticFitError> {
+        let caches = &self.caches;
         let lins: Vec<Result<FrameLinearization, (usize, String)>> = self
             .sample
             .frames
             .par_iter()
             .enumerate()
-            .map(|(i, fr)| linearize(&ev.model, fr, &ev.xs[i]).map_err(|e| (i, e)))
+            .map(|(i, fr)| linearize(&ev.model, fr, &ev.xs[i], &caches[i]).map_err(|e| (i, e)))
             .collect();
         let mut out = Vec::with_capacity(lins.len());
         let mut grad = vec![0.0; self.nf() * self.ne()];
@@ -727,6 +759,12 @@ impl SampleFit<'_> {
             rep.iterations += 1;
             let gn = it >= p.gd_iterations;
             let (lins, grad_gamma) = self.linearize(&ev)?;
+            for l in &lins {
+                match l.k_factor.is_cholesky() {
+                    true => rep.cholesky_factors += 1,
+                    false => rep.lu_factors += 1,
+                }
+            }
             let mut grad = basis.pull(&grad_gamma, ne);
             regularizer.add_gradient(&ev.gamma, &mut grad);
             let gamma_rms =
@@ -741,8 +779,13 @@ impl SampleFit<'_> {
                     .collect();
                 let mut coupling = Vec::new();
                 regularizer.add_hessian(&ev.gamma, &mut damping, &mut coupling);
-                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed)
-                    .map_err(|e| self.error(0, e))?;
+                let cg = CgParams {
+                    max_iterations: p.cg_iterations,
+                    ..CgParams::default()
+                };
+                let d =
+                    gn_solve_damped_with(&lins, basis, ne, &grad, &damping, &coupling, &fixed, &cg)
+                        .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
                 d.iter().zip(&ev.gamma).map(|(v, g)| -v / g).collect()
             } else if logmode {
@@ -1036,6 +1079,11 @@ pub fn fit_sample_observed(
         progress,
         init: init.stacked(),
         fields: init,
+        caches: sample
+            .frames
+            .iter()
+            .map(|_| FrameCache::default())
+            .collect(),
     };
     validate(mesh, mass, sample, &model).map_err(|(i, e)| fit.error(i, e))?;
     let starts: Vec<Vec<Vec3>> = sample.frames.iter().map(|f| f.start.clone()).collect();

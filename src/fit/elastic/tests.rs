@@ -266,7 +266,7 @@ fn identified(
     let mut p = DMatrix::<f64>::zeros(m, m);
     for fr in &sample.frames {
         // The frames start at the truth's equilibrium.
-        let lin = linearize(&model, fr, &fr.start).unwrap();
+        let lin = linearize(&model, fr, &fr.start, &Default::default()).unwrap();
         let n = lin.free.ndof;
         let k = dense(n, n, &lin.k);
         let mut c = dense(n, m, &lin.c);
@@ -641,7 +641,7 @@ fn loss_gradient_matches_central_differences() {
     let mut xs = Vec::new();
     for f in &sample.frames {
         let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
-        let lin = linearize(&model, f, &x).unwrap();
+        let lin = linearize(&model, f, &x, &Default::default()).unwrap();
         for (a, b) in grad.iter_mut().zip(&lin.grad) {
             *a += b;
         }
@@ -699,7 +699,7 @@ fn small_case_linearized() -> (TetMesh, Vec<FrameLinearization>, Vec<f64>) {
         .iter()
         .map(|f| {
             let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
-            linearize(&model, f, &x).unwrap()
+            linearize(&model, f, &x, &Default::default()).unwrap()
         })
         .collect();
     let grad = (0..NF * mesh.num_tets())
@@ -1324,4 +1324,84 @@ fn smoothness_makes_the_field_smoother_and_the_loss_still_falls() {
         "{smooth_rough} vs {free_rough}"
     );
     assert!(smooth_loss < 0.02 * loss0, "{smooth_loss:e} vs {loss0:e}");
+}
+
+/// `|K x - b| / |b|` and `|Kᵀ y - b| / |b|` of the factor's two solves,
+/// against the dense `K` of the linearization.
+fn factor_residuals(l: &FrameLinearization) -> (f64, f64) {
+    let n = l.free.ndof;
+    let k = dense(n, n, &l.k);
+    let b = DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin() + 0.1);
+    let mut x = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
+    l.k_factor.solve_in_place(x.as_mut());
+    let mut y = faer::Mat::<f64>::from_fn(n, 1, |i, _| b[i]);
+    l.k_factor.solve_transpose_in_place(y.as_mut());
+    let xv = DVector::from_fn(n, |i, _| x[(i, 0)]);
+    let yv = DVector::from_fn(n, |i, _| y[(i, 0)]);
+    (
+        (&k * xv - &b).norm() / b.norm(),
+        (k.transpose() * yv - &b).norm() / b.norm(),
+    )
+}
+
+#[test]
+fn force_jacobian_is_factored_by_cholesky_at_stable_equilibria() {
+    let (_, lins, _) = small_case_linearized();
+    for (i, l) in lins.iter().enumerate() {
+        assert!(l.k_factor.is_cholesky(), "frame {i}");
+        let (rx, ry) = factor_residuals(l);
+        assert!(rx < 1e-10 && ry < 1e-10, "frame {i}: {rx:e} {ry:e}");
+    }
+    // The same frame linearized twice with one cache: the second factor
+    // reuses the analysis and solves the same.
+    let (mesh, mass, g, sample) = small_case();
+    let model = g.model(&mesh).unwrap();
+    let f = &sample.frames[0];
+    let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
+    let cache = super::adjoint::FrameCache::default();
+    let a = linearize(&model, f, &x, &cache).unwrap();
+    let b = linearize(&model, f, &x, &cache).unwrap();
+    assert!(a.k_factor.is_cholesky() && b.k_factor.is_cholesky());
+    assert_eq!(a.lambda, b.lambda);
+    // Equilibria through the frame's cache (the statics' analysis reused
+    // from the second on) are the fresh solver's, bit for bit.
+    for _ in 0..2 {
+        let (y, _) =
+            super::adjoint::equilibrium_with(&model, &mass, f, &f.start, &tight(), &cache).unwrap();
+        assert_eq!(y, x);
+    }
+}
+
+#[test]
+fn floored_or_indefinite_force_jacobians_are_factored_by_lu() {
+    let (mesh, mass, g, sample) = small_case();
+    let model = g.model(&mesh).unwrap();
+    let f = &sample.frames[0];
+    let (mut x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
+    // Flatten a tet with free nodes onto the plane of three of its nodes:
+    // its smallest singular value drops under the 0.01 floor of Eq. 26,
+    // where the force's Jacobian is not symmetric.
+    let free = super::adjoint::FreeDofs::new(mesh.num_nodes(), &f.pinned);
+    let e = (0..mesh.num_tets())
+        .find(|&e| {
+            mesh.tets[e]
+                .iter()
+                .all(|&a| free.index[a as usize].is_some())
+        })
+        .unwrap();
+    let [a, b, c, d] = mesh.tets[e].map(|a| a as usize);
+    let centroid: [f64; 3] = std::array::from_fn(|k| (x[a][k] + x[b][k] + x[c][k]) / 3.0);
+    x[d] = std::array::from_fn(|k| centroid[k] + 1e-3 * (x[d][k] - centroid[k]));
+    let l = linearize(&model, f, &x, &Default::default()).unwrap();
+    assert!(!l.k_factor.is_cholesky());
+    let (rx, ry) = factor_residuals(&l);
+    assert!(rx < 1e-8 && ry < 1e-8, "{rx:e} {ry:e}");
+    // A symmetric but indefinite matrix: the Cholesky fails, LU takes it.
+    let k = [(0, 0, 2.0), (1, 1, -1.0), (0, 1, 0.5), (1, 0, 0.5)];
+    let lu = super::jacobian::KFactor::new(2, &k, true, &Default::default()).unwrap();
+    assert!(!lu.is_cholesky());
+    let mut v = faer::Mat::<f64>::from_fn(2, 1, |i, _| [1.0, 2.0][i]);
+    lu.solve_in_place(v.as_mut());
+    let (v0, v1) = (v[(0, 0)], v[(1, 0)]);
+    assert!((2.0 * v0 + 0.5 * v1 - 1.0).abs() < 1e-14 && (0.5 * v0 - v1 - 2.0).abs() < 1e-14);
 }
