@@ -348,18 +348,22 @@ impl StaticSolver {
         }
         // No collider entries: the entries come in the same order every
         // time, so the sort into columns is done once.
-        if self.analysis.pattern.as_ref().map(|p| p.2) != Some(fixed) {
-            let pairs: Vec<Pair<usize, usize>> =
-                trip.iter().map(|t| Pair::new(t.row, t.col)).collect();
-            let (sym, argsort) =
-                SymbolicSparseColMat::try_new_from_indices(self.ndof, self.ndof, &pairs)
-                    .map_err(|e| err(format!("{e:?}")))?;
-            self.analysis.pattern = Some((sym, argsort, fixed));
-        }
-        let (sym, argsort, _) = self.analysis.pattern.as_ref().expect("set above");
+        let pattern = match self.analysis.pattern.take() {
+            Some(p) if p.2 == fixed => p,
+            _ => {
+                let pairs: Vec<Pair<usize, usize>> =
+                    trip.iter().map(|t| Pair::new(t.row, t.col)).collect();
+                let (sym, argsort) =
+                    SymbolicSparseColMat::try_new_from_indices(self.ndof, self.ndof, &pairs)
+                        .map_err(|e| err(format!("{e:?}")))?;
+                (sym, argsort, fixed)
+            }
+        };
         let vals: Vec<f64> = trip.iter().map(|t| t.val).collect();
-        SparseColMat::new_from_argsort(sym.clone(), argsort, &vals)
-            .map_err(|e| err(format!("{e:?}")))
+        let a = SparseColMat::new_from_argsort(pattern.0.clone(), &pattern.1, &vals)
+            .map_err(|e| err(format!("{e:?}")));
+        self.analysis.pattern = Some(pattern);
+        a
     }
 
     /// Potential `Π` (J) and its gradient (N) at `x`.
@@ -593,6 +597,33 @@ mod tests {
         let f_ext: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
         assert_eq!(f_ext.len(), n);
         (model, mass, pinned, x, f_ext)
+    }
+
+    #[test]
+    fn a_handed_on_analysis_gives_the_same_equilibrium() {
+        let (model, mass, pinned, x, f_ext) = slab();
+        let p = StaticParams::default();
+        let mut fresh = StaticSolver::new(model.clone(), &mass, &pinned).unwrap();
+        let (want, _) = fresh.solve(&x, &f_ext, None, &p).unwrap();
+        // The analysis of the same pins, under a stiffer material: taken
+        // over, and the result is the fresh solver's bit for bit.
+        let (mesh, _) = box_mesh([6, 3, 3], 0.01, 120.0);
+        let nt = mesh.num_tets();
+        let stiff = ElasticModel::new(&mesh, &vec![2e4; nt], &vec![6e4; nt]).unwrap();
+        let mut other = StaticSolver::new(stiff, &mass, &pinned).unwrap();
+        other.solve(&x, &f_ext, None, &p).unwrap();
+        let analysis = other.into_analysis();
+        assert!(analysis.symbolic.is_some() && analysis.pattern.is_some());
+        let mut s = StaticSolver::new(model.clone(), &mass, &pinned)
+            .unwrap()
+            .with_analysis(analysis);
+        assert!(s.analysis.symbolic.is_some());
+        assert_eq!(s.solve(&x, &f_ext, None, &p).unwrap().0, want);
+        // Another pin set's analysis is not taken over.
+        let s2 = StaticSolver::new(model, &mass, &pinned[1..])
+            .unwrap()
+            .with_analysis(s.into_analysis());
+        assert!(s2.analysis.symbolic.is_none() && s2.analysis.pattern.is_none());
     }
 
     #[test]
