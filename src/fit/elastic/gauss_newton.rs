@@ -166,30 +166,26 @@ pub fn gn_solve(
     kappa: f64,
     fixed: &[bool],
 ) -> Result<Vec<f64>, String> {
-    gn_solve_damped(lins, basis, ne, grad, &vec![kappa; grad.len()], &[], fixed)
+    let damping = vec![kappa; grad.len()];
+    gn_solve_damped(
+        lins,
+        basis,
+        ne,
+        grad,
+        &damping,
+        &[],
+        fixed,
+        &CgParams::default(),
+    )
 }
 
 /// [`gn_solve`] with a damping of its own per parameter and a symmetric
 /// coupling between parameters (a regularizer's off-diagonal curvature,
 /// entries `(a, b, v)` given both ways; full basis only): solves
-/// `(Σ_i P_i + diag(damping) + coupling) d = grad`.
-pub fn gn_solve_damped(
-    lins: &[FrameLinearization],
-    basis: &Basis,
-    ne: usize,
-    grad: &[f64],
-    damping: &[f64],
-    coupling: &[(usize, usize, f64)],
-    fixed: &[bool],
-) -> Result<Vec<f64>, String> {
-    let cg = CgParams::default();
-    gn_solve_damped_with(lins, basis, ne, grad, damping, coupling, fixed, &cg)
-}
-
-/// [`gn_solve_damped`] with the conjugate gradients' parameters (used on
-/// full fields above [`KKT_MAX_UNKNOWNS`]).
+/// `(Σ_i P_i + diag(damping) + coupling) d = grad`, by `cg` on full fields
+/// above [`KKT_MAX_UNKNOWNS`].
 #[allow(clippy::too_many_arguments)]
-pub fn gn_solve_damped_with(
+pub fn gn_solve_damped(
     lins: &[FrameLinearization],
     basis: &Basis,
     ne: usize,
@@ -783,9 +779,8 @@ impl SampleFit<'_> {
                     max_iterations: p.cg_iterations,
                     ..CgParams::default()
                 };
-                let d =
-                    gn_solve_damped_with(&lins, basis, ne, &grad, &damping, &coupling, &fixed, &cg)
-                        .map_err(|e| self.error(0, e))?;
+                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed, &cg)
+                    .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
                 d.iter().zip(&ev.gamma).map(|(v, g)| -v / g).collect()
             } else if logmode {

@@ -1261,7 +1261,17 @@ fn coupled_gauss_newton_direction_equals_the_dense_solve() {
     }
     let want = a.lu().solve(&DVector::from_vec(grad.clone())).unwrap();
     let fixed = vec![false; m];
-    let d = gn_solve_damped(&lins, &Basis::Full, ne, &grad, &diag, &coupling, &fixed).unwrap();
+    let d = gn_solve_damped(
+        &lins,
+        &Basis::Full,
+        ne,
+        &grad,
+        &diag,
+        &coupling,
+        &fixed,
+        &CgParams::default(),
+    )
+    .unwrap();
     let err = (DVector::from_vec(d) - &want).norm() / want.norm();
     assert!(err < 1e-6, "sparse Eq. 21: relative difference {err:e}");
     let cg = CgParams {
@@ -1272,7 +1282,17 @@ fn coupled_gauss_newton_direction_equals_the_dense_solve() {
     let err = (DVector::from_vec(d) - &want).norm() / want.norm();
     assert!(err < 1e-6, "CG: relative difference {err:e}");
     // Without the coupling the answer differs: the test sees it.
-    let plain = gn_solve_damped(&lins, &Basis::Full, ne, &grad, &diag, &[], &fixed).unwrap();
+    let plain = gn_solve_damped(
+        &lins,
+        &Basis::Full,
+        ne,
+        &grad,
+        &diag,
+        &[],
+        &fixed,
+        &CgParams::default(),
+    )
+    .unwrap();
     let off = (DVector::from_vec(plain) - &want).norm() / want.norm();
     assert!(off > 1e-3, "the coupling changed nothing ({off:e})");
 }
