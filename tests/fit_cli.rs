@@ -580,6 +580,20 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     assert!(err.contains("0.5") && err.contains("contrast"), "{err}");
     assert!(!out.exists());
 
+    // A stall fraction outside [0, 1) and a CG cap of 0: usage, exit 2,
+    // naming the option and the value.
+    for (flag, value) in [
+        ("--stall-decrease", "1"),
+        ("--stall-decrease", "-0.1"),
+        ("--cg-iterations", "0"),
+    ] {
+        let o = fit_one(&out, &[&format!("{flag}={value}")]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{flag} {value}: {err}");
+        assert!(err.contains(flag) && err.contains(value), "{err}");
+        assert!(!out.exists());
+    }
+
     // A missing pose file: exit 66, named.
     let missing = d.join("nope.h5");
     let o = knitvox(&["fit", s(&asset_path), "--train", s(&missing), "-o", s(&out)]);

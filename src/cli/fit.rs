@@ -35,6 +35,11 @@ pub struct FitArgs {
     /// directions; README "Fit at VH's rib size").
     #[arg(long, default_value_t = ElasticFitParams::default().cg_iterations as u64, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub cg_iterations: u64,
+    /// A stage ends once Gauss-Newton, no longer damped, lowers the loss by
+    /// less than this fraction over 3 iterations ([0, 1); 0: run every
+    /// iteration).
+    #[arg(long, default_value_t = ElasticFitParams::default().stall_decrease, value_name = "F", value_parser = parse_stall)]
+    pub stall_decrease: f64,
     /// Largest contrast of the fitted field: every gamma over its initial value
     /// stays within this factor of their geometric mean (>= 1; `inf` for no
     /// bound). Poses leave most of a field unobserved; unbounded, it drifts
@@ -107,6 +112,15 @@ fn parse_prior(s: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_stall(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..1.0).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "'{s}' is not a stall decrease (a fraction in [0, 1))"
+        )),
+    }
+}
+
 fn parse_contrast(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v >= 1.0 => Ok(v),
@@ -127,6 +141,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             gd_iterations: a.gd_iterations,
             gn_iterations: a.gn_iterations,
             cg_iterations: a.cg_iterations as usize,
+            stall_decrease: a.stall_decrease,
             max_contrast: a.max_contrast,
             prior_weight: a.prior,
             smooth_weight: a.smooth,

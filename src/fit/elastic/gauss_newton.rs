@@ -202,7 +202,7 @@ pub fn gn_solve_damped(
         return gn_solve_subspace(lins, basis, ne, grad, damping, fixed);
     }
     let m = grad.len();
-    if solved_by_cg(lins, m) {
+    if solved_by_cg(lins, m, cg.direct_max_unknowns) {
         return gn_solve_cg(lins, grad, damping, coupling, fixed, cg).map(|(d, _)| d);
     }
     let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
@@ -327,9 +327,9 @@ pub const KKT_MAX_UNKNOWNS: usize = 60_000;
 
 /// Whether the full-field Gauss-Newton system of `m` parameters over
 /// `lins` is solved by [`gn_solve_cg`] (its Eq. 21 form has more than
-/// [`KKT_MAX_UNKNOWNS`] unknowns).
-fn solved_by_cg(lins: &[FrameLinearization], m: usize) -> bool {
-    lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > KKT_MAX_UNKNOWNS
+/// `direct_max` unknowns; [`KKT_MAX_UNKNOWNS`] by default).
+fn solved_by_cg(lins: &[FrameLinearization], m: usize, direct_max: usize) -> bool {
+    lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > direct_max
 }
 
 /// Conjugate gradients on the damped Eq. 20.
@@ -341,6 +341,9 @@ pub struct CgParams {
     /// every CG iterate from zero has `gradᵀ d > 0`). Default 300
     /// ([`super::ElasticFitParams::cg_iterations`]).
     pub max_iterations: usize,
+    /// Largest Eq. 21 system (unknowns) factored directly instead; default
+    /// [`KKT_MAX_UNKNOWNS`].
+    pub direct_max_unknowns: usize,
 }
 
 impl Default for CgParams {
@@ -348,6 +351,7 @@ impl Default for CgParams {
         CgParams {
             tolerance: 1e-8,
             max_iterations: 300,
+            direct_max_unknowns: KKT_MAX_UNKNOWNS,
         }
     }
 }
@@ -557,9 +561,40 @@ pub struct StageReport {
     pub lu_factors: u64,
     /// Largest relative force residual of the frames at the stage end.
     pub final_residual: f64,
+    /// Why the stage ended.
+    pub stop: StageStop,
     /// Wall time (ms).
     pub ms: f64,
 }
+
+/// Why a stage ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StageStop {
+    /// All its gradient-descent and Gauss-Newton iterations ran.
+    #[default]
+    Iterations,
+    /// The sample's loss reached `loss_stop` of its start.
+    LossGoal,
+    /// The direction was not a descent direction.
+    NoDescent,
+    /// No step along the direction lowered the objective.
+    LineSearch,
+    /// An iteration lowered the objective by less than `min_decrease`.
+    NoDecrease,
+    /// Gauss-Newton stalled (`stall_decrease`).
+    Stalled,
+    /// Skipped: the start is not in the stage's subspace.
+    Skipped,
+    /// The scale stage's one-factor search ended (`scale_search`).
+    SearchDone,
+}
+
+/// Levenberg-Marquardt's smallest damping factor (relative to `kappa`).
+const LM_FLOOR: f64 = 1e-6;
+
+/// Accepted Gauss-Newton iterations over which `stall_decrease` is summed.
+const STALL_WINDOW: usize = 3;
 
 /// A material and its equilibria.
 pub(super) struct Evaluated {
@@ -735,6 +770,7 @@ impl SampleFit<'_> {
             }
             if ev.gamma != back {
                 rep.name.push_str(" (skipped: start not representable)");
+                rep.stop = StageStop::Skipped;
                 return Ok((ev, rep));
             }
         }
@@ -747,8 +783,11 @@ impl SampleFit<'_> {
         let mut failures = 0;
         let floor = p.gamma_floor;
         let regularizer = Regularizer::new(p, full && p.full_stage_log, self.mesh, &ev);
+        // Relative decreases of the last accepted Gauss-Newton iterations.
+        let mut recent = std::collections::VecDeque::with_capacity(STALL_WINDOW + 1);
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
+                rep.stop = StageStop::LossGoal;
                 break;
             }
             let t_it = Instant::now();
@@ -777,6 +816,7 @@ impl SampleFit<'_> {
                 regularizer.add_hessian(&ev.gamma, &mut damping, &mut coupling);
                 let cg = CgParams {
                     max_iterations: p.cg_iterations,
+                    direct_max_unknowns: p.direct_max_unknowns,
                     ..CgParams::default()
                 };
                 let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed, &cg)
@@ -839,11 +879,12 @@ impl SampleFit<'_> {
                 dot(&grad, &dir)
             };
             if !(slope < 0.0) {
+                rep.stop = StageStop::NoDescent;
                 break;
             }
             let direction_ms = t_it.elapsed().as_secs_f64() * 1e3;
             let mut step = if gn { p.gn_step } else { p.gd_step };
-            if gn && logmode && solved_by_cg(&lins, m) {
+            if gn && logmode && solved_by_cg(&lins, m, p.direct_max_unknowns) {
                 let big = dir.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 if big * step > p.max_log_step {
                     step = p.max_log_step / big;
@@ -896,14 +937,16 @@ impl SampleFit<'_> {
                 if gn && failures < 3 {
                     failures += 1;
                     lm *= 100.0;
+                    recent.clear();
                     continue;
                 }
+                rep.stop = StageStop::LineSearch;
                 break;
             };
             failures = 0;
             if gn {
                 lm = if halved == 0 {
-                    (lm / 3.0).max(1e-6)
+                    (lm / 3.0).max(LM_FLOOR)
                 } else {
                     lm * 4.0
                 };
@@ -929,7 +972,18 @@ impl SampleFit<'_> {
                 });
             }
             if decrease < p.min_decrease {
+                rep.stop = StageStop::NoDecrease;
                 break;
+            }
+            if gn {
+                recent.push_back(decrease);
+                if recent.len() > STALL_WINDOW {
+                    recent.pop_front();
+                }
+                if stalled(&recent, lm, p.stall_decrease) {
+                    rep.stop = StageStop::Stalled;
+                    break;
+                }
             }
         }
         rep.clamped = clamped.iter().filter(|c| **c).count();
@@ -950,6 +1004,14 @@ impl SampleFit<'_> {
             .map(|d| d.iter().map(|v| -v).collect())
             .map_err(|e| self.error(0, e))
     }
+}
+
+/// Whether Gauss-Newton has stalled: undamped (`lm` at its floor) and the
+/// last [`STALL_WINDOW`] accepted iterations' relative decreases sum to
+/// less than `tolerance`. Small decreases while the damping still shortens
+/// the steps are not a stall.
+pub(super) fn stalled(recent: &std::collections::VecDeque<f64>, lm: f64, tolerance: f64) -> bool {
+    lm <= LM_FLOOR && recent.len() == STALL_WINDOW && recent.iter().sum::<f64>() < tolerance
 }
 
 fn zero_clamped(d: &mut [f64], clamped: &[bool]) {

@@ -184,8 +184,9 @@ pub struct ElasticFitParams {
     /// 10-15). Default 12.
     pub gd_iterations: u32,
     /// Gauss-Newton iterations after them, per stage (VH §6.3: 20-30).
-    /// Default 50: a stage ends earlier once the loss stops falling or
-    /// reaches `loss_stop`, and the full stage of a 100x band needs ~45
+    /// Default 50: a stage ends earlier once the loss stops falling, stalls
+    /// (`stall_decrease`) or reaches `loss_stop`, and the full stage of a
+    /// 100x band needs ~45
     /// (measured in `tests.rs`, synthetic recovery).
     pub gn_iterations: u32,
     /// Most conjugate-gradient iterations of a full-field Gauss-Newton
@@ -196,6 +197,13 @@ pub struct ElasticFitParams {
     /// lower stretch loss, but a 2.2x higher bend loss (the folded field's
     /// loss 8.6% higher): the bend's directions need the longer solves.
     pub cg_iterations: usize,
+    /// Largest Eq. 21 system (unknowns: twice the free DOFs of every frame
+    /// plus the parameters) of a log-space full stage solved by sparse LU;
+    /// larger ones go to conjugate gradients. Default
+    /// [`gauss_newton::KKT_MAX_UNKNOWNS`] (60K): the LU's fill-in grows far
+    /// beyond the matrix (a 12.7K-node rib, 2 frames: 250 s and 7 GB per
+    /// step).
+    pub direct_max_unknowns: usize,
     /// First trial step of gradient descent (dimensionless): the direction
     /// is scaled so that a step of 1 changes the most sensitive `γ` by the
     /// RMS of the current `γ`. Default 0.01 (VH §6.3).
@@ -225,6 +233,15 @@ pub struct ElasticFitParams {
     /// A stage stops when an iteration lowers the loss by less than this
     /// fraction (dimensionless). Default 1e-9.
     pub min_decrease: f64,
+    /// A stage stops once Gauss-Newton has stalled: its Levenberg-Marquardt
+    /// damping is at its floor (the last 13 steps were taken whole, so the
+    /// damping no longer shortens them) and its last 3 accepted iterations
+    /// lowered the objective by less than this fraction in all
+    /// (dimensionless; 0 never stops). Default 1e-4. On the 26 x 26 rib's
+    /// stretch pose the full stage crept by 2e-5 per iteration for its last
+    /// 35 iterations (0.07% in all, 9 of the fit's 32 min); the early damped
+    /// Gauss-Newton steps, also small, are not a stall.
+    pub stall_decrease: f64,
     /// Largest change of any `ln γ` in one log-space Gauss-Newton step
     /// solved by conjugate gradients (full fields above
     /// [`gauss_newton::KKT_MAX_UNKNOWNS`] unknowns; trust region,
@@ -278,6 +295,7 @@ impl Default for ElasticFitParams {
             gd_iterations: 12,
             gn_iterations: 50,
             cg_iterations: 300,
+            direct_max_unknowns: gauss_newton::KKT_MAX_UNKNOWNS,
             gd_step: 0.01,
             gn_step: 1.0,
             max_halvings: 10,
@@ -287,6 +305,7 @@ impl Default for ElasticFitParams {
             equilibrium_iterations: 100,
             loss_stop: 1e-10,
             min_decrease: 1e-9,
+            stall_decrease: 1e-4,
             max_log_step: 2.0 * std::f64::consts::LN_10,
             max_contrast: 1e3,
             prior_weight: 0.0,
@@ -316,6 +335,7 @@ impl ElasticFitParams {
             && self.equilibrium_tolerance <= 1e-5
             && self.loss_stop >= 0.0
             && self.min_decrease >= 0.0
+            && (0.0..1.0).contains(&self.stall_decrease)
             && self.max_log_step > 0.0
             && self.max_contrast >= 1.0
             && self.prior_weight >= 0.0
@@ -326,7 +346,7 @@ impl ElasticFitParams {
             Ok(())
         } else {
             Err(ElasticFitError::Inconsistent(format!(
-                "fit parameters out of range (steps > 0, CG iterations >= 1, max log step > 0, max contrast >= 1, prior and smoothness weights >= 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
+                "fit parameters out of range (steps > 0, CG iterations >= 1, stall decrease in [0, 1), max log step > 0, max contrast >= 1, prior and smoothness weights >= 0, kappa >= 0, floor > 0, equilibrium tolerance in (0, 1e-5]): {self:?}"
             )))
         }
     }

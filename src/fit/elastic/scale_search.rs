@@ -40,6 +40,7 @@ impl SampleFit<'_> {
             name: "scale".into(),
             parameters: 1,
             losses: vec![ev.loss],
+            stop: super::gauss_newton::StageStop::SearchDone,
             ..Default::default()
         };
         let base = ev.gamma.clone();
