@@ -630,7 +630,7 @@ fn vtkhdf_bomb_is_refused_under_the_budget() {
         // the points); bomb.vtkhdf stores ~4 MB of them, enough for the
         // gzip ratio to make the claim plausible, so only the budget
         // refuses it; empty.vtkhdf stores nothing.
-        let f = hdf5::File::open_rw(&path).unwrap();
+        let f = common::h5_edit(&path);
         h5_bomb_dataset(&f, "knitvox", "rest_nodes", n, written);
         h5_bomb_dataset(&f, "VTKHDF", "Points", n, 0);
         {
@@ -679,7 +679,7 @@ fn vtkhdf_arrays_together_stay_under_the_budget() {
     // nodes' arrays together (640 MB) do not.
     let n: usize = 20_000_000;
     let path = small_asset(&dir, "big.vtkhdf");
-    let f = hdf5::File::open_rw(&path).unwrap();
+    let f = common::h5_edit(&path);
     h5_bomb_dataset(&f, "knitvox", "rest_nodes", n, 100_000);
     h5_bomb_dataset(&f, "VTKHDF", "Points", n, 0);
     {

@@ -485,7 +485,7 @@ fn broken_fibres_name_the_dataset() {
     expect_at(&p, "/VTKHDF/CellData/gamma_wale", "negative");
     let p = copy("half.vtkhdf");
     {
-        let f = hdf5::File::open_rw(&p).unwrap();
+        let f = common::h5_edit(&p);
         f.unlink("VTKHDF/CellData/wale_direction").unwrap();
     }
     expect_at(&p, "/VTKHDF/CellData/wale_direction", "missing");
@@ -515,7 +515,7 @@ fn format_error(p: &Path) -> (Location, String) {
 
 /// Replaces dataset `name` of `p` by one of `shape` holding `data`.
 fn replace<T: hdf5::H5Type>(p: &Path, name: &str, shape: &[usize], data: &[T]) {
-    let f = hdf5::File::open_rw(p).unwrap();
+    let f = common::h5_edit(p);
     f.unlink(name).unwrap();
     let ds = f
         .new_dataset::<T>()
@@ -582,7 +582,7 @@ fn empty_truncated_and_foreign_files_are_errors() {
     // lock (flock), and opening it for writing would fail (EAGAIN).
     let plain = dir.path().join("plain.vtkhdf");
     std::fs::copy(&good, &plain).unwrap();
-    let f = hdf5::File::open_rw(&plain).unwrap();
+    let f = common::h5_edit(&plain);
     f.unlink("knitvox").unwrap();
     f.close().unwrap();
     let (loc, msg) = format_error(&plain);
@@ -715,7 +715,7 @@ fn wrong_shapes_and_values_name_the_dataset() {
     expect_at(&p, "/knitvox/rest_yarns/offsets", "past the 9 points");
 
     let p = fresh("no_mass.vtkhdf");
-    let f = hdf5::File::open_rw(&p).unwrap();
+    let f = common::h5_edit(&p);
     f.unlink("VTKHDF/PointData/mass").unwrap();
     f.close().unwrap();
     expect_at(&p, "/VTKHDF/PointData/mass", "missing");
@@ -727,7 +727,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
     let fresh = |name: &str| good_file(dir.path(), name, 3);
 
     let set_attr_i64 = |p: &Path, group: &str, name: &str, v: i64| {
-        let f = hdf5::File::open_rw(p).unwrap();
+        let f = common::h5_edit(p);
         let g = f.group(group).unwrap();
         g.delete_attr(name).unwrap();
         g.new_attr::<i64>()
@@ -748,7 +748,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
     );
 
     let p = fresh("vtk_version.vtkhdf");
-    let f = hdf5::File::open_rw(&p).unwrap();
+    let f = common::h5_edit(&p);
     let g = f.group("VTKHDF").unwrap();
     g.delete_attr("Version").unwrap();
     g.new_attr::<i64>()
@@ -757,6 +757,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
         .unwrap()
         .write_raw(&[1i64, 0])
         .unwrap();
+    drop(g); // its handle would keep the file open past `close`
     f.close().unwrap();
     expect_at(&p, "/VTKHDF@Version", "version 1.0");
 
@@ -770,7 +771,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
 
     // 2^40 rest nodes claimed by a chunked dataset that stores nothing.
     let p = fresh("huge_nodes.vtkhdf");
-    let f = hdf5::File::open_rw(&p).unwrap();
+    let f = common::h5_edit(&p);
     f.unlink("knitvox/rest_nodes").unwrap();
     f.new_dataset::<f64>()
         .chunk([1024, 3])
@@ -785,7 +786,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
     let p = dir.path().join("claims.vtkhdf");
     write_asset(&p, &box_asset(2, 1, 1, 0)).unwrap();
     let big = 1usize << 28;
-    let f = hdf5::File::open_rw(&p).unwrap();
+    let f = common::h5_edit(&p);
     for name in ["knitvox/rest_nodes", "VTKHDF/Points"] {
         f.unlink(name).unwrap();
         f.new_dataset::<f64>()
@@ -805,7 +806,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
     expect_at(&p, "/knitvox/rest_nodes", "but the file stores only");
 
     let p = fresh("type.vtkhdf");
-    let f = hdf5::File::open_rw(&p).unwrap();
+    let f = common::h5_edit(&p);
     let g = f.group("VTKHDF").unwrap();
     g.delete_attr("Type").unwrap();
     let v = hdf5::types::VarLenUnicode::from_str("PolyData").unwrap();
@@ -815,6 +816,7 @@ fn wrong_attributes_and_absurd_claims_are_errors() {
         .unwrap()
         .write_scalar(&v)
         .unwrap();
+    drop(g);
     f.close().unwrap();
     expect_at(&p, "/VTKHDF@Type", "'PolyData'");
 }

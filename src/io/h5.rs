@@ -1958,7 +1958,12 @@ mod tests {
         let edited = |name: &str, edit: &dyn Fn(&Group)| -> String {
             let q = dir.path().join(format!("{name}.h5"));
             write_file(&q, &y, None).unwrap();
-            let f = hdf5::File::open_rw(&q).unwrap();
+            // No file lock: a child process another test spawns meanwhile
+            // would inherit libhdf5's descriptor and keep it locked.
+            let f = hdf5::File::with_options()
+                .with_fapl(|p| p.file_locking(false))
+                .open_rw(&q)
+                .unwrap();
             edit(&f.group("yarns/rest").unwrap());
             drop(f);
             read_file(&q, &ReadOptions::default())

@@ -210,3 +210,15 @@ impl Rng {
         nalgebra::Rotation3::new(self.vec() * 3.0).into_inner()
     }
 }
+
+/// Opens an HDF5 file read-write to edit it, without libhdf5's file lock:
+/// libhdf5 opens its descriptor without O_CLOEXEC, so a child process that
+/// another test spawns meanwhile inherits it and keeps the lock after the
+/// edit, and the next read of the file reports it busy (seen as rare
+/// failures of the corrupting tests).
+pub fn h5_edit(path: &Path) -> hdf5::File {
+    hdf5::File::with_options()
+        .with_fapl(|p| p.file_locking(false))
+        .open_rw(path)
+        .unwrap()
+}
