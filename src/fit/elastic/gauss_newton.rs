@@ -814,13 +814,17 @@ impl SampleFit<'_> {
                     .collect();
                 let mut coupling = Vec::new();
                 regularizer.add_hessian(&ev.gamma, &mut damping, &mut coupling);
-                let cg = CgParams {
-                    max_iterations: p.cg_iterations,
-                    direct_max_unknowns: p.direct_max_unknowns,
-                    ..CgParams::default()
-                };
-                let d = gn_solve_damped(&lins, basis, ne, &grad, &damping, &coupling, &fixed, &cg)
-                    .map_err(|e| self.error(0, e))?;
+                let d = gn_solve_damped(
+                    &lins,
+                    basis,
+                    ne,
+                    &grad,
+                    &damping,
+                    &coupling,
+                    &fixed,
+                    &p.cg(),
+                )
+                .map_err(|e| self.error(0, e))?;
                 // In log space: dθ = dγ / γ.
                 d.iter().zip(&ev.gamma).map(|(v, g)| -v / g).collect()
             } else if logmode {
@@ -1000,7 +1004,9 @@ impl SampleFit<'_> {
         kappa: f64,
         fixed: &[bool],
     ) -> Result<Vec<f64>, ElasticFitError> {
-        gn_solve(lins, basis, self.ne(), grad, kappa, fixed)
+        let damping = vec![kappa; grad.len()];
+        let cg = self.params.cg();
+        gn_solve_damped(lins, basis, self.ne(), grad, &damping, &[], fixed, &cg)
             .map(|d| d.iter().map(|v| -v).collect())
             .map_err(|e| self.error(0, e))
     }

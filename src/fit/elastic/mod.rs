@@ -198,7 +198,7 @@ pub struct ElasticFitParams {
     /// loss 8.6% higher): the bend's directions need the longer solves.
     pub cg_iterations: usize,
     /// Largest Eq. 21 system (unknowns: twice the free DOFs of every frame
-    /// plus the parameters) of a log-space full stage solved by sparse LU;
+    /// plus the parameters) of a full stage solved by sparse LU;
     /// larger ones go to conjugate gradients. Default
     /// [`gauss_newton::KKT_MAX_UNKNOWNS`] (60K): the LU's fill-in grows far
     /// beyond the matrix (a 12.7K-node rib, 2 frames: 250 s and 7 GB per
@@ -320,6 +320,15 @@ impl ElasticFitParams {
         StaticParams {
             tolerance: self.equilibrium_tolerance,
             max_iterations: self.equilibrium_iterations,
+        }
+    }
+
+    /// The full stage's conjugate-gradient parameters.
+    pub fn cg(&self) -> gauss_newton::CgParams {
+        gauss_newton::CgParams {
+            max_iterations: self.cg_iterations,
+            direct_max_unknowns: self.direct_max_unknowns,
+            ..Default::default()
         }
     }
 

@@ -427,6 +427,26 @@ fn strict_recovery(factor: f64) -> Recovery {
     )
 }
 
+/// Soft uniform Eq. 7 (γs 2e3, γv 6e3 Pa) with tension-only fibres along
+/// the bar's x axis, 10x stiffer (2e5 against 2e4 Pa) in the band of tets
+/// whose centroid lies in [0.35, 0.65] of its length.
+fn fibre_band_truth(mesh: &TetMesh) -> MaterialFields {
+    use crate::sim::fibre::FibreFamily;
+    let ne = mesh.num_tets();
+    let lx = mesh.nodes.iter().fold(0.0f64, |m, p| m.max(p[0]));
+    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
+    truth.fibres = vec![FibreFamily {
+        directions: vec![[1.0, 0.0, 0.0]; ne],
+        gamma: (0..ne)
+            .map(|e| match centroid_x(mesh, e) / lx {
+                c if (0.35..=0.65).contains(&c) => 2e5,
+                _ => 2e4,
+            })
+            .collect(),
+    }];
+    truth
+}
+
 /// Fibres along the bar, 10x stiffer in the middle band, over a soft
 /// uniform Eq. 7: fitted from a uniform start with the same fibre
 /// directions, the loss falls >= 1e4x and every fibre stiffness the poses
@@ -439,21 +459,7 @@ fn synthetic_recovery_of_a_fibre_band() {
     use crate::sim::fibre::FibreFamily;
     let (mesh, mass) = bar([8, 2, 2]);
     let ne = mesh.num_tets();
-    let lx = mesh.nodes.iter().fold(0.0f64, |m, p| m.max(p[0]));
-    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
-    truth.fibres = vec![FibreFamily {
-        directions: vec![[1.0, 0.0, 0.0]; ne],
-        gamma: (0..ne)
-            .map(|e| {
-                let c = centroid_x(&mesh, e) / lx;
-                if (0.35..=0.65).contains(&c) {
-                    2e5
-                } else {
-                    2e4
-                }
-            })
-            .collect(),
-    }];
+    let truth = fibre_band_truth(&mesh);
     let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
     let mut init = MaterialFields::uniform(ne, 1e4, 1e4);
     init.fibres = vec![FibreFamily {
@@ -1460,20 +1466,9 @@ fn gauss_newton_stalls_only_undamped_over_a_full_window() {
 /// iterations and gains less than 1% more.
 #[test]
 fn a_stalled_stage_stops_early_and_the_rule_only_cuts_the_creep() {
-    use crate::sim::fibre::FibreFamily;
     let (mesh, mass) = bar([8, 2, 2]);
     let ne = mesh.num_tets();
-    let lx = mesh.nodes.iter().fold(0.0f64, |m, p| m.max(p[0]));
-    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
-    truth.fibres = vec![FibreFamily {
-        directions: vec![[1.0, 0.0, 0.0]; ne],
-        gamma: (0..ne)
-            .map(|e| match centroid_x(&mesh, e) / lx {
-                c if (0.35..=0.65).contains(&c) => 2e5,
-                _ => 2e4,
-            })
-            .collect(),
-    }];
+    let truth = fibre_band_truth(&mesh);
     let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
     let init = MaterialFields::uniform(ne, 1e4, 1e4);
     let run = |stall: f64| {
