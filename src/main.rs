@@ -24,6 +24,14 @@ fn main() -> std::process::ExitCode {
         libc::signal(libc::SIGINT, handler as libc::sighandler_t);
         libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
     }
+    // Mesa's Vulkan device-select layer connects to a Wayland display to rank
+    // GPUs and, on a headless farm node, prints "error: XDG_RUNTIME_DIR is
+    // invalid or not set" twice while knitvox probes for a GPU. knitvox
+    // picks its adapter itself, so the layer is switched off unless the user
+    // set it (single-threaded here, so setting the variable is sound).
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
     // With --json, errors are a JSON object on stdout as well.
     let json = cli::wants_json(std::env::args_os());
     let cli = match Cli::try_parse() {

@@ -518,3 +518,23 @@ fn completion_offers_backend_solver_and_format_values() {
         );
     }
 }
+
+/// A headless farm node (no Wayland session): probing for a GPU must not
+/// print error lines from the Vulkan drivers' layers. Mesa's device-select
+/// layer, where installed (CI installs mesa-vulkan-drivers), connects to a
+/// Wayland display and prints "error: XDG_RUNTIME_DIR is invalid or not set"
+/// twice unless knitvox switches it off (`main`).
+#[test]
+fn gpu_probe_on_a_headless_node_prints_no_driver_errors() {
+    let o = Command::new(common::knitvox_bin())
+        .args(["bench", "sim", "--tets", "200", "--steps", "1"])
+        .args(["--backend", "auto", "--json"])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("NODEVICE_SELECT")
+        .output()
+        .expect("run knitvox");
+    let err = stderr(&o);
+    assert!(o.status.success(), "bench sim failed: {err}");
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "driver noise: {err}");
+}
