@@ -624,6 +624,22 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     );
     assert!(!out.exists());
 
+    // An asset whose material lies below the fit's floor (a tet with γv = 0):
+    // bad input (65) naming the asset, the dataset and the tet; it was an
+    // internal error (70) blamed on nothing.
+    let soft = d.join("soft.vtkhdf");
+    let mut a = asset.clone();
+    a.gamma_v[3] = 0.0;
+    io::vtkhdf::write_asset(&soft, &a).unwrap();
+    let o = knitvox(&["fit", s(&soft), "--train", s(&pose), "-o", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(
+        err.contains("soft.vtkhdf") && err.contains("CellData/gamma_v of tet 3 is 0e0 Pa"),
+        "{err}"
+    );
+    assert!(!out.exists());
+
     // A pose file without mechanics is fitted under the assumed clamps with
     // warnings saying so.
     let bare = d.join("bare.h5");

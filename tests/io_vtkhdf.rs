@@ -482,7 +482,11 @@ fn broken_fibres_name_the_dataset() {
     let mut g = a.fibres.as_ref().unwrap().gamma_wale.clone();
     g[2] = -1.0;
     replace(&p, "VTKHDF/CellData/gamma_wale", &[t], &g);
-    expect_at(&p, "/VTKHDF/CellData/gamma_wale", "negative");
+    expect_at(
+        &p,
+        "/VTKHDF/CellData/gamma_wale",
+        "entry 2: stiffness -1e0 Pa is outside [0, 1e12] Pa",
+    );
     let p = copy("half.vtkhdf");
     {
         let f = common::h5_edit(&p);
@@ -687,6 +691,23 @@ fn wrong_shapes_and_values_name_the_dataset() {
     let p = fresh("gamma.vtkhdf");
     replace(&p, "VTKHDF/CellData/gamma_s", &[11], &[1.0f64; 11]);
     expect_at(&p, "/VTKHDF/CellData/gamma_s", "one per tet");
+
+    // Stiffnesses beyond any material (or negative) are corruption: named
+    // where they are, not found later as a singular PD matrix of the scene.
+    for (name, bad, what) in [
+        (
+            "gamma_v",
+            -1.0,
+            "entry 7: stiffness -1e0 Pa is outside [0, 1e12] Pa",
+        ),
+        ("gamma_s", 1e300, "entry 7: stiffness 1e300 Pa is outside"),
+    ] {
+        let p = fresh(&format!("{name}_absurd.vtkhdf"));
+        let mut g = vec![1e4f64; 12];
+        g[7] = bad;
+        replace(&p, &format!("VTKHDF/CellData/{name}"), &[12], &g);
+        expect_at(&p, &format!("/VTKHDF/CellData/{name}"), what);
+    }
 
     let p = fresh("domain.vtkhdf");
     replace(&p, "VTKHDF/CellData/domain", &[12], &[1i64 << 40; 12]);

@@ -139,12 +139,8 @@ fn check_asset(a: &Asset) -> Result<(), String> {
     len("gamma_s", a.gamma_s.len(), t, "tet")?;
     len("gamma_v", a.gamma_v.len(), t, "tet")?;
     len("domain", a.domain.len(), t, "tet")?;
-    if let Some(i) = all_finite(&a.gamma_s) {
-        return Err(format!("tet {i}: gamma_s is not finite"));
-    }
-    if let Some(i) = all_finite(&a.gamma_v) {
-        return Err(format!("tet {i}: gamma_v is not finite"));
-    }
+    check_stiffness("gamma_s", &a.gamma_s)?;
+    check_stiffness("gamma_v", &a.gamma_v)?;
     if let Some(f) = &a.fibres {
         check_fibres(f, t)?;
     }
@@ -498,18 +494,29 @@ fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
             return Err(format!("tet {i}: {name} {:?} is not a unit vector", d[i]));
         }
     }
-    for (name, g) in [
-        ("gamma_course", &f.gamma_course),
-        ("gamma_wale", &f.gamma_wale),
-    ] {
-        if let Some(i) = g.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(format!(
-                "tet {i}: {name} {} is not a finite value >= 0",
-                g[i]
-            ));
-        }
+    check_stiffness("gamma_course", &f.gamma_course)?;
+    check_stiffness("gamma_wale", &f.gamma_wale)
+}
+
+/// Largest stiffness an asset may carry (Pa), about diamond's Young's
+/// modulus: knit materials lie around 1e1-1e6 Pa, so a value beyond this is
+/// corruption, and it would overflow the simulator's matrices (a `γv` of
+/// 1e300 made `K` lose positive definiteness, reported against the scene).
+pub const MAX_STIFFNESS_PA: f64 = 1e12;
+
+fn stiffness_in_range(v: f64) -> bool {
+    (0.0..=MAX_STIFFNESS_PA).contains(&v)
+}
+
+/// Every stiffness of `name` (Pa) finite and in `[0, MAX_STIFFNESS_PA]`.
+fn check_stiffness(name: &str, g: &[f64]) -> Result<(), String> {
+    match g.iter().position(|v| !stiffness_in_range(*v)) {
+        Some(i) => Err(format!(
+            "tet {i}: {name} {:e} Pa is not a finite value in [0, {MAX_STIFFNESS_PA:e}] Pa",
+            g[i]
+        )),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 /// The fibre families of `CellData`, if it has them (all four arrays or
@@ -535,14 +542,7 @@ fn read_fibres(cd: &Group, cdp: &str, t: usize) -> Result<Option<AssetFibres>, F
         }
         Ok(d)
     };
-    let gammas = |name: &str| -> Result<Vec<f64>, FormatError> {
-        let ds = required(cd, cdp, name)?;
-        let g = read_floats(&ds, &[t], &per_tet)?;
-        if let Some(i) = g.iter().position(|v| *v < 0.0) {
-            return Err(ds.err(format!("entry {i}: stiffness {} is negative", g[i])));
-        }
-        Ok(g)
-    };
+    let gammas = |name: &str| read_stiffness(&required(cd, cdp, name)?, t, &per_tet);
     Ok(Some(AssetFibres {
         course: dirs("course_direction")?,
         wale: dirs("wale_direction")?,
@@ -588,6 +588,18 @@ fn read_floats(ds: &Ds, shape: &[usize], what: &str) -> Result<Vec<f64>, FormatE
         return Err(ds.err(format!("entry {row}: value {} is not finite", v[i])));
     }
     Ok(v)
+}
+
+/// A per-tet stiffness dataset (Pa), each value in `[0, MAX_STIFFNESS_PA]`.
+fn read_stiffness(ds: &Ds, t: usize, what: &str) -> Result<Vec<f64>, FormatError> {
+    let g = read_floats(ds, &[t], what)?;
+    match g.iter().position(|v| !stiffness_in_range(*v)) {
+        Some(i) => Err(ds.err(format!(
+            "entry {i}: stiffness {:e} Pa is outside [0, {MAX_STIFFNESS_PA:e}] Pa",
+            g[i]
+        ))),
+        None => Ok(g),
+    }
 }
 
 fn expect_int(ds: &Ds) -> Result<(), FormatError> {
@@ -1045,8 +1057,8 @@ fn read_contents(l: &Layout, positions: bool) -> Result<Asset, FormatError> {
     let cd = required_group(&l.vtk, VTK, "CellData")?;
     let cdp = format!("{VTK}/CellData");
     let per_tet = format!("[{t}] (one per tet)");
-    let gamma_s = read_floats(&required(&cd, &cdp, "gamma_s")?, &[t], &per_tet)?;
-    let gamma_v = read_floats(&required(&cd, &cdp, "gamma_v")?, &[t], &per_tet)?;
+    let gamma_s = read_stiffness(&required(&cd, &cdp, "gamma_s")?, t, &per_tet)?;
+    let gamma_v = read_stiffness(&required(&cd, &cdp, "gamma_v")?, t, &per_tet)?;
     let domain = read_i32(&required(&cd, &cdp, "domain")?, &[t], &per_tet)?;
     let fibres = read_fibres(&cd, &cdp, t)?;
     let pd = required_group(&l.vtk, VTK, "PointData")?;
@@ -1290,6 +1302,10 @@ mod tests {
         let mut a = cube_asset(0);
         a.gamma_v[0] = f64::NAN;
         assert!(write_asset(&p, &a).is_err());
+        let mut a = cube_asset(0);
+        a.gamma_s[1] = 2.0 * MAX_STIFFNESS_PA;
+        let e = write_asset(&p, &a).unwrap_err();
+        assert!(e.to_string().contains("tet 1: gamma_s 2e12 Pa"), "{e}");
         assert!(!p.exists());
     }
 

@@ -1235,6 +1235,27 @@ fn fit_start(
     Ok((init, Some(cw.mean_anisotropy)))
 }
 
+/// Where the material a fit starts from lies below the fit's floor, as a
+/// message naming the dataset and the tet: every `γ` of a fit stays at or
+/// above the floor (VH §6.3's projection), its start included.
+fn below_floor(m: &MaterialFields, floor: f64) -> Option<String> {
+    let fibres = ["CellData/gamma_course", "CellData/gamma_wale"];
+    [
+        ("CellData/gamma_s", &m.gamma_s),
+        ("CellData/gamma_v", &m.gamma_v),
+    ]
+    .into_iter()
+    .chain(fibres.into_iter().zip(m.fibres.iter().map(|f| &f.gamma)))
+    .find_map(|(name, g)| {
+        let i = g.iter().position(|v| *v < floor)?;
+        Some(format!(
+            "{name} of tet {i} is {:e} Pa, below the fit's floor of {floor} Pa \
+                 (a fit starts from the asset's material)",
+            g[i]
+        ))
+    })
+}
+
 fn fit_error(poses: &[PathBuf], e: ElasticFitError) -> Error {
     match &e {
         ElasticFitError::Sample { sample, .. } => {
@@ -1302,6 +1323,9 @@ impl Stage for FitJob {
         let earlier = asset_materials(&asset);
         let (init, fibre_anisotropy) = fit_start(&asset, &earlier, self.fibres)
             .map_err(|e| invalid(&self.asset, format!("fibre directions: {e}")))?;
+        if let Some(m) = below_floor(&init, self.params.gamma_floor) {
+            return Err(invalid(&self.asset, m));
+        }
         let fitted = {
             let cell = std::cell::RefCell::new(&mut *observer);
             let progress = |p: &crate::fit::elastic::FitProgress| cell.borrow_mut().iteration(p);
