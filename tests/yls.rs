@@ -259,14 +259,19 @@ fn scene_errors_name_the_key_and_exit_codes_are_distinct() {
         ),
         (scene("rib1x1", "stretchy", 0.3, 0.01, ""), "stretchy"),
         (scene("nosuch", "shear", 0.1, 0.01, ""), "nosuch"),
+        // A pose the swatch cannot take (fold height / length >= 0.5).
+        (scene("plain", "multi_fold", 0.5, 0.01, ""), "multi_fold"),
     ];
     for (i, (text, key)) in cases.iter().enumerate() {
         let s = dir.path().join(format!("bad{i}.toml"));
         std::fs::write(&s, text).unwrap();
-        let (code, _, err) = run(&["yls", s.to_str().unwrap(), "-o", o]);
+        let (code, stdout, err) = run(&["yls", s.to_str().unwrap(), "-o", o, "--json"]);
         assert_eq!(code, 65, "{key}: {err}");
         assert!(err.contains(key), "{key} not in {err}");
         assert!(err.contains(&format!("bad{i}.toml")), "{err}");
+        // The JSON error names the scene as its file, for farm scripts.
+        let v: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+        assert_eq!(v["file"], s.to_str().unwrap(), "{key}: {v}");
     }
     assert!(!out.exists(), "no output after a failed run");
     let (code, _, err) = run(&["yls", "/nonexistent/scene.toml", "-o", o]);

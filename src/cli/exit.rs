@@ -83,10 +83,7 @@ pub fn error_file(err: &anyhow::Error) -> Option<std::path::PathBuf> {
     use crate::pipeline::simulate::SimulateError;
     err.chain().find_map(|c| {
         if let Some(e) = c.downcast_ref::<crate::pipeline::Error>() {
-            match e {
-                crate::pipeline::Error::Shot(s) => s.file(),
-                other => other.file(),
-            }
+            e.file()
         } else if let Some(e) = c.downcast_ref::<SimulateError>() {
             e.file()
         } else {

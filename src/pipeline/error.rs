@@ -167,14 +167,12 @@ impl Error {
     pub fn file(&self) -> Option<PathBuf> {
         match self {
             Error::Io(e) => Some(e.path().to_path_buf()),
-            Error::Asset(super::asset::StageError::Io(e))
-            | Error::Shot(super::simulate::SimulateError::Io(e))
-            | Error::Yls(super::yls::YlsError::Io(e)) => Some(e.path().to_path_buf()),
+            Error::Asset(super::asset::StageError::Io(e)) => Some(e.path().to_path_buf()),
+            Error::Shot(e) => e.file(),
+            Error::Yls(e) => Some(e.file()),
             Error::Asset(super::asset::StageError::Embed { path, .. })
             | Error::Asset(super::asset::StageError::Fit { path, .. })
             | Error::Asset(super::asset::StageError::Invalid { path, .. })
-            | Error::Shot(super::simulate::SimulateError::Invalid { path, .. })
-            | Error::Shot(super::simulate::SimulateError::Diverged { path, .. })
             | Error::Pattern(super::pattern::PatternStageError::Read { path, .. })
             | Error::Pattern(super::pattern::PatternStageError::Grid { path, .. }) => {
                 Some(path.clone())

@@ -93,9 +93,8 @@ impl SimulateError {
             | SimulateError::CheckpointMismatch { path, .. } => Some(path.clone()),
             SimulateError::NoCheckpoint { dir, .. } => Some(dir.clone()),
             SimulateError::Interrupted { checkpoint, .. } => Some(checkpoint.clone()),
-            SimulateError::Scene(_) | SimulateError::Usage(_) | SimulateError::Unavailable(_) => {
-                None
-            }
+            SimulateError::Scene(e) => Some(e.path.clone()),
+            SimulateError::Usage(_) | SimulateError::Unavailable(_) => None,
         }
     }
     /// The PD step that diverged (1-based), if that is what happened.

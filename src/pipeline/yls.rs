@@ -59,6 +59,20 @@ impl YlsError {
             _ => ErrorClass::BadInput,
         }
     }
+
+    /// The file the error is about: the scene, or the file an I/O error
+    /// names.
+    pub fn file(&self) -> PathBuf {
+        match self {
+            YlsError::Scene(e) => e.file.clone(),
+            YlsError::Io(e) => e.path().to_path_buf(),
+            YlsError::Pattern { file, .. }
+            | YlsError::Pose { file, .. }
+            | YlsError::Setup { file, .. }
+            | YlsError::Sim { file, .. }
+            | YlsError::Rods { file, .. } => file.clone(),
+        }
+    }
 }
 
 /// What a run did (`--json` prints it).
