@@ -594,12 +594,22 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
         assert!(!out.exists());
     }
 
+    // The run failed with `code`, its stderr holds every one of `words`, and
+    // nothing was written.
+    let failed = |o: Output, code: i32, words: &[&str]| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(code), "{err}");
+        assert!(
+            words.iter().all(|w| err.contains(w)),
+            "{words:?} not all in {err}"
+        );
+        assert!(!out.exists());
+    };
+
     // A missing pose file: exit 66, named.
     let missing = d.join("nope.h5");
     let o = knitvox(&["fit", s(&asset_path), "--train", s(&missing), "-o", s(&out)]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(66), "{err}");
-    assert!(err.contains("nope.h5"), "{err}");
+    failed(o, 66, &["nope.h5"]);
 
     // A pose of another swatch: bad input (65), naming the pose.
     let other = d.join("other.h5");
@@ -616,13 +626,7 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
         "-o",
         s(&out),
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(65), "{err}");
-    assert!(
-        err.contains("other.h5") && err.contains("topology"),
-        "{err}"
-    );
-    assert!(!out.exists());
+    failed(o, 65, &["other.h5", "topology"]);
 
     // An asset whose material lies below the fit's floor (a tet with γv = 0):
     // bad input (65) naming the asset, the dataset and the tet; it was an
@@ -632,13 +636,11 @@ fn fit_errors_name_the_file_and_exit_with_the_documented_codes() {
     a.gamma_v[3] = 0.0;
     io::vtkhdf::write_asset(&soft, &a).unwrap();
     let o = knitvox(&["fit", s(&soft), "--train", s(&pose), "-o", s(&out)]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(65), "{err}");
-    assert!(
-        err.contains("soft.vtkhdf") && err.contains("CellData/gamma_v of tet 3 is 0e0 Pa"),
-        "{err}"
+    failed(
+        o,
+        65,
+        &["soft.vtkhdf", "CellData/gamma_v of tet 3 is 0e0 Pa"],
     );
-    assert!(!out.exists());
 
     // A pose file without mechanics is fitted under the assumed clamps with
     // warnings saying so.

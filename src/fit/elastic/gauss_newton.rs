@@ -156,8 +156,9 @@ impl Basis {
 
 /// The damped Gauss-Newton step `d` of Eq. 20-21: solves
 /// `(Σ_i P_i + κ I) d = grad` through the sparse system of Eq. 21 (module
-/// doc). Parameters with `fixed[j]` are removed (their `d_j` is 0). Returns
-/// `d`; the search direction is `-d`.
+/// doc), by `cg` on full fields too large to factor. Parameters with
+/// `fixed[j]` are removed (their `d_j` is 0). Returns `d`; the search
+/// direction is `-d`.
 pub fn gn_solve(
     lins: &[FrameLinearization],
     basis: &Basis,
@@ -165,18 +166,10 @@ pub fn gn_solve(
     grad: &[f64],
     kappa: f64,
     fixed: &[bool],
+    cg: &CgParams,
 ) -> Result<Vec<f64>, String> {
     let damping = vec![kappa; grad.len()];
-    gn_solve_damped(
-        lins,
-        basis,
-        ne,
-        grad,
-        &damping,
-        &[],
-        fixed,
-        &CgParams::default(),
-    )
+    gn_solve_damped(lins, basis, ne, grad, &damping, &[], fixed, cg)
 }
 
 /// [`gn_solve`] with a damping of its own per parameter and a symmetric
@@ -1004,11 +997,17 @@ impl SampleFit<'_> {
         kappa: f64,
         fixed: &[bool],
     ) -> Result<Vec<f64>, ElasticFitError> {
-        let damping = vec![kappa; grad.len()];
-        let cg = self.params.cg();
-        gn_solve_damped(lins, basis, self.ne(), grad, &damping, &[], fixed, &cg)
-            .map(|d| d.iter().map(|v| -v).collect())
-            .map_err(|e| self.error(0, e))
+        gn_solve(
+            lins,
+            basis,
+            self.ne(),
+            grad,
+            kappa,
+            fixed,
+            &self.params.cg(),
+        )
+        .map(|d| d.iter().map(|v| -v).collect())
+        .map_err(|e| self.error(0, e))
     }
 }
 

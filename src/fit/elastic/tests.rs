@@ -427,6 +427,15 @@ fn strict_recovery(factor: f64) -> Recovery {
     )
 }
 
+/// The fibre bar: an 8x2x2-voxel bar, its [`fibre_band_truth`] and the
+/// sample of the standard poses under it: `(mesh, mass, truth, sample)`.
+fn fibre_band_case() -> (TetMesh, Vec<f64>, MaterialFields, Sample) {
+    let (mesh, mass) = bar([8, 2, 2]);
+    let truth = fibre_band_truth(&mesh);
+    let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
+    (mesh, mass, truth, sample)
+}
+
 /// Soft uniform Eq. 7 (γs 2e3, γv 6e3 Pa) with tension-only fibres along
 /// the bar's x axis, 10x stiffer (2e5 against 2e4 Pa) in the band of tets
 /// whose centroid lies in [0.35, 0.65] of its length.
@@ -457,10 +466,8 @@ fn fibre_band_truth(mesh: &TetMesh) -> MaterialFields {
 #[test]
 fn synthetic_recovery_of_a_fibre_band() {
     use crate::sim::fibre::FibreFamily;
-    let (mesh, mass) = bar([8, 2, 2]);
+    let (mesh, mass, truth, sample) = fibre_band_case();
     let ne = mesh.num_tets();
-    let truth = fibre_band_truth(&mesh);
-    let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
     let mut init = MaterialFields::uniform(ne, 1e4, 1e4);
     init.fibres = vec![FibreFamily {
         directions: vec![[1.0, 0.0, 0.0]; ne],
@@ -744,7 +751,16 @@ fn gauss_newton_direction_equals_dense_eq20_solve() {
         let p = dense_gauss_newton_matrix(&lins, &basis, ne);
         let kappa = 1e-6 * p.trace() / m as f64;
         let fixed = vec![false; m];
-        let d = gn_solve(&lins, &basis, ne, &grad, kappa, &fixed).unwrap();
+        let d = gn_solve(
+            &lins,
+            &basis,
+            ne,
+            &grad,
+            kappa,
+            &fixed,
+            &CgParams::default(),
+        )
+        .unwrap();
         let a = &p + DMatrix::identity(m, m) * kappa;
         let want = a
             .clone()
@@ -1466,10 +1482,8 @@ fn gauss_newton_stalls_only_undamped_over_a_full_window() {
 /// iterations and gains less than 1% more.
 #[test]
 fn a_stalled_stage_stops_early_and_the_rule_only_cuts_the_creep() {
-    let (mesh, mass) = bar([8, 2, 2]);
+    let (mesh, mass, _, sample) = fibre_band_case();
     let ne = mesh.num_tets();
-    let truth = fibre_band_truth(&mesh);
-    let sample = sample_of(&mesh, &mass, &truth, "fibres", &POSES);
     let init = MaterialFields::uniform(ne, 1e4, 1e4);
     let run = |stall: f64| {
         let inputs = FitInputs {
