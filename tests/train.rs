@@ -64,6 +64,18 @@ fn train(out: &Path, extra: &[&str]) -> serde_json::Value {
     assert_eq!(stdout.trim_end().lines().count(), 1, "{stdout}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(v["event"], "report");
+    // No terminal here: a progress line per load step on stderr (farm
+    // logs), unless switched off.
+    let n = v["frames"].as_u64().unwrap();
+    if extra.contains(&"--no-progress") {
+        assert!(!err.contains("train: frame"), "{err}");
+    } else {
+        assert!(
+            err.contains(&format!("train: frame 1 (1/{n}) "))
+                && err.contains(&format!("train: frame {n} ({n}/{n}) ")),
+            "{err}"
+        );
+    }
     v
 }
 
@@ -183,7 +195,8 @@ fn the_same_pose_twice_writes_bit_identical_frames() {
     let args = ["--pose", "bend_central", "--steps", "2"];
     let (a, b) = (dir.path().join("bend-a.h5"), dir.path().join("bend-b.h5"));
     train(&a, &args);
-    train(&b, &args);
+    // Progress off or on changes nothing but stderr.
+    train(&b, &[&args[..], &["--no-progress"]].concat());
     for name in [
         "frames/points",
         "frames/times",

@@ -121,6 +121,12 @@ fn validate_with_a_sphere_collider_keeps_the_mesh_outside() {
     );
     assert_eq!(r["frames"], 3);
     assert_eq!(r["colliders"], 1);
+    // No terminal: a line per yarn-level frame on stderr, the report alone
+    // on stdout (parsed above).
+    for f in 1..=3 {
+        let line = format!("validate: yarn level: frame {f} ({f}/3) ");
+        assert!(err.contains(&line), "{line:?} not in {err}");
+    }
     let radius = asset.rest_yarns.radius_at(0);
     assert!(r["max_contacts"].as_u64().unwrap() > 0, "{r}");
     assert!(

@@ -246,6 +246,12 @@ pub struct ValidateArgs {
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
+    /// Show a progress bar of the yarn-level run (on by default when stderr is a terminal).
+    #[arg(long, overrides_with = "no_progress")]
+    pub progress: bool,
+    /// Never show progress (without it and without a terminal: a plain line per yarn-level frame on stderr).
+    #[arg(long)]
+    pub no_progress: bool,
 }
 
 /// `--solver` of `validate`.
@@ -273,8 +279,11 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         },
         truth: a.truth.clone(),
     };
-    let mut console = super::Console::new(false, 0, "");
-    let r = job.run(&mut console)?;
+    let mode = super::ProgressMode::on_stderr(a.progress, a.no_progress);
+    let mut console = super::Console::with_mode(mode, 0, "validate: yarn level");
+    let result = job.run(&mut console);
+    drop(console);
+    let r = result?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {

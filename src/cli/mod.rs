@@ -397,6 +397,21 @@ pub(crate) enum ProgressMode {
 
 impl ProgressMode {
     /// `--json`: JSON lines; else a bar on a terminal, plain lines without.
+    /// `--progress` / `--no-progress` of a command whose stdout holds only
+    /// its report (`--json` or not): a bar on a terminal (or with
+    /// `--progress`), else a plain line per frame on stderr (farm logs),
+    /// nothing with `--no-progress`.
+    pub fn on_stderr(progress: bool, no_progress: bool) -> ProgressMode {
+        use std::io::IsTerminal;
+        if no_progress {
+            ProgressMode::Off
+        } else if progress || std::io::stderr().is_terminal() {
+            ProgressMode::Bar
+        } else {
+            ProgressMode::Lines
+        }
+    }
+
     pub fn of(json: bool) -> ProgressMode {
         use std::io::IsTerminal;
         if json {
@@ -478,18 +493,19 @@ impl crate::pipeline::Observer for Console {
             ProgressMode::Bar => self.frames(p.done, p.total),
             ProgressMode::Json => print_event("frame", p),
             ProgressMode::Lines => {
-                let opt = |x: Option<f64>, unit: &str| {
-                    x.map_or("-".to_string(), |x| format!("{x:.3e} {unit}"))
+                // Statistics a stage does not have are left out.
+                let opt = |x: Option<f64>, what: &str, unit: &str| {
+                    x.map_or(String::new(), |x| format!(", {what} {x:.3e} {unit}"))
                 };
                 eprintln!(
-                    "{}: frame {} ({}/{}) {:.0} ms, residual {}, penetration {}",
+                    "{}: frame {} ({}/{}) {:.0} ms{}{}",
                     self.label,
                     p.frame,
                     p.done,
                     p.total,
                     p.ms,
-                    opt(p.residual, "N"),
-                    opt(p.penetration_m, "m")
+                    opt(p.residual, "residual", "N"),
+                    opt(p.penetration_m, "penetration", "m")
                 );
             }
         }

@@ -1,6 +1,5 @@
 //! `knitvox train ASSET.vtkhdf --pose KIND -o POSE.h5`: one training pose.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
@@ -60,7 +59,7 @@ pub struct TrainArgs {
     /// Show a progress bar (on by default when stderr is a terminal).
     #[arg(long, overrides_with = "no_progress")]
     pub progress: bool,
-    /// Never show a progress bar.
+    /// Never show progress (without it and without a terminal: a plain line per load step on stderr).
     #[arg(long)]
     pub no_progress: bool,
 }
@@ -83,8 +82,8 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
         fabric,
         material: a.material.overrides(),
     };
-    let show = !a.no_progress && (a.progress || std::io::stderr().is_terminal());
-    let mut console = super::Console::new(show, a.steps as usize, "train");
+    let mode = super::ProgressMode::on_stderr(a.progress, a.no_progress);
+    let mut console = super::Console::with_mode(mode, a.steps as usize, "train");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;

@@ -15,7 +15,7 @@ use serde::Serialize;
 use crate::geom::{MaterialOverrides, Vec3};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::asset::{check_asset_ext, sha256_file, StageError};
-use crate::pipeline::{Error, Observer, Stage};
+use crate::pipeline::{Error, FrameProgress, Observer, Stage};
 use crate::yarn::fabric::pose::{kind_name, run_pose, FabricPlane, PoseRunParams, PoseStep};
 use crate::yarn::fabric::{FabricParams, MaterialChoice, RigFrame};
 use crate::yarn::poses::PoseKind;
@@ -159,11 +159,20 @@ impl Stage for TrainJob {
         writer.add_text("parameters_json", &parameters.to_string())?;
         let total = self.pose.steps;
         let mut io_error: Option<IoError> = None;
+        let mut last_frame = Instant::now();
         let mut on_frame = |f: &RigFrame| -> Result<(), String> {
             let r = writer
                 .push(f.parameter, f.points)
                 .and_then(|_| writer.push_mechanics(f.energy, &f.reactions, &f.external));
-            observer.frames(f.index, total);
+            observer.frame(&FrameProgress {
+                frame: f.index as i64,
+                done: f.index,
+                total,
+                ms: last_frame.elapsed().as_secs_f64() * 1e3,
+                residual: None,
+                penetration_m: None,
+            });
+            last_frame = Instant::now();
             r.map_err(|e| {
                 let m = e.to_string();
                 io_error = Some(e);

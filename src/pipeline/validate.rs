@@ -691,8 +691,8 @@ impl Stage for ValidateJob {
                 (truth.clone(), wall_s)
             }
             None => {
-                let yr = yls::run(&scene, &text, &self.scene, &yarn_out, &mut |d, t| {
-                    observer.frames(d, 2 * t)
+                let yr = yls::run_observed(&scene, &text, &self.scene, &yarn_out, &mut |p| {
+                    observer.frame(p)
                 })?;
                 (yarn_out.clone(), yr.wall_s)
             }
