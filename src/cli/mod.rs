@@ -396,7 +396,6 @@ pub(crate) enum ProgressMode {
 }
 
 impl ProgressMode {
-    /// `--json`: JSON lines; else a bar on a terminal, plain lines without.
     /// `--progress` / `--no-progress` of a command whose stdout holds only
     /// its report (`--json` or not): a bar on a terminal (or with
     /// `--progress`), else a plain line per frame on stderr (farm logs),
@@ -412,6 +411,7 @@ impl ProgressMode {
         }
     }
 
+    /// `--json`: JSON lines; else a bar on a terminal, plain lines without.
     pub fn of(json: bool) -> ProgressMode {
         use std::io::IsTerminal;
         if json {
