@@ -229,6 +229,14 @@ fn fabric_test_command_prints_the_stretch_curve_as_json() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["test"], "stretch");
     assert_eq!(v["direction"], "weft");
+    // No terminal: a line per frame (0 and 1 of 1) on stderr, for farm logs.
+    let err = String::from_utf8_lossy(&out.stderr);
+    for line in [
+        "fabric-test stretch: frame 0 (0/1) ",
+        "fabric-test stretch: frame 1 (1/1) ",
+    ] {
+        assert!(err.contains(line), "{line:?} not in {err}");
+    }
     assert!(v["width_m"].as_f64().unwrap() > 0.0);
     let pts = v["points"].as_array().unwrap();
     assert_eq!(pts.len(), 2);
@@ -794,12 +802,17 @@ fn fabric_test_bend_prints_the_loop_and_writes_csv_frames_and_plot() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("out");
     let out = small_rib_bend("0.014")
-        .args(["--steps", "1", "--json", "-o"])
+        .args(["--steps", "1", "--json", "--no-progress", "-o"])
         .arg(&out_dir)
         .output()
         .unwrap();
     assert!(
         out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        !String::from_utf8_lossy(&out.stderr).contains("fabric-test bend: frame"),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -71,6 +71,12 @@ pub struct SwatchArgs {
     /// Print the figures as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Show a progress bar of the test's frames (on by default when stderr is a terminal).
+    #[arg(long, overrides_with = "no_progress")]
+    pub progress: bool,
+    /// Never show progress (without it and without a terminal: a plain line per frame on stderr).
+    #[arg(long)]
+    pub no_progress: bool,
 }
 
 #[derive(Debug, Args)]
@@ -208,7 +214,9 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
         }
     };
     // Warnings print as soon as the swatch is ready, not after the test.
-    let mut console = super::Console::new(false, 0, "fabric-test");
+    let mode = super::ProgressMode::on_stderr(swatch.progress, swatch.no_progress);
+    let label = format!("fabric-test {}", job.test.name());
+    let mut console = super::Console::with_mode(mode, 0, &label);
     let report = match run_observed(&job, &mut console) {
         Ok(r) => r,
         Err(e) if e.is_usage() => {

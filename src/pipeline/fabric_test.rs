@@ -338,7 +338,24 @@ pub fn run_observed(
         None => None,
     };
     let mut io_error: Option<IoError> = None;
+    // Progress counts the frames handed on (from 0; a stretch's
+    // conditioning cycles are not among them).
+    let total = match &job.test {
+        FabricTest::Stretch(p) => p.steps + p.release_steps,
+        FabricTest::Bend(p) => p.steps,
+        FabricTest::Hang(p) => (p.watch_time / p.dt).round() as usize,
+    };
+    let mut last_frame = std::time::Instant::now();
     let mut on_frame = |f: &RigFrame| -> Result<(), FabricError> {
+        observer.frame(&super::FrameProgress {
+            frame: f.index as i64,
+            done: f.index,
+            total,
+            ms: last_frame.elapsed().as_secs_f64() * 1e3,
+            residual: None,
+            penetration_m: None,
+        });
+        last_frame = std::time::Instant::now();
         if let Some(w) = writer.as_mut() {
             let r = w
                 .push(f.parameter, f.points)
