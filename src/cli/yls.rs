@@ -1,6 +1,5 @@
 //! `knitvox yls SCENE.toml -o FRAMES.h5`: a yarn-level scene.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
@@ -35,12 +34,8 @@ pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
     use super::ProgressMode;
     let mode = if a.json {
         ProgressMode::Json
-    } else if a.no_progress {
-        ProgressMode::Off
-    } else if a.progress || std::io::stderr().is_terminal() {
-        ProgressMode::Bar
     } else {
-        ProgressMode::Lines
+        ProgressMode::on_stderr(a.progress, a.no_progress)
     };
     let mut console = super::Console::with_mode(mode, 0, "yarn-level");
     let result = job.run(&mut console);
