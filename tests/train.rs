@@ -378,3 +378,104 @@ fn an_asset_without_a_rest_shape_trains_from_its_positions_with_a_warning() {
     assert_eq!(r["warnings"].as_array().unwrap().len(), 1, "{r}");
     assert_eq!(r["frames"], 1);
 }
+
+/// Yarns that are not a state of their stored rest shape (a rest point
+/// moved 4 mm) are refused at once by every rods model, naming the file
+/// they came from and the segment (they used to train: the first load step
+/// pulled the point back and the pose recorded it as motion).
+#[test]
+fn rest_yarns_off_their_rest_shape_are_refused_at_once() {
+    let (_, _, a) = asset();
+    let dir = tempfile::tempdir().unwrap();
+    let moved = dir.path().join("moved.vtkhdf");
+    std::fs::copy(a, &moved).unwrap();
+    let v = 20;
+    {
+        let f = common::h5_edit(&moved);
+        let ds = f.dataset("knitvox/rest_yarns/points").unwrap();
+        let mut p: ndarray::Array2<f64> = ds.read_2d().unwrap();
+        p[[v, 1]] += 4e-3;
+        ds.write(&p).unwrap();
+        f.close().unwrap();
+    }
+    let out = dir.path().join("pose.h5");
+    let t = std::time::Instant::now();
+    let (code, _, err) = run(&[
+        "train",
+        path_str(&moved),
+        "--pose",
+        "shear",
+        "--steps",
+        "1",
+        "-o",
+        path_str(&out),
+    ]);
+    assert_eq!(code, 65, "{err}");
+    for word in [
+        "moved.vtkhdf",
+        &format!("vertices {} and {v}", v - 1),
+        "not a state of the stored rest shape",
+    ] {
+        assert!(err.contains(word), "{word:?} not in {err}");
+    }
+    assert!(!out.exists());
+    assert!(t.elapsed().as_secs_f64() < 20.0, "{:?}", t.elapsed());
+    // `validate` runs a scene without `[swatch]` on the asset's rest yarns:
+    // the fault is the asset's, and the asset is named, not the scene.
+    let scene = dir.path().join("shear.toml");
+    std::fs::write(
+        &scene,
+        "name = \"s\"\nduration = 0.1\nframe_rate = 30\nmodel = \"rods\"\n\
+         [pose]\nkind = \"shear\"\namount = 0.1\n",
+    )
+    .unwrap();
+    let (code, _, err) = run(&[
+        "validate",
+        path_str(&moved),
+        "--scene",
+        path_str(&scene),
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(code, 65, "{err}");
+    assert!(
+        err.contains("moved.vtkhdf: rest yarns: segment") && !err.contains("shear.toml"),
+        "{err}"
+    );
+    // The same fault in a yarn file: `yls` names the swatch file, not its
+    // scene; `fabric-test` names it too.
+    let (_, yarns, _) = asset();
+    let moved_yarns = dir.path().join("moved.h5");
+    std::fs::copy(yarns, &moved_yarns).unwrap();
+    {
+        let f = common::h5_edit(&moved_yarns);
+        let ds = f.dataset("yarns/points").unwrap();
+        let mut p: ndarray::Array2<f64> = ds.read_2d().unwrap();
+        p[[v, 1]] += 4e-3;
+        ds.write(&p).unwrap();
+        f.close().unwrap();
+    }
+    let scene = dir.path().join("drop.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "name = \"d\"\nduration = 0.1\nframe_rate = 30\nmodel = \"rods\"\n\
+             [swatch]\nfile = '{}'\n[pose]\nkind = \"free\"\n",
+            moved_yarns.display()
+        ),
+    )
+    .unwrap();
+    let yls_out = dir.path().join("drop.h5");
+    let (code, _, err) = run(&["yls", path_str(&scene), "-o", path_str(&yls_out)]);
+    assert_eq!(code, 65, "{err}");
+    assert!(
+        err.contains("moved.h5: segment") && !err.contains("drop.toml"),
+        "{err}"
+    );
+    let (code, _, err) = run(&["fabric-test", "stretch", path_str(&moved_yarns)]);
+    assert_eq!(code, 65, "{err}");
+    assert!(
+        err.contains("moved.h5") && err.contains("not a state of the stored rest shape"),
+        "{err}"
+    );
+}

@@ -270,8 +270,8 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
             material,
         });
     }
-    let (mut relaxed, stats) =
-        relax_into_contact(&yarns, &fabric, &job.relax).map_err(fabric_err("relaxation"))?;
+    let (mut relaxed, stats) = relax_into_contact(&yarns, &fabric, &job.relax)
+        .map_err(fabric_err(&format!("{name}: relaxation")))?;
     let mut offcuts = 0;
     if cut {
         let keep = held_together(&relaxed, TOUCH);
@@ -381,7 +381,8 @@ pub fn run_observed(
     if let Some(e) = io_error {
         return Err(e.into());
     }
-    let figures = figures.map_err(fabric_err(job.test.name()))?;
+    // The swatch is named: a yarn file's errors name the file.
+    let figures = figures.map_err(fabric_err(&format!("{name}: {}", job.test.name())))?;
     if let (Some(dir), Some(w)) = (&job.output_dir, writer) {
         // Every file or none (issue 13 item 4).
         io::atomic::all_or_nothing(|| {

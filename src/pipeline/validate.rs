@@ -636,6 +636,14 @@ impl Stage for ValidateJob {
         let swatch_file = tmp.path().join("rest.h5");
         let (text, injected) = with_swatch(&text, &self.scene, &swatch_file)?;
         if injected {
+            // The scene runs on the asset's rest yarns: their faults are
+            // the asset's, not the scene's.
+            crate::yarn::rods::check_rest_state(&asset.rest_yarns).map_err(|e| {
+                crate::pipeline::asset::StageError::Invalid {
+                    path: self.asset.clone(),
+                    message: format!("rest yarns: {e}"),
+                }
+            })?;
             io::h5::write_file(&swatch_file, &asset.rest_yarns, None)?;
         }
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;

@@ -235,6 +235,11 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
     let s = &scene.swatch;
     if let Some(path) = &s.file {
         let d = io::read_path(path, &Default::default())?;
+        // A fault of the swatch file's rest shape is the file's, not the scene's.
+        crate::yarn::rods::check_rest_state(&d.yarns).map_err(|e| YlsError::Setup {
+            file: path.clone(),
+            message: e.to_string(),
+        })?;
         return Ok((d.yarns, 0.0));
     }
     let source = match (&s.pattern, &s.grid) {

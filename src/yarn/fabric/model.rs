@@ -217,7 +217,11 @@ impl Fabric {
     pub fn new(yarns: &Yarns, params: &FabricParams) -> Result<Fabric, FabricError> {
         let topo = RodTopology::new(yarns)?;
         let rest = match &yarns.rest {
-            Some(shape) => RodRest::from_shape(&topo, shape)?,
+            Some(shape) => {
+                let rest = RodRest::from_shape(&topo, shape)?;
+                rest.check_state(&topo, &yarns.points)?;
+                rest
+            }
             None => RodRest::from_positions(&topo, &yarns.points)?,
         };
         let q = topo.q_from_points(&yarns.points);

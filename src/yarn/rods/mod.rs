@@ -43,6 +43,7 @@ mod topology;
 mod tests;
 
 pub use rest::{RodParams, RodRest};
+pub use shape::{check_rest_state, REST_LENGTH_RATIO};
 pub use topology::{Hinge, RodTopology};
 
 use crate::geom::vec3::{dot, norm, scale, sub};
@@ -74,6 +75,18 @@ pub enum RodError {
         what: &'static str,
         index: usize,
         value: f64,
+    },
+    #[error(
+        "segment {edge} (vertices {} and {}) is {length:.4e} m long at the yarns' positions \
+         but {rest:.4e} m at rest: the positions are not a state of the stored rest shape \
+         (a point moved or a rest length changed)",
+        vertices[0], vertices[1]
+    )]
+    RestMismatch {
+        edge: usize,
+        vertices: [usize; 2],
+        length: f64,
+        rest: f64,
     },
 }
 

@@ -45,6 +45,48 @@ impl RodRest {
         rest.check(topo)?;
         Ok(rest)
     }
+
+    /// Checks that `points` are a state of this rest shape: every segment
+    /// within [`REST_LENGTH_RATIO`] of its rest length either way. A
+    /// stored rest shape comes with an equilibrium of it (`pattern` keeps
+    /// the lengths to 0.1%; a relaxation's rest-length scale is above 0.5),
+    /// so a segment off by more is a moved point or a changed length: a
+    /// test or training pose would start far from rest and record the
+    /// snap back as the load's motion (a rest point moved 4 mm: it ends
+    /// the first 5% step 5.3 mm from where the file put it, the median
+    /// vertex 2.4 mm).
+    pub fn check_state(&self, topo: &RodTopology, points: &[[f64; 3]]) -> Result<(), RodError> {
+        for (e, (&[a, b], &rest)) in topo.edges.iter().zip(&self.l0).enumerate() {
+            let d: [f64; 3] = std::array::from_fn(|k| points[b][k] - points[a][k]);
+            let length = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let ratio = length / rest;
+            if !(ratio >= 1.0 / REST_LENGTH_RATIO && ratio <= REST_LENGTH_RATIO) {
+                return Err(RodError::RestMismatch {
+                    edge: e,
+                    vertices: [a, b],
+                    length,
+                    rest,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Largest factor between a segment's length at the yarns' positions and
+/// its stored rest length ([`RodRest::check_state`]).
+pub const REST_LENGTH_RATIO: f64 = 2.0;
+
+/// Checks that `yarns` are a state of their stored rest shape, when they
+/// carry one ([`RodRest::check_state`]); the rods models do so when built,
+/// and a stage that hands the yarns on checks them first, to name the file
+/// they came from.
+pub fn check_rest_state(yarns: &crate::geom::Yarns) -> Result<(), RodError> {
+    let Some(shape) = &yarns.rest else {
+        return Ok(());
+    };
+    let topo = RodTopology::new(yarns)?;
+    RodRest::from_shape(&topo, shape)?.check_state(&topo, &yarns.points)
 }
 
 #[cfg(test)]
@@ -90,5 +132,48 @@ mod tests {
         let mut short = shape.clone();
         short.lengths.pop();
         assert!(RodRest::from_shape(&topo, &short).is_err());
+    }
+
+    #[test]
+    fn positions_must_be_a_state_of_the_rest_shape() {
+        let mut y = Yarns::new();
+        let line: Vec<[f64; 3]> = (0..6).map(|i| [1e-3 * i as f64, 0.0, 0.0]).collect();
+        y.push_curve(&line, false, 1e-4);
+        let topo = RodTopology::new(&y).unwrap();
+        let rest = RodRest::from_positions(&topo, &y.points).unwrap();
+        rest.check_state(&topo, &y.points).unwrap();
+        // Stretched or shrunk by up to the ratio: still a state of it.
+        for s in [
+            1.0 / REST_LENGTH_RATIO * 1.001,
+            0.8,
+            1.3,
+            REST_LENGTH_RATIO * 0.999,
+        ] {
+            let scaled: Vec<[f64; 3]> = y.points.iter().map(|p| p.map(|c| c * s)).collect();
+            rest.check_state(&topo, &scaled).unwrap();
+        }
+        // A point moved by 3 mm: its first segment is named.
+        let mut moved = y.points.clone();
+        moved[3][1] += 3e-3;
+        match rest.check_state(&topo, &moved) {
+            Err(RodError::RestMismatch {
+                edge,
+                vertices,
+                length,
+                rest,
+            }) => {
+                assert_eq!((edge, vertices), (2, [2, 3]));
+                assert!(
+                    (rest - 1e-3).abs() < 1e-15 && length > 3e-3,
+                    "{length} {rest}"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        // Beyond the ratio either way, and non-finite positions.
+        for s in [0.45, 2.2, f64::NAN] {
+            let scaled: Vec<[f64; 3]> = y.points.iter().map(|p| p.map(|c| c * s)).collect();
+            assert!(rest.check_state(&topo, &scaled).is_err(), "scale {s}");
+        }
     }
 }
