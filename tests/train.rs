@@ -379,6 +379,19 @@ fn an_asset_without_a_rest_shape_trains_from_its_positions_with_a_warning() {
     assert_eq!(r["frames"], 1);
 }
 
+/// Copies `from` to `to` with point `v` of the dataset `points` moved 4 mm
+/// along y.
+fn copy_moving_a_point(from: &Path, to: &Path, points: &str, v: usize) {
+    std::fs::copy(from, to).unwrap();
+    let f = common::h5_edit(to);
+    let ds = f.dataset(points).unwrap();
+    let mut p: ndarray::Array2<f64> = ds.read_2d().unwrap();
+    p[[v, 1]] += 4e-3;
+    ds.write(&p).unwrap();
+    drop(ds);
+    f.close().unwrap();
+}
+
 /// Yarns that are not a state of their stored rest shape (a rest point
 /// moved 4 mm) are refused at once by every rods model, naming the file
 /// they came from and the segment (they used to train: the first load step
@@ -388,16 +401,8 @@ fn rest_yarns_off_their_rest_shape_are_refused_at_once() {
     let (_, _, a) = asset();
     let dir = tempfile::tempdir().unwrap();
     let moved = dir.path().join("moved.vtkhdf");
-    std::fs::copy(a, &moved).unwrap();
     let v = 20;
-    {
-        let f = common::h5_edit(&moved);
-        let ds = f.dataset("knitvox/rest_yarns/points").unwrap();
-        let mut p: ndarray::Array2<f64> = ds.read_2d().unwrap();
-        p[[v, 1]] += 4e-3;
-        ds.write(&p).unwrap();
-        f.close().unwrap();
-    }
+    copy_moving_a_point(a, &moved, "knitvox/rest_yarns/points", v);
     let out = dir.path().join("pose.h5");
     let t = std::time::Instant::now();
     let (code, _, err) = run(&[
@@ -446,15 +451,7 @@ fn rest_yarns_off_their_rest_shape_are_refused_at_once() {
     // scene; `fabric-test` names it too.
     let (_, yarns, _) = asset();
     let moved_yarns = dir.path().join("moved.h5");
-    std::fs::copy(yarns, &moved_yarns).unwrap();
-    {
-        let f = common::h5_edit(&moved_yarns);
-        let ds = f.dataset("yarns/points").unwrap();
-        let mut p: ndarray::Array2<f64> = ds.read_2d().unwrap();
-        p[[v, 1]] += 4e-3;
-        ds.write(&p).unwrap();
-        f.close().unwrap();
-    }
+    copy_moving_a_point(yarns, &moved_yarns, "yarns/points", v);
     let scene = dir.path().join("drop.toml");
     std::fs::write(
         &scene,

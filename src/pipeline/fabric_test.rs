@@ -347,15 +347,11 @@ pub fn run_observed(
     };
     let mut last_frame = std::time::Instant::now();
     let mut on_frame = |f: &RigFrame| -> Result<(), FabricError> {
-        observer.frame(&super::FrameProgress {
-            frame: f.index as i64,
-            done: f.index,
+        observer.frame(&super::FrameProgress::of_rig(
+            f.index,
             total,
-            ms: last_frame.elapsed().as_secs_f64() * 1e3,
-            residual: None,
-            penetration_m: None,
-        });
-        last_frame = std::time::Instant::now();
+            &mut last_frame,
+        ));
         if let Some(w) = writer.as_mut() {
             let r = w
                 .push(f.parameter, f.points)

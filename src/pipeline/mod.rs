@@ -85,6 +85,24 @@ pub struct FrameProgress {
     pub penetration_m: Option<f64>,
 }
 
+impl FrameProgress {
+    /// A quasi-static rig's frame `index` of `total` (a load step, a clamp
+    /// distance): no residual or penetration to report; the wall time since
+    /// `last`, which restarts.
+    pub fn of_rig(index: usize, total: usize, last: &mut std::time::Instant) -> FrameProgress {
+        let ms = last.elapsed().as_secs_f64() * 1e3;
+        *last = std::time::Instant::now();
+        FrameProgress {
+            frame: index as i64,
+            done: index,
+            total,
+            ms,
+            residual: None,
+            penetration_m: None,
+        }
+    }
+}
+
 /// A stop request from outside the process (SIGTERM) for the stages that
 /// can honour it: a resumable shot finishes its current step, checkpoints
 /// and stops with exit 75. The CLI's signal handler calls

@@ -164,15 +164,7 @@ impl Stage for TrainJob {
             let r = writer
                 .push(f.parameter, f.points)
                 .and_then(|_| writer.push_mechanics(f.energy, &f.reactions, &f.external));
-            observer.frame(&FrameProgress {
-                frame: f.index as i64,
-                done: f.index,
-                total,
-                ms: last_frame.elapsed().as_secs_f64() * 1e3,
-                residual: None,
-                penetration_m: None,
-            });
-            last_frame = Instant::now();
+            observer.frame(&FrameProgress::of_rig(f.index, total, &mut last_frame));
             r.map_err(|e| {
                 let m = e.to_string();
                 io_error = Some(e);
