@@ -60,7 +60,8 @@ impl RodRest {
             let d: [f64; 3] = std::array::from_fn(|k| points[b][k] - points[a][k]);
             let length = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             let ratio = length / rest;
-            if !(ratio >= 1.0 / REST_LENGTH_RATIO && ratio <= REST_LENGTH_RATIO) {
+            // NaN (a non-finite point) is outside too.
+            if !(1.0 / REST_LENGTH_RATIO..=REST_LENGTH_RATIO).contains(&ratio) {
                 return Err(RodError::RestMismatch {
                     edge: e,
                     vertices: [a, b],
