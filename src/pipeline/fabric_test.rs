@@ -343,7 +343,7 @@ pub fn run_observed(
     let total = match &job.test {
         FabricTest::Stretch(p) => p.steps + p.release_steps,
         FabricTest::Bend(p) => p.steps,
-        FabricTest::Hang(p) => (p.watch_time / p.dt).round() as usize,
+        FabricTest::Hang(p) => p.watch_steps(),
     };
     let mut last_frame = std::time::Instant::now();
     let mut on_frame = |f: &RigFrame| -> Result<(), FabricError> {

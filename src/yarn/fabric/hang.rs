@@ -27,6 +27,13 @@ pub struct HangParams {
     pub dt: f64,
 }
 
+impl HangParams {
+    /// Implicit-Euler steps watched after settling (one frame each).
+    pub fn watch_steps(&self) -> usize {
+        (self.watch_time / self.dt).round() as usize
+    }
+}
+
 impl Default for HangParams {
     fn default() -> Self {
         HangParams {
@@ -136,7 +143,7 @@ pub fn hang_test(
     };
     let reactions = emit(&mut fabric, &mut gravity, 0)?;
     let clamp_force_n: f64 = reactions.iter().map(|f| f[1]).sum::<f64>().abs();
-    let steps = (params.watch_time / params.dt).round() as usize;
+    let steps = params.watch_steps();
     let mut prev = fabric.q[..3 * n].to_vec();
     let mut max_speed: f64 = 0.0;
     for k in 0..steps {

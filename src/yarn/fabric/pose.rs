@@ -159,6 +159,14 @@ pub enum PoseRunError {
     /// The frame callback stopped the run.
     #[error("frame {step}: {message}")]
     Frame { step: usize, message: String },
+    /// The rest yarns pass through each other: two segments start closer
+    /// than [`MIN_START_DISTANCE_RATIO`] x (rA + rB) (the swatch's fault).
+    #[error(
+        "yarn model: the rest yarns pass through each other: two segments are {ratio:.3} x \
+         (rA + rB) apart at rest (below {MIN_START_DISTANCE_RATIO}; a relaxed swatch keeps 0.86 \
+         or more)"
+    )]
+    Crossing { ratio: f64 },
 }
 
 impl PoseRunError {
@@ -290,12 +298,9 @@ pub fn run_pose(
     // Yarns that pass through each other at rest (a point moved across
     // another yarn) leave no load step an equilibrium to reach: the rounds
     // would run to their cap (a fuzzed asset: 62 rounds, 41 s) first.
-    let start = fabric.contact_stats().min_distance_ratio;
-    if start < MIN_START_DISTANCE_RATIO {
-        return Err(PoseRunError::Model(FabricError::Setup(format!(
-            "the rest yarns pass through each other: two segments are {start:.3} x (rA + rB) \
-             apart at rest (below {MIN_START_DISTANCE_RATIO}; a relaxed swatch keeps 0.86 or more)"
-        ))));
+    let ratio = fabric.contact_stats().min_distance_ratio;
+    if ratio < MIN_START_DISTANCE_RATIO {
+        return Err(PoseRunError::Crossing { ratio });
     }
     let n = fabric.num_vertices();
     let mut clamped = vec![false; n];
