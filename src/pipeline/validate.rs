@@ -279,6 +279,27 @@ pub struct HomogenizedRunParams {
     pub global: SolverChoice,
 }
 
+/// What the Newton reference ([`homogenized_frames`]) leaves out of a scene
+/// that PD and the yarn level model: collider friction and the
+/// mass-proportional damping `damping` (1/s). None when the scene has
+/// neither, so that the two runs differ only by the integrator.
+pub fn newton_omissions(colliders: &[Arc<dyn PointCollider>], damping: f64) -> Option<String> {
+    let mu = colliders.iter().map(|c| c.friction()).fold(0.0, f64::max);
+    let mut left = Vec::new();
+    if mu > 0.0 {
+        left.push(format!("collider friction (mu up to {mu})"));
+    }
+    if damping > 0.0 {
+        left.push(format!("the scene's damping ({damping} 1/s)"));
+    }
+    (!left.is_empty()).then(|| {
+        format!(
+            "ignores {}: its frames can part from the yarn level's for that reason alone",
+            left.join(" and ")
+        )
+    })
+}
+
 /// For every tet node, the pose's band (clamp group) that holds it: the
 /// first group holding a yarn vertex in one of the node's tets.
 fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {
@@ -682,6 +703,11 @@ impl Stage for ValidateJob {
                 .map(Arc::from)
                 .collect();
         let yarn_params = yls::scene_params(&scene, &self.scene)?;
+        if self.homogenized.solver == HomogenizedSolver::Newton {
+            if let Some(m) = newton_omissions(&colliders, yarn_params.global_damping) {
+                observer.warning(&format!("{}: --solver newton {m}", self.scene.display()));
+            }
+        }
         let density = yarn_params.density;
         let mesh_mass_kg: f64 = asset.node_mass.iter().sum();
         let yarn_mass_kg = yarn_mass(&asset.rest_yarns, density);
@@ -984,5 +1010,31 @@ mod tests {
             }
         }
         assert!(scenes >= 1, "no scene in {}", dir.display());
+    }
+
+    /// The Newton reference names what it leaves out of a scene, and says
+    /// nothing when the scene has neither friction nor damping.
+    #[test]
+    fn newton_omissions_name_friction_and_damping() {
+        use crate::yarn::sim::{PlaneCollider, SphereCollider};
+        let plane = |mu: f64| -> Arc<dyn PointCollider> {
+            Arc::new(PlaneCollider {
+                point: [0.0; 3],
+                normal: [0.0, 0.0, 1.0],
+                friction: mu,
+            })
+        };
+        let sphere: Arc<dyn PointCollider> = Arc::new(SphereCollider {
+            center: [0.0; 3],
+            radius: 0.04,
+            velocity: [0.0; 3],
+            friction: 0.5,
+        });
+        assert_eq!(newton_omissions(&[plane(0.0)], 0.0), None);
+        assert_eq!(newton_omissions(&[], 0.0), None);
+        let m = newton_omissions(&[plane(0.0), sphere], 0.0).unwrap();
+        assert!(m.contains("friction (mu up to 0.5)") && !m.contains("damping"), "{m}");
+        let m = newton_omissions(&[plane(0.2)], 2.0).unwrap();
+        assert!(m.contains("mu up to 0.2") && m.contains("damping (2 1/s)"), "{m}");
     }
 }
