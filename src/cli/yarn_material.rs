@@ -24,7 +24,7 @@ fn in_range(i: usize) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + S
 
 /// Yarn material options. Without them a yarn file's recorded material
 /// (the one its rest shape was relaxed under) applies, else the default
-/// yarn: E 5e5 Pa, G 2e5 Pa, bend scale 1, contact stiffness 60 J/m^2.
+/// yarn: E 5e5 Pa, G 2e5 Pa, bend scale 0.3, contact stiffness 60 J/m^2.
 #[derive(Debug, Clone, Default, Args)]
 pub struct YarnMaterialArgs {
     /// Yarn Young's modulus E (Pa): stretch stiffness E pi r^2 per yarn;
@@ -75,7 +75,7 @@ mod tests {
     #[test]
     fn the_documented_default_yarn_is_the_default() {
         let m = FabricParams::default().material();
-        assert_eq!(m, YarnMaterial::from_values([5e5, 2e5, 1.0, 60.0]));
+        assert_eq!(m, YarnMaterial::from_values([5e5, 2e5, 0.3, 60.0]));
         assert!(m.out_of_range().is_none());
     }
 

@@ -1033,8 +1033,14 @@ mod tests {
         assert_eq!(newton_omissions(&[plane(0.0)], 0.0), None);
         assert_eq!(newton_omissions(&[], 0.0), None);
         let m = newton_omissions(&[plane(0.0), sphere], 0.0).unwrap();
-        assert!(m.contains("friction (mu up to 0.5)") && !m.contains("damping"), "{m}");
+        assert!(
+            m.contains("friction (mu up to 0.5)") && !m.contains("damping"),
+            "{m}"
+        );
         let m = newton_omissions(&[plane(0.2)], 2.0).unwrap();
-        assert!(m.contains("mu up to 0.2") && m.contains("damping (2 1/s)"), "{m}");
+        assert!(
+            m.contains("mu up to 0.2") && m.contains("damping (2 1/s)"),
+            "{m}"
+        );
     }
 }
