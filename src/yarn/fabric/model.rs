@@ -16,11 +16,8 @@ use crate::yarn::statics::{
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FabricParams {
     /// Rod material: E 5e5 Pa, G 2e5 Pa (HYLC Table 1) and bend/twist scale
-    /// 0.3, not HYLC's 1e-3: bending `0.3 E pi r^4 / 4` = 1.2e-7 N m^2,
-    /// inside Sperl 2022 §7.3.2's fitted range (1e-3 to 10 times the base
-    /// rod stiffness `k_s R^2 / 4`); with 1e-3 a 6 cm rib stretched 30%
-    /// pulls back with ~2e-4 N where fabrics need 0.1-5 N (Sperl §4.3).
-    /// The value is [`YarnSimParams`]'s (its documentation says why 0.3).
+    /// 0.3, not HYLC's 1e-3: [`YarnSimParams::bend_scale`], whose
+    /// documentation says why.
     pub rods: RodParams,
     /// Kaldor contact stiffness k_contact (J/m^2). Default 60.
     pub contact_stiffness: f64,

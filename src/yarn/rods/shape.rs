@@ -57,8 +57,7 @@ impl RodRest {
     /// vertex 2.4 mm).
     pub fn check_state(&self, topo: &RodTopology, points: &[[f64; 3]]) -> Result<(), RodError> {
         for (e, (&[a, b], &rest)) in topo.edges.iter().zip(&self.l0).enumerate() {
-            let d: [f64; 3] = std::array::from_fn(|k| points[b][k] - points[a][k]);
-            let length = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let length = crate::geom::dist(points[a], points[b]);
             let ratio = length / rest;
             // NaN (a non-finite point) is outside too.
             if !(1.0 / REST_LENGTH_RATIO..=REST_LENGTH_RATIO).contains(&ratio) {
