@@ -536,17 +536,20 @@ fn compression_study() {
 #[test]
 #[ignore]
 fn relaxation_is_as_tight_in_large_swatches_and_tubes() {
+    use knitvox::geom::Yarns;
+    use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
     let fp = FabricParams::default();
-    let relax = |n: usize, predict: bool| {
+    // Touching fraction and elastic energy per stitch.
+    let relax = |name: &str, yarns: &Yarns, stitches: usize, predict: bool| {
         let rp = RelaxParams {
             predict_contraction: predict,
             ..RelaxParams::default()
         };
         let t = Instant::now();
-        let (_, rs) = relax_into_contact(&common::flat_swatch("rib1x1", n, n), &fp, &rp).unwrap();
-        let per_stitch = rs.energy / (n * n) as f64;
+        let (_, rs) = relax_into_contact(yarns, &fp, &rp).unwrap();
+        let per_stitch = rs.energy / stitches as f64;
         println!(
-            "rib {n}x{n}, predictor {predict}: near {:.3}, cpv {:.2}, {:.3e} J per stitch, {} Newton its, {:.1} s",
+            "{name}, predictor {predict}: near {:.3}, cpv {:.2}, {:.3e} J per stitch, {} Newton its, {:.1} s",
             rs.contact.near_fraction,
             rs.contact.contacts_per_vertex,
             per_stitch,
@@ -555,9 +558,13 @@ fn relaxation_is_as_tight_in_large_swatches_and_tubes() {
         );
         (rs.contact.near_fraction, per_stitch)
     };
-    let (_, small) = relax(8, true);
-    let (near, large) = relax(16, true);
-    let (loose_near, loose) = relax(16, false);
+    let rib = |n: usize, predict: bool| {
+        let y = common::flat_swatch("rib1x1", n, n);
+        relax(&format!("rib {n}x{n}"), &y, n * n, predict)
+    };
+    let (_, small) = rib(8, true);
+    let (near, large) = rib(16, true);
+    let (loose_near, loose) = rib(16, false);
     assert!(near >= 0.15, "16 x 16 touching {near}");
     assert!(
         large <= 1.25 * small,
@@ -569,7 +576,6 @@ fn relaxation_is_as_tight_in_large_swatches_and_tubes() {
     );
     // The sleeve of the README's pattern examples: a 10 x 40 stockinette
     // helix of radius 7 cm contracts as a whole.
-    use knitvox::yarn::pattern::{build_tile, builtin, lay_out, Layout, PatternParams};
     let tile = build_tile(&builtin("stockinette").unwrap(), &PatternParams::default()).unwrap();
     let layout = Layout {
         courses: 10,
@@ -579,25 +585,8 @@ fn relaxation_is_as_tight_in_large_swatches_and_tubes() {
         separate_courses: false,
     };
     let sleeve = lay_out(&tile, &layout).unwrap();
-    let tube = |predict: bool| {
-        let rp = RelaxParams {
-            predict_contraction: predict,
-            ..RelaxParams::default()
-        };
-        let t = Instant::now();
-        let (_, rs) = relax_into_contact(&sleeve, &fp, &rp).unwrap();
-        println!(
-            "sleeve 10x40, predictor {predict}: near {:.3}, cpv {:.2}, {:.3e} J, {} Newton its, {:.1} s",
-            rs.contact.near_fraction,
-            rs.contact.contacts_per_vertex,
-            rs.energy,
-            rs.newton_iterations,
-            t.elapsed().as_secs_f64()
-        );
-        (rs.contact.near_fraction, rs.energy)
-    };
-    let (near, energy) = tube(true);
-    let (loose_near, loose) = tube(false);
+    let (near, energy) = relax("sleeve 10x40", &sleeve, 400, true);
+    let (loose_near, loose) = relax("sleeve 10x40", &sleeve, 400, false);
     assert!(
         near >= 0.15 && loose_near < near,
         "{near} against {loose_near}"

@@ -13,6 +13,11 @@ use crate::yarn::statics::{
 
 /// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
 /// stockinette/rib, r = 1 mm, except the bending scale).
+/// Smallest distance ratio (to 2r) a predicted start (the stretch test's
+/// secant step, the relaxation's contraction) may bring a contact to
+/// before it is dropped.
+pub(crate) const PREDICTION_MIN_DISTANCE_RATIO: f64 = 0.8;
+
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FabricParams {
     /// Rod material: E 5e5 Pa, G 2e5 Pa (HYLC Table 1) and bend/twist scale
@@ -548,6 +553,23 @@ impl Fabric {
             }) => Ok(iteration),
             Err(e) => Err(e),
         }
+    }
+
+    /// Moves `q` by `predict` (a predicted start for the next solve) and
+    /// keeps the move only while every contact stays at or above
+    /// `min_distance_ratio` x 2r; returns whether it was kept.
+    pub(crate) fn try_prediction(
+        &mut self,
+        min_distance_ratio: f64,
+        predict: impl FnOnce(&mut [f64]),
+    ) -> bool {
+        let start = self.q.clone();
+        predict(&mut self.q);
+        let kept = self.contact_stats().min_distance_ratio >= min_distance_ratio;
+        if !kept {
+            self.q = start;
+        }
+        kept
     }
 
     pub fn contact_stats(&mut self) -> ContactStats {

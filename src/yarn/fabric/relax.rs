@@ -19,7 +19,7 @@
 
 use std::time::Instant;
 
-use super::model::{Fabric, FabricError, FabricParams, Settle};
+use super::model::{Fabric, FabricError, FabricParams, Settle, PREDICTION_MIN_DISTANCE_RATIO};
 use crate::geom::{RestShape, Yarns};
 use crate::yarn::rods::{HingeHessian, RodRest};
 use crate::yarn::statics::{ContactStats, EnergyTerm, FrictionParams};
@@ -296,27 +296,20 @@ fn predict_contraction(fabric: &mut Fabric, axes: &[usize], ratio: f64) {
     if n == 0 {
         return;
     }
-    let start = fabric.q.clone();
-    let mut centroid = [0.0; 3];
-    for v in 0..n {
-        for &k in axes {
-            centroid[k] += fabric.q[3 * v + k] / n as f64;
+    fabric.try_prediction(PREDICTION_MIN_DISTANCE_RATIO, |q| {
+        let mut centroid = [0.0; 3];
+        for p in q[..3 * n].chunks_exact(3) {
+            for &k in axes {
+                centroid[k] += p[k] / n as f64;
+            }
         }
-    }
-    for v in 0..n {
-        for &k in axes {
-            let x = &mut fabric.q[3 * v + k];
-            *x = centroid[k] + ratio * (*x - centroid[k]);
+        for p in q[..3 * n].chunks_exact_mut(3) {
+            for &k in axes {
+                p[k] = centroid[k] + ratio * (p[k] - centroid[k]);
+            }
         }
-    }
-    if fabric.contact_stats().min_distance_ratio < PREDICTION_MIN_DISTANCE_RATIO {
-        fabric.q = start;
-    }
+    });
 }
-
-/// Smallest distance ratio (to 2r) the contraction prediction may bring a
-/// contact to (the stretch test's secant predictor uses the same bound).
-const PREDICTION_MIN_DISTANCE_RATIO: f64 = 0.8;
 
 #[cfg(test)]
 mod tests {

@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use super::model::{Fabric, FabricError, FabricParams, Settle};
+use super::model::{Fabric, FabricError, FabricParams, Settle, PREDICTION_MIN_DISTANCE_RATIO};
 use super::rig::{along, Direction, Rig};
 use crate::geom::{Vec3, Yarns};
 
@@ -289,16 +289,12 @@ struct LoadIncrement {
     end_distance_ratio: f64,
 }
 
-/// Smallest distance ratio (to 2r) a secant prediction may bring a contact
-/// to before the affine one is used instead.
-const SECANT_MIN_DISTANCE_RATIO: f64 = 0.8;
-
 /// Predicts the equilibrium after moving the high clamp from `from` to `to`:
 /// while loading, the last step's motion scaled to this one (a secant
 /// predictor: knit does not stretch affinely, its loops turn and the
 /// swatch narrows, and the last step's motion carries that) when the last
 /// step loaded too and the prediction keeps every contact above
-/// [`SECANT_MIN_DISTANCE_RATIO`]; else the affine stretch. Unloading stays
+/// [`PREDICTION_MIN_DISTANCE_RATIO`]; else the affine stretch. Unloading stays
 /// affine: extrapolated, a release step pushed loops back past where they
 /// had come from, and a frictionless rib released from 10% settled at -2.3e-4
 /// N instead of -4.4e-5 N (another of the knit's equilibria). The clamps
@@ -307,16 +303,16 @@ const SECANT_MIN_DISTANCE_RATIO: f64 = 0.8;
 fn predict_step(fabric: &mut Fabric, rig: &Rig, last: Option<&LoadIncrement>, from: f64, to: f64) {
     let du = to - from;
     if let Some(inc) = last.filter(|inc| inc.du > 0.0 && du > 0.0) {
-        let start = fabric.q.clone();
         let scale = du / inc.du;
-        for (q, d) in fabric.q.iter_mut().zip(&inc.dq) {
-            *q += scale * d;
-        }
-        let ratio = fabric.contact_stats().min_distance_ratio;
-        if ratio >= SECANT_MIN_DISTANCE_RATIO.min(inc.end_distance_ratio) {
+        let min_ratio = PREDICTION_MIN_DISTANCE_RATIO.min(inc.end_distance_ratio);
+        let secant = |q: &mut [f64]| {
+            for (q, d) in q.iter_mut().zip(&inc.dq) {
+                *q += scale * d;
+            }
+        };
+        if fabric.try_prediction(min_ratio, secant) {
             return;
         }
-        fabric.q = start;
     }
     predict(fabric, rig, from, to);
 }
