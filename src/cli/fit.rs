@@ -78,6 +78,11 @@ pub struct FitArgs {
     /// knit is far stiffer along its yarn lines than in shear.
     #[arg(long)]
     pub fibres: bool,
+    /// Hold the pinned tet nodes at each frame's shape fit (the behaviour
+    /// before stop 41) instead of where the pose's bands put them, where
+    /// `validate` and the shots drive them.
+    #[arg(long)]
+    pub shape_fit_pins: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -152,6 +157,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         joint: a.joint,
         quasi_static: a.quasi_static,
         fibres: a.fibres,
+        shape_fit_pins: a.shape_fit_pins,
         command: command_line(),
     };
     // A bar has no length to show here: plain lines without --json.

@@ -55,6 +55,7 @@ use crate::pipeline::asset::{
     asset_materials, check_asset_ext, re_embed, rms_max, set_asset_materials, sha256_file,
     yarn_distances, StageError,
 };
+use crate::pipeline::clamp_drive::ClampDrive;
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::energy::ElasticModel;
@@ -98,6 +99,10 @@ pub struct FitJob {
     /// them, their stiffnesses starting at the asset's `γs`. An asset with
     /// fibres refits them either way. Default false.
     pub fibres: bool,
+    /// Hold the pinned tet nodes of every frame at its shape fit (Y2V), as
+    /// before stop 41, instead of where the pose's bands put them, as the
+    /// homogenized runs drive them ([`super::clamp_drive`]). Default false.
+    pub shape_fit_pins: bool,
     /// The command line, for provenance.
     pub command: String,
 }
@@ -154,6 +159,13 @@ pub struct PoseSummary {
     /// forces of VH Eq. 13-14 from the shape fits of it and the two frames
     /// before ([`inertia_forces`]).
     pub dynamic: bool,
+    /// Where the pinned tet nodes are held: `band` (where the pose's bands
+    /// put them, as `validate` drives them) or `shape_fit` (each frame's
+    /// Y2V: `--shape-fit-pins`, or a pose whose bands are not known).
+    pub pins: &'static str,
+    /// Largest distance (m) between a pinned node's band position and its
+    /// shape fit over the fitted frames (0 with `shape_fit` pins).
+    pub pin_offset_m: f64,
     /// How close the mesh's equilibria carry the yarns on this pose's
     /// fitted frames (filled in after the fit).
     pub training: Option<TrainingFidelity>,
@@ -345,6 +357,7 @@ struct Context<'a> {
     model: ElasticModel,
     samples: usize,
     quasi_static: bool,
+    shape_fit_pins: bool,
 }
 
 /// The forces of VH Eq. 13-14 that turn a dynamic frame into a static
@@ -492,6 +505,8 @@ fn read_pose(
         Some(s) if !cx.quasi_static => Some(super::yls::scene_params(s, path)?.global_damping),
         _ => None,
     };
+    let drive = clamp_drive(cx, path, scene.as_ref(), &frames, observer)?;
+    let mut pin_offset = 0.0f64;
     let mut out = Vec::with_capacity(chosen.len());
     let mut node_reactions = Vec::with_capacity(chosen.len());
     let (mut energy, mut y2v_rms, mut min_det, mut held_v, mut held_n) =
@@ -572,10 +587,23 @@ fn read_pose(
                 .as_ref()
                 .map(|r| node_forces(&asset.mesh, &asset.embedding, &r[f])),
         );
+        let mut start = x_hat;
+        if let Some(d) = &drive {
+            let at = d
+                .targets(f, &asset.mesh.nodes, &pinned)
+                .map_err(|e| invalid(path, format!("frame {f}: its bands: {e}")))?;
+            for (&i, p) in pinned.iter().zip(at) {
+                if let Some(p) = p {
+                    pin_offset = pin_offset
+                        .max(crate::geom::vec3::norm(crate::geom::vec3::sub(p, start[i])));
+                    start[i] = p;
+                }
+            }
+        }
         out.push(Frame {
             target,
             pinned,
-            start: x_hat,
+            start,
             f_ext,
         });
     }
@@ -604,6 +632,8 @@ fn read_pose(
         y2v_rms_max: y2v_rms,
         y2v_min_det_f: min_det,
         dynamic: damping.is_some(),
+        pins: if drive.is_some() { "band" } else { "shape_fit" },
+        pin_offset_m: pin_offset,
         training: None,
     };
     Ok(PoseInput {
@@ -662,6 +692,61 @@ fn dynamic_forces(
 /// (`/metadata/pose_json`: kind, amount, mirror, folds, band), found on the
 /// rest yarns turned into the pose frame as the run did; None without it.
 fn recorded_bands(path: &Path, rest: &[Vec3]) -> Result<Option<Vec<bool>>, Error> {
+    let Some((params, _)) = recorded_pose(path)? else {
+        return Ok(None);
+    };
+    let bad = |m: String| invalid(path, format!("its /metadata/pose_json: {m}"));
+    let plane = FabricPlane::of(rest);
+    let posed: Vec<Vec3> = rest.iter().map(|p| plane.to_pose(*p)).collect();
+    let driver = PoseDriver::new(&posed, params).map_err(|e| bad(format!("its bands: {e}")))?;
+    let mut held = vec![false; rest.len()];
+    driver.pinned().iter().for_each(|&i| held[i] = true);
+    Ok(Some(held))
+}
+
+/// Where the homogenized runs would hold this pose's pinned nodes
+/// ([`super::clamp_drive`]): from its yls scene or its `knitvox train`
+/// record; None with `--shape-fit-pins`, when neither is known, or when
+/// they do not describe every frame (warned).
+fn clamp_drive(
+    cx: &Context<'_>,
+    path: &Path,
+    scene: Option<&YlsScene>,
+    frames: &crate::geom::YarnFrames,
+    observer: &mut dyn Observer,
+) -> Result<Option<ClampDrive>, Error> {
+    if cx.shape_fit_pins {
+        return Ok(None);
+    }
+    let bad = |e: crate::yarn::poses::PoseError| invalid(path, format!("its clamped bands: {e}"));
+    let drive = match (scene, recorded_pose(path)?) {
+        (Some(s), _) => Some(
+            ClampDrive::from_scene(cx.asset, s.pose_params(), frames.times.clone()).map_err(bad)?,
+        ),
+        (None, Some((params, steps))) => {
+            Some(ClampDrive::from_record(cx.asset, params, steps).map_err(bad)?)
+        }
+        (None, None) => None,
+    };
+    match &drive {
+        // Another simulator's frames: the shape fits are all there is
+        // (the report's `pins` says so).
+        None => Ok(None),
+        Some(d) if d.covers(frames.num_frames()) => Ok(drive),
+        Some(_) => {
+            observer.warning(&format!(
+                "{}: its pose record or scene does not describe each of its frames: its pinned nodes are held at each frame's shape fit",
+                path.display()
+            ));
+            Ok(None)
+        }
+    }
+}
+
+/// The pose a `knitvox train` file records (`/metadata/pose_json`: kind,
+/// amount, mirror, folds, band) and its load steps (`steps`, else 1); None
+/// without a record.
+fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
     if io::format_of(path)? != io::Format::Hdf5 {
         return Ok(None);
     }
@@ -682,12 +767,8 @@ fn recorded_bands(path: &Path, rest: &[Vec3]) -> Result<Option<Vec<bool>>, Error
     if let Some(b) = v["band"].as_f64() {
         params.band = b;
     }
-    let plane = FabricPlane::of(rest);
-    let posed: Vec<Vec3> = rest.iter().map(|p| plane.to_pose(*p)).collect();
-    let driver = PoseDriver::new(&posed, params).map_err(|e| bad(format!("its bands: {e}")))?;
-    let mut held = vec![false; rest.len()];
-    driver.pinned().iter().for_each(|&i| held[i] = true);
-    Ok(Some(held))
+    let steps = v["steps"].as_u64().map_or(1, |s| s.max(1) as usize);
+    Ok(Some((params, steps)))
 }
 
 /// The yls scene a pose file stores (`/metadata/scene_toml`), if any.
@@ -1308,6 +1389,7 @@ impl Stage for FitJob {
             model,
             samples: self.samples,
             quasi_static: self.quasi_static,
+            shape_fit_pins: self.shape_fit_pins,
         };
         let mut samples = Vec::new();
         let mut poses = Vec::new();

@@ -932,6 +932,7 @@ impl Job {
             joint: f.joint.unwrap_or(false),
             quasi_static: false,
             fibres: f.fibres.unwrap_or(false),
+            shape_fit_pins: false,
             command: command.into(),
         };
         Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.output]))))

@@ -46,6 +46,7 @@
 
 pub mod asset;
 pub mod bake;
+pub mod clamp_drive;
 pub mod demo;
 pub mod error;
 pub mod fabric_test;

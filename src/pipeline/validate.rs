@@ -300,22 +300,6 @@ pub fn newton_omissions(colliders: &[Arc<dyn PointCollider>], damping: f64) -> O
     })
 }
 
-/// For every tet node, the pose's band (clamp group) that holds it: the
-/// first group holding a yarn vertex in one of the node's tets.
-fn node_groups(asset: &Asset, driver: &PoseDriver) -> Vec<Option<usize>> {
-    let mut group = vec![None; asset.mesh.num_nodes()];
-    for g in 0..driver.num_groups() {
-        let mut held = vec![false; asset.embedding.num_vertices()];
-        for &v in driver.group_vertices(g) {
-            held[v] = true;
-        }
-        for i in held_nodes(&asset.mesh, &asset.embedding, &held) {
-            group[i].get_or_insert(g);
-        }
-    }
-    group
-}
-
 /// The homogenized frames of `validate` by `solver` (see
 /// [`homogenized_frames`] and [`super::validate_pd::pd_frames`]); `damping`
 /// is the mass-proportional damping (1/s) of the PD run. Pure.
@@ -335,7 +319,7 @@ pub fn homogenized_run(
             homogenized_frames(asset, gamma, driver, gravity, times, colliders)
         }
         HomogenizedSolver::Pd => {
-            let group = node_groups(asset, driver);
+            let group = super::clamp_drive::node_groups(asset, driver);
             let pinned: Vec<usize> = (0..group.len()).filter(|&i| group[i].is_some()).collect();
             let nodes = &asset.mesh.nodes;
             let target = |i: usize, t: f64| driver.group_target(group[i].unwrap_or(0), nodes[i], t);
@@ -428,7 +412,7 @@ pub fn homogenized_frames(
 ) -> Result<HomogenizedRun, String> {
     let mesh = &asset.mesh;
     let n = mesh.num_nodes();
-    let group = node_groups(asset, driver);
+    let group = super::clamp_drive::node_groups(asset, driver);
     let pinned: Vec<usize> = (0..n).filter(|&i| group[i].is_some()).collect();
     let model = gamma.model(mesh).map_err(|e| e.to_string())?;
     let mut solver =
