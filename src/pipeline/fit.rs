@@ -467,9 +467,14 @@ fn read_pose(
     // A clamped vertex whose neighbours are clamped too can have an exactly
     // zero reaction (its band moves rigidly): the pose record's bands
     // (`knitvox train`) count as held with the non-zero rows.
-    let recorded = match &reactions {
-        Some(_) => recorded_bands(path, &rest.points)?,
-        None => None,
+    let record = if reactions.is_some() || !cx.shape_fit_pins {
+        recorded_pose(path)?
+    } else {
+        None
+    };
+    let recorded = match (&reactions, record) {
+        (Some(_), Some((params, _))) => Some(recorded_bands(path, params, &rest.points)?),
+        _ => None,
     };
     let held_at = |f: usize| -> Vec<bool> {
         match &reactions {
@@ -505,7 +510,7 @@ fn read_pose(
         Some(s) if !cx.quasi_static => Some(super::yls::scene_params(s, path)?.global_damping),
         _ => None,
     };
-    let drive = clamp_drive(cx, path, scene.as_ref(), &frames, observer)?;
+    let drive = clamp_drive(cx, path, scene.as_ref(), record, &frames, observer)?;
     let mut pin_offset = 0.0f64;
     let mut out = Vec::with_capacity(chosen.len());
     let mut node_reactions = Vec::with_capacity(chosen.len());
@@ -688,30 +693,28 @@ fn dynamic_forces(
     ))
 }
 
-/// The clamped vertices of the pose a `knitvox train` file records
-/// (`/metadata/pose_json`: kind, amount, mirror, folds, band), found on the
-/// rest yarns turned into the pose frame as the run did; None without it.
-fn recorded_bands(path: &Path, rest: &[Vec3]) -> Result<Option<Vec<bool>>, Error> {
-    let Some((params, _)) = recorded_pose(path)? else {
-        return Ok(None);
-    };
+/// The clamped vertices of the pose `params` a `knitvox train` file
+/// records ([`recorded_pose`]), found on the rest yarns turned into the
+/// pose frame as the run did.
+fn recorded_bands(path: &Path, params: PoseParams, rest: &[Vec3]) -> Result<Vec<bool>, Error> {
     let bad = |m: String| invalid(path, format!("its /metadata/pose_json: {m}"));
     let plane = FabricPlane::of(rest);
     let posed: Vec<Vec3> = rest.iter().map(|p| plane.to_pose(*p)).collect();
     let driver = PoseDriver::new(&posed, params).map_err(|e| bad(format!("its bands: {e}")))?;
     let mut held = vec![false; rest.len()];
     driver.pinned().iter().for_each(|&i| held[i] = true);
-    Ok(Some(held))
+    Ok(held)
 }
 
 /// Where the homogenized runs would hold this pose's pinned nodes
 /// ([`super::clamp_drive`]): from its yls scene or its `knitvox train`
-/// record; None with `--shape-fit-pins`, when neither is known, or when
-/// they do not describe every frame (warned).
+/// `record` ([`recorded_pose`]); None with `--shape-fit-pins`, when neither
+/// is known, or when they do not describe every frame (warned).
 fn clamp_drive(
     cx: &Context<'_>,
     path: &Path,
     scene: Option<&YlsScene>,
+    record: Option<(PoseParams, usize)>,
     frames: &crate::geom::YarnFrames,
     observer: &mut dyn Observer,
 ) -> Result<Option<ClampDrive>, Error> {
@@ -719,7 +722,7 @@ fn clamp_drive(
         return Ok(None);
     }
     let bad = |e: crate::yarn::poses::PoseError| invalid(path, format!("its clamped bands: {e}"));
-    let drive = match (scene, recorded_pose(path)?) {
+    let drive = match (scene, record) {
         (Some(s), _) => Some(
             ClampDrive::from_scene(cx.asset, s.pose_params(), frames.times.clone()).map_err(bad)?,
         ),
@@ -1999,7 +2002,8 @@ mod tests {
         .unwrap();
         w.push(0.1, &points).unwrap();
         w.finish().unwrap();
-        let held = recorded_bands(&path, &points).unwrap().unwrap();
+        let (params, _) = recorded_pose(&path).unwrap().unwrap();
+        let held = recorded_bands(&path, params, &points).unwrap();
         let lx = 0.001 * (n - 1) as f64;
         for (v, p) in points.iter().enumerate() {
             let edge = p[0] <= 0.1 * lx + 1e-12 || p[0] >= 0.9 * lx - 1e-12;
@@ -2008,13 +2012,13 @@ mod tests {
         // No record: None; a broken record: an error naming the file.
         let bare = dir.path().join("bare.h5");
         io::h5::write_file(&bare, &yarns, None).unwrap();
-        assert!(recorded_bands(&bare, &points).unwrap().is_none());
+        assert!(recorded_pose(&bare).unwrap().is_none());
         let broken = dir.path().join("broken.h5");
         let mut w = io::h5::FrameWriter::create(&broken, &yarns).unwrap();
         w.add_text("pose_json", r#"{"kind":"sideways"}"#).unwrap();
         w.push(0.1, &points).unwrap();
         w.finish().unwrap();
-        let e = recorded_bands(&broken, &points).unwrap_err().to_string();
+        let e = recorded_pose(&broken).unwrap_err().to_string();
         assert!(e.contains("broken.h5") && e.contains("pose_json"), "{e}");
     }
 

@@ -11,13 +11,13 @@ use crate::yarn::statics::{
     FrictionTerm, StaticError, StaticParams, StaticStats, SymbolicCache,
 };
 
-/// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
-/// stockinette/rib, r = 1 mm, except the bending scale).
 /// Smallest distance ratio (to 2r) a predicted start (the stretch test's
 /// secant step, the relaxation's contraction) may bring a contact to
 /// before it is dropped.
 pub(crate) const PREDICTION_MIN_DISTANCE_RATIO: f64 = 0.8;
 
+/// Material and solver parameters of a fabric (defaults: HYLC 2020 Table 1,
+/// stockinette/rib, r = 1 mm, except the bending scale).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FabricParams {
     /// Rod material: E 5e5 Pa, G 2e5 Pa (HYLC Table 1) and bend/twist scale
