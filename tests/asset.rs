@@ -192,7 +192,7 @@ fn embed_bad_input_exit_codes() {
     knitvox::io::write_path(&yarns, &y, None, &Default::default()).unwrap();
     let asset = dir.path().join("a.vtkhdf");
     for (flags, what, code) in [
-        // Bad option values are usage errors naming the option (issue 13).
+        // Bad option values are usage errors naming the option.
         (vec!["--voxel-size", "0"], "zero voxel size", 2),
         (vec!["--voxel-size=-1"], "negative voxel size", 2),
         (

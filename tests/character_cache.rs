@@ -1,4 +1,4 @@
-//! HDF5 character caches (issue 12 item 6, schemas/character-hdf5.md): a
+//! HDF5 character caches (schemas/character-hdf5.md): a
 //! cache written independently with h5py, in centimetres and Z up with
 //! 32-bit floats and 64-bit triangle indices, reads into knitvox's metres,
 //! +Y up; hostile variants are refused with the dataset named.

@@ -1,4 +1,4 @@
-//! Resumable, chunkable shots (issue 12 items 3 and 7) with the real
+//! Resumable, chunkable shots with the real
 //! binary: chunks equal one run bit for bit, a chunk without its
 //! checkpoint is refused, SIGTERM and kill -9 resume to the clean result,
 //! `--json` progress lines and JSON errors.

@@ -225,7 +225,7 @@ fn inspect_foreign_and_busy_hdf5() {
     assert!(stderr(&o).contains("h5clear"), "{}", stderr(&o));
 }
 
-/// Issue 13 item 6: a missing input's OS error is printed once (library
+/// A missing input's OS error is printed once (library
 /// errors embed their cause and also return it as `source()`), and the code
 /// is 66.
 #[test]
@@ -270,7 +270,7 @@ fn json_of(o: &Output) -> serde_json::Value {
         .unwrap_or_else(|e| panic!("{e}: {text}"))
 }
 
-/// Issue 13 item 6: option values checked after clap (ranges, names inside
+/// Option values checked after clap (ranges, names inside
 /// files, frame numbers) are usage errors (exit 2) that name the option.
 #[test]
 fn bad_option_values_are_usage_errors_naming_the_option() {
@@ -367,7 +367,7 @@ fn bad_option_values_are_usage_errors_naming_the_option() {
     assert!(!out.exists());
 }
 
-/// Issue 13 item 6: `--backend gpu` without a GPU adapter is its own class,
+/// `--backend gpu` without a GPU adapter is its own class,
 /// exit 69 (EX_UNAVAILABLE), not bad input (65). The Vulkan loader is
 /// pointed at no driver, so no adapter exists on any machine.
 #[test]
@@ -400,7 +400,7 @@ fn no_gpu_adapter_exits_69() {
     assert!(!out.exists());
 }
 
-/// Issue 13 item 7: a garment 30 m across read with an assumed unit warns
+/// A garment 30 m across read with an assumed unit warns
 /// (stderr, and `warnings` in --json) in convert, embed and simulate, with
 /// the unit that would make it clothing; declared units do not warn.
 #[test]
@@ -456,7 +456,7 @@ fn implausible_size_with_an_assumed_unit_warns() {
     );
 }
 
-/// Issue 13 item 9: `inspect CHAR.glb` reports joints, skins, animations
+/// `inspect CHAR.glb` reports joints, skins, animations
 /// with durations, the bind-pose box and a --character-scale that makes the
 /// body 1.7 m tall (Fox.glb: about 79 units high -> 0.022).
 #[test]
@@ -495,7 +495,7 @@ fn inspect_character_reports_rig_and_scale() {
     }
 }
 
-/// Issue 13 item 9: completion scripts and --help offer the values of
+/// Completion scripts and --help offer the values of
 /// --backend, --solver and --format.
 #[test]
 fn completion_offers_backend_solver_and_format_values() {

@@ -2,9 +2,8 @@
 //! inside/outside signs on closed meshes, exact plane and sphere projections.
 
 use knitvox::geom::Vec3;
-use knitvox::sim::collide::{
-    closest_point_on_triangle, Collider, ColliderSet, MeshCollider, MeshTopology, Shape,
-};
+use knitvox::geom::bvh::{closest_point_on_triangle, MeshCollider, MeshTopology};
+use knitvox::sim::collide::{Collider, ColliderSet, Shape};
 use knitvox::sim::contact::NodeProjector;
 use proptest::prelude::*;
 

@@ -455,8 +455,8 @@ fn guards_give_the_right_errors() {
         &good,
         &EmbedParams {
             voxel_size: Some(0.1),
-            // The 1 m segment covers 11 voxels of 0.1 m (issue 13: the limit
-            // applies to the real voxels, not the 8 (C + 2) = 96 bound).
+            // The 1 m segment covers 11 voxels of 0.1 m (the limit applies
+            // to the real voxels, not the 8 (C + 2) = 96 bound).
             max_voxels: 10,
             ..EmbedParams::default()
         },
@@ -663,7 +663,7 @@ fn tea_cozy_embeds_in_under_a_second() {
     }
 }
 
-/// Issue 13 item 5: a dense garment whose per-segment bound (16+ voxels per
+/// A dense garment whose per-segment bound (16+ voxels per
 /// segment) is far above the limit but whose real voxel count is small embeds;
 /// the limit still applies to the real count.
 #[test]

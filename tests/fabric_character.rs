@@ -1,4 +1,4 @@
-//! Pattern character after the relaxation into contact (issue 10, item 5):
+//! Pattern character after the relaxation into contact:
 //! a stockinette swatch curls its edges (the course ends to the back, the
 //! top and bottom to the front), a 1x1 rib stays flat and draws in, garter
 //! shortens; `knitvox pattern --json` reports the relaxed size, contacts

@@ -166,7 +166,7 @@ fn stretch_step_diagnostic() {
     }
 }
 
-/// The fabric checks (ignored, ~minutes): stockinette and 1x1 rib,
+/// The fabric acceptance checks (ignored, ~minutes): stockinette and 1x1 rib,
 /// weft and warp, the default 6 cm x 10 cm swatch relaxed with the
 /// defaults, stretched to 50% in 5% steps; hung by the top edge.
 /// `cargo test --test fabric_study fabric_checks -- --ignored --nocapture`

@@ -14,7 +14,8 @@ use knitvox::fit::{ShapeFitParams, ShapeFitter};
 use knitvox::geom::{Asset, Vec3};
 use knitvox::io::{self, h5::FrameWriter, ReadOptions, WriteOptions};
 use knitvox::pipeline::asset::{build_asset, re_embed};
-use knitvox::pipeline::fit::{held_nodes, node_forces};
+use knitvox::pipeline::fit::node_forces;
+use knitvox::pipeline::util::held_nodes;
 use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::statics::StaticParams;
 use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
@@ -252,7 +253,8 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     assert!(o.status.success(), "{stderr}");
     // Full mechanics in the files: no warning.
     assert!(!stderr.contains("warning"), "{stderr}");
-    // One JSON line per iteration, then the report (farm logs, issue 12 item 7).
+    // One JSON line per iteration, then the report (farm logs read them line
+    // by line).
     let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
@@ -333,7 +335,7 @@ fn fit_reduces_the_loss_moves_gamma_to_the_truth_and_is_deterministic() {
     assert!(rec.joint);
     assert_eq!(
         rec.poses[0].sha256,
-        knitvox::pipeline::asset::sha256_file(&c.poses[0]).unwrap()
+        knitvox::pipeline::util::sha256_file(&c.poses[0]).unwrap()
     );
     assert_eq!(rec.poses[0].frames, vec![1]);
     assert_eq!(rec.losses.len(), 2);

@@ -1,4 +1,4 @@
-//! Hostile inputs (issue 13, items 1-5): reads stay in the input's folder,
+//! Hostile inputs: reads stay in the input's folder,
 //! declared sizes are bounded by the memory budget, counts are bounded,
 //! outputs never overwrite inputs. Every input is generated here; every run
 //! has a deadline.
@@ -512,7 +512,7 @@ fn scene_counts_are_bounded_and_name_the_key() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Issue 13 item 6: an error quotes at most a short piece of one line of the
+/// An error quotes at most a short piece of one line of the
 /// input (a 5,000-character token, a multi-line TOML error, a long URI), so
 /// the message is one line that a farm log and a failed-job file can hold.
 #[test]
@@ -925,7 +925,7 @@ fn sigterm_while_simulate_writes_leaves_nothing() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Issue 13 item 6: names a scene gives for the character's animation and
+/// Names a scene gives for the character's animation and
 /// fit joint are quoted cut to one short line when they are not found.
 #[test]
 fn unknown_scene_animation_and_joint_are_quoted_short() {

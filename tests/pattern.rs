@@ -12,7 +12,9 @@ use knitvox::yarn::pattern::{
     PatternError, PatternParams, BUILTIN_NAMES,
 };
 
-/// The clearance bound every built-in meets before relaxation (issue 3).
+/// The clearance bound every built-in meets before relaxation: two
+/// non-adjacent yarn segments are at least 0.95 yarn diameters apart
+/// (centreline distance over the sum of their radii).
 const BOUND: f64 = 0.95;
 
 fn clearance(y: &Yarns, r: f64) -> f64 {

@@ -1,4 +1,4 @@
-//! `knitvox run JOB.toml`: job manifests and cached stages (issue 12 item 2).
+//! `knitvox run JOB.toml`: job manifests and cached stages.
 
 mod common;
 

@@ -9,7 +9,8 @@ use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::sim::dd::{DdParams, Interiors};
 use knitvox::sim::jacobi::{CpuJacobi, JacobiParams};
 use knitvox::sim::partition::Partition;
-use knitvox::sim::pd::{box_mesh, GlobalSolver, PdParams, PdSolver, StepStats};
+use knitvox::embed::box_mesh;
+use knitvox::sim::pd::{GlobalSolver, PdParams, PdSolver, StepStats};
 use knitvox::sim::SimError;
 use nalgebra::{DMatrix, DVector};
 

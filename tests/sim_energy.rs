@@ -7,7 +7,7 @@ mod common;
 use common::Rng;
 use knitvox::geom::{TetMesh, Vec3};
 use knitvox::sim::energy::{element_energy, ElasticModel};
-use knitvox::sim::local::{project_volume_detailed, signed_svd, SINGULAR_VALUE_FLOOR};
+use knitvox::sim::projection::{project_volume_detailed, signed_svd, SINGULAR_VALUE_FLOOR};
 use knitvox::sim::{
     gradient, local_step, project_diag_sl3, project_rotation, project_volume, total_energy,
     SimError,

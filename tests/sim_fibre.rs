@@ -9,9 +9,11 @@ use common::Rng;
 use knitvox::geom::Vec3;
 use knitvox::sim::backend::ElasticRhs;
 use knitvox::sim::cpu::CpuElasticRhs;
-use knitvox::sim::energy::{node_gradients, ElasticModel};
+use knitvox::sim::element::node_gradients;
+use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::fibre::FibreFamily;
-use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+use knitvox::embed::box_mesh;
+use knitvox::sim::pd::{PdParams, PdSolver};
 use knitvox::sim::statics::{StaticParams, StaticSolver};
 
 fn family(nt: usize, d: [f64; 3], gamma: impl Fn(usize) -> f64) -> FibreFamily {

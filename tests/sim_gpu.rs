@@ -14,10 +14,11 @@ use faer::Mat;
 use knitvox::embed::tetrahedralize;
 use knitvox::geom::{TetMesh, Vec3, VoxelGrid};
 use knitvox::sim::backend::{ElasticRhs, JacobiSolve};
-use knitvox::sim::cholesky::SparseCholesky;
+use knitvox::linalg::cholesky::SparseCholesky;
 use knitvox::sim::cpu::CpuElasticRhs;
-use knitvox::sim::csr::CsrMatrix;
-use knitvox::sim::energy::{node_gradients, ElasticModel};
+use knitvox::linalg::csr::CsrMatrix;
+use knitvox::sim::element::node_gradients;
+use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::fibre::FibreFamily;
 use knitvox::sim::gpu::{
     chebyshev_omegas, GpuContext, GpuElasticRhs, GpuError, GpuJacobi, GpuJacobiParams,
@@ -719,7 +720,8 @@ fn stretch_run(
     global: knitvox::sim::pd::GlobalSolver,
     steps: usize,
 ) -> Vec<Vec3> {
-    use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+    use knitvox::embed::box_mesh;
+use knitvox::sim::pd::{PdParams, PdSolver};
     let (mesh, mass) = box_mesh([8, 3, 4], 0.01, 200.0);
     let nt = mesh.num_tets();
     let xmax = 0.08;
@@ -806,7 +808,7 @@ fn gpu_and_cpu_stretch_runs_agree_after_100_steps() {
         );
         assert!(gap <= 1e-4, "{}: gap {gap:e}", global.name());
         // The scene did deform: the runs are not trivially equal.
-        let rest = knitvox::sim::pd::box_mesh([8, 3, 4], 0.01, 200.0).0.nodes;
+        let rest = knitvox::embed::box_mesh([8, 3, 4], 0.01, 200.0).0.nodes;
         assert!(relative_gap(&cpu, &rest) > 0.05);
     }
 }

@@ -501,7 +501,7 @@ fn bench_slab_report() {
             use knitvox::sim::backend::ElasticRhs;
             use knitvox::sim::cpu::CpuElasticRhs;
             let side = ((tets as f64 / 18.0).sqrt().round() as usize).max(1);
-            let (mesh, _) = knitvox::sim::pd::box_mesh([side, 3, side], 0.01, 200.0);
+            let (mesh, _) = knitvox::embed::box_mesh([side, 3, side], 0.01, 200.0);
             let g = vec![knitvox::geom::DEFAULT_GAMMA_S; mesh.num_tets()];
             let model = ElasticModel::new(&mesh, &g, &g).unwrap();
             let x: Vec<Vec3> = mesh
@@ -555,7 +555,7 @@ fn bench_slab_report() {
 #[test]
 #[ignore]
 fn pd_iteration_study() {
-    use knitvox::sim::pd::box_mesh;
+    use knitvox::embed::box_mesh;
     let (mesh, mass) = box_mesh([40, 3, 40], 0.01, 200.0);
     let pins: Vec<usize> = (0..mesh.num_nodes())
         .filter(|&i| mesh.nodes[i][0] < 1e-9)
@@ -605,7 +605,7 @@ fn pd_iteration_study() {
 
 #[test]
 fn friction_holds_a_block_on_a_slope_below_its_angle_and_not_above() {
-    // Issue 13 item 10: with friction 0.5 > tan 20° the block stays put
+    // With friction 0.5 > tan 20° the block stays put
     // (within 1 mm over 1 s); with 0.2 it slides with the Coulomb
     // acceleration g (sin θ - μ cos θ) = 1.51 m/s², i.e. 0.75 m in 1 s
     // (frictionless 1.68 m).

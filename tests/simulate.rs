@@ -203,8 +203,8 @@ normal = [{s}, {c}, 0.0]
 
 #[test]
 fn scene_friction_holds_or_lets_the_swatch_slide_down_a_slope() {
-    // Issue 13 item 10 through the shot stage: `simulation.friction` reaches
-    // the contacts. tan 20° = 0.36: 0.6 holds the landed swatch, 0.1 lets it
+    // Friction on a slope through the shot stage: `simulation.friction`
+    // reaches the contacts. tan 20° = 0.36: 0.6 holds the landed swatch, 0.1 lets it
     // slide at g (sin θ - μ cos θ) = 2.4 m/s² (0.23 m over the 0.46 s).
     let dir = tempfile::tempdir().unwrap();
     let asset_path = small_asset(dir.path());
@@ -602,8 +602,8 @@ velocity = [0.02, 0.0, 0.0]
         .any(|(a, b)| a[0] - b[0] > 1e-5));
 }
 
-/// Issue 13 item 4: a failing `--yarns-out` leaves no fresh asset and no
-/// partial frame sequence; `-o` equal to the asset is refused (exit 2).
+/// Every frame or none appears under its final name: a failing
+/// `--yarns-out` leaves no fresh asset and no partial frame sequence; `-o` equal to the asset is refused (exit 2).
 #[test]
 fn failing_yarns_out_leaves_no_outputs() {
     let dir = tempfile::tempdir().unwrap();
@@ -661,7 +661,7 @@ fn depth_below_y0(yarns_h5: &Path) -> f64 {
 
 #[test]
 fn yarn_vertex_penetration_is_reported_and_warned_beyond_the_tolerance() {
-    // Issue 13 item 11. The swatch straddles the plane y = 0 and every node
+    // The swatch straddles the plane y = 0 and every node
     // is pinned there (pins are never projected): no free tet node is inside
     // (max_penetration_m 0), but half the yarn vertices are, which only the
     // yarn figure sees; it matches the depth recomputed from the written
@@ -761,7 +761,7 @@ box_max = [{}, 1.0, 1.0]
 
 #[test]
 fn dd_solver_takes_its_partition_from_the_asset_domains() {
-    // Issue 13 item 12. `embed` writes domain 0 everywhere: the DD solver
+    // `embed` writes domain 0 everywhere: the DD solver
     // bisects (one domain for this small swatch). An asset whose
     // CellData/domain names three slabs along x gets exactly those three
     // domains, and its shot matches the direct solver's.
@@ -819,7 +819,7 @@ fn dd_solver_takes_its_partition_from_the_asset_domains() {
     assert!(err < 1e-4 * size, "dd off by {err} m");
 }
 
-/// Issue 12 item 6: a character baked into an HDF5 cache (`knitvox bake`)
+/// A character baked into an HDF5 cache (`knitvox bake`)
 /// drives a shot as its glTF does. The swatch lies 3 mm over the walking
 /// fox's back, pinned where it is within 4 mm of the body, the rest
 /// colliding. Baked at 600 fps, every 1/150 s step lands on a sample, so

@@ -1,5 +1,5 @@
-//! `knitvox run JOB.toml --submit slurm` on a real single-node Slurm
-//! (issue 12 item 5): the stages as chained batch jobs, and the exit-code
+//! `knitvox run JOB.toml --submit slurm` on a real single-node Slurm:
+//! the stages as chained batch jobs, and the exit-code
 //! classes on the farm (transient requeues, fix-needed holds, bad input
 //! cancels the dependents).
 //!

@@ -183,7 +183,7 @@ fn stretch_courses_moves_the_band_pulls_back_harder_each_step_and_records_its_me
     assert_eq!(rec["amount"], 0.1);
     assert_eq!(rec["mirror"], false);
     assert_eq!(rec["steps"], steps);
-    let sha = knitvox::pipeline::asset::sha256_file(asset_path).unwrap();
+    let sha = knitvox::pipeline::util::sha256_file(asset_path).unwrap();
     assert_eq!(rec["asset"]["sha256"], sha.as_str());
     assert_eq!(r["asset_sha256"], sha.as_str());
     assert_eq!(rec["asset"]["path"], path_str(asset_path));

@@ -1,4 +1,4 @@
-//! `validate` where the material matters (issue 11): the homogenized run
+//! `validate` where the material matters: the homogenized run
 //! under gravity and colliders. A hang under gravity sags by an amount set
 //! by the material's scale (a Dirichlet-only pose does not see it), and a
 //! scene with a collider runs at both levels with the mesh's yarn vertices

@@ -1,4 +1,4 @@
-//! `validate`'s homogenized run by projective dynamics (issue 11): contacts
+//! `validate`'s homogenized run by projective dynamics: contacts
 //! keep the carried yarns their radius outside a collider, friction holds a
 //! swatch on a slope that a frictionless one slides down, and PD settles a
 //! hang where the backward-Euler Newton reference does.

@@ -1,4 +1,4 @@
-//! `knitvox watch ROOT`: the watch-folder daemon (issue 12 item 4), run as
+//! `knitvox watch ROOT`: the watch-folder daemon (schemas/watch.md), run as
 //! real processes on temporary folders.
 
 mod common;

@@ -672,7 +672,7 @@ fn knit_rib_stretch_30_percent_without_pull_through() {
     knit_stretch("madypg_cartridge_belt_rib.pyp", 2, 2);
 }
 
-/// Issue 3: the HYLC / MADYPG tiles in `$KNITVOX_EXTERNAL_DATA/yarns/*.pyp`
+/// The HYLC / MADYPG tiles in `$KNITVOX_EXTERNAL_DATA/yarns/*.pyp`
 /// tiled 4x4 and relaxed stay intact: the contact bound holds during the
 /// relaxation (measured every step) and no segment ends stretched by more
 /// than 10% (the tiles' open yarn ends pull back as contacts push apart).
@@ -698,8 +698,8 @@ fn hylc_tiles_4x4_relax_and_stay_intact() {
             max_steps: 400,
             ..Default::default()
         };
-        // Bend scale 1, the default until stop 39: with today's 0.3 (tuned
-        // to knits, issue 10) the woven basket tile's soft yarns (E 5e5 Pa)
+        // Bend scale 1, the value these tiles were established with: with
+        // the default 0.3 (tuned to knits) the woven basket tile's soft yarns (E 5e5 Pa)
         // strain up to 18% in this relaxation; the check is that the
         // relaxation keeps external tiles intact, under the material it was
         // established with.

@@ -5,7 +5,7 @@
 use knitvox::geom::Yarns;
 use knitvox::yarn::rods::{RodEnergy, RodParams, RodRest, RodTopology};
 use knitvox::yarn::statics::{
-    reaction_forces, solve_static, EnergyTerm, GravityTerm, StaticParams, SymbolicCache,
+    reaction_forces, solve_static, EnergyTerm, GravityTerm, YarnStaticParams, SymbolicCache,
 };
 
 const R: f64 = 1e-3;
@@ -52,9 +52,9 @@ fn axial_stretch_matches_ea_strain() {
     for v in [n - 2, n - 1] {
         q[3 * v] += delta;
     }
-    let sp = StaticParams {
+    let sp = YarnStaticParams {
         force_tolerance: 1e-10,
-        ..StaticParams::default()
+        ..YarnStaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods];
     let stats = solve_static(
@@ -109,9 +109,9 @@ fn cantilever(n: usize) -> (Vec<f64>, Vec<bool>, f64, f64, RodParams) {
         mass,
         g: [0.0, -9.81, 0.0],
     };
-    let sp = StaticParams {
+    let sp = YarnStaticParams {
         force_tolerance: 1e-12,
-        ..StaticParams::default()
+        ..YarnStaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut gravity];
     let stats = solve_static(
@@ -244,10 +244,10 @@ fn pressed_crossing_reaches_equilibrium_with_balanced_contact() {
     let (topo, rest, mut q, fixed) = clamped_crossing(&y);
     let mut rods = RodEnergy::new(topo, rest, &params, &q).unwrap();
     let mut contact = ContactTerm::new(&y, &YarnSimParams::default(), 0.5 * R).unwrap();
-    let sp = StaticParams {
+    let sp = YarnStaticParams {
         force_tolerance: 1e-9,
         max_displacement: 0.25 * R,
-        ..StaticParams::default()
+        ..YarnStaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
     let stats = solve_static(
@@ -297,11 +297,11 @@ fn yarn_pulled_through_another_stops_on_it_with_large_steps_allowed() {
     }
     let mut rods = RodEnergy::new(topo, rest, &params, &q).unwrap();
     let mut contact = ContactTerm::new(&y, &YarnSimParams::default(), 10.0 * R).unwrap();
-    let sp = StaticParams {
+    let sp = YarnStaticParams {
         force_tolerance: 1e-8,
         max_displacement: 10.0 * R,
         clip_per_vertex: true,
-        ..StaticParams::default()
+        ..YarnStaticParams::default()
     };
     let mut terms: Vec<&mut dyn EnergyTerm> = vec![&mut rods, &mut contact];
     let stats = solve_static(
@@ -483,11 +483,11 @@ fn pressed_crossing_sticks_below_and_slides_at_coulomb_force_above() {
     let (topo, rest, mut q0, fixed) = clamped_crossing(&y);
     let mut rods = RodEnergy::new(topo, rest, &params, &q0).unwrap();
     let (mut contact, _) = lagged_friction(&y, &q0, mu, eps);
-    let sp = StaticParams {
+    let sp = YarnStaticParams {
         force_tolerance: 1e-9,
         max_displacement: 0.25 * R,
         clip_per_vertex: true,
-        ..StaticParams::default()
+        ..YarnStaticParams::default()
     };
     let mut cache = SymbolicCache::default();
     {

@@ -96,7 +96,7 @@ fn stretch_scenes_keep_the_contact_bound_and_store_the_scene() {
             "{pattern}: 30% stretch, {} vertices, {} steps, min distance / 2r {ratio:.3}",
             r["vertices"], r["steps"]
         );
-        // Issue 3: never below 2r x 0.75, measured every step.
+        // The contact bound: never below 2r x 0.75, measured every step.
         assert!(ratio >= 0.75, "{pattern}: {ratio}");
         assert!(r["max_displacement_ratio"].as_f64().unwrap() <= 0.1 + 1e-9);
         // Rest frame + 3 frames; the clamped edge moved by 30% of the width.

@@ -1,7 +1,7 @@
 //! Pins from a character's skin: garment nodes near the bind-pose body
 //! surface are attached to their closest body triangle and then follow the
-//! skinned body at any time (the "points of a character's skinned surface
-//! chosen by distance at the bind pose" of issue 5).
+//! skinned body at any time (points of a character's skinned surface
+//! chosen by distance at the bind pose).
 //!
 //! An attachment stores a point in the affine frame of its triangle
 //! `(a, b, c)`: `p = a + α (b - a) + β (c - a) + γ n̂`, with `n̂` the unit
@@ -16,7 +16,7 @@
 
 use crate::geom::vec3::{cross, dot, sub};
 use crate::geom::Vec3;
-use crate::sim::collide::{MeshCollider, MeshTopology};
+use crate::geom::bvh::{MeshCollider, MeshTopology};
 
 /// Default pin distance (m): garment nodes within this unsigned distance of
 /// the bind-pose body surface are pinned. 5 mm: a few voxels of the default

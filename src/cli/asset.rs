@@ -4,7 +4,8 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use super::{ExitCode, ReadArgs};
+use super::args::ReadArgs;
+use super::exit::ExitCode;
 use crate::embed::EmbedParams;
 use crate::fit::ShapeFitParams;
 use crate::geom::{FrameSpec, Units, UpAxis};
@@ -25,13 +26,13 @@ pub struct EmbedArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Voxel edge length in metres [default: about 0.5 mesh nodes per yarn vertex, VH §4].
-    #[arg(long, value_name = "METRES", value_parser = super::guard::parse_positive)]
+    #[arg(long, value_name = "METRES", value_parser = super::parse::parse_positive)]
     pub voxel_size: Option<f64>,
     /// Refuse embeddings with more voxels than this.
     #[arg(long, default_value_t = EmbedParams::default().max_voxels, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_voxels: u64,
     /// Yarn material density (kg/m^3) for yarns without a linear density.
-    #[arg(long, default_value_t = EmbedParams::default().material_density, value_parser = super::guard::parse_positive)]
+    #[arg(long, default_value_t = EmbedParams::default().material_density, value_parser = super::parse::parse_positive)]
     pub density: f64,
     #[command(flatten)]
     pub read: ReadArgs,
@@ -53,7 +54,7 @@ pub struct ShapefitArgs {
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Weight of the position term of VH Eq. 6.
-    #[arg(long, default_value_t = ShapeFitParams::default().alpha, value_parser = super::guard::parse_positive)]
+    #[arg(long, default_value_t = ShapeFitParams::default().alpha, value_parser = super::parse::parse_positive)]
     pub alpha: f64,
     #[command(flatten)]
     pub read: ReadArgs,
@@ -103,7 +104,7 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         output: a.output.clone(),
         command: command_line(),
     };
-    let mut console = super::Console::new(false, 0, "");
+    let mut console = super::console::Console::new(false, 0, "");
     let r = job.run(&mut console)?;
     let stats = &r.stats;
     if a.json {

@@ -1,96 +1,157 @@
-//! `knitvox bench NAME --json`: benchmarks that print the README's figures.
+//! `knitvox bench io|embed|sim|yls [--json]`: the arguments of the
+//! benchmarks in `pipeline::bench` and how their figures are printed
+//! (docs/performance.md; `--json`: schemas/cli-json.md).
 
-use std::collections::BTreeMap;
-use std::time::Instant;
+use std::path::PathBuf;
 
-use serde::Serialize;
+use clap::{Args, Subcommand};
 
-use super::{BenchEmbedArgs, BenchIoArgs, BenchSimArgs, ExitCode};
-use crate::io::{self, Format, ReadOptions, WriteOptions};
-use crate::pipeline::simulate::median;
-use crate::pipeline::Error;
-use crate::yarn::analytic::knit_swatch_with_points;
+use super::args::ReadArgs;
+use super::exit::ExitCode;
+use crate::pipeline::bench::{self, EmbedRequest, IoRequest, SimRequest, YlsRequest};
 
-fn time_ms<T>(runs: usize, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<f64> {
-    let mut t = Vec::with_capacity(runs);
-    for _ in 0..runs.max(1) {
-        let s = Instant::now();
-        std::hint::black_box(f()?);
-        t.push(s.elapsed().as_secs_f64() * 1e3);
-    }
-    Ok(median(t))
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub target: BenchTarget,
 }
 
-#[derive(Serialize)]
-struct FormatTimes {
-    write_ms: f64,
-    read_ms: f64,
-    bytes: u64,
+#[derive(Debug, Subcommand)]
+pub enum BenchTarget {
+    /// Read and write times of every yarn format (median of --runs).
+    Io(BenchIoArgs),
+    /// Embedding and Y2V shape-fit times, mesh size and peak memory.
+    Embed(BenchEmbedArgs),
+    /// PD time-step cost of a stretched knit swatch of about --tets tets.
+    Sim(BenchSimArgs),
+    /// Yarn-level simulator step cost on a generated swatch of about --vertices vertices, 30% stretch.
+    Yls(BenchYlsArgs),
 }
 
-#[derive(Serialize)]
-struct IoBench {
-    bench: &'static str,
-    input: String,
-    curves: usize,
-    points: usize,
-    runs: usize,
-    threads: usize,
-    input_read_ms: Option<f64>,
-    formats: BTreeMap<&'static str, FormatTimes>,
+#[derive(Debug, Args)]
+pub struct BenchIoArgs {
+    /// Input yarn file [default: a built-in analytic swatch of --points points].
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Points of the built-in swatch.
+    #[arg(long, default_value_t = 184_000)]
+    pub points: usize,
+    /// Timed runs per measurement (the median is reported).
+    #[arg(long, default_value_t = 7)]
+    pub runs: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchEmbedArgs {
+    /// Input yarn file [default: a built-in analytic swatch of --points points].
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Points of the built-in swatch.
+    #[arg(long, default_value_t = 50_000)]
+    pub points: usize,
+    /// Voxel size (m) [default: the embedding's default rule].
+    #[arg(long, value_parser = super::parse::parse_positive)]
+    pub voxel_size: Option<f64>,
+    /// Frames to shape-fit (an analytic stretch of the rest yarns).
+    #[arg(long, default_value_t = 8)]
+    pub frames: usize,
+    /// Timed embedding runs (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchSimArgs {
+    /// Target tet count of the swatch (the analytic knit swatch embedded at the default voxel size).
+    #[arg(long, default_value_t = 20_000)]
+    pub tets: usize,
+    /// Timed time steps (the median is reported).
+    #[arg(long, default_value_t = 20)]
+    pub steps: usize,
+    /// Time step (s), a number or a fraction.
+    #[arg(long, default_value = "1/150", value_parser = crate::pipeline::sim_scene::parse_seconds)]
+    pub dt: f64,
+    /// Backend.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub backend: crate::pipeline::sim_scene::BackendChoice,
+    /// Global solver.
+    #[arg(long, value_enum, default_value = "direct")]
+    pub solver: crate::pipeline::sim_scene::SolverChoice,
+    /// Most PD iterations per step [default: the simulator's default].
+    #[arg(long)]
+    pub pd_iterations: Option<u32>,
+    /// Relative residual of the domain-decomposed solver's Jacobi iterations [default: its default].
+    #[arg(long, value_parser = super::parse::parse_positive)]
+    pub dd_tolerance: Option<f64>,
+    /// Interiors of the domain-decomposed solver: exact (every interior mode, the default) or modes (VH Eq. 32's 20 lowest per domain).
+    #[arg(long, value_parser = ["exact", "modes"])]
+    pub dd_interiors: Option<String>,
+    /// Anderson acceleration window of the PD iterations (0: plain PD) [default: the simulator's default].
+    #[arg(long)]
+    pub anderson: Option<usize>,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchYlsArgs {
+    /// Target vertex count of the swatch (VH's rib comparison: about 22K vertices, 66K DOFs).
+    #[arg(long, default_value_t = 22_000)]
+    pub vertices: usize,
+    /// Built-in stitch pattern of the swatch.
+    #[arg(long, default_value = "rib1x1")]
+    pub pattern: String,
+    /// Timed time steps (the median is reported).
+    #[arg(long, default_value_t = 200)]
+    pub steps: usize,
+    /// Untimed steps first.
+    #[arg(long, default_value_t = 20)]
+    pub warmup: usize,
+    /// Whole 1/150 s frames to run and time after the timed steps.
+    #[arg(long, default_value_t = 0)]
+    pub frames: usize,
+    /// Relax the swatch into contact first (as `knitvox pattern` does; the
+    /// simulator then starts from the stored rest shape with its yarns
+    /// touching) instead of timing the loose generated curves.
+    #[arg(long)]
+    pub relax: bool,
+    /// Time this yarn file (e.g. a swatch relaxed by `knitvox pattern`)
+    /// instead of a generated pattern (`--vertices`, `--pattern` unused).
+    #[arg(long)]
+    pub input: Option<std::path::PathBuf>,
+    /// Stretch the relaxed swatch quasi-statically by this much along x
+    /// (the weft stretch test, clamps 8 mm deep) before timing, so the
+    /// contacts are engaged (a relaxed rib has ~0.6 contacts per vertex at
+    /// rest, ~2 at 30%). 0: none. Needs a rest shape (`--relax` or a
+    /// relaxed `--input`).
+    #[arg(long, default_value_t = 0.0)]
+    pub prestretch: f64,
+    /// Load steps of the `--prestretch`.
+    #[arg(long, default_value_t = 6)]
+    pub prestretch_steps: usize,
+    /// Print a JSON object.
+    #[arg(long)]
+    pub json: bool,
 }
 
 pub fn io(a: &BenchIoArgs) -> anyhow::Result<ExitCode> {
-    let opts = a.read.options();
-    let (yarns, input, input_read_ms) = match &a.input {
-        Some(p) => {
-            let d = io::read_path(p, &opts)?;
-            let ms = time_ms(a.runs, || Ok(io::read_path(p, &opts)?))?;
-            (d.yarns, p.display().to_string(), Some(ms))
-        }
-        None => (
-            knit_swatch_with_points(a.points),
-            format!("built-in analytic swatch ({} points)", a.points),
-            None,
-        ),
-    };
-    let dir = tempfile::tempdir()?;
-    let mut formats = BTreeMap::new();
-    let read_back = ReadOptions {
-        radius: opts.radius,
-        ..ReadOptions::default()
-    };
-    for format in Format::ALL.into_iter().filter(|f| f.is_writable()) {
-        let path = dir.path().join(format!("bench.{}", format.extensions()[0]));
-        let write_ms = time_ms(a.runs, || {
-            Ok(io::write_path(
-                &path,
-                &yarns,
-                None,
-                &WriteOptions::default(),
-            )?)
-        })?;
-        let read_ms = time_ms(a.runs, || Ok(io::read_path(&path, &read_back)?))?;
-        let bytes = std::fs::metadata(&path)?.len();
-        formats.insert(
-            format.name(),
-            FormatTimes {
-                write_ms,
-                read_ms,
-                bytes,
-            },
-        );
-    }
-    let r = IoBench {
-        bench: "io",
-        input,
-        curves: yarns.num_curves(),
-        points: yarns.num_points(),
+    let r = bench::io(&IoRequest {
+        input: a.input.clone(),
+        read: a.read.options(),
+        points: a.points,
         runs: a.runs,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        input_read_ms,
-        formats,
-    };
+    })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -111,86 +172,15 @@ pub fn io(a: &BenchIoArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-/// Peak resident memory of this process (MB), from /proc (Linux); None elsewhere.
-pub fn peak_rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
-
-#[derive(Serialize)]
-struct EmbedBench {
-    bench: &'static str,
-    input: String,
-    yarn_points: usize,
-    voxel_size: f64,
-    voxels: usize,
-    nodes: usize,
-    tets: usize,
-    nodes_per_yarn_point: f64,
-    runs: usize,
-    threads: usize,
-    embed_ms: f64,
-    shapefit_prepare_ms: f64,
-    shapefit_frames: usize,
-    shapefit_ms_per_frame: f64,
-    shapefit_rms_error_max_m: f64,
-    peak_rss_mb: Option<f64>,
-}
-
 pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
-    use crate::embed::{embed as run_embed, EmbedParams};
-    use crate::fit::{ShapeFitParams, ShapeFitter};
-    let (yarns, input) = match &a.input {
-        Some(p) => (
-            io::read_path(p, &a.read.options())?.yarns,
-            p.display().to_string(),
-        ),
-        None => (
-            knit_swatch_with_points(a.points),
-            format!("built-in analytic swatch ({} points)", a.points),
-        ),
-    };
-    let params = EmbedParams {
+    let r = bench::embed(&EmbedRequest {
+        input: a.input.clone(),
+        read: a.read.options(),
+        points: a.points,
         voxel_size: a.voxel_size,
-        ..EmbedParams::default()
-    };
-    let e = run_embed(&yarns, &params).map_err(Error::from)?;
-    let embed_ms = time_ms(a.runs, || {
-        Ok(run_embed(&yarns, &params).map_err(Error::from)?)
-    })?;
-    let t = Instant::now();
-    let fitter =
-        ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default()).map_err(Error::from)?;
-    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
-    let frames = crate::pipeline::demo::demo_frames(&yarns, a.frames.max(1));
-    let mut per_frame = Vec::new();
-    let mut worst: f64 = 0.0;
-    for f in 0..frames.num_frames() {
-        let t = Instant::now();
-        let (_, st) = fitter.fit(frames.frame(f)).map_err(Error::from)?;
-        per_frame.push(t.elapsed().as_secs_f64() * 1e3);
-        worst = worst.max(st.rms_error);
-    }
-    let r = EmbedBench {
-        bench: "embed",
-        input,
-        yarn_points: yarns.num_points(),
-        voxel_size: e.stats.voxel_size,
-        voxels: e.stats.voxels,
-        nodes: e.mesh.num_nodes(),
-        tets: e.mesh.num_tets(),
-        nodes_per_yarn_point: e.mesh.num_nodes() as f64 / yarns.num_points().max(1) as f64,
+        frames: a.frames,
         runs: a.runs,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        embed_ms,
-        shapefit_prepare_ms: prepare_ms,
-        shapefit_frames: per_frame.len(),
-        shapefit_ms_per_frame: median(per_frame),
-        shapefit_rms_error_max_m: worst,
-        peak_rss_mb: peak_rss_mb(),
-    };
+    })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -203,167 +193,22 @@ pub fn embed(a: &BenchEmbedArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-#[derive(Serialize)]
-struct SimBench {
-    bench: &'static str,
-    input: String,
-    scene: &'static str,
-    yarn_points: usize,
-    voxel_size: f64,
-    tets: usize,
-    nodes: usize,
-    pinned: usize,
-    steps: usize,
-    dt: f64,
-    threads: usize,
-    solver: &'static str,
-    backend: &'static str,
-    /// One-off assembly and factorization (ms).
-    prepare_ms: f64,
-    /// Median wall time of one time step (ms).
-    ms_per_step: f64,
-    /// Mean PD iterations (local + global) per step.
-    pd_iterations: f64,
-    pd_iterations_max: u32,
-    /// Largest implicit-Euler residual over the steps (N).
-    residual: f64,
-    /// Median time of the step's local steps (ms).
-    local_ms_per_step: f64,
-    /// Median time of the step's global solves (ms).
-    global_ms_per_step: f64,
-    /// Mean iterations of the iterative global solves per step (Jacobi for
-    /// dd; 0 for direct without contacts).
-    global_iterations: f64,
-    /// Largest relative residual of the iterative global solves.
-    global_residual: f64,
-    /// Mean local steps per step (PD iterations + 1 + rejected Anderson
-    /// iterates).
-    local_steps: f64,
-    peak_rss_mb: Option<f64>,
-}
-
-/// `bench sim`: an analytic knit swatch of about `--tets` tets, its two x
-/// edges pinned and pulled apart (20% over the run) under gravity.
 pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
-    use crate::embed::{embed as run_embed, EmbedParams};
-    use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
-    use crate::pipeline::simulate::{attach_backend, global_solver};
-    use crate::sim::pd::{PdParams, PdSolver};
-    let mut global = global_solver(a.solver);
-    if let crate::sim::pd::GlobalSolver::DomainDecomposed(dp) = &mut global {
-        if let Some(t) = a.dd_tolerance {
-            dp.tolerance = t;
-        }
+    let r = bench::sim(&SimRequest {
+        tets: a.tets,
+        steps: a.steps,
+        dt: a.dt,
+        backend: a.backend,
+        solver: a.solver,
+        pd_iterations: a.pd_iterations,
+        dd_tolerance: a.dd_tolerance,
         // clap admits only "exact" and "modes".
-        if a.dd_interiors.as_deref() == Some("modes") {
-            dp.interiors = crate::sim::dd::Interiors::Modes;
-        }
-    }
-    let solver_name = global.name();
-    // About 1.7 tets per yarn point at the default voxel size (README
-    // embedding table); one correction from the first embedding's ratio.
-    let mut points = (a.tets as f64 / 1.7).max(800.0) as usize;
-    let mut yarns = knit_swatch_with_points(points);
-    let mut e = run_embed(&yarns, &EmbedParams::default()).map_err(Error::from)?;
-    let ratio = a.tets as f64 / e.mesh.num_tets().max(1) as f64;
-    if !(0.85..=1.15).contains(&ratio) {
-        points = ((points as f64) * ratio).max(800.0) as usize;
-        yarns = knit_swatch_with_points(points);
-        e = run_embed(&yarns, &EmbedParams::default()).map_err(Error::from)?;
-    }
-    let mesh = &e.mesh;
-    let nt = mesh.num_tets();
-    let h = e.stats.voxel_size;
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for p in &mesh.nodes {
-        lo = lo.min(p[0]);
-        hi = hi.max(p[0]);
-    }
-    let left: Vec<usize> = (0..mesh.num_nodes())
-        .filter(|&i| mesh.nodes[i][0] <= lo + 0.5 * h)
-        .collect();
-    let right: Vec<usize> = (0..mesh.num_nodes())
-        .filter(|&i| mesh.nodes[i][0] >= hi - 0.5 * h)
-        .collect();
-    let pinned: Vec<usize> = left.iter().chain(&right).copied().collect();
-    let steps = a.steps.max(1);
-    let speed = 0.2 * (hi - lo) / (steps as f64 * a.dt);
-    let params = PdParams {
-        dt: a.dt,
-        mass_damping: 2.0,
-        global,
-        max_iterations: a
-            .pd_iterations
-            .unwrap_or(PdParams::default().max_iterations),
-        anderson_window: a.anderson.unwrap_or(PdParams::default().anderson_window),
-        ..PdParams::default()
-    };
-    let t = Instant::now();
-    let mut solver = PdSolver::new(
-        mesh,
-        &e.node_mass,
-        &vec![DEFAULT_GAMMA_S; nt],
-        &vec![DEFAULT_GAMMA_V; nt],
-        &pinned,
-        params,
-    )?;
-    let backend = attach_backend(&mut solver, a.backend)?;
-    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
-    let mut x = mesh.nodes.clone();
-    let mut v = vec![[0.0; 3]; x.len()];
-    let (mut ms, mut iters, mut iters_max, mut residual) = (Vec::new(), 0u64, 0u32, 0.0f64);
-    let (mut local_ms, mut global_ms, mut gits, mut gres) = (Vec::new(), Vec::new(), 0u64, 0.0f64);
-    let mut local_steps = 0u64;
-    for s in 1..=steps {
-        let dx = speed * a.dt * s as f64;
-        let pins: Vec<[f64; 3]> = left
-            .iter()
-            .map(|&i| mesh.nodes[i])
-            .chain(right.iter().map(|&i| {
-                let p = mesh.nodes[i];
-                [p[0] + dx, p[1], p[2]]
-            }))
-            .collect();
-        let st = solver.step(&mut x, &mut v, &pins)?;
-        ms.push(st.ms);
-        local_ms.push(st.local_ms);
-        global_ms.push(st.global_ms);
-        gits += st.global_iterations as u64;
-        local_steps += u64::from(st.local_steps());
-        gres = gres.max(st.global_residual);
-        iters += st.iterations as u64;
-        iters_max = iters_max.max(st.iterations);
-        residual = residual.max(st.residual);
-    }
-    let r = SimBench {
-        bench: "sim",
-        input: format!(
-            "built-in analytic knit swatch ({} points)",
-            yarns.num_points()
-        ),
-        scene: "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity",
-        yarn_points: yarns.num_points(),
-        voxel_size: h,
-        tets: nt,
-        nodes: mesh.num_nodes(),
-        pinned: pinned.len(),
-        steps,
-        dt: a.dt,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        solver: solver_name,
-        backend,
-        prepare_ms,
-        ms_per_step: median(ms),
-        pd_iterations: iters as f64 / steps as f64,
-        pd_iterations_max: iters_max,
-        residual,
-        local_ms_per_step: median(local_ms),
-        global_ms_per_step: median(global_ms),
-        global_iterations: gits as f64 / steps as f64,
-        global_residual: gres,
-        local_steps: local_steps as f64 / steps as f64,
-        peak_rss_mb: peak_rss_mb(),
-    };
+        dd_interiors: a.dd_interiors.as_deref().map(|i| match i {
+            "modes" => crate::sim::dd::Interiors::Modes,
+            _ => crate::sim::dd::Interiors::Exact,
+        }),
+        anderson: a.anderson,
+    })?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -375,66 +220,21 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-/// `bench yls`: the yarn-level simulator on a generated swatch of about
-/// `--vertices` vertices (courses along x) or on `--input`, optionally
-/// relaxed into contact and stretched quasi-statically first, then both x
-/// ends clamped and pulled 30% further apart over 1 s
-/// ([`crate::yarn::sim::stretch_scene`]).
-pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
-    let (mut yarns, input) = match &a.input {
-        Some(path) => {
-            let d = io::read_path(path, &ReadOptions::default())?;
-            (d.yarns, path.display().to_string())
-        }
-        None => generated_swatch(a)?,
-    };
-    if a.relax && yarns.rest.is_none() {
-        let (relaxed, _) = crate::yarn::fabric::relax_into_contact(
-            &yarns,
-            &Default::default(),
-            &Default::default(),
-        )?;
-        yarns = relaxed;
-    }
-    let prestretch = if a.prestretch > 0.0 {
-        Some(prestretch(&mut yarns, a.prestretch, a.prestretch_steps)?)
-    } else {
-        None
-    };
-    let opts = crate::yarn::sim::BenchOptions {
-        vertices: yarns.num_points(),
-        steps: a.steps.max(1),
+pub fn yls(a: &BenchYlsArgs) -> anyhow::Result<ExitCode> {
+    let b = bench::yls(&YlsRequest {
+        vertices: a.vertices,
+        pattern: a.pattern.clone(),
+        steps: a.steps,
         warmup: a.warmup,
         frames: a.frames,
-        ..Default::default()
-    };
-    let r = crate::yarn::sim::bench_yarns(&yarns, false, &opts)?;
-    let out = serde_json::json!({
-        "bench": "yls",
-        "input": input,
-        "scene": "stretch: both x ends clamped, pulled 30% apart over 1 s, no gravity",
-        "frame_s": crate::yarn::sim::BENCH_FRAME,
-        "vertices": r.vertices,
-        "us_per_vertex_step": r.us_per_vertex_step,
-        "ms_per_frame": r.ms_per_frame,
-        "steps_per_frame": r.steps_per_frame,
-        "dt_median": r.dt_median,
-        "relaxed": yarns.rest.is_some(),
-        "prestretch": prestretch,
-        "contact_pairs": r.contact_pairs,
-        "contacts_per_vertex": r.contacts_per_vertex,
-        "candidate_pairs": r.candidate_pairs,
-        "min_distance_ratio": r.min_distance_ratio,
-        "rebuilds": r.rebuilds,
-        "rebuild_ms": r.rebuild_ms,
-        "forces_us_per_vertex_step": r.forces_us_per_vertex_step,
-        "ms_per_frame_measured": r.ms_per_frame_measured,
-        "frames_min_distance_ratio": r.frames_min_distance_ratio,
-        "threads": r.threads,
-        "steps": r.steps,
-    });
+        relax: a.relax,
+        input: a.input.clone(),
+        prestretch: a.prestretch,
+        prestretch_steps: a.prestretch_steps,
+    })?;
+    let r = &b.report;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        println!("{}", serde_json::to_string_pretty(&b.json)?);
     } else {
         println!(
             "yls: {} vertices, {:.3} us per vertex per step (median), {:.0} steps per 1/150 s frame, {:.1} ms per frame, {} contact pairs ({:.2} per vertex), min distance / 2r {:.3}",
@@ -442,94 +242,4 @@ pub fn yls(a: &super::BenchYlsArgs) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::Success)
-}
-
-/// The built-in pattern swatch of about `--vertices` vertices and its name.
-fn generated_swatch(a: &super::BenchYlsArgs) -> anyhow::Result<(crate::geom::Yarns, String)> {
-    use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
-    use crate::yarn::pattern::{Layout, PatternParams};
-    let job = |n: usize| PatternJob {
-        source: PatternSource::Builtin(a.pattern.clone()),
-        layout: Layout {
-            courses: n,
-            wales: n,
-            tube_radius: None,
-            helix: false,
-            separate_courses: false,
-        },
-        params: PatternParams::default(),
-        relax: None,
-        material: crate::yarn::fabric::FabricParams::default().material(),
-    };
-    // About 32 vertices per stitch for the knits; one correction from the
-    // first swatch's count.
-    let mut n = ((a.vertices.max(64) as f64 / 32.0).sqrt().round() as usize).max(2);
-    let (mut yarns, mut report) = generate(&job(n))?;
-    let ratio = a.vertices as f64 / yarns.num_points().max(1) as f64;
-    if !(0.9..=1.1).contains(&ratio) {
-        n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
-        (yarns, report) = generate(&job(n))?;
-    }
-    let name = format!(
-        "built-in {} swatch, {n} courses x {n} wales ({} curves)",
-        a.pattern, report.curves
-    );
-    Ok((yarns, name))
-}
-
-/// What the quasi-static pre-stretch did (the bench's JSON `prestretch`).
-#[derive(Serialize)]
-struct PrestretchReport {
-    stretch: f64,
-    steps: usize,
-    force_n: f64,
-    contacts_per_vertex: f64,
-    newton_iterations: usize,
-    seconds: f64,
-}
-
-/// Stretches `yarns` (which carry a rest shape) quasi-statically along x by
-/// `stretch` in `steps` load steps (the weft stretch test without its
-/// hold) and leaves them at the last equilibrium, rest shape kept.
-fn prestretch(
-    yarns: &mut crate::geom::Yarns,
-    stretch: f64,
-    steps: usize,
-) -> anyhow::Result<PrestretchReport> {
-    use crate::yarn::fabric::{stretch_test, Direction, StretchParams};
-    anyhow::ensure!(
-        yarns.rest.is_some(),
-        "--prestretch needs a swatch with a rest shape (--relax, or a relaxed --input)"
-    );
-    let params = StretchParams {
-        direction: Direction::Weft,
-        max_stretch: stretch,
-        steps,
-        hold_steps: 0,
-        ..StretchParams::default()
-    };
-    let mut last = None;
-    let r = stretch_test(yarns, &Default::default(), &params, &mut |f| {
-        last = Some(f.points.to_vec());
-        Ok(())
-    })?;
-    yarns.points = last.ok_or_else(|| anyhow::anyhow!("the pre-stretch gave no frame"))?;
-    let end = r.points.last().expect("at least the rest point");
-    Ok(PrestretchReport {
-        stretch,
-        steps,
-        force_n: end.force_n,
-        contacts_per_vertex: end.contacts_per_vertex,
-        newton_iterations: r.points.iter().map(|p| p.newton_iterations).sum(),
-        seconds: r.seconds,
-    })
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn median_odd_even() {
-        assert_eq!(super::median(vec![3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(super::median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
-    }
 }

@@ -1,10 +1,71 @@
 //! `inspect`, `convert` and `demo`.
 
-use anyhow::Context;
+use std::path::PathBuf;
 
-use super::{error_message, exit_code_for, ConvertArgs, DemoArgs, ExitCode, InspectArgs};
-use crate::io;
+use anyhow::Context;
+use clap::Args;
+
+use super::args::ReadArgs;
+
+use super::exit::{error_message, exit_code_for, ExitCode};
+use crate::geom::{Units, UpAxis};
+use crate::io::{self, WriteOptions};
 use crate::pipeline::{demo, inspect::summarize};
+
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// Yarn files (a `name.####.ext` pattern reads a frame sequence).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Print one JSON array instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct ConvertArgs {
+    /// Input yarn file or `name.####.ext` frame sequence.
+    pub input: PathBuf,
+    /// Output file; `name.####.ext` writes one file per frame; .h5 holds all frames.
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    /// Unit of the written coordinates for bcc, obj, ply (glTF and HDF5 are always metres).
+    #[arg(long, value_name = "mm|cm|m|SCALE", default_value = "m")]
+    pub out_units: Units,
+    /// Up axis of the written coordinates for bcc, obj, ply (glTF and HDF5 are always +Y up).
+    #[arg(long, value_name = "y|z", default_value = "y")]
+    pub out_up_axis: UpAxis,
+    /// First frame number of a written sequence (-1e9 to 1e9).
+    #[arg(long, default_value_t = WriteOptions::default().first_frame, allow_negative_numbers = true,
+          value_parser = clap::value_parser!(i64).range(-crate::geom::MAX_FRAME_NUMBER..=crate::geom::MAX_FRAME_NUMBER))]
+    pub first_frame: i64,
+    /// Print what was written as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl ConvertArgs {
+    pub fn write_options(&self) -> WriteOptions {
+        WriteOptions {
+            units: self.out_units,
+            up_axis: self.out_up_axis,
+            first_frame: self.first_frame,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Output folder.
+    #[arg(long, short, default_value = "demo-out")]
+    pub out: PathBuf,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
 
 pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
     let opts = a.read.options();
@@ -207,7 +268,7 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
     if let Some(w) = d.size_warning() {
         warnings.push(format!("{}: {w}", a.input.display()));
     }
-    let warnings = super::warn_all(warnings);
+    let warnings = super::console::warn_all(warnings);
     if d.yarns.rest.is_some() && out_format != io::Format::Hdf5 {
         eprintln!(
             "note: {} carries a rest shape (rest lengths, curvatures, material frames, the yarn \

@@ -69,11 +69,11 @@ pub fn error_message(err: &anyhow::Error) -> String {
 }
 
 /// The exit code for an error: the class of the first cause in its chain
-/// that knows one ([`crate::pipeline::Error::class_of`]); anything else is
+/// that knows one ([`crate::pipeline::class_of`]); anything else is
 /// an internal error.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
     err.chain()
-        .find_map(crate::pipeline::Error::class_of)
+        .find_map(crate::pipeline::class_of)
         .map_or(ExitCode::Internal, ExitCode::from)
 }
 
@@ -112,7 +112,7 @@ pub fn error_json(
 /// The class of an error (internal when no cause knows one).
 pub fn class_for(err: &anyhow::Error) -> ErrorClass {
     err.chain()
-        .find_map(crate::pipeline::Error::class_of)
+        .find_map(crate::pipeline::class_of)
         .unwrap_or(ErrorClass::Internal)
 }
 

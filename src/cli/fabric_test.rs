@@ -52,15 +52,15 @@ pub struct SwatchArgs {
     /// Fraction of the generated loops' curvature the yarn keeps as its rest
     /// curvature (1: the relaxed swatch lies flat, as a lab clamps it; 0.8: patterns show their
     /// character: stockinette curls, a rib draws in, garter shortens).
-    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::guard::parse_fraction)]
+    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::parse::parse_fraction)]
     pub rest_curvature: f64,
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless; the
     /// relaxation into contact is always frictionless).
-    #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
+    #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::parse::parse_non_negative)]
     pub friction: f64,
     /// Friction's stick distance (m): tangential slip below it is elastic
     /// sticking (the fibre bundle's tangential compliance), above it sliding.
-    #[arg(long, value_name = "METRES", default_value_t = FabricParams::default().friction.stick_distance, value_parser = super::guard::parse_positive)]
+    #[arg(long, value_name = "METRES", default_value_t = FabricParams::default().friction.stick_distance, value_parser = super::parse::parse_positive)]
     pub stick_distance: f64,
     #[command(flatten)]
     pub material: YarnMaterialArgs,
@@ -214,9 +214,9 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
         }
     };
     // Warnings print as soon as the swatch is ready, not after the test.
-    let mode = super::ProgressMode::on_stderr(swatch.progress, swatch.no_progress);
+    let mode = super::console::ProgressMode::on_stderr(swatch.progress, swatch.no_progress);
     let label = format!("fabric-test {}", job.test.name());
-    let mut console = super::Console::with_mode(mode, 0, &label);
+    let mut console = super::console::Console::with_mode(mode, 0, &label);
     let report = match run_observed(&job, &mut console) {
         Ok(r) => r,
         Err(e) if e.is_usage() => {
@@ -234,7 +234,7 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
 }
 
 fn print_report(r: &FabricTestReport) {
-    println!("yarn material: {}", super::describe_choice(&r.material));
+    println!("yarn material: {}", super::yarn_material::describe_choice(&r.material));
     if let Some(x) = &r.relaxation {
         println!(
             "relaxed {} ({} vertices) into contact: rest length scale {}, {} Newton iterations, residual {:.1e} N, \

@@ -32,7 +32,7 @@ pub struct FitArgs {
     pub gn_iterations: u32,
     /// Most conjugate-gradient iterations per Gauss-Newton direction of a
     /// full field too large to factor (>= 1; fewer: faster, coarser
-    /// directions; README "Fit at VH's rib size").
+    /// directions; docs/performance.md, fit at VH's rib size).
     #[arg(long, default_value_t = ElasticFitParams::default().cg_iterations as u64, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub cg_iterations: u64,
     /// A stage ends once Gauss-Newton, no longer damped, lowers the loss by
@@ -78,8 +78,7 @@ pub struct FitArgs {
     /// knit is far stiffer along its yarn lines than in shear.
     #[arg(long)]
     pub fibres: bool,
-    /// Hold the pinned tet nodes at each frame's shape fit (the behaviour
-    /// before stop 41) instead of where the pose's bands put them, where
+    /// Hold the pinned tet nodes at each frame's shape fit instead of where the pose's bands put them, where
     /// `validate` and the shots drive them.
     #[arg(long)]
     pub shape_fit_pins: bool,
@@ -87,7 +86,7 @@ pub struct FitArgs {
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
-    pub read: super::ReadArgs,
+    pub read: super::args::ReadArgs,
 }
 
 /// Harmonic ranks as parsed from `--harmonic`.
@@ -161,14 +160,14 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         command: command_line(),
     };
     // A bar has no length to show here: plain lines without --json.
-    let mode = match super::ProgressMode::of(a.json) {
-        super::ProgressMode::Bar => super::ProgressMode::Lines,
+    let mode = match super::console::ProgressMode::of(a.json) {
+        super::console::ProgressMode::Bar => super::console::ProgressMode::Lines,
         m => m,
     };
-    let (result, warnings) = super::Console::with_mode(mode, 0, "fit").run(&job);
+    let (result, warnings) = super::console::Console::with_mode(mode, 0, "fit").run(&job);
     let r = result?;
     if a.json {
-        super::print_json_report(&r, &[("warnings", warnings.into())])?;
+        super::console::print_json_report(&r, &[("warnings", warnings.into())])?;
     } else {
         println!(
             "{}: fitted {} tets on {} pose(s); loss {:.3e} -> uniform {:.3e} -> fitted {:.3e} m^3; uniform gamma_s {:.4e}, gamma_v {:.4e} Pa; gamma_s {:.3e}..{:.3e}, gamma_v {:.3e}..{:.3e} Pa; {:.1} s",
@@ -285,8 +284,8 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         },
         truth: a.truth.clone(),
     };
-    let mode = super::ProgressMode::on_stderr(a.progress, a.no_progress);
-    let mut console = super::Console::with_mode(mode, 0, "validate: yarn level");
+    let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
+    let mut console = super::console::Console::with_mode(mode, 0, "validate: yarn level");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;

@@ -1,91 +1,13 @@
-//! Guards applied to every command line before any work (issue 13):
-//! no output may be (or resolve to) one of the command's inputs, `export
-//! --name` stays a plain file name, and `--max-memory` sets the memory
-//! budget of the readers.
+//! Guards applied to every command line before any work: no output may be
+//! (or resolve to) one of the command's inputs, `export --name` stays a
+//! plain file name, and `--max-memory` sets the memory budget of the
+//! readers.
 
 use std::path::Path;
 
-use super::{Cli, Command};
+use super::command_line::{Cli, Command};
 use crate::io::overwrite;
 use crate::pipeline::Error;
-
-/// Parses a byte count with an optional binary suffix: `4096`, `512K`,
-/// `512M`, `4G`, `1T` (also `MB`, `MiB`, ...).
-pub fn parse_bytes(s: &str) -> Result<u64, String> {
-    let t = s.trim();
-    let split = t
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(t.len());
-    let (num, suffix) = t.split_at(split);
-    let shift = match suffix.trim().to_ascii_lowercase().as_str() {
-        "" | "b" => 0,
-        "k" | "kb" | "kib" => 10,
-        "m" | "mb" | "mib" => 20,
-        "g" | "gb" | "gib" => 30,
-        "t" | "tb" | "tib" => 40,
-        _ => {
-            return Err(format!(
-                "'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G"
-            ))
-        }
-    };
-    let v: f64 = num.parse().map_err(|_| {
-        format!("'{s}': expected BYTES with an optional K, M, G or T suffix, e.g. 4G")
-    })?;
-    let bytes = v * (1u64 << shift) as f64;
-    if !(bytes >= 1.0 && bytes < u64::MAX as f64) {
-        return Err(format!(
-            "'{s}': the budget must be at least 1 byte and below 2^64"
-        ));
-    }
-    Ok(bytes as u64)
-}
-
-/// A finite number > 0 (lengths, densities, weights), checked by clap so a
-/// bad value is a usage error naming the option.
-pub fn parse_positive(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!(
-            "'{}': expected a finite number > 0",
-            crate::geom::excerpt(s)
-        )),
-    }
-}
-
-/// A finite number >= 0.
-pub fn parse_non_negative(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        _ => Err(format!(
-            "'{}': expected a finite number >= 0",
-            crate::geom::excerpt(s)
-        )),
-    }
-}
-
-/// A fraction in [0, 1].
-pub fn parse_fraction(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
-        _ => Err(format!(
-            "'{}': expected a number from 0 to 1",
-            crate::geom::excerpt(s)
-        )),
-    }
-}
-
-/// BCC spline samples per span: 1 to `io::bcc::MAX_SPLINE_SAMPLES`.
-pub fn parse_spline_samples(s: &str) -> Result<usize, String> {
-    let max = crate::io::bcc::MAX_SPLINE_SAMPLES;
-    match s.trim().parse::<usize>() {
-        Ok(v) if (1..=max).contains(&v) => Ok(v),
-        _ => Err(format!(
-            "'{}': expected an integer from 1 to {max}",
-            crate::geom::excerpt(s)
-        )),
-    }
-}
 
 /// The memory budget when `--max-memory` is not given: a quarter of the
 /// physical memory (`MemTotal` of /proc/meminfo), else the library default.
@@ -174,6 +96,7 @@ pub fn check_plain_name(name: &str) -> Result<(), Error> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::parse::parse_bytes;
     use super::*;
 
     #[test]

@@ -59,7 +59,7 @@ pub struct PatternArgs {
     /// Fraction of the generated loops' curvature the yarn keeps as its rest
     /// curvature (1: the relaxed swatch lies flat; 0.8: patterns show their
     /// character: stockinette curls, a rib draws in, garter shortens).
-    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::guard::parse_fraction)]
+    #[arg(long, value_name = "F", default_value_t = RelaxParams::default().rest_curvature, value_parser = super::parse::parse_fraction)]
     pub rest_curvature: f64,
     #[command(flatten)]
     pub material: super::yarn_material::YarnMaterialArgs,

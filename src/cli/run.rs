@@ -101,16 +101,16 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     if a.plan || a.submit.is_some() {
         return farm(a, &job);
     }
-    job.interrupt = Some(super::relay_sigterm());
+    job.interrupt = Some(super::console::relay_sigterm());
     let r = job::run_tasks(
         &job,
         a.stage.as_deref(),
         a.task,
         &super::asset::command_line(),
-        &mut super::Console::with_mode(super::ProgressMode::of(a.json), 0, "run"),
+        &mut super::console::Console::with_mode(super::console::ProgressMode::of(a.json), 0, "run"),
     )?;
     if a.json {
-        super::print_json_report(&r, &[])?;
+        super::console::print_json_report(&r, &[])?;
         return Ok(ExitCode::Success);
     }
     for s in &r.stages {

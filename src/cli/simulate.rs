@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::guard::{parse_non_negative, parse_positive};
+use super::parse::{parse_non_negative, parse_positive};
 use super::ExitCode;
 use crate::anim::pins::DEFAULT_PIN_DISTANCE;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
@@ -211,7 +211,7 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
     };
     // A resumable shot checkpoints and stops on SIGTERM.
-    let interrupt = (a.checkpoint_every > 0).then(super::relay_sigterm);
+    let interrupt = (a.checkpoint_every > 0).then(super::console::relay_sigterm);
     let _armed = interrupt.map(|i| i.arm());
     let job = ChunkedShotJob {
         chunk: ChunkOptions {
@@ -224,15 +224,15 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
         shot,
     };
-    let console = super::Console::with_mode(
-        super::ProgressMode::of(a.json),
+    let console = super::console::Console::with_mode(
+        super::console::ProgressMode::of(a.json),
         job.shot.request.frames.len(),
         "simulating",
     );
     let (result, warnings) = console.run(&job);
     let r = result?;
     if a.json {
-        super::print_json_report(&r, &[("warnings", warnings.into())])?;
+        super::console::print_json_report(&r, &[("warnings", warnings.into())])?;
     } else {
         println!(
             "{}: {} frames ({}-{}, {} fps), {} steps of {:.5} s ({} per frame, {} pre-roll), {} nodes, {} tets, {} pinned ({} to the body); {} / {}",

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::ExitCode;
-use crate::pipeline::train::{parse_kind, TrainJob};
+use crate::pipeline::train::TrainJob;
+use crate::pipeline::util::parse_kind;
 use crate::pipeline::Stage;
 use crate::yarn::fabric::pose::{default_amount, PoseRunParams};
 use crate::yarn::fabric::FabricParams;
@@ -36,7 +37,7 @@ pub struct TrainArgs {
     /// horizontal between its clamps: the frames then carry every vertex's
     /// weight and their sag observes the material's scale [default: 0, no
     /// external force; 9.81 for Earth].
-    #[arg(long, value_name = "G", default_value_t = 0.0, value_parser = super::guard::parse_non_negative)]
+    #[arg(long, value_name = "G", default_value_t = 0.0, value_parser = super::parse::parse_non_negative)]
     pub gravity: f64,
     /// Width of each clamped band as a fraction of the swatch extent across
     /// it, in (0, 0.5); for cantilever, the held fraction of the swatch in
@@ -46,7 +47,7 @@ pub struct TrainArgs {
     #[arg(long, value_name = "F")]
     pub band: Option<f64>,
     /// Yarn-on-yarn Coulomb friction coefficient (0: frictionless).
-    #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::guard::parse_non_negative)]
+    #[arg(long, value_name = "MU", default_value_t = FabricParams::default().friction.mu, value_parser = super::parse::parse_non_negative)]
     pub friction: f64,
     #[command(flatten)]
     pub material: super::yarn_material::YarnMaterialArgs,
@@ -82,14 +83,14 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
         fabric,
         material: a.material.overrides(),
     };
-    let mode = super::ProgressMode::on_stderr(a.progress, a.no_progress);
-    let mut console = super::Console::with_mode(mode, a.steps as usize, "train");
+    let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
+    let mut console = super::console::Console::with_mode(mode, a.steps as usize, "train");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;
     if a.json {
         // One line, as simulate/yls/run print theirs (farm logs read the last line).
-        super::print_json_report(&r, &[])?;
+        super::console::print_json_report(&r, &[])?;
     } else {
         println!(
             "{}: {}{} (amount {}) on {} ({} vertices, {} clamped, rest shape {}): {} frames, \

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 
-use super::guard::{parse_non_negative, parse_positive};
+use super::parse::{parse_non_negative, parse_positive};
 use super::ExitCode;
 use crate::daemon::{self, Config, Event};
 

@@ -31,18 +31,18 @@ pub fn yls(a: &YlsArgs) -> anyhow::Result<ExitCode> {
         scene: a.scene.clone(),
         output: a.output.clone(),
     };
-    use super::ProgressMode;
+    use super::console::ProgressMode;
     let mode = if a.json {
         ProgressMode::Json
     } else {
         ProgressMode::on_stderr(a.progress, a.no_progress)
     };
-    let mut console = super::Console::with_mode(mode, 0, "yarn-level");
+    let mut console = super::console::Console::with_mode(mode, 0, "yarn-level");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;
     if a.json {
-        super::print_json_report(&r, &[])?;
+        super::console::print_json_report(&r, &[])?;
     } else {
         println!(
             "{}: {} frames of {} vertices ({} curves, {} clamped), {} steps; min distance / 2r {:.3}, max step / r {:.3}; {:.1} ms per frame (median), {:.1} s total",

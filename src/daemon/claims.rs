@@ -1,5 +1,5 @@
 //! Claims on jobs in `work/`, shared by daemons on several hosts without
-//! flock (unreliable over NFS; DESIGN.md, pipeline conventions).
+//! flock (unreliable over NFS; docs/design.md, pipeline conventions).
 //!
 //! A job being run lives in `work/NAME/`. Ownership is a sequence of claim
 //! files `work/NAME/claim.G.json`, each created with `O_EXCL` (atomic on

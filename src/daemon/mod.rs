@@ -9,6 +9,7 @@
 //! and filed under `failed/`; only a broken ROOT stops the daemon.
 
 pub mod claims;
+mod paths;
 pub mod scan;
 pub mod status;
 pub mod worker;
@@ -21,6 +22,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+pub use self::paths::Paths;
 use self::claims::{Claim, Owner};
 use self::scan::{Drop, Readiness, Stability};
 use self::worker::{Outcome, RunResult};
@@ -76,41 +78,6 @@ impl Config {
             grace: Duration::from_secs(30),
             inotify: true,
         }
-    }
-}
-
-/// The folders under ROOT.
-#[derive(Debug, Clone)]
-pub struct Paths {
-    pub root: PathBuf,
-    pub inbox: PathBuf,
-    pub work: PathBuf,
-    pub done: PathBuf,
-    pub failed: PathBuf,
-    pub out: PathBuf,
-}
-
-impl Paths {
-    pub fn new(root: &Path) -> Paths {
-        Paths {
-            root: root.to_path_buf(),
-            inbox: root.join("inbox"),
-            work: root.join("work"),
-            done: root.join("done"),
-            failed: root.join("failed"),
-            out: root.join("out"),
-        }
-    }
-
-    /// Creates the folders that are missing.
-    pub fn create(&self) -> Result<(), IoError> {
-        for d in [&self.inbox, &self.work, &self.done, &self.failed, &self.out] {
-            std::fs::create_dir_all(d).map_err(|source| IoError::Write {
-                path: d.clone(),
-                source,
-            })?;
-        }
-        Ok(())
     }
 }
 

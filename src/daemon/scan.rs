@@ -4,7 +4,7 @@
 //! A drop is taken only after its signature (size and mtime of every file
 //! in it) is unchanged across two scans at least `settle` apart: a
 //! half-copied file keeps growing or being touched, so it is never taken
-//! (DESIGN.md, pipeline conventions: polling is the truth).
+//! (docs/design.md, pipeline conventions: polling is the truth).
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};

@@ -5,10 +5,12 @@
 mod keys;
 mod mass;
 pub mod orientation;
+mod params;
 mod size;
 mod tetrahedralize;
 mod voxelize;
 
+pub use params::{EmbedError, EmbedParams};
 pub use size::default_voxel_size;
 pub use tetrahedralize::{kuhn_tet, kuhn_weights, locate, tetrahedralize, Location, PERMS};
 pub use voxelize::{default_origin, voxelize};
@@ -17,50 +19,35 @@ use crate::geom::{dist, Embedding, TetMesh, VoxelGrid, YarnPiece, Yarns};
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Errors of the embedding stage.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum EmbedError {
-    #[error("no yarns to embed")]
-    Empty,
-    #[error("invalid voxel size {0}: it must be a positive finite length in metres")]
-    BadVoxelSize(f64),
-    /// `estimate`: the unique voxels found before the walk stopped, or the
-    /// voxels one segment alone covers at least.
-    #[error("voxel size {h} m makes more than the limit of {limit} voxels (estimate {estimate}; raise --max-voxels or the voxel size)")]
-    TooManyVoxels { h: f64, estimate: u64, limit: u64 },
-    #[error("invalid yarns: {0}")]
-    Yarns(#[from] crate::geom::GeomError),
-    #[error("invalid parameter: {0}")]
-    Parameter(String),
-    /// A broken invariant of the embedding itself (a bug, not bad input).
-    #[error("internal embedding error: {0}")]
-    Internal(String),
-}
-
-/// Parameters of the embedding.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct EmbedParams {
-    /// Voxel edge length (m). Default: chosen so that the mesh has about
-    /// `target_node_ratio` x the yarn vertex count nodes (see [`default_voxel_size`]).
-    pub voxel_size: Option<f64>,
-    /// Target nodes per yarn vertex for the default voxel size. Default 0.5 (VH §4: n_V is about n_Y / 2).
-    pub target_node_ratio: f64,
-    /// Refuse embeddings with more voxels than this (guards memory). Default 20,000,000.
-    pub max_voxels: u64,
-    /// Yarn material density (kg/m^3) used when the yarns carry no linear density:
-    /// linear density = density x pi r^2. Default 1200 (HYLC Table 1, small variants).
-    pub material_density: f64,
-}
-
-impl Default for EmbedParams {
-    fn default() -> Self {
-        EmbedParams {
-            voxel_size: None,
-            target_node_ratio: 0.5,
-            max_voxels: 20_000_000,
-            material_density: 1200.0,
+/// A box of `n[0] x n[1] x n[2]` voxels of edge `h` (m) at the origin (y up),
+/// six Kuhn tets per voxel (all around the main diagonal, so neighbouring
+/// voxels' faces match), and lumped node masses (kg) at density `rho`
+/// (kg/m³): a quarter of each tet's mass to each of its nodes. The
+/// benchmarks' slab and the solvers' tests are built from it.
+pub fn box_mesh(n: [usize; 3], h: f64, rho: f64) -> (TetMesh, Vec<f64>) {
+    // Voxels sorted by (i, j, k), as `tetrahedralize` requires.
+    let mut voxels = Vec::with_capacity(n[0] * n[1] * n[2]);
+    for i in 0..n[0] as i32 {
+        for j in 0..n[1] as i32 {
+            for k in 0..n[2] as i32 {
+                voxels.push([i, j, k]);
+            }
         }
     }
+    let grid = crate::geom::VoxelGrid {
+        origin: [0.0; 3],
+        h,
+        voxels,
+    };
+    let (mesh, _) = tetrahedralize(&grid);
+    let mut mass = vec![0.0; mesh.num_nodes()];
+    for t in 0..mesh.num_tets() {
+        let m = rho * mesh.volume(t) / 4.0;
+        for &a in &mesh.tets[t] {
+            mass[a as usize] += m;
+        }
+    }
+    (mesh, mass)
 }
 
 /// Statistics and timings of an embedding.

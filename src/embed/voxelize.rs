@@ -128,8 +128,7 @@ impl Prepared {
     /// entries cannot exceed the bound). Otherwise segments are walked in
     /// batches whose deduplicated keys are merged into the running set, and
     /// the walk stops once the set passes `max_voxels`: memory stays within a
-    /// few times `max_voxels` keys whatever the garment size (issue 13 item 5:
-    /// a 1.5M-vertex garment at 4 mm has a 56.9M bound but 414K voxels).
+    /// few times `max_voxels` keys whatever the garment size (a 1.5M-vertex garment at 4 mm has a 56.9M bound but 414K voxels).
     pub fn voxels_capped(&self, max_voxels: u64) -> Result<(Vec<u128>, usize), EmbedError> {
         let too_many = |estimate: u64| EmbedError::TooManyVoxels {
             h: self.grid.h,

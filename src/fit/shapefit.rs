@@ -55,7 +55,7 @@ use nalgebra::{Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
 use crate::geom::{Embedding, TetMesh, Vec3, VoxelGrid, YarnFrames, YarnPiece, Yarns};
-use crate::sim::cholesky::SparseCholesky;
+use crate::linalg::cholesky::SparseCholesky;
 
 /// Errors of shape fitting.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

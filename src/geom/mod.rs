@@ -6,6 +6,8 @@
 //! writers convert back out to the target format's convention.
 
 mod asset;
+pub mod bvh;
+mod error;
 mod excerpt;
 mod frame_spec;
 mod mesh;
@@ -27,7 +29,8 @@ pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
 pub use units::{Units, UpAxis};
-pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, GeomError, YarnFrames, Yarns};
+pub use error::GeomError;
+pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// A 3D point or vector in metres.
 pub type Vec3 = [f64; 3];

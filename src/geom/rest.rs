@@ -7,8 +7,7 @@
 //! from these values, never from positions alone. Only the knitvox HDF5
 //! format stores them (`/rest`, schemas/yarns-hdf5.md).
 
-use super::yarns::GeomError;
-use super::Vec3;
+use super::{GeomError, Vec3};
 
 /// Rest shape of a set of yarns, in the order of [`super::Yarns::segments`]
 /// (segments) and of the points (vertices). Lengths in metres; curvatures

@@ -1,34 +1,10 @@
 //! Yarn curves (`Yarns`) and time sequences of their vertex positions (`YarnFrames`).
 
 use super::vec3::{norm, sub};
-use super::{RestShape, Units, UpAxis, Vec3};
+use super::{GeomError, RestShape, Units, UpAxis, Vec3};
 
-/// Why a set of yarns or frames is not well formed.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum GeomError {
-    #[error("curve {curve} has {points} point(s); an open yarn needs at least 2, a closed one 3")]
-    TooFewPoints {
-        curve: usize,
-        points: usize,
-        closed: bool,
-    },
-    #[error("curve {curve}, point {point}: coordinate is not finite ({value:?})")]
-    NonFinitePoint {
-        curve: usize,
-        point: usize,
-        value: Vec3,
-    },
-    #[error("curve {curve}: radius {value} is not a positive finite number")]
-    BadRadius { curve: usize, value: f64 },
-    #[error("vertex {vertex}: radius {value} is not a positive finite number")]
-    BadVertexRadius { vertex: usize, value: f64 },
-    #[error("curve {curve}: linear density {value} is not a non-negative finite number")]
-    BadLinearDensity { curve: usize, value: f64 },
-    #[error("inconsistent layout: {0}")]
-    Layout(String),
-    #[error("frame {frame}: {message}")]
-    Frame { frame: usize, message: String },
-}
+/// Default yarn radius (m) when a file carries none: 1 mm, the HYLC papers' yarn radius.
+pub const DEFAULT_RADIUS_M: f64 = 1.0e-3;
 
 /// Axis-aligned bounding box.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

@@ -224,8 +224,7 @@ pub fn finish_temp(tmp: TempPath, registered: TempGuard, path: &Path) -> Result<
 }
 
 /// Runs `job` so that the files it writes (on this thread, through this
-/// module) appear under their final names only if it succeeds (issue 13
-/// item 4): until `job` returns each stays a registered temporary file,
+/// module) appear under their final names only if it succeeds: until `job` returns each stays a registered temporary file,
 /// removed on an error, a panic or SIGINT/SIGTERM; then all are renamed
 /// into place, and a rename that fails puts back what the earlier ones
 /// replaced. A nested call joins the outermost one.

@@ -39,7 +39,7 @@
 //! # Writing
 //!
 //! [`encode`] writes one node with one mesh holding one `LINE_STRIP`
-//! primitive per yarn, as DESIGN.md asks, with attributes `POSITION` (float
+//! primitive per yarn, as docs/design.md describes, with attributes `POSITION` (float
 //! `VEC3`, with the `min`/`max` the spec requires) and `_RADIUS` (float
 //! `SCALAR`: the vertex radius, else the curve radius) and `u32` indices. A
 //! closed yarn repeats its first index at the end of its strip: every glTF

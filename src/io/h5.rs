@@ -301,7 +301,7 @@ pub(crate) fn type_info(dt: &hdf5::Datatype) -> TypeInfo {
 }
 
 /// Refuses an external link: its target lives in another file, which a
-/// dropped file must not make knitvox open (issue 13 item 1). Hard and soft
+/// dropped file must not make knitvox open. Hard and soft
 /// links (paths inside this file) are followed.
 pub(crate) fn check_link(group: &Group, name: &str, loc: &str) -> Result<(), FormatError> {
     let mut kind = None;

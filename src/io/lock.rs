@@ -1,6 +1,6 @@
 //! An advisory lock on an output folder for one process at a time (`knitvox
 //! run` on a job): an `O_EXCL` file naming the holder's host and pid, not
-//! flock (unreliable over NFS; DESIGN.md, pipeline conventions). A lock
+//! flock (unreliable over NFS; docs/design.md, pipeline conventions). A lock
 //! whose holder is a dead process on this host is taken over (after
 //! `kill -9`); a live holder, or one on another host (whose liveness cannot
 //! be checked from here), makes the caller wait: [`IoError::Busy`], exit 75.

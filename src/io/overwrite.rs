@@ -1,4 +1,4 @@
-//! Never overwrite an input (issue 13 item 4): whether an output path is,
+//! Never overwrite an input: whether an output path is,
 //! or resolves to, one of a command's inputs. Every command that writes
 //! asks [`refuse_inputs`] before any work, with every input it knows of
 //! (files named on the command line and files a scene refers to).

@@ -142,7 +142,7 @@ pub fn write_sequence(
     opts: &WriteOptions,
 ) -> Result<Vec<PathBuf>, IoError> {
     let pattern = Pattern::parse(path).expect("is_pattern checked");
-    // Every frame or none under its final name (issue 13 item 4).
+    // Every frame or none under its final name.
     atomic::all_or_nothing(|| write_frames(&pattern, format, yarns, frames, opts))
 }
 

@@ -4,8 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use sha2::{Digest, Sha256};
-
 use crate::embed::{self, EmbedError, EmbedParams, EmbedStats, Embedded};
 use crate::fit::{FitError, FitStats, ShapeFitParams, ShapeFitter};
 use crate::geom::{
@@ -14,6 +12,7 @@ use crate::geom::{
 };
 use crate::io::{self, IoError, ReadOptions, WriteOptions};
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
+use crate::pipeline::util::sha256_file;
 use crate::pipeline::{Error, ErrorClass, Observer, Stage};
 
 /// Errors of the asset stages.
@@ -45,18 +44,6 @@ impl StageError {
             _ => ErrorClass::BadInput,
         }
     }
-}
-
-/// SHA-256 of a file, hex.
-pub fn sha256_file(path: &Path) -> Result<String, IoError> {
-    let bytes = std::fs::read(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    Ok(Sha256::digest(&bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
 }
 
 fn input_record(path: &Path) -> Result<InputFile, IoError> {
@@ -237,15 +224,6 @@ pub fn yarn_distances(asset: &Asset, nodes: &[Vec3], yarn: &[Vec3]) -> Vec<f64> 
         .collect()
 }
 
-/// Root mean square and largest value of `d` (0 for none).
-pub fn rms_max(d: &[f64]) -> (f64, f64) {
-    let n = d.len().max(1) as f64;
-    (
-        (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        d.iter().copied().fold(0.0, f64::max),
-    )
-}
-
 /// V2Y of the asset's stored steps: per-step yarn positions (m).
 pub fn v2y_steps(asset: &Asset, steps: &[usize]) -> YarnFrames {
     let n = asset.mesh.num_nodes();
@@ -300,7 +278,7 @@ pub fn export(
     let ext = format.extensions()[0];
     let n = asset.mesh.num_nodes();
     let numbers = step_frame_numbers(asset);
-    // Every step or none under its final name (issue 13 item 4).
+    // Every step or none under its final name.
     io::atomic::all_or_nothing(|| {
         let mut writer = if format.holds_frames() {
             YarnFrameWriter::create(
@@ -646,6 +624,29 @@ pub fn set_asset_materials(
         }
     };
     Ok(())
+}
+
+impl crate::pipeline::error::StageFailure for StageError {
+    fn class(&self) -> crate::pipeline::ErrorClass {
+        StageError::class(self)
+    }
+    fn file(&self) -> Option<std::path::PathBuf> {
+        match self {
+            StageError::Io(e) => Some(e.path().to_path_buf()),
+            StageError::Embed { path, .. }
+            | StageError::Fit { path, .. }
+            | StageError::Invalid { path, .. } => Some(path.clone()),
+        }
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<StageError> for crate::pipeline::Error {
+    fn from(e: StageError) -> Self {
+        crate::pipeline::Error::stage(e)
+    }
 }
 
 #[cfg(test)]

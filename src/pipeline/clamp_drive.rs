@@ -10,12 +10,12 @@
 //! gravity of a 10 x 10 stockinette (3.2 mm voxels), whose boundary layer
 //! then sagged with the yarns for free. A field fitted to that shear run
 //! itself matched its frames at 0.14 yarn diameters RMS in `fit`'s
-//! equilibria, but 0.34 when `validate` drove the same material (README
-//! "Stop 41"); with the nodes where the band puts them, `fit`'s
+//! equilibria, but 0.34 when `validate` drove the same material
+//! (docs/fidelity.md); with the nodes where the band puts them, `fit`'s
 //! equilibrium gives the 0.34 that `validate` does.
 
 use crate::geom::{Asset, Vec3};
-use crate::pipeline::fit::held_nodes;
+use crate::pipeline::util::held_nodes;
 use crate::yarn::fabric::pose::FabricPlane;
 use crate::yarn::poses::{PoseDriver, PoseError, PoseParams};
 

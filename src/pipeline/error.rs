@@ -1,6 +1,7 @@
 //! The one error of the pipeline stages and its classes.
 //!
-//! Every stage fails with [`Error`]; its [`Error::class`] is the single
+//! Every stage fails with [`Error`] (a stage's own typed error inside
+//! [`Error::Stage`]); its [`Error::class`] is the single
 //! place that decides the process exit code ([`ErrorClass::exit_code`],
 //! sysexits.h values) and whether a scheduler may retry
 //! ([`ErrorClass::retry`]), for the CLI, a daemon and a farm alike.
@@ -60,7 +61,7 @@ impl ErrorClass {
         ErrorClass::Transient,
     ];
 
-    /// The documented process exit code (README, "Exit codes").
+    /// The documented process exit code (docs/guides/cli.md, "Exit codes").
     pub fn exit_code(self) -> u8 {
         match self {
             ErrorClass::Usage => 2,
@@ -73,7 +74,7 @@ impl ErrorClass {
         }
     }
 
-    /// The retry decision of the README's exit-code table.
+    /// The retry decision of the exit-code table (docs/guides/cli.md).
     pub fn retry(self) -> Retry {
         match self {
             ErrorClass::Usage | ErrorClass::BadInput | ErrorClass::Internal => Retry::No,
@@ -102,61 +103,108 @@ impl From<io::ErrorClass> for ErrorClass {
     }
 }
 
-/// The error of every pipeline stage. The variants keep each stage's own
-/// typed error (with its file and place); [`Error::class`] classifies them
-/// all.
-#[derive(Debug, thiserror::Error)]
+/// A stage's own typed error, as [`Error`] carries it: each stage file
+/// implements this for its error and converts it into [`Error`] with
+/// [`Error::stage`], so this file names no stage.
+pub trait StageFailure: std::error::Error + Send + Sync + 'static {
+    /// Exit code and retry decision of this failure.
+    fn class(&self) -> ErrorClass;
+    /// The file the error is about, where it names one.
+    fn file(&self) -> Option<PathBuf> {
+        None
+    }
+    /// The error as `dyn Error`, for a cause chain.
+    fn as_error(&self) -> &(dyn std::error::Error + 'static);
+}
+
+/// The error of every pipeline stage. A stage's own typed error (with its
+/// file and place) is kept whole in [`Error::Stage`]; [`Error::class`]
+/// classifies them all.
+#[derive(Debug)]
 pub enum Error {
     /// Reading or writing a file.
-    #[error(transparent)]
-    Io(#[from] IoError),
-    /// The asset stages: embed, shapefit, export.
-    #[error(transparent)]
-    Asset(#[from] super::asset::StageError),
-    /// The shot stage.
-    #[error(transparent)]
-    Shot(#[from] super::simulate::SimulateError),
-    /// The pattern stage.
-    #[error(transparent)]
-    Pattern(#[from] super::pattern::PatternStageError),
-    /// A yarn-level scene run.
-    #[error(transparent)]
-    Yls(#[from] super::yls::YlsError),
-    /// A fabric test (Sperl 2022 §4).
-    #[error(transparent)]
-    Fabric(#[from] super::fabric_test::FabricTestError),
-    /// Submitting a job to a farm scheduler.
-    #[error(transparent)]
-    Submit(#[from] super::submit::SubmitError),
+    Io(IoError),
+    /// A stage's own error: the asset stages (embed, shapefit, export), the
+    /// shot, a pattern, a yarn-level scene run, a fabric test (Sperl 2022
+    /// §4), a farm submission.
+    Stage(Box<dyn StageFailure>),
     /// Embedding outside a stage (benchmarks).
-    #[error(transparent)]
-    Embed(#[from] crate::embed::EmbedError),
+    Embed(crate::embed::EmbedError),
     /// Shape fitting outside a stage (benchmarks).
-    #[error(transparent)]
-    Fit(#[from] crate::fit::FitError),
+    Fit(crate::fit::FitError),
     /// Geometry that does not hold together.
-    #[error(transparent)]
-    Geom(#[from] crate::geom::GeomError),
+    Geom(crate::geom::GeomError),
     /// The request asks for what the inputs do not hold, or for something
     /// knitvox refuses (the message names the option or key).
-    #[error("{0}")]
     Usage(String),
     /// A bug: an invariant did not hold.
-    #[error("internal error: {0}")]
     Internal(String),
 }
 
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // The wrapped errors are transparent: their own message.
+        match self {
+            Error::Io(e) => e.fmt(f),
+            Error::Stage(e) => e.fmt(f),
+            Error::Embed(e) => e.fmt(f),
+            Error::Fit(e) => e.fmt(f),
+            Error::Geom(e) => e.fmt(f),
+            Error::Usage(m) => f.write_str(m),
+            Error::Internal(m) => write!(f, "internal error: {m}"),
+        }
+    }
+}
+
+impl std::error::Error for Error {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        // Transparent: the wrapped error's own cause.
+        match self {
+            Error::Io(e) => e.source(),
+            Error::Stage(e) => e.as_error().source(),
+            Error::Embed(e) => e.source(),
+            Error::Fit(e) => e.source(),
+            Error::Geom(e) => e.source(),
+            Error::Usage(_) | Error::Internal(_) => None,
+        }
+    }
+}
+
+impl From<IoError> for Error {
+    fn from(e: IoError) -> Self {
+        Error::Io(e)
+    }
+}
+
+impl From<crate::embed::EmbedError> for Error {
+    fn from(e: crate::embed::EmbedError) -> Self {
+        Error::Embed(e)
+    }
+}
+
+impl From<crate::fit::FitError> for Error {
+    fn from(e: crate::fit::FitError) -> Self {
+        Error::Fit(e)
+    }
+}
+
+impl From<crate::geom::GeomError> for Error {
+    fn from(e: crate::geom::GeomError) -> Self {
+        Error::Geom(e)
+    }
+}
+
 impl Error {
+    /// Wraps a stage's own error.
+    pub fn stage(e: impl StageFailure) -> Self {
+        Error::Stage(Box::new(e))
+    }
+
     /// The class of this error: exit code and retry decision.
     pub fn class(&self) -> ErrorClass {
         match self {
             Error::Io(e) => e.class().into(),
-            Error::Asset(e) => e.class(),
-            Error::Shot(e) => e.class(),
-            Error::Pattern(e) => e.class(),
-            Error::Yls(e) => e.class(),
-            Error::Fabric(e) => fabric_class(e),
-            Error::Submit(e) => e.class(),
+            Error::Stage(e) => e.class(),
             Error::Embed(_) | Error::Fit(_) | Error::Geom(_) => ErrorClass::BadInput,
             Error::Usage(_) => ErrorClass::Usage,
             Error::Internal(_) => ErrorClass::Internal,
@@ -167,62 +215,17 @@ impl Error {
     pub fn file(&self) -> Option<PathBuf> {
         match self {
             Error::Io(e) => Some(e.path().to_path_buf()),
-            Error::Asset(super::asset::StageError::Io(e)) => Some(e.path().to_path_buf()),
-            Error::Shot(e) => e.file(),
-            Error::Yls(e) => Some(e.file()),
-            Error::Asset(super::asset::StageError::Embed { path, .. })
-            | Error::Asset(super::asset::StageError::Fit { path, .. })
-            | Error::Asset(super::asset::StageError::Invalid { path, .. })
-            | Error::Pattern(super::pattern::PatternStageError::Read { path, .. })
-            | Error::Pattern(super::pattern::PatternStageError::Grid { path, .. }) => {
-                Some(path.clone())
-            }
+            Error::Stage(e) => e.file(),
             _ => None,
         }
     }
 
-    /// The class of one cause in an error chain (`anyhow` at the binary
-    /// edge, a daemon's log): a pipeline error, or one of the typed errors
-    /// it wraps met on its own (an io error of `inspect` or `convert`, a
-    /// stage error inside another library error). `None` for anything
-    /// else. Callers take the first cause that has a class.
-    pub fn class_of(cause: &(dyn std::error::Error + 'static)) -> Option<ErrorClass> {
-        use super::{asset::StageError, pattern::PatternStageError};
-        use super::{simulate::SimulateError, yls::YlsError};
-        if let Some(e) = cause.downcast_ref::<Error>() {
-            Some(e.class())
-        } else if let Some(e) = cause.downcast_ref::<IoError>() {
-            Some(e.class().into())
-        } else if let Some(e) = cause.downcast_ref::<StageError>() {
-            Some(e.class())
-        } else if let Some(e) = cause.downcast_ref::<SimulateError>() {
-            Some(e.class())
-        } else if let Some(e) = cause.downcast_ref::<PatternStageError>() {
-            Some(e.class())
-        } else if let Some(e) = cause.downcast_ref::<YlsError>() {
-            Some(e.class())
-        } else if let Some(e) = cause.downcast_ref::<super::fabric_test::FabricTestError>() {
-            Some(fabric_class(e))
-        } else if let Some(e) = cause.downcast_ref::<super::submit::SubmitError>() {
-            Some(e.class())
-        } else if cause.is::<crate::embed::EmbedError>()
-            || cause.is::<crate::fit::FitError>()
-            || cause.is::<crate::geom::GeomError>()
-        {
-            Some(ErrorClass::BadInput)
-        } else {
-            None
+    /// The stage error inside, if it is one of type `E`.
+    pub fn downcast_stage<E: StageFailure>(&self) -> Option<&E> {
+        match self {
+            Error::Stage(e) => e.as_error().downcast_ref::<E>(),
+            _ => None,
         }
-    }
-}
-
-/// A fabric test's class: its swatch's pattern errors keep theirs, its
-/// parameter errors are usage errors.
-fn fabric_class(e: &super::fabric_test::FabricTestError) -> ErrorClass {
-    match e {
-        super::fabric_test::FabricTestError::Pattern(p) => p.class(),
-        _ if e.is_usage() => ErrorClass::Usage,
-        _ => e.class().into(),
     }
 }
 
@@ -233,7 +236,7 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 mod tests {
     use super::*;
 
-    /// The README's exit-code table, row by row: code and retry column.
+    /// The exit-code table of docs/guides/cli.md, row by row: code and retry column.
     #[test]
     fn classes_give_the_documented_exit_codes_and_retries() {
         let table = [
@@ -268,29 +271,5 @@ mod tests {
         });
         assert_eq!(e.class(), ErrorClass::Output);
         assert_eq!(e.class().exit_code(), 74);
-    }
-
-    #[test]
-    fn class_of_finds_a_stage_error_inside_a_chain() {
-        let e = anyhow::Error::new(Error::Shot(
-            super::super::simulate::SimulateError::Unavailable("no GPU".into()),
-        ))
-        .context("simulating");
-        let class = e.chain().find_map(Error::class_of);
-        assert_eq!(class, Some(ErrorClass::Unavailable));
-        let e = anyhow::anyhow!("something else");
-        assert_eq!(e.chain().find_map(Error::class_of), None);
-        // A stage error met on its own has the class it has inside Error.
-        let bare = super::super::pattern::PatternStageError::Pattern(
-            crate::yarn::pattern::PatternError::BadParameter {
-                name: "courses",
-                value: 0.0,
-                message: "must be positive".into(),
-            },
-        );
-        let class = bare.class();
-        assert_eq!(class, ErrorClass::Usage);
-        assert_eq!(Error::class_of(&bare), Some(class));
-        assert_eq!(Error::class_of(&Error::from(bare)), Some(class));
     }
 }

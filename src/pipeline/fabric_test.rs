@@ -380,7 +380,7 @@ pub fn run_observed(
     // The swatch is named: a yarn file's errors name the file.
     let figures = figures.map_err(fabric_err(&format!("{name}: {}", job.test.name())))?;
     if let (Some(dir), Some(w)) = (&job.output_dir, writer) {
-        // Every file or none (issue 13 item 4).
+        // Every file or none.
         io::atomic::all_or_nothing(|| {
             written.push(w.finish()?);
             let curve = match &figures {
@@ -581,5 +581,26 @@ fn bend_figure(b: &BendResult) -> Figure {
             }],
         }],
         size: (800, 500),
+    }
+}
+
+/// A fabric test's class: its swatch's pattern errors keep theirs, its
+/// parameter errors are usage errors.
+impl crate::pipeline::error::StageFailure for FabricTestError {
+    fn class(&self) -> crate::pipeline::ErrorClass {
+        match self {
+            FabricTestError::Pattern(p) => p.class(),
+            _ if self.is_usage() => crate::pipeline::ErrorClass::Usage,
+            _ => FabricTestError::class(self).into(),
+        }
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<FabricTestError> for crate::pipeline::Error {
+    fn from(e: FabricTestError) -> Self {
+        crate::pipeline::Error::stage(e)
     }
 }

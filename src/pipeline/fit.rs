@@ -52,9 +52,9 @@ use crate::geom::{
 };
 use crate::io::{self, plot, IoError, ReadOptions};
 use crate::pipeline::asset::{
-    asset_materials, check_asset_ext, re_embed, rms_max, set_asset_materials, sha256_file,
-    yarn_distances, StageError,
+    asset_materials, check_asset_ext, re_embed, set_asset_materials, yarn_distances, StageError,
 };
+use crate::pipeline::util::{held_nodes, rms_max, sha256_file};
 use crate::pipeline::clamp_drive::ClampDrive;
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
@@ -99,9 +99,9 @@ pub struct FitJob {
     /// them, their stiffnesses starting at the asset's `γs`. An asset with
     /// fibres refits them either way. Default false.
     pub fibres: bool,
-    /// Hold the pinned tet nodes of every frame at its shape fit (Y2V), as
-    /// before stop 41, instead of where the pose's bands put them, as the
-    /// homogenized runs drive them ([`super::clamp_drive`]). Default false.
+    /// Hold the pinned tet nodes of every frame at its shape fit (Y2V)
+    /// instead of where the pose's bands put them, as the homogenized runs
+    /// drive them ([`super::clamp_drive`]). Default false.
     pub shape_fit_pins: bool,
     /// The command line, for provenance.
     pub command: String,
@@ -267,17 +267,6 @@ pub struct FitJobReport {
 pub fn choose_frames(f: usize, n: usize) -> Vec<usize> {
     let n = n.min(f);
     (0..n).map(|k| ((k + 1) * f).div_ceil(n) - 1).collect()
-}
-
-/// The nodes of every tet that holds a held yarn vertex, sorted.
-pub fn held_nodes(mesh: &TetMesh, embedding: &Embedding, held: &[bool]) -> Vec<usize> {
-    let mut is = vec![false; mesh.num_nodes()];
-    for (v, _) in held.iter().enumerate().filter(|(_, h)| **h) {
-        for &n in &mesh.tets[embedding.tet[v] as usize] {
-            is[n as usize] = true;
-        }
-    }
-    (0..is.len()).filter(|&i| is[i]).collect()
 }
 
 /// Yarn-vertex forces (N) as node forces `Nᵀ f` (VH Eq. 4 transposed):
@@ -761,7 +750,7 @@ fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
     let kind = v["kind"]
         .as_str()
         .ok_or_else(|| bad("no kind".into()))
-        .and_then(|k| super::train::parse_kind(k).map_err(bad))?;
+        .and_then(|k| super::util::parse_kind(k).map_err(bad))?;
     let mut params = PoseParams::new(kind, v["amount"].as_f64().unwrap_or(0.0));
     params.mirror = v["mirror"].as_bool().unwrap_or(false);
     if let Some(f) = v["folds"].as_u64() {
@@ -1197,9 +1186,9 @@ pub fn fit_samples(
     // Frames with external forces see the scale in the loss itself, so the
     // field is not rescaled when any frame has them, and the uniform
     // material only where the rescale lowers the loss ([`lowers_loss`]).
-    // (Stop 20 rescaled it regardless: its r = 1 stage barely moved then,
-    // 1.08e-3 -> 1.06e-3 m³, because stalled equilibria failed its line
-    // searches; with the stall retried it reaches 2.15e-5.)
+    // (Rescaling regardless stalls the r = 1 stage: 1.08e-3 -> 1.06e-3 m³
+    // where stalled equilibria fail its line searches; with the stall
+    // retried it reaches 2.15e-5.)
     let loaded = samples
         .iter()
         .any(crate::fit::elastic::gauss_newton::loaded);
@@ -1794,7 +1783,7 @@ mod tests {
     #[test]
     fn force_scale_recovers_the_material_scale_from_reactions() {
         let h = 0.01;
-        let (mesh, mass) = crate::sim::pd::box_mesh([6, 2, 2], h, 120.0);
+        let (mesh, mass) = crate::embed::box_mesh([6, 2, 2], h, 120.0);
         let nt = mesh.num_tets();
         let truth = MaterialFields {
             gamma_s: vec![2e4; nt],
@@ -1855,7 +1844,7 @@ mod tests {
     /// target is the flat rest shape.
     fn sagging_slab(gamma: f64) -> (TetMesh, Vec<f64>, MaterialFields, Frame) {
         let h = 0.01;
-        let (mesh, mass) = crate::sim::pd::box_mesh([6, 1, 2], h, 120.0);
+        let (mesh, mass) = crate::embed::box_mesh([6, 1, 2], h, 120.0);
         let nt = mesh.num_tets();
         let pinned: Vec<usize> = (0..mesh.num_nodes())
             .filter(|&i| mesh.nodes[i][0] < 1e-9)

@@ -15,7 +15,8 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::asset::{sha256_file, EmbedJob, ExportJob};
+use super::asset::{EmbedJob, ExportJob};
+use super::util::sha256_file;
 use super::fit::FitJob;
 use super::sim_scene::{CharacterSection, Scene, Seconds};
 use super::simulate::{
@@ -414,7 +415,7 @@ impl Job {
         t: &TrainSection,
     ) -> Result<(PoseRunParams, FabricParams), Error> {
         let key = |k: &str| format!("key 'train[{i}].{k}'");
-        let kind = super::train::parse_kind(&t.kind)
+        let kind = super::util::parse_kind(&t.kind)
             .map_err(|e| bad(&self.path, format!("{}: {e}", key("kind"))))?;
         let mut pose = PoseRunParams::new(kind);
         if let Some(a) = t.amount {

@@ -29,8 +29,9 @@
 //!   usage, bad input, missing, unavailable, internal, output, transient)
 //!   gives the process exit code ([`ErrorClass::exit_code`]) and the retry
 //!   decision ([`ErrorClass::retry`], [`ErrorClass::retryable`]) for the CLI,
-//!   a daemon and a farm alike. The variants keep each stage's own typed
-//!   error, which names the file and the place.
+//!   a daemon and a farm alike. Each stage owns its typed error, which
+//!   names the file and the place, and converts it into [`Error`]
+//!   ([`Error::Stage`]); [`class_of`] classifies any cause of a chain.
 //! * **Solver work is a function of typed inputs** in the math modules: the
 //!   shot is its setup ([`shot_setup`]: placement, pins, colliders,
 //!   schedule), the time loop `sim::shot::run` (PD stepper, per-step
@@ -46,7 +47,9 @@
 
 pub mod asset;
 pub mod bake;
+pub mod bench;
 pub mod clamp_drive;
+pub mod classify;
 pub mod demo;
 pub mod error;
 pub mod fabric_test;
@@ -55,17 +58,20 @@ pub mod frames;
 pub mod inspect;
 pub mod job;
 pub mod pattern;
+pub mod shot_error;
 pub mod shot_setup;
 pub mod sim_scene;
 pub mod simulate;
 pub mod submit;
 pub mod train;
+pub mod util;
 pub mod validate;
 pub mod validate_pd;
 pub mod yls;
 pub mod yls_scene;
 
-pub use error::{Error, ErrorClass, Retry};
+pub use classify::class_of;
+pub use error::{Error, ErrorClass, Retry, StageFailure};
 
 /// One computed frame, for progress lines (`--json`: one JSON object per
 /// frame; the CLI adds `"event": "frame"`).

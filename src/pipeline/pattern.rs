@@ -248,6 +248,29 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
     Ok((yarns, report))
 }
 
+impl crate::pipeline::error::StageFailure for PatternStageError {
+    fn class(&self) -> crate::pipeline::ErrorClass {
+        PatternStageError::class(self)
+    }
+    fn file(&self) -> Option<std::path::PathBuf> {
+        match self {
+            PatternStageError::Read { path, .. } | PatternStageError::Grid { path, .. } => {
+                Some(path.clone())
+            }
+            _ => None,
+        }
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<PatternStageError> for crate::pipeline::Error {
+    fn from(e: PatternStageError) -> Self {
+        crate::pipeline::Error::stage(e)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,17 +13,37 @@ use std::path::Path;
 use nalgebra::{Rotation3, Vector3};
 
 use super::sim_scene::{CharacterSection, ColliderSection, Scene, SimulationSection};
-use super::simulate::{
-    invalid, CharacterReport, SimulateError, DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS,
-};
+use super::shot_error::{invalid, SimulateError};
 use crate::anim::cache::BodyCache;
 use crate::anim::pins::BodyPins;
 use crate::anim::{Character, TriangleMesh};
 use crate::geom::{Asset, Vec3};
 use crate::io;
-use crate::sim::collide::{Collider, ColliderSet, MeshCollider, MeshTopology, Shape};
+use crate::geom::bvh::{MeshCollider, MeshTopology};
+use crate::sim::collide::{Collider, ColliderSet, Shape};
 use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::shot::Schedule;
+
+/// Default pre-roll (s) of a scene with a character when the scene gives
+/// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
+pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
+
+/// Most PD steps one shot may take (pre-roll included): hours of work at
+/// the fastest step; larger requests are refused before any work starts.
+pub const MAX_TOTAL_STEPS: usize = 10_000_000;
+
+/// The character of a shot.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CharacterReport {
+    pub file: std::path::PathBuf,
+    pub animation: Option<String>,
+    pub duration_s: f64,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub closed: bool,
+    pub scale: f64,
+    pub preroll_s: f64,
+}
 
 /// A scripted pin group resolved to nodes.
 #[derive(Debug, Clone)]
@@ -255,7 +275,7 @@ fn place_garment(asset: &Asset, scene: &Scene) -> Vec<Vec3> {
 
 /// Steps per frame interval and the step (s) used: each frame interval is
 /// split into `ceil(interval / dt)` equal steps, bounded before any work
-/// (issue 13 item 3: dt, fps and the frame range are user input).
+/// (dt, fps and the frame range are user input).
 fn frame_timing(
     sim: &SimulationSection,
     asset_path: &Path,

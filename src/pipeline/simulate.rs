@@ -17,8 +17,12 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::frames::{FrameSink, YarnFrameWriter};
+pub use super::shot_error::SimulateError;
+use super::shot_error::invalid;
+use super::util::median;
+pub use super::shot_setup::{CharacterReport, DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS};
 use super::shot_setup::{self, Posed};
-use super::sim_scene::{BackendChoice, Scene, SceneError, SimulationSection, SolverChoice};
+use super::sim_scene::{BackendChoice, Scene, SimulationSection, SolverChoice};
 use crate::geom::{Asset, NodeSteps, Vec3};
 use crate::io::checkpoint::{self, Checkpoint, CheckpointHeader};
 use crate::io::{self, IoError, WriteOptions};
@@ -26,88 +30,6 @@ use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
 use crate::sim::dd::DdParams;
 use crate::sim::pd::{GlobalSolver, PdParams, PdSolver};
 use crate::sim::shot::{self, LoopError};
-use crate::sim::SimError;
-
-/// Errors of the shot stage.
-#[derive(Debug, thiserror::Error)]
-pub enum SimulateError {
-    #[error(transparent)]
-    Io(#[from] IoError),
-    #[error(transparent)]
-    Scene(#[from] SceneError),
-    /// Inputs that do not fit together (the message names the key or option).
-    #[error("{path}: {message}", path = path.display())]
-    Invalid { path: PathBuf, message: String },
-    /// A requested backend or solver this build cannot run.
-    #[error("{0}")]
-    Unavailable(String),
-    /// A request knitvox refuses (the message names the option).
-    #[error("{0}")]
-    Usage(String),
-    /// A run that continues a shot found no checkpoint to continue from.
-    #[error("{message}")]
-    NoCheckpoint { dir: PathBuf, message: String },
-    /// The checkpoint given does not fit the shot or the request.
-    #[error("{path}: {message}", path = path.display())]
-    CheckpointMismatch { path: PathBuf, message: String },
-    /// Stopped on request (SIGTERM) after a step; the checkpoint holds the
-    /// state, `--resume` continues.
-    #[error("interrupted after step {step} (shot time {time:.6} s); the shot's state is saved in {checkpoint}; run the same command with --resume to continue", checkpoint = checkpoint.display())]
-    Interrupted {
-        checkpoint: PathBuf,
-        step: usize,
-        time: f64,
-    },
-    /// The simulation diverged.
-    #[error("{path}: {source} (shot time {time:.6} s, before frame {frame})", path = path.display())]
-    Diverged {
-        path: PathBuf,
-        frame: i64,
-        time: f64,
-        #[source]
-        source: SimError,
-    },
-}
-
-impl SimulateError {
-    /// How the caller should react: a backend this machine cannot run is
-    /// `Unavailable` (the inputs are fine; retry on a GPU node); everything
-    /// else but i/o is bad input (retrying the same inputs fails the same
-    /// way, divergence included).
-    pub fn class(&self) -> ErrorClass {
-        match self {
-            SimulateError::Io(e) => e.class().into(),
-            SimulateError::Unavailable(_) => ErrorClass::Unavailable,
-            SimulateError::Usage(_) | SimulateError::CheckpointMismatch { .. } => ErrorClass::Usage,
-            SimulateError::NoCheckpoint { .. } => ErrorClass::Missing,
-            SimulateError::Interrupted { .. } => ErrorClass::Transient,
-            _ => ErrorClass::BadInput,
-        }
-    }
-    /// The file the error is about, where it names one.
-    pub fn file(&self) -> Option<PathBuf> {
-        match self {
-            SimulateError::Io(e) => Some(e.path().to_path_buf()),
-            SimulateError::Invalid { path, .. }
-            | SimulateError::Diverged { path, .. }
-            | SimulateError::CheckpointMismatch { path, .. } => Some(path.clone()),
-            SimulateError::NoCheckpoint { dir, .. } => Some(dir.clone()),
-            SimulateError::Interrupted { checkpoint, .. } => Some(checkpoint.clone()),
-            SimulateError::Scene(e) => Some(e.path.clone()),
-            SimulateError::Usage(_) | SimulateError::Unavailable(_) => None,
-        }
-    }
-    /// The PD step that diverged (1-based), if that is what happened.
-    pub fn diverged_step(&self) -> Option<u64> {
-        match self {
-            SimulateError::Diverged {
-                source: SimError::Diverged { step, .. },
-                ..
-            } => Some(*step),
-            _ => None,
-        }
-    }
-}
 
 /// Penetration tolerance (m) of the written frames: 1 mm, the default
 /// collider thickness. Free tet nodes end every step outside the colliders
@@ -116,10 +38,6 @@ impl SimulateError {
 /// a voxel; a shot whose tet nodes or yarn vertices sit deeper than this
 /// gets a warning in its notes (the figures are in the report).
 pub const PENETRATION_TOLERANCE_M: f64 = 1e-3;
-
-/// Default pre-roll (s) of a scene with a character when the scene gives
-/// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
-pub const DEFAULT_CHARACTER_PREROLL: f64 = 0.2;
 
 /// The global solver of a [`SolverChoice`] (its default parameters).
 pub fn global_solver(solver: SolverChoice) -> GlobalSolver {
@@ -253,19 +171,6 @@ pub struct SimulateReport {
     pub notes: Vec<String>,
 }
 
-/// The character of a shot.
-#[derive(Debug, Clone, Serialize)]
-pub struct CharacterReport {
-    pub file: PathBuf,
-    pub animation: Option<String>,
-    pub duration_s: f64,
-    pub vertices: usize,
-    pub triangles: usize,
-    pub closed: bool,
-    pub scale: f64,
-    pub preroll_s: f64,
-}
-
 /// Inputs of a shot besides the scene.
 #[derive(Debug, Clone)]
 pub struct ShotRequest {
@@ -279,13 +184,6 @@ pub struct ShotRequest {
     pub write: WriteOptions,
     /// The command line, for provenance.
     pub command: String,
-}
-
-pub(super) fn invalid(path: &Path, message: impl Into<String>) -> SimulateError {
-    SimulateError::Invalid {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
 }
 
 /// Checks an output can be written before the (long) simulation: the asset's
@@ -344,9 +242,7 @@ fn refuse_input_overwrite(
     Ok(io::overwrite::refuse_inputs(&outputs, &inputs)?)
 }
 
-/// Most PD steps one shot may take (pre-roll included): hours of work at
-/// the fastest step; larger requests are refused before any work starts.
-pub const MAX_TOTAL_STEPS: usize = 10_000_000;
+
 
 /// How a shot is split into chunks and resumed (`knitvox simulate
 /// --checkpoint-every`, `--resume`, `--shot-start`, `--checkpoint`;
@@ -434,7 +330,7 @@ pub fn simulate_chunk(
     let sim = &scene.simulation;
     let mut setup = shot_setup::setup(asset, asset_path, scene, first, last)?;
     let character_sha = match scene.character_path() {
-        Some(p) => Some(super::asset::sha256_file(&p)?),
+        Some(p) => Some(super::util::sha256_file(&p)?),
         None => None,
     };
     let ctx = ShotKey {
@@ -497,7 +393,7 @@ pub fn simulate_chunk(
     }
 
     // A resumable shot names each frame file as it is complete; otherwise
-    // all or nothing (issue 13 item 4): each yarn frame stays a temporary
+    // all or nothing: each yarn frame stays a temporary
     // file until the asset is written too, then all get their names.
     let resumable = chunk.checkpoint_every > 0;
     let mut writer = match &req.yarns_out {
@@ -764,7 +660,7 @@ fn shot_key(
 ) -> Result<String, SimulateError> {
     use sha2::{Digest, Sha256};
     let material = serde_json::json!({
-        "asset_sha256": super::asset::sha256_file(asset_path)?,
+        "asset_sha256": super::util::sha256_file(asset_path)?,
         "character_sha256": character_sha,
         "scene": scene,
         "dt": schedule.dt,
@@ -1141,20 +1037,6 @@ fn stored_domains(domain: &[i32]) -> Option<Vec<u32>> {
         .iter()
         .any(|&d| d != first)
         .then(|| domain.iter().map(|&d| d as u32).collect())
-}
-
-/// Median (NaN for none).
-pub fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// Reads and parses a scene file.

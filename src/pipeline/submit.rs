@@ -368,6 +368,21 @@ fn sbatch(program: &Path, args: &[String], stage: &str) -> Result<String, Submit
     Ok(id)
 }
 
+impl crate::pipeline::error::StageFailure for SubmitError {
+    fn class(&self) -> crate::pipeline::ErrorClass {
+        SubmitError::class(self)
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<SubmitError> for crate::pipeline::Error {
+    fn from(e: SubmitError) -> Self {
+        crate::pipeline::Error::stage(e)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,11 +14,11 @@ use serde::Serialize;
 
 use crate::geom::{MaterialOverrides, Vec3};
 use crate::io::{self, h5::FrameWriter, IoError};
-use crate::pipeline::asset::{check_asset_ext, sha256_file, StageError};
+use crate::pipeline::asset::{check_asset_ext, StageError};
+use crate::pipeline::util::sha256_file;
 use crate::pipeline::{Error, FrameProgress, Observer, Stage};
 use crate::yarn::fabric::pose::{kind_name, run_pose, FabricPlane, PoseRunParams, PoseStep};
 use crate::yarn::fabric::{FabricParams, MaterialChoice, RigFrame};
-use crate::yarn::poses::PoseKind;
 
 /// The training-pose stage: an asset -> one pose's equilibrium frames.
 #[derive(Debug, Clone)]
@@ -75,7 +75,7 @@ pub struct TrainReport {
 
 impl TrainJob {
     fn invalid(&self, message: String) -> Error {
-        Error::Asset(StageError::Invalid {
+        Error::from(StageError::Invalid {
             path: self.asset.clone(),
             message,
         })
@@ -221,13 +221,3 @@ impl Stage for TrainJob {
     }
 }
 
-/// Parses a pose kind by its schema name (`stretch_courses`, ...).
-pub fn parse_kind(s: &str) -> Result<PoseKind, String> {
-    serde_json::from_value::<PoseKind>(serde_json::Value::String(s.to_string())).map_err(|_| {
-        let names: Vec<String> = crate::yarn::fabric::pose::TRAINING_KINDS
-            .iter()
-            .map(|k| kind_name(*k))
-            .collect();
-        format!("unknown pose {s:?} (one of {})", names.join(", "))
-    })
-}

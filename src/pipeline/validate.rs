@@ -1,4 +1,4 @@
-//! The `validate` stage (issue 11 item 5): one yls scene run at yarn level
+//! The `validate` stage: one yls scene run at yarn level
 //! ([`super::yls::run`]) and on the homogenized asset, compared frame by
 //! frame through V2Y (VH Eq. 4).
 //!
@@ -30,13 +30,15 @@ use crate::fit::elastic::MaterialFields;
 use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
 use crate::pipeline::asset::{
-    asset_materials, check_asset_ext, rms_max, uniform_material, yarn_distances,
+    asset_materials, check_asset_ext, uniform_material, yarn_distances,
 };
-use crate::pipeline::fit::held_nodes;
+use crate::pipeline::util::rms_max;
+use crate::pipeline::util::held_nodes;
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
+use crate::pipeline::validate_pd::HomogenizedRun;
 use crate::pipeline::{Error, Observer, Stage};
 use std::sync::Arc;
 
@@ -192,63 +194,6 @@ struct AtTime {
 impl SignedDistance for AtTime {
     fn signed_distance(&self, p: Vec3) -> (f64, Vec3) {
         self.collider.signed_distance(p, self.t)
-    }
-}
-
-/// What a homogenized run ([`homogenized_run`]) computed.
-#[derive(Debug, Clone)]
-pub struct HomogenizedRun {
-    /// Node positions per frame (m); frame 0 is the rest state.
-    pub frames: Vec<Vec<Vec3>>,
-    /// Newton iterations, or PD iterations (global solves).
-    pub iterations: u64,
-    /// Deepest penetration of a yarn vertex into a collider (m).
-    pub max_penetration_m: f64,
-    /// Most contacts in one frame (Newton: yarn vertices within their
-    /// radius of a collider; PD: free tet nodes with an active contact
-    /// constraint in a step).
-    pub max_contacts: usize,
-    /// Most backward-Euler substeps a frame needed (1: none); for PD the
-    /// implicit-Euler steps per frame.
-    pub substeps: usize,
-    /// Implicit-Euler steps taken in all.
-    pub steps: u64,
-    /// PD only (else 0): wall time of the local steps and of the global
-    /// solves summed over the run (s), and the contact CG iterations of the
-    /// global solves and the refactorizations of `K + W`.
-    pub local_s: f64,
-    pub global_s: f64,
-    pub contact_cg_iterations: u64,
-    pub contact_refactors: u64,
-    /// PD only: local steps evaluated and Anderson iterates rejected
-    /// ([`ValidateReport::pd_local_steps`]).
-    pub local_steps: u64,
-    pub accelerations_rejected: u64,
-    /// PD only: the local step's backend ("cpu", "gpu") and the global
-    /// solver ("direct", "dd"); "" for Newton.
-    pub backend: &'static str,
-    pub global_solver: &'static str,
-}
-
-impl HomogenizedRun {
-    /// A run holding only its rest frame `nodes`.
-    pub fn at_rest(nodes: &[Vec3]) -> HomogenizedRun {
-        HomogenizedRun {
-            frames: vec![nodes.to_vec()],
-            iterations: 0,
-            max_penetration_m: 0.0,
-            max_contacts: 0,
-            substeps: 1,
-            steps: 0,
-            local_s: 0.0,
-            global_s: 0.0,
-            contact_cg_iterations: 0,
-            contact_refactors: 0,
-            local_steps: 0,
-            accelerations_rejected: 0,
-            backend: "",
-            global_solver: "",
-        }
     }
 }
 

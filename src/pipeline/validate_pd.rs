@@ -32,7 +32,64 @@ use crate::yarn::sim::PointCollider;
 
 use super::sim_scene::{BackendChoice, SolverChoice};
 use super::simulate::{attach_backend, global_solver};
-use super::validate::HomogenizedRun;
+
+/// What a homogenized run of `validate` ([`super::validate::homogenized_run`])
+/// computed, by Newton or by PD.
+#[derive(Debug, Clone)]
+pub struct HomogenizedRun {
+    /// Node positions per frame (m); frame 0 is the rest state.
+    pub frames: Vec<Vec<Vec3>>,
+    /// Newton iterations, or PD iterations (global solves).
+    pub iterations: u64,
+    /// Deepest penetration of a yarn vertex into a collider (m).
+    pub max_penetration_m: f64,
+    /// Most contacts in one frame (Newton: yarn vertices within their
+    /// radius of a collider; PD: free tet nodes with an active contact
+    /// constraint in a step).
+    pub max_contacts: usize,
+    /// Most backward-Euler substeps a frame needed (1: none); for PD the
+    /// implicit-Euler steps per frame.
+    pub substeps: usize,
+    /// Implicit-Euler steps taken in all.
+    pub steps: u64,
+    /// PD only (else 0): wall time of the local steps and of the global
+    /// solves summed over the run (s), and the contact CG iterations of the
+    /// global solves and the refactorizations of `K + W`.
+    pub local_s: f64,
+    pub global_s: f64,
+    pub contact_cg_iterations: u64,
+    pub contact_refactors: u64,
+    /// PD only: local steps evaluated and Anderson iterates rejected
+    /// ([`super::validate::ValidateReport::pd_local_steps`]).
+    pub local_steps: u64,
+    pub accelerations_rejected: u64,
+    /// PD only: the local step's backend ("cpu", "gpu") and the global
+    /// solver ("direct", "dd"); "" for Newton.
+    pub backend: &'static str,
+    pub global_solver: &'static str,
+}
+
+impl HomogenizedRun {
+    /// A run holding only its rest frame `nodes`.
+    pub fn at_rest(nodes: &[Vec3]) -> HomogenizedRun {
+        HomogenizedRun {
+            frames: vec![nodes.to_vec()],
+            iterations: 0,
+            max_penetration_m: 0.0,
+            max_contacts: 0,
+            substeps: 1,
+            steps: 0,
+            local_s: 0.0,
+            global_s: 0.0,
+            contact_cg_iterations: 0,
+            contact_refactors: 0,
+            local_steps: 0,
+            accelerations_rejected: 0,
+            backend: "",
+            global_solver: "",
+        }
+    }
+}
 
 /// Parameters of [`pd_frames`].
 #[derive(Debug, Clone, Copy, PartialEq)]

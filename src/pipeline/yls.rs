@@ -12,10 +12,10 @@ use crate::anim::Character;
 use crate::geom::{Vec3, Yarns};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
-use crate::pipeline::simulate::median;
+use crate::pipeline::util::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YarnModel, YlsScene};
 use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
-use crate::sim::collide::{MeshCollider, MeshTopology};
+use crate::geom::bvh::{MeshCollider, MeshTopology};
 use crate::yarn::fabric::{FabricError, FabricParams, RelaxParams, RodDynamics, RodDynamicsParams};
 use crate::yarn::pattern::{Layout, PatternParams};
 use crate::yarn::poses::{PoseDriver, PoseError};
@@ -645,6 +645,24 @@ pub fn scene_colliders(
         });
     }
     Ok(out)
+}
+
+impl crate::pipeline::error::StageFailure for YlsError {
+    fn class(&self) -> crate::pipeline::ErrorClass {
+        YlsError::class(self)
+    }
+    fn file(&self) -> Option<std::path::PathBuf> {
+        Some(YlsError::file(self))
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<YlsError> for crate::pipeline::Error {
+    fn from(e: YlsError) -> Self {
+        crate::pipeline::Error::stage(e)
+    }
 }
 
 #[cfg(test)]

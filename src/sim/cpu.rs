@@ -9,9 +9,10 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, LocalEval};
-use super::energy::{node_gradients, ElasticModel};
+use super::element::node_gradients;
+use super::energy::ElasticModel;
 use super::fibre::fibre_target;
-use super::local::{
+use super::projection::{
     project_diag_sl3, project_volume_detailed, signed_svd_warm, signed_svd_warm_x4, SignedSvd,
     SVD_LANES,
 };
@@ -98,7 +99,7 @@ fn v3(p: Vec3) -> Vector3<f64> {
 /// `signed_svd(f)` and fall back to the identity when it fails.
 #[cfg(test)]
 fn project_both(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>, bool) {
-    project_from_svd(f, super::local::signed_svd(f))
+    project_from_svd(f, super::projection::signed_svd(f))
 }
 
 /// [`project_both`] from an SVD of `f` (`None`: `f` not finite).
@@ -395,7 +396,7 @@ mod tests {
             let (rot, proj, clamped) = project_both(f);
             let energy = vol * (gs * (f - rot).norm_squared() + gv * (f - proj).norm_squared());
             let target = 2.0 * vol * (gs * rot + gv * proj);
-            let svd = crate::sim::local::signed_svd(f).unwrap();
+            let svd = crate::sim::projection::signed_svd(f).unwrap();
             let (e2, t2, c2) = targets_from_svd(&svd, vol, gs, gv);
             assert!(
                 (e2 - energy).abs() <= 1e-12 * energy.max(1.0),
@@ -408,7 +409,7 @@ mod tests {
 
     #[test]
     fn fused_projection_is_bitwise_the_public_one() {
-        use crate::sim::local::project_rotation;
+        use crate::sim::projection::project_rotation;
         for (i, f) in [
             Matrix3::new(1.1, 0.2, -0.1, 0.0, 0.8, 0.3, 0.1, 0.0, 1.3),
             Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),

@@ -59,8 +59,8 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::Mat;
 use rayon::prelude::*;
 
-use super::cholesky::SparseCholesky;
-use super::csr::CsrMatrix;
+use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::csr::CsrMatrix;
 use super::jacobi::JacobiParams;
 use super::partition::{Partition, DEFAULT_NODES_PER_DOMAIN};
 use super::SimError;
@@ -111,7 +111,7 @@ pub struct DdParams {
     /// depend on where the mesh is in space). Default 1e-4 (dimensionless).
     /// With [`Interiors::Modes`] and 20 modes per domain the knit swatches of
     /// `knitvox bench sim` need about 400 iterations per global solve to get
-    /// there (the README's table); with [`Interiors::Exact`] the reduced
+    /// there (docs/performance.md); with [`Interiors::Exact`] the reduced
     /// solution already meets it unless contact weights are active.
     pub tolerance: f64,
     /// Most Chebyshev-Jacobi iterations per global solve. Default 1000.
@@ -630,7 +630,7 @@ fn lowest_modes(a: &CsrMatrix, factor: &SparseCholesky, m: usize) -> (Vec<f64>, 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::csr::tridiagonal_triplets;
+    use crate::linalg::csr::tridiagonal_triplets;
 
     /// A 1D chain of `n` nodes as "tets" [i, i+1, i+1, i+1] (only the
     /// connectivity matters here) with a Laplacian-plus-mass matrix.

@@ -22,21 +22,11 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use super::element::{node_gradients, TetRest};
 use super::fibre::{fibre_energy, fibre_stress, FibreFamily, MAX_FIBRE_FAMILIES};
-use super::local::{project_rotation, project_volume};
+use super::projection::{project_rotation, project_volume};
 use super::SimError;
 use crate::geom::{TetMesh, Vec3};
-
-/// Rest data of one tet.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TetRest {
-    /// Node indices.
-    pub nodes: [usize; 4],
-    /// `Dm⁻¹` (1/m).
-    pub dm_inv: Matrix3<f64>,
-    /// Rest volume `V_e` (m³), positive.
-    pub volume: f64,
-}
 
 /// The elastic model of a mesh: rest shapes, per-tet stiffnesses `γs`, `γv`
 /// (Pa) and up to [`MAX_FIBRE_FAMILIES`] tension-only fibre families
@@ -268,18 +258,6 @@ pub fn element_stress(f: &Matrix3<f64>, volume: f64, gamma_s: f64, gamma_v: f64)
     let r = project_rotation(f);
     let v = project_volume(f);
     2.0 * volume * (gamma_s * (f - r) + gamma_v * (f - v))
-}
-
-/// Maps `∂E/∂F` of a tet to the gradients (N) at its four nodes:
-/// `H = (∂E/∂F) Dm⁻ᵀ`, nodes 1-3 get the columns of `H`, node 0 minus their sum.
-pub fn node_gradients(de_df: &Matrix3<f64>, dm_inv: &Matrix3<f64>) -> [Vector3<f64>; 4] {
-    let h = de_df * dm_inv.transpose();
-    let (c1, c2, c3) = (
-        h.column(0).into_owned(),
-        h.column(1).into_owned(),
-        h.column(2).into_owned(),
-    );
-    [-(c1 + c2 + c3), c1, c2, c3]
 }
 
 /// Total energy (J) of VH Eq. 7 over `mesh` at node positions `x` (m) with

@@ -6,7 +6,7 @@
 //! plate of the same stretch stiffness (its in-plane shear is soft). Fitted
 //! on one pose at a time the best uniform Eq. 7 material of a stockinette
 //! swatch is 2.4x stiffer on a wale stretch than on a course stretch, and on
-//! a diagonal bend it stays 10x above the Y2V floor (README, "Stop 28").
+//! a diagonal bend it stays 10x above the Y2V floor (docs/fidelity.md).
 //!
 //! A fibre family adds, per tet `e`, a unit rest direction `d_e`
 //! (dimensionless, in the rest configuration) and a stiffness `γ_e` (Pa):
@@ -32,8 +32,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::energy::{node_gradients, TetRest};
-use super::hessian::{Mat12, Vec12};
+use super::element::{node_gradients, Mat12, TetRest, Vec12};
 use super::SimError;
 
 /// Most fibre families per model (the GPU backend packs two per tet).

@@ -14,7 +14,7 @@
 //!
 //! # How (isotropic form, Smith, de Goes & Kim 2019, "Analytic eigensystems
 //! # for isotropic distortion energies", §4-5)
-//! With the signed SVD `F = U diag(σ) Vᵀ` ([`super::local::signed_svd`]),
+//! With the signed SVD `F = U diag(σ) Vᵀ` ([`super::projection::signed_svd`]),
 //! `P = U diag(ψ(σ)) Vᵀ` with `ψ = 2 V_e (γs (σ - 1) + γv (σ - d(σ)))`, where
 //! `d` solves Eq. 26 (`R = U Vᵀ`, `V(F) = U diag(d) Vᵀ`). For `δF` write
 //! `M = Uᵀ δF V`; then `Uᵀ δP V` has
@@ -38,15 +38,12 @@
 //! 9x9 `∂P/∂F` is PSD, so is `Gᵀ (∂P/∂F) G` (G = ∂F/∂x), and the assembled
 //! Newton matrix (plus mass or pin terms) is SPD.
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
-use super::energy::{node_gradients, TetRest};
-use super::local::{project_diag_sl3, signed_svd, SINGULAR_VALUE_FLOOR};
+use super::element::{node_gradients, Mat12, TetRest, Vec12};
+use super::projection::{project_diag_sl3, signed_svd, SINGULAR_VALUE_FLOOR};
 
-/// 12x12 element matrix (node-major: row `3 a + c` is coordinate `c` of node `a`).
-pub type Mat12 = SMatrix<f64, 12, 12>;
-/// 12-vector of node gradients (same layout as [`Mat12`]).
-pub type Vec12 = SVector<f64, 12>;
+
 
 /// `∂d/∂s` of Eq. 26 at the clamped input `sc` with solution `d`, multiplier
 /// from the KKT system (see the module doc). Rows/columns of values held at the
@@ -200,7 +197,7 @@ pub fn stress_differential(
 }
 
 /// The 12x12 Jacobian (N/m) of the node gradients of one tet
-/// ([`super::energy::node_gradients`] of [`super::energy::element_stress`])
+/// ([`super::element::node_gradients`] of [`super::energy::element_stress`])
 /// with respect to its node positions, at deformation gradient `f`; with
 /// `project` its PSD projection (symmetric positive semidefinite).
 pub fn element_hessian(
@@ -257,8 +254,8 @@ impl super::energy::ElasticModel {
 /// and `γv`: the energy is linear in both, so these are the node gradients of
 /// `2 V_e (F - R(F))` and `2 V_e (F - V(F))`.
 pub fn element_gamma_derivatives(f: &Matrix3<f64>, rest: &TetRest) -> (Vec12, Vec12) {
-    let r = super::local::project_rotation(f);
-    let v = super::local::project_volume(f);
+    let r = super::projection::project_rotation(f);
+    let v = super::projection::project_volume(f);
     let to12 = |m: Matrix3<f64>| {
         let g = node_gradients(&m, &rest.dm_inv);
         Vec12::from_fn(|i, _| g[i / 3][i % 3])

@@ -44,7 +44,7 @@
 use rayon::prelude::*;
 
 use super::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
-use super::csr::CsrMatrix;
+use crate::linalg::csr::CsrMatrix;
 use super::SimError;
 
 /// Lanczos steps of the spectral estimate (the extreme Ritz values of a
@@ -408,7 +408,7 @@ mod tests {
 
     /// 1D Laplacian plus a mass shift, on `n` rows.
     fn laplace(n: usize, shift: f64) -> CsrMatrix {
-        CsrMatrix::from_triplets(n, &crate::sim::csr::tridiagonal_triplets(n, 2.0 + shift)).unwrap()
+        CsrMatrix::from_triplets(n, &crate::linalg::csr::tridiagonal_triplets(n, 2.0 + shift)).unwrap()
     }
 
     #[test]

@@ -1,19 +1,19 @@
-//! Projective dynamics of the homogenized tet mesh (VH §7; DESIGN.md method
+//! Projective dynamics of the homogenized tet mesh (VH §7; docs/design.md method
 //! map rows "energy", "local step", "global step").
 //!
-//! * [`anderson`]: Anderson acceleration of the PD iterations (Peng et al.
-//!   2018).
 //! * [`energy`]: the element energy of VH Eq. 7-8, its gradient, totals.
 //! * [`fibre`]: tension-only fibre families, the anisotropy Eq. 7 lacks.
 //! * [`hessian`]: its force Jacobian (exact and PSD-projected) and the
 //!   derivatives of the force with respect to `γs`, `γv`.
 //! * [`statics`]: Newton equilibrium of the tet mesh (VH Eq. 13-14).
-//! * [`local`]: the PD local step (VH §7.1, Eq. 26): closest rotation and
-//!   closest volume-preserving matrix per tet.
+//! * [`element`]: one tet's rest data and node-gradient map, shared by the
+//!   energy, its Hessian and the fibres.
+//! * [`projection`]: the signed SVD and the closest rotation and closest
+//!   volume-preserving matrix (VH §7.1, Eq. 26).
+//! * [`local`]: the PD local step: those projections for every tet.
 //! * [`collide`]: planes, spheres and posed triangle meshes as colliders.
 //! * [`contact`]: the collider interface of the time loop (projection
 //!   constraints).
-//! * [`csr`]: CSR matrices for the iterative global-step parts.
 //! * [`cpu`]: CPU implementations of the [`backend`] traits.
 //! * [`jacobi`]: Chebyshev-accelerated Jacobi (Wang 2015).
 //! * [`partition`]: domains and boundary nodes for the decomposition.
@@ -26,14 +26,12 @@
 //!
 //! Pure: no files, no printing, no environment.
 
-pub mod anderson;
 pub mod backend;
-pub mod cholesky;
 pub mod collide;
 pub mod contact;
 pub mod cpu;
-pub mod csr;
 pub mod dd;
+pub mod element;
 pub mod energy;
 pub mod fibre;
 pub mod gpu;
@@ -42,17 +40,16 @@ pub mod jacobi;
 pub mod local;
 pub mod partition;
 pub mod pd;
+pub mod projection;
 pub mod shot;
 pub mod statics;
 #[cfg(test)]
 mod test_util;
-pub mod woodbury;
 
-pub use energy::{gradient, total_energy, ElasticModel, TetRest};
-pub use local::{
-    local_step, project_diag_sl3, project_rotation, project_volume, DiagProjection, LocalStats,
-    TetTargets,
-};
+pub use element::TetRest;
+pub use energy::{gradient, total_energy, ElasticModel};
+pub use local::{local_step, LocalStats, TetTargets};
+pub use projection::{project_diag_sl3, project_rotation, project_volume, DiagProjection};
 
 /// Errors of the simulator.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -69,7 +69,7 @@
 //! factors `K + W` numerically (the symbolic analysis of `K` reused: `W`
 //! only adds to the diagonal) for the step's first contact set, and adds
 //! the nodes that join later in the step to that factor by the Woodbury
-//! identity ([`super::woodbury`], up to 64 nodes) instead of refactoring:
+//! identity ([`crate::linalg::woodbury`], up to 64 nodes) instead of refactoring:
 //! one exact solve per iteration either way. (On the held-out drape 152
 //! refactorizations became 101, the figures unchanged to 10 digits.)
 //! On the held-out drape of `knitvox validate` (1,568 nodes, up to 133 in
@@ -108,7 +108,7 @@
 //! gradient step preconditioned with the constant `K`: cheap, but linearly
 //! and slowly convergent on soft, large motions (PD's artificial damping).
 //! With [`PdParams::anderson_window`] `m > 0` the next iterate mixes the last
-//! `m` iterates ([`super::anderson`]): a multisecant quasi-Newton step at the
+//! `m` iterates ([`crate::linalg::anderson`]): a multisecant quasi-Newton step at the
 //! price of a few vector operations. An accelerated iterate is accepted only
 //! if the local step at it finds `Φ` lower than at the previous iterate;
 //! otherwise the plain PD iterate `G(x_k)` is taken (one more local step) and
@@ -135,17 +135,17 @@ use faer::Mat;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::anderson::Anderson;
+use crate::linalg::anderson::Anderson;
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
-use super::cholesky::SparseCholesky;
+use crate::linalg::cholesky::SparseCholesky;
 use super::contact::{friction_target, NoContact, NodeProjector};
 use super::cpu::CpuElasticRhs;
-use super::csr::CsrMatrix;
+use crate::linalg::csr::CsrMatrix;
 use super::dd::{DdParams, DdSolver, DdStats, Interiors};
 use super::energy::ElasticModel;
 use super::jacobi::CpuJacobi;
 use super::partition::Partition;
-use super::woodbury::LowRankUpdate;
+use crate::linalg::woodbury::LowRankUpdate;
 use super::SimError;
 use crate::geom::vec3::norm;
 use crate::geom::{TetMesh, Vec3};
@@ -246,7 +246,7 @@ pub struct PdParams {
     /// step). Default true; benchmarks switch it off.
     pub report_residual: bool,
     /// Anderson acceleration of the PD iterations over this many past
-    /// iterates ([`super::anderson`], Peng et al. 2018), 0 for plain PD.
+    /// iterates ([`crate::linalg::anderson`], Peng et al. 2018), 0 for plain PD.
     /// An accelerated iterate is kept only when it lowers `Φ` below the
     /// previous iterate's value; otherwise the plain PD iterate replaces it
     /// (one more local step) and the history restarts, so `Φ` still never
@@ -1154,7 +1154,7 @@ impl PdSolver {
     /// `W` per free node) with a Cholesky factor of `K + W`. Nodes that
     /// joined the contact set since the factorization in the same step
     /// (at most [`MAX_LOW_RANK_NODES`]) are added by the Woodbury identity
-    /// ([`super::woodbury`]); otherwise it refactors numerically (symbolic
+    /// ([`crate::linalg::woodbury`]); otherwise it refactors numerically (symbolic
     /// analysis reused). A factor of another step is reused only for
     /// exactly its weights, so a step's result does not depend on the steps
     /// before it (checkpoint resume). Returns whether it refactored.
@@ -1580,36 +1580,6 @@ fn contact_target(contacts: &dyn NodeProjector, i: usize, p: Vec3, start: Vec3) 
     Some(contacts.project(i, t).unwrap_or(t))
 }
 
-/// A box of `n[0] x n[1] x n[2]` voxels of edge `h` (m) at the origin (y up),
-/// six Kuhn tets per voxel (all around the main diagonal, so neighbouring
-/// voxels' faces match), and lumped node masses (kg) at density `rho`
-/// (kg/m³): a quarter of each tet's mass to each of its nodes.
-pub fn box_mesh(n: [usize; 3], h: f64, rho: f64) -> (TetMesh, Vec<f64>) {
-    // Voxels sorted by (i, j, k), as `tetrahedralize` requires.
-    let mut voxels = Vec::with_capacity(n[0] * n[1] * n[2]);
-    for i in 0..n[0] as i32 {
-        for j in 0..n[1] as i32 {
-            for k in 0..n[2] as i32 {
-                voxels.push([i, j, k]);
-            }
-        }
-    }
-    let grid = crate::geom::VoxelGrid {
-        origin: [0.0; 3],
-        h,
-        voxels,
-    };
-    let (mesh, _) = crate::embed::tetrahedralize(&grid);
-    let mut mass = vec![0.0; mesh.num_nodes()];
-    for t in 0..mesh.num_tets() {
-        let m = rho * mesh.volume(t) / 4.0;
-        for &a in &mesh.tets[t] {
-            mass[a as usize] += m;
-        }
-    }
-    (mesh, mass)
-}
-
 /// What [`bench_slab`] measured.
 #[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
 pub struct SlabBench {
@@ -1666,7 +1636,7 @@ pub fn bench_slab_thick(
     let global = params.global;
     let side = ((tets as f64 / (6.0 * thick as f64)).sqrt().round() as usize).max(1);
     let vox = [side, thick, side];
-    let (mesh, mass) = box_mesh(vox, 0.01, 200.0);
+    let (mesh, mass) = crate::embed::box_mesh(vox, 0.01, 200.0);
     let nt = mesh.num_tets();
     let pins: Vec<usize> = (0..mesh.num_nodes())
         .filter(|&i| mesh.nodes[i][0] < 1e-9)
@@ -1708,6 +1678,7 @@ pub fn bench_slab_thick(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::embed::box_mesh;
     use crate::sim::collide::{Collider, ColliderSet, Shape};
 
     #[test]

@@ -32,7 +32,7 @@ use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat, Triplet};
 use faer::Mat;
 use rayon::prelude::*;
 
-use super::cholesky::SparseCholesky;
+use crate::linalg::cholesky::SparseCholesky;
 use super::energy::ElasticModel;
 use super::SimError;
 use crate::geom::Vec3;
@@ -573,7 +573,7 @@ impl StaticSolver {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::pd::box_mesh;
+    use crate::embed::box_mesh;
 
     /// A 6x3x3-voxel slab pinned at x = 0, its x = L face pulled by 30 %,
     /// under gravity.
@@ -906,7 +906,7 @@ mod tests {
 #[cfg(test)]
 mod bench {
     use super::*;
-    use crate::sim::pd::box_mesh;
+    use crate::embed::box_mesh;
 
     /// Timing only (`cargo test --lib sim::statics::bench -- --ignored --nocapture`):
     /// a slab of `n` voxels (6 tets each), one end pinned, the other pulled 30 %.

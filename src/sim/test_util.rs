@@ -3,7 +3,7 @@
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
-use super::energy::TetRest;
+use super::element::TetRest;
 
 /// splitmix64: a tiny deterministic generator.
 pub(crate) struct Rng(pub(crate) u64);

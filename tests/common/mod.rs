@@ -50,7 +50,7 @@ pub fn knitvox_bin() -> PathBuf {
 /// 0.364.
 pub const SLOPE_DEG: f64 = 20.0;
 
-/// Issue 13 item 10's scene: a 3 x 2 x 3 cm block (1 cm Kuhn voxels, 200
+/// The friction-on-a-slope scene: a 3 x 2 x 3 cm block (1 cm Kuhn voxels, 200
 /// kg/m³, 1e4 Pa) placed at rest on a plane through the origin tilted
 /// [`SLOPE_DEG`] about z (downhill: +x), Coulomb coefficient `mu`, `steps`
 /// steps of 1/150 s under gravity; `attach` may swap the solver's backend.
@@ -64,7 +64,8 @@ pub fn slide_on_incline(
 ) -> (f64, f64, Vec<knitvox::geom::Vec3>) {
     use knitvox::geom::Vec3;
     use knitvox::sim::collide::{Collider, ColliderSet, Shape};
-    use knitvox::sim::pd::{box_mesh, PdParams, PdSolver};
+    use knitvox::embed::box_mesh;
+use knitvox::sim::pd::{PdParams, PdSolver};
     let (mesh, mass) = box_mesh([3, 2, 3], 0.01, 200.0);
     let nt = mesh.num_tets();
     let th = SLOPE_DEG.to_radians();

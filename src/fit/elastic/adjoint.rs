@@ -13,13 +13,13 @@
 //! else by sparse LU, which solves with `Kᵀ` exactly.
 
 use faer::linalg::solvers::SolveCore;
-use faer::sparse::{SparseColMat, Triplet};
 use faer::{Conj, Mat};
 use rayon::prelude::*;
 
 use super::jacobian::{KFactor, KPatternCache, SYMMETRY_TOLERANCE};
+use crate::linalg::lu::sparse_lu;
 use super::loss::FrameTarget;
-use super::{Frame, MaterialFields};
+use super::types::{Frame, MaterialFields};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
 use crate::sim::fibre::fibre_gamma_derivative;
@@ -362,19 +362,6 @@ pub struct FrameLinearization {
     /// The factor of `K` (the adjoint's), reused by the Gauss-Newton
     /// solves that need `K⁻¹`.
     pub k_factor: KFactor,
-}
-
-/// faer's sparse LU of a square `f64` matrix.
-pub type SparseLu = faer::sparse::linalg::solvers::Lu<usize, f64>;
-
-/// Sparse LU of the square matrix given by `entries`.
-pub(crate) fn sparse_lu(n: usize, entries: &[(usize, usize, f64)]) -> Result<SparseLu, String> {
-    let trip: Vec<Triplet<usize, usize, f64>> = entries
-        .iter()
-        .map(|&(r, c, v)| Triplet::new(r, c, v))
-        .collect();
-    let a = SparseColMat::try_new_from_triplets(n, n, &trip).map_err(|e| format!("{e:?}"))?;
-    a.sp_lu().map_err(|e| format!("sparse LU: {e:?}"))
 }
 
 /// Linearizes `frame` at its equilibrium `x` under `model`: `K`, `C`, `G`,

@@ -38,10 +38,13 @@ use faer::{Conj, Mat};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use super::adjoint::{equilibrium_with, linearize, sparse_lu, FrameCache, FrameLinearization};
+use super::adjoint::{equilibrium_with, linearize, FrameCache, FrameLinearization};
+use crate::linalg::lu::sparse_lu;
 use super::regularizer::Regularizer;
 use super::row_lists::RowLists;
-use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
+use super::types::{
+    CgParams, ElasticFitError, ElasticFitParams, Evaluated, FitProgress, MaterialFields, Sample,
+};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
 
@@ -176,7 +179,7 @@ pub fn gn_solve(
 /// coupling between parameters (a regularizer's off-diagonal curvature,
 /// entries `(a, b, v)` given both ways; full basis only): solves
 /// `(Σ_i P_i + diag(damping) + coupling) d = grad`, by `cg` on full fields
-/// above [`KKT_MAX_UNKNOWNS`].
+/// above [`super::KKT_MAX_UNKNOWNS`].
 #[allow(clippy::too_many_arguments)]
 pub fn gn_solve_damped(
     lins: &[FrameLinearization],
@@ -312,41 +315,11 @@ fn gn_solve_subspace(
     Ok(d.iter().copied().collect())
 }
 
-/// Largest Eq. 21 system factored directly. Its sparse LU fills in far
-/// beyond the matrix (a 12.7K-node rib, 2 frames: ~250K unknowns, 250 s and
-/// 7 GB per Gauss-Newton step); larger full-field systems go to
-/// [`gn_solve_cg`].
-pub const KKT_MAX_UNKNOWNS: usize = 60_000;
-
 /// Whether the full-field Gauss-Newton system of `m` parameters over
 /// `lins` is solved by [`gn_solve_cg`] (its Eq. 21 form has more than
-/// `direct_max` unknowns; [`KKT_MAX_UNKNOWNS`] by default).
+/// `direct_max` unknowns; [`super::KKT_MAX_UNKNOWNS`] by default).
 fn solved_by_cg(lins: &[FrameLinearization], m: usize, direct_max: usize) -> bool {
     lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m > direct_max
-}
-
-/// Conjugate gradients on the damped Eq. 20.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CgParams {
-    /// Relative residual `|r| / |grad|` that ends the iteration. Default 1e-8.
-    pub tolerance: f64,
-    /// Most iterations (a truncated solve is still a descent direction:
-    /// every CG iterate from zero has `gradᵀ d > 0`). Default 300
-    /// ([`super::ElasticFitParams::cg_iterations`]).
-    pub max_iterations: usize,
-    /// Largest Eq. 21 system (unknowns) factored directly instead; default
-    /// [`KKT_MAX_UNKNOWNS`].
-    pub direct_max_unknowns: usize,
-}
-
-impl Default for CgParams {
-    fn default() -> Self {
-        CgParams {
-            tolerance: 1e-8,
-            max_iterations: 300,
-            direct_max_unknowns: KKT_MAX_UNKNOWNS,
-        }
-    }
 }
 
 /// What a CG solve did.
@@ -589,23 +562,13 @@ const LM_FLOOR: f64 = 1e-6;
 /// Accepted Gauss-Newton iterations over which `stall_decrease` is summed.
 const STALL_WINDOW: usize = 3;
 
-/// A material and its equilibria.
-pub(super) struct Evaluated {
-    pub(super) gamma: Vec<f64>,
-    model: ElasticModel,
-    pub(super) xs: Vec<Vec<Vec3>>,
-    pub(super) loss: f64,
-    pub(super) residual: f64,
-    pub(super) newton: u64,
-}
-
 /// Context of one sample's fit.
 pub(super) struct SampleFit<'a> {
     mesh: &'a TetMesh,
     mass: &'a [f64],
     pub(super) sample: &'a Sample,
     pub(super) params: &'a ElasticFitParams,
-    pub(super) progress: Option<&'a dyn Fn(&super::samples::FitProgress)>,
+    pub(super) progress: Option<&'a dyn Fn(&FitProgress)>,
     /// The initial material `[γs; γv; ...]` (Pa), the reference of
     /// `max_contrast`.
     init: Vec<f64>,
@@ -957,7 +920,7 @@ impl SampleFit<'_> {
             rep.losses.push(ev.loss);
             rep.methods.push(if gn { "gn" } else { "gd" }.into());
             if let Some(report) = self.progress {
-                report(&super::samples::FitProgress {
+                report(&FitProgress {
                     sample: self.sample.name.clone(),
                     stage: rep.name.clone(),
                     iteration: rep.iterations,
@@ -1120,7 +1083,7 @@ pub fn fit_sample_observed(
     init: &MaterialFields,
     harmonic: &DMatrix<f64>,
     params: &ElasticFitParams,
-    progress: Option<&dyn Fn(&super::samples::FitProgress)>,
+    progress: Option<&dyn Fn(&FitProgress)>,
 ) -> Result<(MaterialFields, Vec<StageReport>, f64, Vec<Vec<Vec3>>), ElasticFitError> {
     params.check()?;
     let ne = mesh.num_tets();

@@ -6,7 +6,7 @@
 //! fits a uniform material, as VH states); the others come from block
 //! inverse (subspace) iteration with Rayleigh-Ritz on `L + σ I`, `σ` a tiny
 //! shift that makes it SPD, factorized once by sparse Cholesky
-//! ([`crate::sim::cholesky::SparseCholesky`]), and are kept orthogonal to
+//! ([`crate::linalg::cholesky::SparseCholesky`]), and are kept orthogonal to
 //! the constant. Start vectors are a fixed pseudo-random block, so the
 //! result is deterministic. Columns are orthonormal.
 
@@ -17,7 +17,7 @@ use faer::Mat;
 use nalgebra::DMatrix;
 
 use crate::geom::TetMesh;
-use crate::sim::cholesky::SparseCholesky;
+use crate::linalg::cholesky::SparseCholesky;
 
 /// Graph Laplacian of the tets' face adjacency: entries (row, col, value).
 pub fn tet_laplacian(mesh: &TetMesh) -> Vec<(usize, usize, f64)> {

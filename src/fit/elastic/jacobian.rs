@@ -18,8 +18,8 @@ use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat};
 use faer::{Conj, MatMut};
 use std::sync::{Arc, OnceLock};
 
-use super::adjoint::{sparse_lu, SparseLu};
-use crate::sim::cholesky::SparseCholesky;
+use crate::linalg::lu::{sparse_lu, SparseLu};
+use crate::linalg::cholesky::SparseCholesky;
 
 /// Largest asymmetry `max |H - Hᵀ|` of an element block, relative to its
 /// largest entry, for which `K` is factored as symmetric (its symmetric

@@ -14,7 +14,8 @@
 use nalgebra::{Matrix3, Vector3};
 
 use crate::geom::Vec3;
-use crate::sim::energy::{node_gradients, ElasticModel, TetRest};
+use crate::sim::element::{node_gradients, TetRest};
+use crate::sim::energy::ElasticModel;
 
 /// One position term of Eq. 10: the point `Σ_a coeffs[a] x[nodes[a]]`
 /// should be at `target` (m), with weight `weight` (dimensionless, >= 0).

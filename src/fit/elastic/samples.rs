@@ -13,7 +13,7 @@ use std::time::Instant;
 use super::adjoint::Anchor;
 use super::gauss_newton::StageReport;
 use super::harmonic::harmonic_basis;
-use super::{ElasticFitError, ElasticFitParams, MaterialFields, Sample};
+use super::types::{ElasticFitError, ElasticFitParams, FitProgress, MaterialFields, Sample};
 use crate::geom::TetMesh;
 
 /// Inputs of [`fit_materials`].
@@ -39,27 +39,6 @@ impl std::fmt::Debug for FitInputs<'_> {
             .field("progress", &self.progress.is_some())
             .finish()
     }
-}
-
-/// One iteration of a fit, for progress lines (`fit --json`: one JSON
-/// object per iteration; the CLI adds `"event": "iteration"`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct FitProgress {
-    /// The sample's name (a pose file, or all of them for a joint fit).
-    pub sample: String,
-    /// The stage (`harmonic r=10`, `full`).
-    pub stage: String,
-    /// Iterations of this stage so far (1-based) and the step taken (`gd`, `gn`).
-    pub iteration: u32,
-    pub method: String,
-    /// Loss (m³) after the iteration.
-    pub loss: f64,
-    /// Wall time (ms) of the iteration, and of it the search direction
-    /// (linearization and Gauss-Newton solve); the rest is the line search.
-    pub ms: f64,
-    pub direction_ms: f64,
-    /// Line-search halvings of the accepted step.
-    pub halvings: u32,
 }
 
 /// What the fit of one sample did.

@@ -18,8 +18,8 @@
 
 use std::time::Instant;
 
-use super::gauss_newton::{Evaluated, SampleFit};
-use super::StageReport;
+use super::gauss_newton::{SampleFit, StageReport};
+use super::types::Evaluated;
 
 /// Golden-section iterations after the walk (one solve each, after two to
 /// start): the bracket of `ln c`, 2 ln 2 wide, shrinks to 0.618^9 of that,
@@ -132,7 +132,7 @@ impl SampleFit<'_> {
             rep.losses.push(t.loss);
             rep.methods.push("scale".into());
             if let Some(report) = self.progress {
-                report(&super::samples::FitProgress {
+                report(&super::types::FitProgress {
                     sample: self.sample.name.clone(),
                     stage: rep.name.clone(),
                     iteration: rep.iterations,

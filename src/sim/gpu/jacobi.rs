@@ -24,7 +24,7 @@
 
 use super::{grid, grid_groups, to_u32, GpuContext, GpuError};
 use crate::sim::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
-use crate::sim::csr::CsrMatrix;
+use crate::linalg::csr::CsrMatrix;
 use crate::sim::SimError;
 
 const SHADER: &str = include_str!("jacobi.wgsl");

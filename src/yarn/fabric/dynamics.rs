@@ -42,7 +42,7 @@ pub const MAX_SPLITS: u32 = 5;
 pub struct RodDynamicsParams {
     /// Largest implicit-Euler step (s). Default 1/600 s: the drape of
     /// `examples/validate` moves by under 0.1 yarn diameters RMS when it is
-    /// halved (README, "Yarn-level ground truth of validate").
+    /// halved (docs/guides/fitting.md, the yarn-level ground truth of `validate`).
     pub max_dt: f64,
     /// Gravity (m/s^2). Default [0, -9.81, 0].
     pub gravity: Vec3,

@@ -8,7 +8,7 @@ use crate::yarn::rods::{HingeHessian, RodEnergy, RodError, RodParams, RodRest, R
 use crate::yarn::sim::{YarnSimError, YarnSimParams};
 use crate::yarn::statics::{
     evaluate, solve_static, Carry, ContactStats, ContactTerm, EnergyTerm, FrictionParams,
-    FrictionTerm, StaticError, StaticParams, StaticStats, SymbolicCache,
+    FrictionTerm, StaticError, YarnStaticParams, StaticStats, SymbolicCache,
 };
 
 /// Smallest distance ratio (to 2r) a predicted start (the stretch test's
@@ -40,7 +40,7 @@ pub struct FabricParams {
     /// ~1 N; per-vertex step clipping); the displacement cap defaults to
     /// [`MAX_MOVE_RADII`] smallest yarn radii (set by [`Fabric::new`] when
     /// infinite), lowered near contacts.
-    pub solver: StaticParams,
+    pub solver: YarnStaticParams,
     /// How Newton's matrix takes the hinges' bend/twist Hessians. Default
     /// Gauss-Newton (PSD from first derivatives; the gradient and so every
     /// equilibrium are exact either way).
@@ -58,11 +58,11 @@ impl Default for FabricParams {
             contact_stiffness: y.contact_stiffness,
             density: y.density,
             friction: FrictionParams::default(),
-            solver: StaticParams {
+            solver: YarnStaticParams {
                 force_tolerance: 1e-5,
                 max_iterations: 400,
                 clip_per_vertex: true,
-                ..StaticParams::default()
+                ..YarnStaticParams::default()
             },
             hinge_hessian: HingeHessian::default(),
         }
@@ -167,7 +167,7 @@ pub enum FabricError {
 /// two: every iteration tests the candidate pairs within the radii plus two
 /// skins (728K at two radii on the 26x26 rib stretched 30%, for ~23K in
 /// contact); the shorter steps save relaxation iterations and cost the
-/// stretch test a few (README, stop 33, second session).
+/// stretch test a few (docs/performance.md).
 pub const MAX_MOVE_RADII: f64 = 1.0;
 
 /// Rods + contact + friction + masses of one yarn set, and its current

@@ -12,16 +12,7 @@
 //!   runs to the end of the line; blank lines are skipped;
 //! * every row has the same number of codes.
 
-use super::{KnitGrid, Pattern, PatternError, WeaveMatrix};
-
-/// A knit stitch code.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Stitch {
-    /// K: the new loop is pulled through the old one from back to front.
-    Knit,
-    /// P: from front to back (a knit mirrored through the fabric plane).
-    Purl,
-}
+use super::types::{KnitGrid, Pattern, PatternError, Stitch, WeaveMatrix};
 
 #[derive(Clone, Copy, PartialEq)]
 enum Cell {

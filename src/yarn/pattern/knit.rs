@@ -29,7 +29,8 @@
 
 use std::f64::consts::PI;
 
-use super::{ease, sample_equal_arclength, KnitGrid, PatternError, PatternParams, PatternTile};
+use super::curve::{ease, sample_equal_arclength};
+use super::types::{KnitGrid, PatternError, PatternParams, PatternTile, Stitch};
 use crate::geom::{Vec3, Yarns};
 use crate::yarn::PeriodicTile;
 
@@ -159,10 +160,10 @@ fn seg_intersect(p: [f64; 2], q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> Option<(
 }
 
 /// +1 for a knit, -1 for a purl.
-fn sign(st: super::Stitch) -> f64 {
+fn sign(st: Stitch) -> f64 {
     match st {
-        super::Stitch::Knit => 1.0,
-        super::Stitch::Purl => -1.0,
+        Stitch::Knit => 1.0,
+        Stitch::Purl => -1.0,
     }
 }
 

@@ -7,7 +7,8 @@
 //! a smooth sinusoid-like crimp wave, flat at the crossings, and a vertex sits
 //! exactly on every crossing so that the polyline keeps the full 2A clearance.
 
-use super::{ease, PatternParams, PatternTile, WeaveMatrix};
+use super::curve::ease;
+use super::types::{PatternParams, PatternTile, WeaveMatrix};
 use crate::geom::{Vec3, Yarns};
 use crate::yarn::PeriodicTile;
 

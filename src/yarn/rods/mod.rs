@@ -260,8 +260,8 @@ pub enum HingeHessian {
     /// `E = sum_k w_k d_k^2` of `frame::hinge_strains`): PSD by
     /// construction, from first derivatives only. The default: the 26x26
     /// rib's 30% stretch takes 106 Newton iterations and 45 s with it,
-    /// against 144 and 77 s with the projected exact Hessian (README, stop
-    /// 34).
+    /// against 144 and 77 s with the projected exact Hessian
+    /// (docs/performance.md).
     #[default]
     GaussNewton,
     /// The exact Hessian with the eigenvalues of each 8x8 block clamped at 0.

@@ -21,6 +21,6 @@ pub use contact::{ContactStats, ContactTerm, NEAR_FACTOR};
 pub use external::GravityTerm;
 pub use friction::{Carry, FrictionContact, FrictionParams, FrictionTerm};
 pub use solver::{
-    evaluate, reaction_forces, solve_static, StaticError, StaticParams, StaticStats, SymbolicCache,
+    evaluate, reaction_forces, solve_static, StaticError, YarnStaticParams, StaticStats, SymbolicCache,
 };
 pub use term::{EnergyTerm, Triplets};

@@ -23,11 +23,11 @@ use faer::Mat;
 
 use super::assemble::LowerCsc;
 use super::term::{EnergyTerm, Triplets};
-use crate::sim::cholesky::SparseCholesky;
+use crate::linalg::cholesky::SparseCholesky;
 
 /// Controls of [`solve_static`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct StaticParams {
+pub struct YarnStaticParams {
     /// Absolute force tolerance (N): converged when every free coordinate's
     /// `|dE/dq|` is at most this. Default 1e-6 N (a millionth of the ~1 N
     /// forces of a fabric stretch test; a 1 mm yarn's weight per vertex is
@@ -57,9 +57,9 @@ pub struct StaticParams {
     pub clip_per_vertex: bool,
 }
 
-impl Default for StaticParams {
+impl Default for YarnStaticParams {
     fn default() -> Self {
-        StaticParams {
+        YarnStaticParams {
             force_tolerance: 1e-6,
             relative_tolerance: 1e-9,
             max_iterations: 200,
@@ -245,7 +245,7 @@ pub fn solve_static(
     terms: &mut [&mut dyn EnergyTerm],
     q: &mut [f64],
     fixed: &[bool],
-    params: &StaticParams,
+    params: &YarnStaticParams,
     cache: &mut SymbolicCache,
 ) -> Result<StaticStats, StaticError> {
     let n = q.len();

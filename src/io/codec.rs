@@ -1,0 +1,123 @@
+//! Dispatch from a [`Format`] to its module: decode bytes, finish decoded
+//! yarns into knitvox's frame (units, up axis, radius), read one file,
+//! encode yarns as bytes.
+
+use std::path::Path;
+
+use super::error::{FormatError, IoError};
+use super::types::{DirResources, Format, Provenance, ReadOptions, Resources, WriteOptions, YarnData, Decoded};
+use super::{bcc, gltf, h5, obj, ply, poly, pyp};
+use crate::geom::{GeomError, Units, UpAxis, Yarns};
+
+/// Decodes the bytes of one file of `format` (no frame sequences, no unit conversion).
+pub fn decode(
+    format: Format,
+    data: &[u8],
+    opts: &ReadOptions,
+    res: &dyn Resources,
+) -> Result<Decoded, FormatError> {
+    match format {
+        Format::Bcc => bcc::decode(data, opts),
+        Format::Obj => obj::decode(data, opts),
+        Format::Poly => poly::decode(data, opts),
+        Format::Pyp => pyp::decode(data, opts),
+        Format::Gltf | Format::Glb => gltf::decode(data, opts, res),
+        Format::Ply => ply::decode(data, opts),
+        Format::Hdf5 => h5::decode(data, opts),
+    }
+}
+
+/// Converts a decoded file into knitvox's frame (metres, +Y up), fills radii, validates.
+pub fn finish(format: Format, mut d: Decoded, opts: &ReadOptions) -> Result<YarnData, GeomError> {
+    let units = match (opts.units, d.units) {
+        (Some(u), _) => (u, Provenance::Option),
+        (None, Some(u)) => (u, Provenance::File),
+        (None, None) => (Units::METRES, Provenance::Assumed),
+    };
+    let up = match (opts.up_axis, d.up_axis) {
+        (Some(a), _) => (a, Provenance::Option),
+        (None, Some(a)) => (a, Provenance::File),
+        (None, None) => (UpAxis::Y, Provenance::Assumed),
+    };
+    d.yarns.file_to_internal(units.0, up.0);
+    if let Some(f) = &mut d.frames {
+        f.file_to_internal(units.0, up.0);
+    }
+    let radius = if d.radius_in_file && !opts.override_radius {
+        Provenance::File
+    } else {
+        d.yarns.radius.iter_mut().for_each(|r| *r = opts.radius);
+        d.yarns.vertex_radius = None;
+        if opts.override_radius {
+            Provenance::Option
+        } else {
+            Provenance::Assumed
+        }
+    };
+    d.yarns.validate()?;
+    if let Some(f) = &d.frames {
+        f.validate()?;
+    }
+    Ok(YarnData {
+        format,
+        yarns: d.yarns,
+        frames: d.frames,
+        units,
+        up_axis: up,
+        radius,
+        notes: d.notes,
+    })
+}
+
+/// The format of `path`, or an error naming it.
+pub fn format_of(path: &Path) -> Result<Format, IoError> {
+    Format::from_path(path).ok_or_else(|| IoError::UnknownFormat {
+        path: path.to_path_buf(),
+        ext: path
+            .extension()
+            .map(|e| e.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    })
+}
+
+/// Reads one file (never a sequence).
+pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError> {
+    let format = format_of(path)?;
+    let decoded = if format == Format::Hdf5 {
+        h5::read_file(path, opts)?
+    } else {
+        let data = std::fs::read(path).map_err(|source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        decode(format, &data, opts, &DirResources(dir)).map_err(|source| IoError::Format {
+            path: path.to_path_buf(),
+            format,
+            source,
+        })?
+    };
+    finish(format, decoded, opts).map_err(|source| IoError::Invalid {
+        path: path.to_path_buf(),
+        format,
+        source,
+    })
+}
+
+/// Encodes one set of curves (in knitvox's frame) as the bytes of one file.
+/// HDF5 is written through [`h5::write_file`] instead (libhdf5 writes files).
+pub fn encode(format: Format, yarns: &Yarns, opts: &WriteOptions) -> Result<Vec<u8>, FormatError> {
+    let (units, up) = opts.frame_for(format);
+    let mut y = yarns.clone();
+    y.internal_to_file(units, up);
+    match format {
+        Format::Bcc => bcc::encode(&y, up),
+        Format::Obj => obj::encode(&y, units, up),
+        Format::Ply => ply::encode_in(&y, units, up),
+        Format::Gltf => gltf::encode(&y, false),
+        Format::Glb => gltf::encode(&y, true),
+        Format::Poly | Format::Pyp | Format::Hdf5 => Err(FormatError::whole_file(format!(
+            "knitvox does not write {format} as bytes"
+        ))),
+    }
+}

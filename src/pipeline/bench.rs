@@ -1,0 +1,611 @@
+//! The benchmarks behind `knitvox bench io|embed|sim|yls`: each builds its
+//! scene, times the work with the physics engaged and returns what it
+//! measured (the CLI prints it, `--json`: schemas/cli-json.md). Timings are
+//! medians of the runs or steps.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::io::{self, Format, IoError, ReadOptions, WriteOptions};
+use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
+use crate::pipeline::util::median;
+use crate::pipeline::{Error, ErrorClass};
+use crate::yarn::analytic::knit_swatch_with_points;
+
+/// Why a benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error(transparent)]
+    Pipeline(#[from] Error),
+    #[error(transparent)]
+    Embed(#[from] crate::embed::EmbedError),
+    #[error(transparent)]
+    ShapeFit(#[from] crate::fit::FitError),
+    #[error(transparent)]
+    Sim(#[from] crate::sim::SimError),
+    #[error(transparent)]
+    YarnSim(#[from] crate::yarn::sim::YarnSimError),
+    #[error(transparent)]
+    Fabric(#[from] crate::yarn::fabric::FabricError),
+    #[error(transparent)]
+    Pattern(#[from] crate::pipeline::pattern::PatternStageError),
+    #[error(transparent)]
+    Shot(#[from] crate::pipeline::simulate::SimulateError),
+    /// A request the benchmark refuses (the message names the option).
+    #[error("{0}")]
+    Usage(String),
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl BenchError {
+    /// Exit code and retry decision.
+    pub fn class(&self) -> ErrorClass {
+        use crate::pipeline::StageFailure;
+        match self {
+            BenchError::Io(e) => e.class().into(),
+            BenchError::Pipeline(e) => e.class(),
+            BenchError::Pattern(e) => StageFailure::class(e),
+            BenchError::Shot(e) => StageFailure::class(e),
+            BenchError::Usage(_) => ErrorClass::Usage,
+            BenchError::Internal(_) => ErrorClass::Internal,
+            _ => ErrorClass::BadInput,
+        }
+    }
+}
+
+/// `bench io`: the input (or the built-in analytic swatch of `points`
+/// points) written and read back in every writable format, `runs` times.
+#[derive(Debug, Clone)]
+pub struct IoRequest {
+    pub input: Option<PathBuf>,
+    pub read: ReadOptions,
+    pub points: usize,
+    pub runs: usize,
+}
+
+/// `bench embed`: the input (or the analytic swatch) embedded `runs` times
+/// at `voxel_size` (m; default: the embedding's), then `frames` frames
+/// shape-fitted.
+#[derive(Debug, Clone)]
+pub struct EmbedRequest {
+    pub input: Option<PathBuf>,
+    pub read: ReadOptions,
+    pub points: usize,
+    pub voxel_size: Option<f64>,
+    pub frames: usize,
+    pub runs: usize,
+}
+
+/// `bench sim`: `steps` PD steps of `dt` (s) on about `tets` tets.
+#[derive(Debug, Clone)]
+pub struct SimRequest {
+    pub tets: usize,
+    pub steps: usize,
+    pub dt: f64,
+    pub backend: BackendChoice,
+    pub solver: SolverChoice,
+    /// PD iterations per step (default: `PdParams`'s).
+    pub pd_iterations: Option<u32>,
+    /// Domain-decomposed solver only: Jacobi tolerance and interior model.
+    pub dd_tolerance: Option<f64>,
+    pub dd_interiors: Option<crate::sim::dd::Interiors>,
+    /// Anderson window (default: `PdParams`'s).
+    pub anderson: Option<usize>,
+}
+
+/// `bench yls`: the yarn-level simulator on a built-in `pattern` swatch of
+/// about `vertices` vertices or on `input`.
+#[derive(Debug, Clone)]
+pub struct YlsRequest {
+    pub vertices: usize,
+    pub pattern: String,
+    pub steps: usize,
+    pub warmup: usize,
+    pub frames: usize,
+    pub relax: bool,
+    pub input: Option<PathBuf>,
+    /// Quasi-static stretch along x before the timed run (0: none), in
+    /// `prestretch_steps` load steps.
+    pub prestretch: f64,
+    pub prestretch_steps: usize,
+}
+
+/// What `bench yls` measured: the `--json` object and the simulator's report.
+#[derive(Debug, Clone)]
+pub struct YlsBench {
+    pub json: serde_json::Value,
+    pub report: crate::yarn::sim::BenchReport,
+}
+
+fn time_ms<T>(runs: usize, mut f: impl FnMut() -> Result<T, BenchError>) -> Result<f64, BenchError> {
+    let mut t = Vec::with_capacity(runs);
+    for _ in 0..runs.max(1) {
+        let s = Instant::now();
+        std::hint::black_box(f()?);
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(median(t))
+}
+
+/// One format's times in `bench io`.
+#[derive(Debug, Clone, Serialize)]
+pub struct FormatTimes {
+    pub write_ms: f64,
+    pub read_ms: f64,
+    pub bytes: u64,
+}
+
+/// What `bench io` measured (`--json`: schemas/cli-json.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct IoBench {
+    pub bench: &'static str,
+    pub input: String,
+    pub curves: usize,
+    pub points: usize,
+    pub runs: usize,
+    pub threads: usize,
+    pub input_read_ms: Option<f64>,
+    pub formats: BTreeMap<&'static str, FormatTimes>,
+}
+
+/// `bench io`: write and read times of every writable format.
+pub fn io(a: &IoRequest) -> Result<IoBench, BenchError> {
+    let opts = a.read.clone();
+    let (yarns, input, input_read_ms) = match &a.input {
+        Some(p) => {
+            let d = io::read_path(p, &opts)?;
+            let ms = time_ms(a.runs, || Ok(io::read_path(p, &opts)?))?;
+            (d.yarns, p.display().to_string(), Some(ms))
+        }
+        None => (
+            knit_swatch_with_points(a.points),
+            format!("built-in analytic swatch ({} points)", a.points),
+            None,
+        ),
+    };
+    let dir = tempfile::tempdir().map_err(|source| IoError::Write {
+        path: std::env::temp_dir(),
+        source,
+    })?;
+    let mut formats = BTreeMap::new();
+    let read_back = ReadOptions {
+        radius: opts.radius,
+        ..ReadOptions::default()
+    };
+    for format in Format::ALL.into_iter().filter(|f| f.is_writable()) {
+        let path = dir.path().join(format!("bench.{}", format.extensions()[0]));
+        let write_ms = time_ms(a.runs, || {
+            Ok(io::write_path(
+                &path,
+                &yarns,
+                None,
+                &WriteOptions::default(),
+            )?)
+        })?;
+        let read_ms = time_ms(a.runs, || Ok(io::read_path(&path, &read_back)?))?;
+        let bytes = std::fs::metadata(&path)
+            .map_err(|source| IoError::Read {
+                path: path.clone(),
+                source,
+            })?
+            .len();
+        formats.insert(
+            format.name(),
+            FormatTimes {
+                write_ms,
+                read_ms,
+                bytes,
+            },
+        );
+    }
+    let r = IoBench {
+        bench: "io",
+        input,
+        curves: yarns.num_curves(),
+        points: yarns.num_points(),
+        runs: a.runs,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        input_read_ms,
+        formats,
+    };
+    Ok(r)
+}
+
+/// Peak resident memory of this process (MB), from /proc (Linux); None elsewhere.
+pub fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// What `bench embed` measured (`--json`: schemas/cli-json.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct EmbedBench {
+    pub bench: &'static str,
+    pub input: String,
+    pub yarn_points: usize,
+    pub voxel_size: f64,
+    pub voxels: usize,
+    pub nodes: usize,
+    pub tets: usize,
+    pub nodes_per_yarn_point: f64,
+    pub runs: usize,
+    pub threads: usize,
+    pub embed_ms: f64,
+    pub shapefit_prepare_ms: f64,
+    pub shapefit_frames: usize,
+    pub shapefit_ms_per_frame: f64,
+    pub shapefit_rms_error_max_m: f64,
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// `bench embed`: embedding and Y2V shape-fit times and the mesh size.
+pub fn embed(a: &EmbedRequest) -> Result<EmbedBench, BenchError> {
+    use crate::embed::{embed as run_embed, EmbedParams};
+    use crate::fit::{ShapeFitParams, ShapeFitter};
+    let (yarns, input) = match &a.input {
+        Some(p) => (
+            io::read_path(p, &a.read.clone())?.yarns,
+            p.display().to_string(),
+        ),
+        None => (
+            knit_swatch_with_points(a.points),
+            format!("built-in analytic swatch ({} points)", a.points),
+        ),
+    };
+    let params = EmbedParams {
+        voxel_size: a.voxel_size,
+        ..EmbedParams::default()
+    };
+    let e = run_embed(&yarns, &params)?;
+    let embed_ms = time_ms(a.runs, || {
+        Ok(run_embed(&yarns, &params)?)
+    })?;
+    let t = Instant::now();
+    let fitter =
+        ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default())?;
+    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+    let frames = crate::pipeline::demo::demo_frames(&yarns, a.frames.max(1));
+    let mut per_frame = Vec::new();
+    let mut worst: f64 = 0.0;
+    for f in 0..frames.num_frames() {
+        let t = Instant::now();
+        let (_, st) = fitter.fit(frames.frame(f))?;
+        per_frame.push(t.elapsed().as_secs_f64() * 1e3);
+        worst = worst.max(st.rms_error);
+    }
+    let r = EmbedBench {
+        bench: "embed",
+        input,
+        yarn_points: yarns.num_points(),
+        voxel_size: e.stats.voxel_size,
+        voxels: e.stats.voxels,
+        nodes: e.mesh.num_nodes(),
+        tets: e.mesh.num_tets(),
+        nodes_per_yarn_point: e.mesh.num_nodes() as f64 / yarns.num_points().max(1) as f64,
+        runs: a.runs,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        embed_ms,
+        shapefit_prepare_ms: prepare_ms,
+        shapefit_frames: per_frame.len(),
+        shapefit_ms_per_frame: median(per_frame),
+        shapefit_rms_error_max_m: worst,
+        peak_rss_mb: peak_rss_mb(),
+    };
+    Ok(r)
+}
+
+/// What `bench sim` measured (`--json`: schemas/cli-json.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct SimBench {
+    pub bench: &'static str,
+    pub input: String,
+    pub scene: &'static str,
+    pub yarn_points: usize,
+    pub voxel_size: f64,
+    pub tets: usize,
+    pub nodes: usize,
+    pub pinned: usize,
+    pub steps: usize,
+    pub dt: f64,
+    pub threads: usize,
+    pub solver: &'static str,
+    pub backend: &'static str,
+    /// One-off assembly and factorization (ms).
+    pub prepare_ms: f64,
+    /// Median wall time of one time step (ms).
+    pub ms_per_step: f64,
+    /// Mean PD iterations (local + global) per step.
+    pub pd_iterations: f64,
+    pub pd_iterations_max: u32,
+    /// Largest implicit-Euler residual over the steps (N).
+    pub residual: f64,
+    /// Median time of the step's local steps (ms).
+    pub local_ms_per_step: f64,
+    /// Median time of the step's global solves (ms).
+    pub global_ms_per_step: f64,
+    /// Mean iterations of the iterative global solves per step (Jacobi for
+    /// dd; 0 for direct without contacts).
+    pub global_iterations: f64,
+    /// Largest relative residual of the iterative global solves.
+    pub global_residual: f64,
+    /// Mean local steps per step (PD iterations + 1 + rejected Anderson
+    /// iterates).
+    pub local_steps: f64,
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// `bench sim`: an analytic knit swatch of about `--tets` tets, its two x
+/// edges pinned and pulled apart (20% over the run) under gravity.
+pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
+    use crate::embed::{embed as run_embed, EmbedParams};
+    use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
+    use crate::pipeline::simulate::{attach_backend, global_solver};
+    use crate::sim::pd::{PdParams, PdSolver};
+    let mut global = global_solver(a.solver);
+    if let crate::sim::pd::GlobalSolver::DomainDecomposed(dp) = &mut global {
+        if let Some(t) = a.dd_tolerance {
+            dp.tolerance = t;
+        }
+        if a.dd_interiors == Some(crate::sim::dd::Interiors::Modes) {
+            dp.interiors = crate::sim::dd::Interiors::Modes;
+        }
+    }
+    let solver_name = global.name();
+    // About 1.7 tets per yarn point at the default voxel size (the
+    // embedding table of docs/performance.md); one correction from the first embedding's ratio.
+    let mut points = (a.tets as f64 / 1.7).max(800.0) as usize;
+    let mut yarns = knit_swatch_with_points(points);
+    let mut e = run_embed(&yarns, &EmbedParams::default())?;
+    let ratio = a.tets as f64 / e.mesh.num_tets().max(1) as f64;
+    if !(0.85..=1.15).contains(&ratio) {
+        points = ((points as f64) * ratio).max(800.0) as usize;
+        yarns = knit_swatch_with_points(points);
+        e = run_embed(&yarns, &EmbedParams::default())?;
+    }
+    let mesh = &e.mesh;
+    let nt = mesh.num_tets();
+    let h = e.stats.voxel_size;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for p in &mesh.nodes {
+        lo = lo.min(p[0]);
+        hi = hi.max(p[0]);
+    }
+    let left: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] <= lo + 0.5 * h)
+        .collect();
+    let right: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] >= hi - 0.5 * h)
+        .collect();
+    let pinned: Vec<usize> = left.iter().chain(&right).copied().collect();
+    let steps = a.steps.max(1);
+    let speed = 0.2 * (hi - lo) / (steps as f64 * a.dt);
+    let params = PdParams {
+        dt: a.dt,
+        mass_damping: 2.0,
+        global,
+        max_iterations: a
+            .pd_iterations
+            .unwrap_or(PdParams::default().max_iterations),
+        anderson_window: a.anderson.unwrap_or(PdParams::default().anderson_window),
+        ..PdParams::default()
+    };
+    let t = Instant::now();
+    let mut solver = PdSolver::new(
+        mesh,
+        &e.node_mass,
+        &vec![DEFAULT_GAMMA_S; nt],
+        &vec![DEFAULT_GAMMA_V; nt],
+        &pinned,
+        params,
+    )?;
+    let backend = attach_backend(&mut solver, a.backend)?;
+    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut x = mesh.nodes.clone();
+    let mut v = vec![[0.0; 3]; x.len()];
+    let (mut ms, mut iters, mut iters_max, mut residual) = (Vec::new(), 0u64, 0u32, 0.0f64);
+    let (mut local_ms, mut global_ms, mut gits, mut gres) = (Vec::new(), Vec::new(), 0u64, 0.0f64);
+    let mut local_steps = 0u64;
+    for s in 1..=steps {
+        let dx = speed * a.dt * s as f64;
+        let pins: Vec<[f64; 3]> = left
+            .iter()
+            .map(|&i| mesh.nodes[i])
+            .chain(right.iter().map(|&i| {
+                let p = mesh.nodes[i];
+                [p[0] + dx, p[1], p[2]]
+            }))
+            .collect();
+        let st = solver.step(&mut x, &mut v, &pins)?;
+        ms.push(st.ms);
+        local_ms.push(st.local_ms);
+        global_ms.push(st.global_ms);
+        gits += st.global_iterations as u64;
+        local_steps += u64::from(st.local_steps());
+        gres = gres.max(st.global_residual);
+        iters += st.iterations as u64;
+        iters_max = iters_max.max(st.iterations);
+        residual = residual.max(st.residual);
+    }
+    let r = SimBench {
+        bench: "sim",
+        input: format!(
+            "built-in analytic knit swatch ({} points)",
+            yarns.num_points()
+        ),
+        scene: "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity",
+        yarn_points: yarns.num_points(),
+        voxel_size: h,
+        tets: nt,
+        nodes: mesh.num_nodes(),
+        pinned: pinned.len(),
+        steps,
+        dt: a.dt,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        solver: solver_name,
+        backend,
+        prepare_ms,
+        ms_per_step: median(ms),
+        pd_iterations: iters as f64 / steps as f64,
+        pd_iterations_max: iters_max,
+        residual,
+        local_ms_per_step: median(local_ms),
+        global_ms_per_step: median(global_ms),
+        global_iterations: gits as f64 / steps as f64,
+        global_residual: gres,
+        local_steps: local_steps as f64 / steps as f64,
+        peak_rss_mb: peak_rss_mb(),
+    };
+    Ok(r)
+}
+
+/// `bench yls`: the yarn-level simulator on a generated swatch of about
+/// `--vertices` vertices (courses along x) or on `--input`, optionally
+/// relaxed into contact and stretched quasi-statically first, then both x
+/// ends clamped and pulled 30% further apart over 1 s
+/// ([`crate::yarn::sim::stretch_scene`]).
+pub fn yls(a: &YlsRequest) -> Result<YlsBench, BenchError> {
+    let (mut yarns, input) = match &a.input {
+        Some(path) => {
+            let d = io::read_path(path, &ReadOptions::default())?;
+            (d.yarns, path.display().to_string())
+        }
+        None => generated_swatch(a)?,
+    };
+    if a.relax && yarns.rest.is_none() {
+        let (relaxed, _) = crate::yarn::fabric::relax_into_contact(
+            &yarns,
+            &Default::default(),
+            &Default::default(),
+        )?;
+        yarns = relaxed;
+    }
+    let prestretch = if a.prestretch > 0.0 {
+        Some(prestretch(&mut yarns, a.prestretch, a.prestretch_steps)?)
+    } else {
+        None
+    };
+    let opts = crate::yarn::sim::BenchOptions {
+        vertices: yarns.num_points(),
+        steps: a.steps.max(1),
+        warmup: a.warmup,
+        frames: a.frames,
+        ..Default::default()
+    };
+    let r = crate::yarn::sim::bench_yarns(&yarns, false, &opts)?;
+    let json = serde_json::json!({
+        "bench": "yls",
+        "input": input,
+        "scene": "stretch: both x ends clamped, pulled 30% apart over 1 s, no gravity",
+        "frame_s": crate::yarn::sim::BENCH_FRAME,
+        "vertices": r.vertices,
+        "us_per_vertex_step": r.us_per_vertex_step,
+        "ms_per_frame": r.ms_per_frame,
+        "steps_per_frame": r.steps_per_frame,
+        "dt_median": r.dt_median,
+        "relaxed": yarns.rest.is_some(),
+        "prestretch": prestretch,
+        "contact_pairs": r.contact_pairs,
+        "contacts_per_vertex": r.contacts_per_vertex,
+        "candidate_pairs": r.candidate_pairs,
+        "min_distance_ratio": r.min_distance_ratio,
+        "rebuilds": r.rebuilds,
+        "rebuild_ms": r.rebuild_ms,
+        "forces_us_per_vertex_step": r.forces_us_per_vertex_step,
+        "ms_per_frame_measured": r.ms_per_frame_measured,
+        "frames_min_distance_ratio": r.frames_min_distance_ratio,
+        "threads": r.threads,
+        "steps": r.steps,
+    });
+    Ok(YlsBench { json, report: r })
+}
+
+/// The built-in pattern swatch of about `--vertices` vertices and its name.
+fn generated_swatch(a: &YlsRequest) -> Result<(crate::geom::Yarns, String), BenchError> {
+    use crate::pipeline::pattern::{generate, PatternJob, PatternSource};
+    use crate::yarn::pattern::{Layout, PatternParams};
+    let job = |n: usize| PatternJob {
+        source: PatternSource::Builtin(a.pattern.clone()),
+        layout: Layout {
+            courses: n,
+            wales: n,
+            tube_radius: None,
+            helix: false,
+            separate_courses: false,
+        },
+        params: PatternParams::default(),
+        relax: None,
+        material: crate::yarn::fabric::FabricParams::default().material(),
+    };
+    // About 32 vertices per stitch for the knits; one correction from the
+    // first swatch's count.
+    let mut n = ((a.vertices.max(64) as f64 / 32.0).sqrt().round() as usize).max(2);
+    let (mut yarns, mut report) = generate(&job(n))?;
+    let ratio = a.vertices as f64 / yarns.num_points().max(1) as f64;
+    if !(0.9..=1.1).contains(&ratio) {
+        n = ((n as f64) * ratio.sqrt()).round().max(2.0) as usize;
+        (yarns, report) = generate(&job(n))?;
+    }
+    let name = format!(
+        "built-in {} swatch, {n} courses x {n} wales ({} curves)",
+        a.pattern, report.curves
+    );
+    Ok((yarns, name))
+}
+
+/// What the quasi-static pre-stretch did (the bench's JSON `prestretch`).
+#[derive(Debug, Clone, Serialize)]
+pub struct PrestretchReport {
+    pub stretch: f64,
+    pub steps: usize,
+    pub force_n: f64,
+    pub contacts_per_vertex: f64,
+    pub newton_iterations: usize,
+    pub seconds: f64,
+}
+
+/// Stretches `yarns` (which carry a rest shape) quasi-statically along x by
+/// `stretch` in `steps` load steps (the weft stretch test without its
+/// hold) and leaves them at the last equilibrium, rest shape kept.
+fn prestretch(
+    yarns: &mut crate::geom::Yarns,
+    stretch: f64,
+    steps: usize,
+) -> Result<PrestretchReport, BenchError> {
+    use crate::yarn::fabric::{stretch_test, Direction, StretchParams};
+    if yarns.rest.is_none() {
+        return Err(BenchError::Usage(
+            "--prestretch needs a swatch with a rest shape (--relax, or a relaxed --input)".into(),
+        ));
+    }
+    let params = StretchParams {
+        direction: Direction::Weft,
+        max_stretch: stretch,
+        steps,
+        hold_steps: 0,
+        ..StretchParams::default()
+    };
+    let mut last = None;
+    let r = stretch_test(yarns, &Default::default(), &params, &mut |f| {
+        last = Some(f.points.to_vec());
+        Ok(())
+    })?;
+    yarns.points = last.ok_or_else(|| BenchError::Internal("the pre-stretch gave no frame".into()))?;
+    let end = r.points.last().expect("at least the rest point");
+    Ok(PrestretchReport {
+        stretch,
+        steps,
+        force_n: end.force_n,
+        contacts_per_vertex: end.contacts_per_vertex,
+        newton_iterations: r.points.iter().map(|p| p.newton_iterations).sum(),
+        seconds: r.seconds,
+    })
+}
+
