@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Drop-to-first-output latency and idle overhead of `knitvox watch` (README figures).
+"""Drop-to-first-output latency and idle overhead of `knitvox watch` (docs/performance.md).
 
     python3 benches/watch.py target/release/knitvox latency                        # inotify
     python3 benches/watch.py target/release/knitvox latency --no-inotify --poll 2  # polled

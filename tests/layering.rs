@@ -651,18 +651,22 @@ fn read_src(root: &Path) -> BTreeMap<String, String> {
     out
 }
 
-fn real_graph() -> BTreeMap<String, BTreeSet<String>> {
-    Graph::from_sources(&read_src(Path::new(env!("CARGO_MANIFEST_DIR")))).edges()
+fn real_graph() -> Graph {
+    Graph::from_sources(&read_src(Path::new(env!("CARGO_MANIFEST_DIR"))))
 }
 
-fn report(groups: &[Vec<String>], edges: &BTreeMap<String, BTreeSet<String>>) -> String {
+/// Each cycle's edges with the paths that make them.
+fn report(groups: &[Vec<String>], reasons: &BTreeMap<String, BTreeMap<String, BTreeSet<String>>>) -> String {
     let mut s = String::new();
     for g in groups {
         s.push_str(&format!("cycle of {} files:\n", g.len()));
         for f in g {
-            let inside: Vec<&str> =
-                edges[f].iter().filter(|t| g.contains(t)).map(String::as_str).collect();
-            s.push_str(&format!("  {f} -> {}\n", inside.join(", ")));
+            for (t, why) in &reasons[f] {
+                if g.contains(t) {
+                    let why: Vec<&str> = why.iter().map(String::as_str).collect();
+                    s.push_str(&format!("  {f} -> {t}: {}\n", why.join(", ")));
+                }
+            }
         }
     }
     s
@@ -670,15 +674,15 @@ fn report(groups: &[Vec<String>], edges: &BTreeMap<String, BTreeSet<String>>) ->
 
 #[test]
 fn math_modules_import_no_io_pipeline_daemon_or_cli() {
-    let v = layering_violations(&real_graph());
+    let v = layering_violations(&real_graph().edges());
     assert!(v.is_empty(), "math modules import outer layers:\n{}", v.join("\n"));
 }
 
 #[test]
 fn no_file_level_import_cycle_in_src() {
-    let e = real_graph();
-    let c = cycles(&e);
-    assert!(c.is_empty(), "file-level import cycles:\n{}", report(&c, &e));
+    let g = real_graph();
+    let c = cycles(&g.edges());
+    assert!(c.is_empty(), "file-level import cycles:\n{}", report(&c, &g.edges_with_reasons()));
 }
 
 fn synthetic(files: &[(&str, &str)]) -> BTreeMap<String, BTreeSet<String>> {
@@ -712,32 +716,4 @@ fn the_checker_sees_planted_violations_and_cycles() {
     ]);
     assert_eq!(cycles(&looped), vec![vec!["src/geom/a.rs".to_string(), "src/geom/b.rs".to_string()]]);
     assert!(layering_violations(&looped).is_empty(), "test code may use any layer");
-}
-
-#[test]
-#[ignore]
-fn debug_dump() {
-    let g = Graph::from_sources(&read_src(Path::new(env!("CARGO_MANIFEST_DIR"))));
-    let k: ModPath = std::env::var("MODP").unwrap().split("::").map(str::to_string).collect();
-    let _ = k;
-    let er = g.edges_with_reasons();
-    let e = g.edges();
-    for grp in cycles(&e) {
-        eprintln!("== cycle");
-        for f in &grp {
-            for (t, why) in &er[f] {
-                if grp.contains(t) {
-                    eprintln!("  {f} -> {t}: {:?}", why);
-                }
-            }
-        }
-    }
-}
-
-#[test]
-#[ignore]
-fn debug_tokens() {
-    let src = std::fs::read_to_string(std::env::var("FILEP").unwrap()).unwrap();
-    let t = tokenize(&src);
-    eprintln!("{:?}", &t[..60.min(t.len())]);
 }

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Slurm job array: convert the Nth line of a file list into OUT_DIR.
 #   sbatch --array=1-$(wc -l < inputs.txt) pipelines/farm/convert-array.sh inputs.txt OUT_DIR EXT [knitvox convert flags...]
-# Exit codes (README): 0 ok, 65/66 bad or missing input (no retry), 74 output failure, 75 transient (requeued).
+# Exit codes (docs/guides/cli.md): 0 ok, 65/66 bad or missing input (no retry), 74 output failure, 75 transient (requeued).
 #SBATCH --job-name=knitvox-convert
 #SBATCH --cpus-per-task=2
 #SBATCH --requeue

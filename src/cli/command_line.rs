@@ -39,7 +39,7 @@ pub enum Command {
     Bake(bake::BakeArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).
     Simulate(simulate::SimulateArgs),
-    /// Run a job manifest's stages (embed, shot, export), skipping cached ones (schemas/job.md).
+    /// Run a job manifest's stages (embed, train, fit, shot, export), skipping cached ones (schemas/job.md).
     Run(run::RunArgs),
     /// Watch a folder: run the job manifests and yarn files dropped into ROOT/inbox (schemas/watch.md).
     Watch(watch::WatchArgs),
@@ -54,7 +54,7 @@ pub enum Command {
     /// Fabric tests of Sperl 2022 §4 on a yarn swatch: stretch, bend (pear loop), hang.
     #[command(subcommand)]
     FabricTest(fabric_test::FabricTestKind),
-    /// Run the built-in demo job: make an example swatch, inspect it, convert it to every format.
+    /// Run the built-in demo: convert, embed, shape-fit and simulate an example swatch, run a yarn-level stretch and a fabric test, and fit and validate a small rib's material (docs/guides/cli.md).
     Demo(DemoArgs),
     /// Print a shell completion script.
     Completions {

@@ -12,51 +12,38 @@ use serde::Serialize;
 use crate::io::{self, Format, IoError, ReadOptions, WriteOptions};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::util::median;
-use crate::pipeline::{Error, ErrorClass};
+use crate::pipeline::Error;
 use crate::yarn::analytic::knit_swatch_with_points;
 
-/// Why a benchmark could not run.
+/// Why a benchmark could not run. Each variant keeps the error it wraps as
+/// its cause, so the exit code is that cause's class (`pipeline::class_of`
+/// looks through the chain); the message is the cause's own.
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
-    #[error(transparent)]
+    #[error("{0}")]
     Io(#[from] IoError),
-    #[error(transparent)]
+    #[error("{0}")]
     Pipeline(#[from] Error),
-    #[error(transparent)]
+    #[error("{0}")]
     Embed(#[from] crate::embed::EmbedError),
-    #[error(transparent)]
+    #[error("{0}")]
     ShapeFit(#[from] crate::fit::FitError),
-    #[error(transparent)]
+    #[error("{0}")]
     Sim(#[from] crate::sim::SimError),
-    #[error(transparent)]
+    #[error("{0}")]
     YarnSim(#[from] crate::yarn::sim::YarnSimError),
-    #[error(transparent)]
+    #[error("{0}")]
     Fabric(#[from] crate::yarn::fabric::FabricError),
-    #[error(transparent)]
+    #[error("{0}")]
     Pattern(#[from] crate::pipeline::pattern::PatternStageError),
-    #[error(transparent)]
+    #[error("{0}")]
     Shot(#[from] crate::pipeline::simulate::SimulateError),
     /// A request the benchmark refuses (the message names the option).
     #[error("{0}")]
     Usage(String),
+    /// A broken invariant of the benchmark itself.
     #[error("internal error: {0}")]
     Internal(String),
-}
-
-impl BenchError {
-    /// Exit code and retry decision.
-    pub fn class(&self) -> ErrorClass {
-        use crate::pipeline::StageFailure;
-        match self {
-            BenchError::Io(e) => e.class().into(),
-            BenchError::Pipeline(e) => e.class(),
-            BenchError::Pattern(e) => StageFailure::class(e),
-            BenchError::Shot(e) => StageFailure::class(e),
-            BenchError::Usage(_) => ErrorClass::Usage,
-            BenchError::Internal(_) => ErrorClass::Internal,
-            _ => ErrorClass::BadInput,
-        }
-    }
 }
 
 /// `bench io`: the input (or the built-in analytic swatch of `points`
