@@ -54,7 +54,7 @@
 //! frame it was written in.
 
 use super::{Decoded, FormatError, Location, ReadOptions};
-use crate::geom::{Units, UpAxis, Vec3, Yarns};
+use crate::geom::{Units, UnknownUnit, UnknownUpAxis, UpAxis, Vec3, Yarns};
 
 /// Property names read as the per-vertex radius.
 pub const RADIUS_NAMES: [&str; 2] = ["radius", "thickness"];
@@ -88,7 +88,7 @@ fn declared_frame(comments: &[String]) -> Result<(Option<Units>, Option<UpAxis>)
             )));
         };
         if key == Some("units") {
-            let u: Units = value.parse().map_err(|e: String| {
+            let u: Units = value.parse().map_err(|e: UnknownUnit| {
                 FormatError::whole_file(format!("header comment '{}': {e}", clip(c)))
             })?;
             if units.is_some_and(|old| old != u) {
@@ -98,7 +98,7 @@ fn declared_frame(comments: &[String]) -> Result<(Option<Units>, Option<UpAxis>)
             }
             units = Some(u);
         } else {
-            let a: UpAxis = value.parse().map_err(|e: String| {
+            let a: UpAxis = value.parse().map_err(|e: UnknownUpAxis| {
                 FormatError::whole_file(format!("header comment '{}': {e}", clip(c)))
             })?;
             if up.is_some_and(|old| old != a) {

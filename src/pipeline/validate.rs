@@ -554,9 +554,9 @@ impl Stage for ValidateJob {
         let record =
             asset
                 .fit_record()
-                .map_err(|m| crate::pipeline::asset::StageError::Invalid {
+                .map_err(|e| crate::pipeline::asset::StageError::Invalid {
                     path: self.asset.clone(),
-                    message: m,
+                    message: e.to_string(),
                 })?;
         let uniform = match (&record, self.uniform) {
             (Some(r), _) => Some(r.uniform),
