@@ -750,7 +750,7 @@ fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
     let kind = v["kind"]
         .as_str()
         .ok_or_else(|| bad("no kind".into()))
-        .and_then(|k| super::util::parse_kind(k).map_err(bad))?;
+        .and_then(|k| super::util::parse_kind(k).map_err(|e| bad(e.to_string())))?;
     let mut params = PoseParams::new(kind, v["amount"].as_f64().unwrap_or(0.0));
     params.mirror = v["mirror"].as_bool().unwrap_or(false);
     if let Some(f) = v["folds"].as_u64() {
@@ -1304,7 +1304,7 @@ fn fit_start(
     asset: &Asset,
     earlier: &MaterialFields,
     fibres: bool,
-) -> Result<(MaterialFields, Option<f64>), String> {
+) -> Result<(MaterialFields, Option<f64>), crate::embed::EmbedError> {
     if !fibres || !earlier.fibres.is_empty() {
         return Ok((earlier.clone(), None));
     }
@@ -1313,8 +1313,7 @@ fn fit_start(
         &asset.grid,
         &asset.tet_voxel,
         &Default::default(),
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let family = |directions: Vec<Vec3>| crate::sim::fibre::FibreFamily {
         directions,
         gamma: earlier.gamma_s.clone(),
@@ -1493,7 +1492,8 @@ impl Stage for FitJob {
             params: serde_json::to_value(&self.params)
                 .map_err(|e| Error::Internal(e.to_string()))?,
         };
-        set_asset_materials(&mut asset, &fitted.gamma).map_err(Error::Internal)?;
+        set_asset_materials(&mut asset, &fitted.gamma)
+            .map_err(|e| Error::Internal(e.to_string()))?;
         asset.set_fit_record(&record);
         for p in &self.train {
             asset.provenance.inputs.push(crate::geom::InputFile {
