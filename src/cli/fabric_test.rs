@@ -136,13 +136,24 @@ pub struct HangArgs {
     pub watch: f64,
 }
 
-fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
+/// Why the swatch options do not make a fabric test.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum SwatchArgsError {
+    /// A swatch width or length (m) outside `(0, 2]`.
+    #[error("--width and --length must be in (0, 2] m, got {width} and {length}")]
+    Size { width: f64, length: f64 },
+    /// No yarn file, built-in pattern or grid file.
+    #[error("give a yarn file, --pattern NAME or --grid FILE")]
+    NoSwatch,
+}
+
+fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, SwatchArgsError> {
     let size = [s.width, s.length];
     if !size.iter().all(|v| v.is_finite() && *v > 0.0 && *v <= 2.0) {
-        return Err(format!(
-            "--width and --length must be in (0, 2] m, got {} and {}",
-            s.width, s.length
-        ));
+        return Err(SwatchArgsError::Size {
+            width: s.width,
+            length: s.length,
+        });
     }
     let swatch = match (&s.yarns, &s.pattern, &s.grid) {
         (Some(p), _, _) => SwatchSource::Yarns(p.clone()),
@@ -154,7 +165,7 @@ fn job(s: &SwatchArgs, test: FabricTest) -> Result<FabricTestJob, String> {
             source: PatternSource::GridFile(g.clone()),
             size,
         },
-        (None, None, None) => return Err("give a yarn file, --pattern NAME or --grid FILE".into()),
+        (None, None, None) => return Err(SwatchArgsError::NoSwatch),
     };
     Ok(FabricTestJob {
         swatch,

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::asset::command_line;
+use super::parse::ValueError;
 use super::ExitCode;
 use crate::fit::elastic::ElasticFitParams;
 use crate::pipeline::fit::{FitJob, DEFAULT_SAMPLES};
@@ -93,14 +94,14 @@ pub struct FitArgs {
 #[derive(Debug, Clone)]
 pub struct Ranks(pub Vec<usize>);
 
-fn parse_ranks(s: &str) -> Result<Ranks, String> {
+fn parse_ranks(s: &str) -> Result<Ranks, ValueError> {
     let mut out = Vec::new();
     for t in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
-        let r: usize = t
-            .parse()
-            .map_err(|_| format!("'{t}' is not a rank (a whole number, e.g. 1,10,30)"))?;
+        let r: usize = t.parse().map_err(|_| ValueError::Rank {
+            text: t.to_string(),
+        })?;
         if r > 10_000 {
-            return Err(format!("rank {r} is above 10000"));
+            return Err(ValueError::RankTooLarge { rank: r });
         }
         if r > 0 && !out.contains(&r) {
             out.push(r);
@@ -109,28 +110,30 @@ fn parse_ranks(s: &str) -> Result<Ranks, String> {
     Ok(Ranks(out))
 }
 
-fn parse_prior(s: &str) -> Result<f64, String> {
+fn parse_prior(s: &str) -> Result<f64, ValueError> {
     match s.trim().parse::<f64>() {
         Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
-        _ => Err(format!("{s:?}: a number >= 0")),
+        _ => Err(ValueError::Prior {
+            text: s.to_string(),
+        }),
     }
 }
 
-fn parse_stall(s: &str) -> Result<f64, String> {
+fn parse_stall(s: &str) -> Result<f64, ValueError> {
     match s.trim().parse::<f64>() {
         Ok(v) if (0.0..1.0).contains(&v) => Ok(v),
-        _ => Err(format!(
-            "'{s}' is not a stall decrease (a fraction in [0, 1))"
-        )),
+        _ => Err(ValueError::Stall {
+            text: s.to_string(),
+        }),
     }
 }
 
-fn parse_contrast(s: &str) -> Result<f64, String> {
+fn parse_contrast(s: &str) -> Result<f64, ValueError> {
     match s.trim().parse::<f64>() {
         Ok(v) if v >= 1.0 => Ok(v),
-        _ => Err(format!(
-            "'{s}' is not a contrast factor (a number >= 1, or inf)"
-        )),
+        _ => Err(ValueError::Contrast {
+            text: s.to_string(),
+        }),
     }
 }
 

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::parse::{parse_non_negative, parse_positive};
+use super::parse::{parse_non_negative, parse_positive, ValueError};
 use super::ExitCode;
 use crate::anim::pins::DEFAULT_PIN_DISTANCE;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
@@ -18,15 +18,19 @@ use crate::pipeline::simulate::{
     self as stage, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest,
 };
 
-fn parse_vec3(s: &str) -> Result<Vec3, String> {
+fn parse_vec3(s: &str) -> Result<Vec3, ValueError> {
     let v: Vec<f64> = s
         .split(',')
         .map(|t| t.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("'{s}': expected X,Y,Z"))?;
+        .map_err(|_| ValueError::Vec3Syntax {
+            text: s.to_string(),
+        })?;
     match v[..] {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
-        _ => Err(format!("'{s}': expected three finite numbers X,Y,Z")),
+        _ => Err(ValueError::Vec3Values {
+            text: s.to_string(),
+        }),
     }
 }
 

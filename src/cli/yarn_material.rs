@@ -4,20 +4,22 @@
 
 use clap::Args;
 
+use super::parse::ValueError;
 use crate::geom::{MaterialOverrides, YarnMaterial};
 use crate::yarn::fabric::MaterialChoice;
 
 /// A parser for field `i` of [`YarnMaterial::RANGES`]: a finite number in
 /// its range, so an absurd value is a usage error naming the option.
-fn in_range(i: usize) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+fn in_range(i: usize) -> impl Fn(&str) -> Result<f64, ValueError> + Clone + Send + Sync + 'static {
     move |s: &str| {
         let (_, lo, hi) = YarnMaterial::RANGES[i];
         match s.trim().parse::<f64>() {
             Ok(v) if (lo..=hi).contains(&v) => Ok(v),
-            _ => Err(format!(
-                "'{}': expected a number in [{lo:e}, {hi:e}]",
-                crate::geom::excerpt(s)
-            )),
+            _ => Err(ValueError::OutOfRange {
+                text: crate::geom::excerpt(s),
+                lo,
+                hi,
+            }),
         }
     }
 }

@@ -521,12 +521,12 @@ impl ShapeFitter {
             .map_err(|e| FitError::Inconsistent(format!("assembling the matrix: {e:?}")))?;
         let assemble_ms = t_start.elapsed().as_secs_f64() * 1e3;
         let t_sym = Instant::now();
-        let symbolic =
-            SparseCholesky::symbolic(a.as_ref()).map_err(FitError::NotPositiveDefinite)?;
+        let symbolic = SparseCholesky::symbolic(a.as_ref())
+            .map_err(|e| FitError::NotPositiveDefinite(e.to_string()))?;
         let symbolic_ms = t_sym.elapsed().as_secs_f64() * 1e3;
         let t_num = Instant::now();
-        let factor =
-            SparseCholesky::numeric(symbolic, a.as_ref()).map_err(FitError::NotPositiveDefinite)?;
+        let factor = SparseCholesky::numeric(symbolic, a.as_ref())
+            .map_err(|e| FitError::NotPositiveDefinite(e.to_string()))?;
         let numeric_ms = t_num.elapsed().as_secs_f64() * 1e3;
         let num_segments = segments.len();
         let affine_segments = segments.iter().filter(|s| s.taps.0 < s.taps.1).count();

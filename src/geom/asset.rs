@@ -177,15 +177,20 @@ pub struct PoseLosses {
 /// Key of the fit record in [`Asset::parameters`].
 pub const FIT_RECORD_KEY: &str = "fit";
 
+/// A fit record in an asset's parameters that does not parse.
+#[derive(Debug, thiserror::Error)]
+#[error("parameters.{}: {}", FIT_RECORD_KEY, .0)]
+pub struct FitRecordError(#[source] pub serde_json::Error);
+
 impl Asset {
     /// The recorded fit, `Ok(None)` when the asset was never fitted; an
     /// error names what is wrong with a malformed record.
-    pub fn fit_record(&self) -> Result<Option<FitRecord>, String> {
+    pub fn fit_record(&self) -> Result<Option<FitRecord>, FitRecordError> {
         match self.parameters.get(FIT_RECORD_KEY) {
             None => Ok(None),
             Some(v) => serde_json::from_value(v.clone())
                 .map(Some)
-                .map_err(|e| format!("parameters.{FIT_RECORD_KEY}: {e}")),
+                .map_err(FitRecordError),
         }
     }
 

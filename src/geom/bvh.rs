@@ -18,6 +18,23 @@
 use super::vec3::{add, cross, dot, norm, scale, sub};
 use super::Vec3;
 
+/// Why a mesh cannot be posed as a collider.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BvhError {
+    /// Another number of positions than the mesh has vertices.
+    #[error("{positions} positions for a mesh of {vertices} vertices")]
+    PositionCount { positions: usize, vertices: usize },
+    /// A vertex position is not finite.
+    #[error("vertex {vertex} is not finite")]
+    NonFinite { vertex: usize },
+    /// Another number of previous positions than the mesh has vertices.
+    #[error("{positions} previous positions for a mesh of {vertices} vertices")]
+    PreviousCount { positions: usize, vertices: usize },
+    /// A previous vertex position is not finite.
+    #[error("previous vertex {vertex} is not finite")]
+    PreviousNonFinite { vertex: usize },
+}
+
 /// `a / |a|`, or None for a zero or non-finite vector.
 pub(crate) fn normalized(a: Vec3) -> Option<Vec3> {
     let n = norm(a);
@@ -312,19 +329,18 @@ pub struct MeshHit {
 impl MeshCollider {
     /// Poses `topology` at `positions` (m, one per vertex of the topology).
     /// Errors when the counts differ or a position is not finite.
-    pub fn new(topology: &MeshTopology, positions: &[Vec3]) -> Result<MeshCollider, String> {
+    pub fn new(topology: &MeshTopology, positions: &[Vec3]) -> Result<MeshCollider, BvhError> {
         if positions.len() != topology.num_vertices {
-            return Err(format!(
-                "{} positions for a mesh of {} vertices",
-                positions.len(),
-                topology.num_vertices
-            ));
+            return Err(BvhError::PositionCount {
+                positions: positions.len(),
+                vertices: topology.num_vertices,
+            });
         }
         if let Some(i) = positions
             .iter()
             .position(|p| !p.iter().all(|c| c.is_finite()))
         {
-            return Err(format!("vertex {i} is not finite"));
+            return Err(BvhError::NonFinite { vertex: i });
         }
         let tris = &topology.triangles;
         let nt = tris.len();
@@ -386,19 +402,18 @@ impl MeshCollider {
     /// The same pose with the vertex positions (m) of the start of the time
     /// step, so that [`Self::surface_motion`] sees how the surface moved.
     /// Errors when the counts differ or a position is not finite.
-    pub fn with_previous(mut self, previous: &[Vec3]) -> Result<MeshCollider, String> {
+    pub fn with_previous(mut self, previous: &[Vec3]) -> Result<MeshCollider, BvhError> {
         if previous.len() != self.positions.len() {
-            return Err(format!(
-                "{} previous positions for a mesh of {} vertices",
-                previous.len(),
-                self.positions.len()
-            ));
+            return Err(BvhError::PreviousCount {
+                positions: previous.len(),
+                vertices: self.positions.len(),
+            });
         }
         if let Some(i) = previous
             .iter()
             .position(|p| !p.iter().all(|c| c.is_finite()))
         {
-            return Err(format!("previous vertex {i} is not finite"));
+            return Err(BvhError::PreviousNonFinite { vertex: i });
         }
         self.previous = Some(previous.to_vec());
         Ok(self)

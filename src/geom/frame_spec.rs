@@ -18,12 +18,54 @@ pub const MAX_SPEC_FRAMES: u64 = 10_000_000;
 /// (`--frames 9223372036854775807` would wrap `i64`).
 pub const MAX_FRAME_NUMBER: i64 = 1_000_000_000;
 
+/// A frame number beyond [`MAX_FRAME_NUMBER`]; `what` names it
+/// (`--first-frame`, a spec's frame).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{what} {frame} is beyond the supported frame numbers (-{max} to {max})", max = MAX_FRAME_NUMBER)]
+pub struct FrameNumberError {
+    /// What the number is.
+    pub what: String,
+    /// The number.
+    pub frame: i64,
+}
+
+/// Why a frame spec does not parse; `spec` is the spec as given (cut to
+/// an excerpt), `item` the item at fault.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FrameSpecError {
+    /// An empty item between commas.
+    #[error("frame spec '{spec}': empty item")]
+    EmptyItem { spec: String },
+    /// The step after `x` is not a number.
+    #[error("frame spec '{spec}': bad step in '{item}'")]
+    BadStep { spec: String, item: String },
+    /// A step below 1.
+    #[error("frame spec '{spec}': step must be at least 1 in '{item}'")]
+    StepBelowOne { spec: String, item: String },
+    /// An end of a range that is not a frame number.
+    #[error("frame spec '{spec}': '{text}' is not a frame number")]
+    NotAFrame { spec: String, text: String },
+    /// A frame number beyond [`MAX_FRAME_NUMBER`].
+    #[error(transparent)]
+    FrameNumber(#[from] FrameNumberError),
+    /// A step larger than `limit`.
+    #[error("frame spec '{spec}': step {step} is larger than the limit of {limit}")]
+    StepTooLarge { spec: String, step: i64, limit: i64 },
+    /// A range whose end comes before its start.
+    #[error("frame spec '{spec}': range '{item}' runs backwards")]
+    Backwards { spec: String, item: String },
+    /// The spec selects more than [`MAX_SPEC_FRAMES`] frames.
+    #[error("frame spec '{spec}' selects more than {MAX_SPEC_FRAMES} frames")]
+    TooManyFrames { spec: String },
+}
+
 /// Checks a frame number against [`MAX_FRAME_NUMBER`]; the error names `what`.
-pub fn check_frame_number(what: &str, f: i64) -> Result<i64, String> {
+pub fn check_frame_number(what: &str, f: i64) -> Result<i64, FrameNumberError> {
     if f.unsigned_abs() > MAX_FRAME_NUMBER as u64 {
-        return Err(format!(
-            "{what} {f} is beyond the supported frame numbers (-{MAX_FRAME_NUMBER} to {MAX_FRAME_NUMBER})"
-        ));
+        return Err(FrameNumberError {
+            what: what.to_string(),
+            frame: f,
+        });
     }
     Ok(f)
 }
@@ -69,7 +111,7 @@ impl fmt::Display for FrameSpec {
 }
 
 impl FromStr for FrameSpec {
-    type Err = String;
+    type Err = FrameSpecError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let mut items = Vec::new();
         let mut total: u64 = 0;
@@ -78,21 +120,25 @@ impl FromStr for FrameSpec {
             let item = raw.trim();
             let shown_item = super::excerpt(item);
             if item.is_empty() {
-                return Err(format!("frame spec '{spec}': empty item"));
+                return Err(FrameSpecError::EmptyItem { spec });
             }
             let (range, step) = match item.split_once(['x', 'X', ':']) {
                 Some((r, st)) => (
                     r,
                     st.trim()
                         .parse::<i64>()
-                        .map_err(|_| format!("frame spec '{spec}': bad step in '{shown_item}'"))?,
+                        .map_err(|_| FrameSpecError::BadStep {
+                            spec: spec.clone(),
+                            item: shown_item.clone(),
+                        })?,
                 ),
                 None => (item, 1),
             };
             if step < 1 {
-                return Err(format!(
-                    "frame spec '{spec}': step must be at least 1 in '{shown_item}'"
-                ));
+                return Err(FrameSpecError::StepBelowOne {
+                    spec,
+                    item: shown_item,
+                });
             }
             // A leading '-' is a negative frame number, not a range separator.
             let split_at = range
@@ -105,34 +151,34 @@ impl FromStr for FrameSpec {
                 None => (range, range),
             };
             let parse = |t: &str| {
-                t.trim().parse::<i64>().map_err(|_| {
-                    format!(
-                        "frame spec '{spec}': '{}' is not a frame number",
-                        super::excerpt(t)
-                    )
-                })
+                t.trim()
+                    .parse::<i64>()
+                    .map_err(|_| FrameSpecError::NotAFrame {
+                        spec: spec.clone(),
+                        text: super::excerpt(t),
+                    })
             };
             let (a, b) = (parse(a)?, parse(b)?);
             for f in [a, b] {
                 check_frame_number(&format!("frame spec '{spec}': frame"), f)?;
             }
             if step > 2 * MAX_FRAME_NUMBER {
-                return Err(format!(
-                    "frame spec '{spec}': step {step} is larger than the limit of {}",
-                    2 * MAX_FRAME_NUMBER
-                ));
+                return Err(FrameSpecError::StepTooLarge {
+                    spec,
+                    step,
+                    limit: 2 * MAX_FRAME_NUMBER,
+                });
             }
             if b < a {
-                return Err(format!(
-                    "frame spec '{spec}': range '{shown_item}' runs backwards"
-                ));
+                return Err(FrameSpecError::Backwards {
+                    spec,
+                    item: shown_item,
+                });
             }
             // |a|, |b| <= 1e9 and step <= 2e9: no overflow.
             total = total.saturating_add(((b - a) / step + 1) as u64);
             if total > MAX_SPEC_FRAMES {
-                return Err(format!(
-                    "frame spec '{spec}' selects more than {MAX_SPEC_FRAMES} frames"
-                ));
+                return Err(FrameSpecError::TooManyFrames { spec });
             }
             items.push((a, b, step));
         }
@@ -172,7 +218,10 @@ mod tests {
             assert!(bad.parse::<FrameSpec>().is_err(), "{bad}");
         }
         assert_eq!(FrameSpec::all(3).frames(), vec![0, 1, 2]);
-        let e = "9223372036854775807".parse::<FrameSpec>().unwrap_err();
+        let e = "9223372036854775807"
+            .parse::<FrameSpec>()
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("9223372036854775807") && e.contains("1000000000"),
             "{e}"

@@ -21,14 +21,18 @@ pub use asset::{
     Asset, AssetFibres, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V,
 };
 pub use asset::{
-    FitPose, FitRecord, PoseLosses, TrainingFidelity, UniformMaterial, FIT_RECORD_KEY,
+    FitPose, FitRecord, FitRecordError, PoseLosses, TrainingFidelity, UniformMaterial,
+    FIT_RECORD_KEY,
 };
 pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
-pub use frame_spec::{check_frame_number, FrameSpec, MAX_FRAME_NUMBER, MAX_SPEC_FRAMES};
+pub use frame_spec::{
+    check_frame_number, FrameNumberError, FrameSpec, FrameSpecError, MAX_FRAME_NUMBER,
+    MAX_SPEC_FRAMES,
+};
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
-pub use units::{Units, UpAxis};
+pub use units::{Units, UnknownUnit, UnknownUpAxis, UpAxis};
 pub use error::GeomError;
 pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 

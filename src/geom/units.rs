@@ -49,8 +49,17 @@ impl fmt::Display for Units {
     }
 }
 
+/// A unit name that is neither `mm`, `cm`, `m` nor a positive number of
+/// metres per unit.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown unit '{text}': expected mm, cm, m or a positive number of metres per unit")]
+pub struct UnknownUnit {
+    /// The name as given (cut to an excerpt).
+    pub text: String,
+}
+
 impl FromStr for Units {
-    type Err = String;
+    type Err = UnknownUnit;
     /// Parses `mm`, `cm`, `m`, or a positive number of metres per file unit.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.trim().to_ascii_lowercase().as_str() {
@@ -61,7 +70,9 @@ impl FromStr for Units {
                 .parse::<f64>()
                 .ok()
                 .and_then(Units::from_scale)
-                .ok_or_else(|| format!("unknown unit '{}': expected mm, cm, m or a positive number of metres per unit", super::excerpt(s))),
+                .ok_or_else(|| UnknownUnit {
+                    text: super::excerpt(s),
+                }),
         }
     }
 }
@@ -111,16 +122,23 @@ impl fmt::Display for UpAxis {
     }
 }
 
+/// An up axis other than `y` and `z`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown up axis '{text}': expected y or z")]
+pub struct UnknownUpAxis {
+    /// The name as given (cut to an excerpt).
+    pub text: String,
+}
+
 impl FromStr for UpAxis {
-    type Err = String;
+    type Err = UnknownUpAxis;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.trim().to_ascii_lowercase().as_str() {
             "y" | "+y" => Ok(UpAxis::Y),
             "z" | "+z" => Ok(UpAxis::Z),
-            _ => Err(format!(
-                "unknown up axis '{}': expected y or z",
-                super::excerpt(s)
-            )),
+            _ => Err(UnknownUpAxis {
+                text: super::excerpt(s),
+            }),
         }
     }
 }

@@ -16,8 +16,62 @@ use std::ffi::OsString;
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
-/// Why a confined read was refused (the message names the URI's target).
-pub type ConfinedError = String;
+/// Why a confined read was refused or failed; `uri` is the URI as given
+/// and `path` the file it names, both cut to an excerpt.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfinedError {
+    /// The URI has a scheme (`file:`, `http:`, a drive letter).
+    #[error("refusing URI '{uri}': only relative paths are followed (it has a scheme)")]
+    Scheme { uri: String },
+    /// The URI holds a NUL byte once percent-decoded.
+    #[error("refusing URI '{uri}': it holds a NUL byte once decoded")]
+    NulByte { uri: String },
+    /// The URI names no path.
+    #[error("refusing URI '{uri}': empty path")]
+    EmptyPath { uri: String },
+    /// The URI names an absolute path.
+    #[error("refusing URI '{uri}': it names the absolute path '{path}'; only paths inside the file's folder are followed")]
+    Absolute { uri: String, path: String },
+    /// The folder of the referring file cannot be resolved.
+    #[error("cannot resolve the folder '{}': {source}", folder.display())]
+    Folder {
+        folder: PathBuf,
+        source: std::io::Error,
+    },
+    /// The file cannot be resolved, inspected or read.
+    #[error("cannot read '{path}': {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    /// The file cannot be opened.
+    #[error("cannot open '{path}': {source}")]
+    Open {
+        path: String,
+        source: std::io::Error,
+    },
+    /// The URI resolves outside the referring file's folder.
+    #[error("refusing URI '{uri}': it resolves to '{path}', outside the file's folder '{}'", folder.display())]
+    Outside {
+        uri: String,
+        path: String,
+        folder: PathBuf,
+    },
+    /// The URI names a directory, FIFO, device or socket.
+    #[error("refusing URI '{uri}': '{path}' is not a regular file ({kind})")]
+    NotRegular {
+        uri: String,
+        path: String,
+        kind: &'static str,
+    },
+    /// The file holds fewer bytes than declared.
+    #[error("'{path}' holds {bytes} bytes, fewer than the {declared} declared")]
+    TooShort {
+        path: String,
+        bytes: u64,
+        declared: u64,
+    },
+}
 
 /// Percent-decodes a URI path (invalid escapes are kept as they are).
 pub fn percent_decode_bytes(s: &str) -> Vec<u8> {
@@ -52,15 +106,11 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
     // A scheme (`file:`, `http:`, a Windows drive `C:`) comes before any '/'.
     let head = uri.split(['/', '?', '#']).next().unwrap_or("");
     if head.contains(':') {
-        return Err(format!(
-            "refusing URI '{shown}': only relative paths are followed (it has a scheme)"
-        ));
+        return Err(ConfinedError::Scheme { uri: shown });
     }
     let bytes = percent_decode_bytes(uri);
     if bytes.contains(&0) {
-        return Err(format!(
-            "refusing URI '{shown}': it holds a NUL byte once decoded"
-        ));
+        return Err(ConfinedError::NulByte { uri: shown });
     }
     #[cfg(unix)]
     let path = {
@@ -70,7 +120,7 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
     #[cfg(not(unix))]
     let path = PathBuf::from(OsString::from(String::from_utf8_lossy(&bytes).into_owned()));
     if path.as_os_str().is_empty() {
-        return Err(format!("refusing URI '{shown}': empty path"));
+        return Err(ConfinedError::EmptyPath { uri: shown });
     }
     if path.is_absolute()
         || path.has_root()
@@ -79,10 +129,10 @@ pub fn relative_path(uri: &str) -> Result<PathBuf, ConfinedError> {
             .any(|c| matches!(c, Component::Prefix(_) | Component::RootDir))
         || bytes.starts_with(b"\\")
     {
-        return Err(format!(
-            "refusing URI '{shown}': it names the absolute path '{}'; only paths inside the file's folder are followed",
-            crate::geom::excerpt(&path.display().to_string())
-        ));
+        return Err(ConfinedError::Absolute {
+            uri: shown,
+            path: crate::geom::excerpt(&path.display().to_string()),
+        });
     }
     Ok(path)
 }
@@ -102,33 +152,42 @@ pub fn read_confined(
     } else {
         dir
     };
-    let base = std::fs::canonicalize(base_dir)
-        .map_err(|e| format!("cannot resolve the folder '{}': {e}", base_dir.display()))?;
+    let base = std::fs::canonicalize(base_dir).map_err(|source| ConfinedError::Folder {
+        folder: base_dir.to_path_buf(),
+        source,
+    })?;
     let joined = base.join(&rel);
-    let target = std::fs::canonicalize(&joined)
-        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&joined)))?;
+    let target = std::fs::canonicalize(&joined).map_err(|source| ConfinedError::Read {
+        path: shown_path(&joined),
+        source,
+    })?;
     if !target.starts_with(&base) {
-        return Err(format!(
-            "refusing URI '{shown}': it resolves to '{}', outside the file's folder '{}'",
-            shown_path(&target),
-            base.display()
-        ));
+        return Err(ConfinedError::Outside {
+            uri: shown,
+            path: shown_path(&target),
+            folder: base,
+        });
     }
-    let meta = std::fs::metadata(&target)
-        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
+    let read_error = |source| ConfinedError::Read {
+        path: shown_path(&target),
+        source,
+    };
+    let not_regular = |meta: &std::fs::Metadata| ConfinedError::NotRegular {
+        uri: shown.clone(),
+        path: shown_path(&target),
+        kind: kind_of(meta),
+    };
+    let too_short = |bytes: u64| ConfinedError::TooShort {
+        path: shown_path(&target),
+        bytes,
+        declared: min_bytes,
+    };
+    let meta = std::fs::metadata(&target).map_err(read_error)?;
     if !meta.is_file() {
-        return Err(format!(
-            "refusing URI '{shown}': '{}' is not a regular file ({})",
-            shown_path(&target),
-            kind_of(&meta)
-        ));
+        return Err(not_regular(&meta));
     }
     if meta.len() < min_bytes {
-        return Err(format!(
-            "'{}' holds {} bytes, fewer than the {min_bytes} declared",
-            shown_path(&target),
-            meta.len()
-        ));
+        return Err(too_short(meta.len()));
     }
     let mut opts = std::fs::OpenOptions::new();
     opts.read(true);
@@ -138,29 +197,20 @@ pub fn read_confined(
         // A FIFO swapped in after the check must not block the open.
         opts.custom_flags(libc::O_NONBLOCK);
     }
-    let file = opts
-        .open(&target)
-        .map_err(|e| format!("cannot open '{}': {e}", shown_path(&target)))?;
-    let meta = file
-        .metadata()
-        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
+    let file = opts.open(&target).map_err(|source| ConfinedError::Open {
+        path: shown_path(&target),
+        source,
+    })?;
+    let meta = file.metadata().map_err(read_error)?;
     if !meta.is_file() {
-        return Err(format!(
-            "refusing URI '{shown}': '{}' is not a regular file ({})",
-            shown_path(&target),
-            kind_of(&meta)
-        ));
+        return Err(not_regular(&meta));
     }
     let mut data = Vec::new();
     file.take(max_bytes)
         .read_to_end(&mut data)
-        .map_err(|e| format!("cannot read '{}': {e}", shown_path(&target)))?;
+        .map_err(read_error)?;
     if (data.len() as u64) < min_bytes {
-        return Err(format!(
-            "'{}' holds {} bytes, fewer than the {min_bytes} declared",
-            shown_path(&target),
-            data.len()
-        ));
+        return Err(too_short(data.len() as u64));
     }
     Ok(data)
 }
@@ -220,21 +270,31 @@ mod tests {
         std::fs::write(root.join("secret.bin"), b"SECRET").unwrap();
         std::fs::write(dir.join("ok.bin"), b"0123456789").unwrap();
         assert_eq!(read_confined(&dir, "ok.bin", 4, 4).unwrap(), b"0123");
-        let e = read_confined(&dir, "ok.bin", 11, 11).unwrap_err();
+        let e = read_confined(&dir, "ok.bin", 11, 11)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("fewer than the 11 declared"), "{e}");
-        let e = read_confined(&dir, "../secret.bin", 1, 6).unwrap_err();
+        let e = read_confined(&dir, "../secret.bin", 1, 6)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("outside the file's folder"), "{e}");
-        let e = read_confined(&dir, "..%2Fsecret.bin", 1, 6).unwrap_err();
+        let e = read_confined(&dir, "..%2Fsecret.bin", 1, 6)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("outside the file's folder"), "{e}");
         #[cfg(unix)]
         {
             std::os::unix::fs::symlink(root.join("secret.bin"), dir.join("link.bin")).unwrap();
-            let e = read_confined(&dir, "link.bin", 1, 6).unwrap_err();
+            let e = read_confined(&dir, "link.bin", 1, 6)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("outside the file's folder"), "{e}");
-            let e = read_confined(&dir, "/dev/zero", 1, 6).unwrap_err();
+            let e = read_confined(&dir, "/dev/zero", 1, 6)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("absolute"), "{e}");
         }
-        let e = read_confined(&dir, ".", 1, 6).unwrap_err();
+        let e = read_confined(&dir, ".", 1, 6).unwrap_err().to_string();
         assert!(e.contains("not a regular file"), "{e}");
         std::fs::remove_dir_all(&root).unwrap();
     }

@@ -950,9 +950,9 @@ impl<'a> Reader<'a> {
                         }
                     }
                 }
-                Some(uri) if uri.starts_with("data:") => {
-                    Cow::Owned(decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e))?)
-                }
+                Some(uri) if uri.starts_with("data:") => Cow::Owned(
+                    decode_data_uri(uri).map_err(|e| at(format!("{path}/uri"), e.to_string()))?,
+                ),
                 Some(uri) => {
                     let declared = buf.byte_length.0;
                     if declared > self.opts.max_memory {
@@ -1319,19 +1319,33 @@ fn type_name(t: Type, c: ComponentType) -> String {
     format!("{c} {t}")
 }
 
+/// Why a `data:` URI could not be decoded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DataUriError {
+    /// No `,` separates the header from the data.
+    #[error("data URI has no ',' before its data")]
+    NoData,
+    /// The data is not base64 (`header` is the part before the `,`).
+    #[error("data URI '{header},...' is not base64; only base64 data URIs are supported")]
+    NotBase64 { header: String },
+    /// The base64 data does not decode.
+    #[error("data URI holds invalid base64: {0}")]
+    InvalidBase64(#[source] base64::DecodeError),
+}
+
 /// Decodes a `data:[<media type>];base64,<data>` URI.
-fn decode_data_uri(uri: &str) -> Result<Vec<u8>, String> {
+fn decode_data_uri(uri: &str) -> Result<Vec<u8>, DataUriError> {
     let Some((header, payload)) = uri.split_once(',') else {
-        return Err("data URI has no ',' before its data".into());
+        return Err(DataUriError::NoData);
     };
     if !header.ends_with(";base64") {
-        return Err(format!(
-            "data URI '{header},...' is not base64; only base64 data URIs are supported"
-        ));
+        return Err(DataUriError::NotBase64 {
+            header: header.to_string(),
+        });
     }
     BASE64
         .decode(payload.trim_end())
-        .map_err(|e| format!("data URI holds invalid base64: {e}"))
+        .map_err(DataUriError::InvalidBase64)
 }
 
 // ---------------------------------------------------------------------------
@@ -1719,9 +1733,11 @@ mod tests {
         );
         assert!(decode_data_uri("data:application/octet-stream;base64,A!EC")
             .unwrap_err()
+            .to_string()
             .contains("base64"));
         assert!(decode_data_uri("data:text/plain,abc")
             .unwrap_err()
+            .to_string()
             .contains("not base64"));
     }
 

@@ -736,14 +736,14 @@ pub(crate) fn read_units_and_axis(
     let units = match parsed("units")? {
         Some(u) => Some(
             u.parse::<Units>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+                .map_err(|e| FormatError::at_path(attr_loc("", "units"), e.to_string()))?,
         ),
         None => None,
     };
     let up_axis = match parsed("up_axis")? {
         Some(a) => Some(
             a.parse::<UpAxis>()
-                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+                .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e.to_string()))?,
         ),
         None => None,
     };
@@ -1060,13 +1060,13 @@ fn read_frame_of(file: &hdf5::File, f: usize) -> Result<Vec<Vec3>, FormatError> 
     let units = match read_str_attr(root, "", "units")? {
         Some(u) => u
             .parse::<Units>()
-            .map_err(|e| FormatError::at_path(attr_loc("", "units"), e))?,
+            .map_err(|e| FormatError::at_path(attr_loc("", "units"), e.to_string()))?,
         None => Units::METRES,
     };
     let up = match read_str_attr(root, "", "up_axis")? {
         Some(a) => a
             .parse::<UpAxis>()
-            .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e))?,
+            .map_err(|e| FormatError::at_path(attr_loc("", "up_axis"), e.to_string()))?,
         None => UpAxis::Y,
     };
     let g = open_group(root, "frames", "/frames")?

@@ -54,7 +54,7 @@
 //! frame it was written in.
 
 use super::{Decoded, FormatError, Location, ReadOptions};
-use crate::geom::{Units, UpAxis, Vec3, Yarns};
+use crate::geom::{Units, UnknownUnit, UnknownUpAxis, UpAxis, Vec3, Yarns};
 
 /// Property names read as the per-vertex radius.
 pub const RADIUS_NAMES: [&str; 2] = ["radius", "thickness"];
@@ -88,7 +88,7 @@ fn declared_frame(comments: &[String]) -> Result<(Option<Units>, Option<UpAxis>)
             )));
         };
         if key == Some("units") {
-            let u: Units = value.parse().map_err(|e: String| {
+            let u: Units = value.parse().map_err(|e: UnknownUnit| {
                 FormatError::whole_file(format!("header comment '{}': {e}", clip(c)))
             })?;
             if units.is_some_and(|old| old != u) {
@@ -98,7 +98,7 @@ fn declared_frame(comments: &[String]) -> Result<(Option<Units>, Option<UpAxis>)
             }
             units = Some(u);
         } else {
-            let a: UpAxis = value.parse().map_err(|e: String| {
+            let a: UpAxis = value.parse().map_err(|e: UnknownUpAxis| {
                 FormatError::whole_file(format!("header comment '{}': {e}", clip(c)))
             })?;
             if up.is_some_and(|old| old != a) {
@@ -215,7 +215,7 @@ impl Scalar {
     }
 
     /// Parses one ascii token as a value of this type.
-    fn parse_token(self, tok: &str) -> Result<f64, String> {
+    fn parse_token(self, tok: &str) -> Result<f64, TokenError> {
         if self.is_integer() {
             let v = match tok.parse::<i64>() {
                 Ok(v) => v,
@@ -223,27 +223,48 @@ impl Scalar {
                 Err(_) => match tok.parse::<f64>() {
                     Ok(f) if f.is_finite() && f.fract() == 0.0 && f.abs() < 9.0e15 => f as i64,
                     _ => {
-                        return Err(format!(
-                            "'{}' is not an integer ({})",
-                            clip(tok),
-                            self.name()
-                        ))
+                        return Err(TokenError::NotInteger {
+                            token: clip(tok),
+                            kind: self.name(),
+                        })
                     }
                 },
             };
             let (lo, hi) = self.int_range();
             if v < lo || v > hi {
-                return Err(format!(
-                    "{v} is out of range for {} ({lo}..={hi})",
-                    self.name()
-                ));
+                return Err(TokenError::OutOfRange {
+                    value: v,
+                    kind: self.name(),
+                    lo,
+                    hi,
+                });
             }
             Ok(v as f64)
         } else {
             tok.parse::<f64>()
-                .map_err(|_| format!("'{}' is not a number", clip(tok)))
+                .map_err(|_| TokenError::NotNumber { token: clip(tok) })
         }
     }
+}
+
+/// Why an ascii token is not a value of its property's type; `token` is
+/// the token (cut to an excerpt), `kind` the PLY type name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+enum TokenError {
+    /// Not an integer (nor an integral float) for an integer type.
+    #[error("'{token}' is not an integer ({kind})")]
+    NotInteger { token: String, kind: &'static str },
+    /// An integer outside the range `lo..=hi` of its type.
+    #[error("{value} is out of range for {kind} ({lo}..={hi})")]
+    OutOfRange {
+        value: i64,
+        kind: &'static str,
+        lo: i64,
+        hi: i64,
+    },
+    /// Not a number for a float type.
+    #[error("'{token}' is not a number")]
+    NotNumber { token: String },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -253,22 +253,33 @@ pub fn assumed_names(units: (Units, Provenance), up_axis: (UpAxis, Provenance)) 
     out
 }
 
+/// Why a resource a file refers to could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum ResourceError {
+    /// The file is parsed from bytes alone: there is nowhere to load `uri`
+    /// (cut to an excerpt) from.
+    #[error("external resource '{uri}' cannot be loaded when parsing from bytes alone")]
+    Unavailable { uri: String },
+    /// The read of the resource from the file's folder was refused or failed.
+    #[error(transparent)]
+    Confined(#[from] confined::ConfinedError),
+}
+
 /// Loads resources a file refers to by URI (glTF external buffers).
 pub trait Resources {
     /// The bytes of `uri`: exactly `declared` bytes (a resource holding fewer
     /// is an error; more are never read).
-    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, String>;
+    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, ResourceError>;
 }
 
 /// No external resources: every external reference is an error.
 pub struct NoResources;
 
 impl Resources for NoResources {
-    fn load(&self, uri: &str, _declared: u64) -> Result<Vec<u8>, String> {
-        Err(format!(
-            "external resource '{}' cannot be loaded when parsing from bytes alone",
-            crate::geom::excerpt(uri)
-        ))
+    fn load(&self, uri: &str, _declared: u64) -> Result<Vec<u8>, ResourceError> {
+        Err(ResourceError::Unavailable {
+            uri: crate::geom::excerpt(uri),
+        })
     }
 }
 
@@ -278,8 +289,8 @@ impl Resources for NoResources {
 pub struct DirResources(pub PathBuf);
 
 impl Resources for DirResources {
-    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, String> {
-        confined::read_confined(&self.0, uri, declared, declared)
+    fn load(&self, uri: &str, declared: u64) -> Result<Vec<u8>, ResourceError> {
+        Ok(confined::read_confined(&self.0, uri, declared, declared)?)
     }
 }
 

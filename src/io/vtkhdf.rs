@@ -33,7 +33,8 @@ use hdf5::Group;
 use super::h5::{self, Ds, Kind};
 use super::{FormatError, IoError, ReadOptions};
 use crate::geom::{
-    is_unit_vector, Asset, AssetFibres, Embedding, NodeSteps, Provenance, TetMesh, Vec3, VoxelGrid,
+    is_unit_vector, Asset, AssetFibres, Embedding, GeomError, NodeSteps, Provenance, TetMesh, Vec3,
+    VoxelGrid,
 };
 
 /// Value of the `/knitvox` attribute `knitvox_format` in an asset file.
@@ -70,7 +71,7 @@ pub fn write_asset(path: &Path, asset: &Asset) -> Result<(), IoError> {
             h5::invalid_input(format!("refusing to write an invalid asset: {m}")),
         )
     };
-    check_asset(asset).map_err(refuse)?;
+    check_asset(asset).map_err(|e| refuse(e.to_string()))?;
     let parameters = serde_json::to_vec(&asset.parameters)
         .map_err(|e| refuse(format!("parameters cannot be written as JSON: {e}")))?;
     let provenance = serde_json::to_vec(&asset.provenance)
@@ -88,13 +89,108 @@ fn all_finite(v: &[f64]) -> Option<usize> {
     v.iter().position(|x| !x.is_finite())
 }
 
+/// Why an asset cannot be written: what the reader would refuse.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum AssetCheckError {
+    /// A rest node coordinate is not finite.
+    #[error("rest node {node}: coordinate is not finite")]
+    NonFiniteNode { node: usize },
+    /// A tet names a node the mesh does not have.
+    #[error("tet {tet} {nodes:?}: node index out of range ({count} nodes)")]
+    TetNode {
+        tet: usize,
+        nodes: [u32; 4],
+        count: usize,
+    },
+    /// An array without one entry per tet, node, step or yarn vertex.
+    #[error("{what} has {got} entries, expected {want} (one per {per})")]
+    Length {
+        what: &'static str,
+        got: usize,
+        want: usize,
+        per: &'static str,
+    },
+    /// A tet names a voxel the grid does not have.
+    #[error("tet {tet}: voxel {voxel} out of range ({voxels} voxels)")]
+    TetVoxel {
+        tet: usize,
+        voxel: u32,
+        voxels: usize,
+    },
+    /// A node mass (kg) is negative or not finite.
+    #[error("node {node}: mass {mass} is not a non-negative finite number")]
+    NodeMass { node: usize, mass: f64 },
+    /// A stiffness (Pa) outside `[0, MAX_STIFFNESS_PA]`.
+    #[error(
+        "tet {tet}: {name} {value:e} Pa is not a finite value in [0, {MAX_STIFFNESS_PA:e}] Pa"
+    )]
+    Stiffness {
+        tet: usize,
+        name: &'static str,
+        value: f64,
+    },
+    /// A fibre array without one entry per tet.
+    #[error("{name} has {got} entries for {tets} tets")]
+    FibreLength {
+        name: &'static str,
+        got: usize,
+        tets: usize,
+    },
+    /// A fibre direction that is not a unit vector.
+    #[error("tet {tet}: {name} {direction:?} is not a unit vector")]
+    FibreDirection {
+        tet: usize,
+        name: &'static str,
+        direction: Vec3,
+    },
+    /// The voxel grid's origin or size is not finite.
+    #[error("voxel grid origin or size is not finite")]
+    GridNotFinite,
+    /// The voxel size (m) of a grid with voxels is not positive.
+    #[error("voxel size {h} is not positive")]
+    VoxelSize { h: f64 },
+    /// The rest yarns are not well formed.
+    #[error("rest yarns: {0}")]
+    RestYarns(#[source] GeomError),
+    /// A yarn vertex is embedded in a tet the mesh does not have.
+    #[error("yarn vertex {vertex}: tet {tet} out of range ({tets} tets)")]
+    EmbeddingTet {
+        vertex: usize,
+        tet: u32,
+        tets: usize,
+    },
+    /// A yarn vertex's embedding weight is not finite.
+    #[error("yarn vertex {vertex}: weight is not finite")]
+    EmbeddingWeight { vertex: usize },
+    /// A step time is not finite.
+    #[error("step {step}: time is not finite")]
+    StepTime { step: usize },
+    /// The number of step positions overflows.
+    #[error("{steps} steps x {nodes} nodes overflows")]
+    StepOverflow { steps: usize, nodes: usize },
+    /// The steps hold another number of positions than steps x nodes.
+    #[error("steps hold {got} positions, expected {steps} steps x {nodes} nodes = {want}")]
+    StepPositions {
+        got: usize,
+        steps: usize,
+        nodes: usize,
+        want: usize,
+    },
+    /// A step position is not finite.
+    #[error("step {step}, node {node}: position is not finite")]
+    StepPosition { step: usize, node: usize },
+    /// A step's fit error is not finite.
+    #[error("step {step}: fit_error is not finite")]
+    StepFitError { step: usize },
+}
+
 /// Everything the reader will check, so that a written file always reads back.
-fn check_asset(a: &Asset) -> Result<(), String> {
+fn check_asset(a: &Asset) -> Result<(), AssetCheckError> {
     let n = a.mesh.nodes.len();
     let t = a.mesh.tets.len();
     let nv = a.grid.voxels.len();
     if let Some(i) = all_finite(a.mesh.nodes.as_flattened()) {
-        return Err(format!("rest node {}: coordinate is not finite", i / 3));
+        return Err(AssetCheckError::NonFiniteNode { node: i / 3 });
     }
     if let Some((i, tet)) = a
         .mesh
@@ -103,27 +199,36 @@ fn check_asset(a: &Asset) -> Result<(), String> {
         .enumerate()
         .find(|(_, tet)| tet.iter().any(|&v| v as usize >= n))
     {
-        return Err(format!(
-            "tet {i} {tet:?}: node index out of range ({n} nodes)"
-        ));
+        return Err(AssetCheckError::TetNode {
+            tet: i,
+            nodes: *tet,
+            count: n,
+        });
     }
-    let len = |what: &str, got: usize, want: usize, per: &str| {
+    let len = |what: &'static str, got: usize, want: usize, per: &'static str| {
         if got == want {
             Ok(())
         } else {
-            Err(format!(
-                "{what} has {got} entries, expected {want} (one per {per})"
-            ))
+            Err(AssetCheckError::Length {
+                what,
+                got,
+                want,
+                per,
+            })
         }
     };
     len("tet_voxel", a.tet_voxel.len(), t, "tet")?;
-    if let Some((i, v)) = a
+    if let Some((i, &v)) = a
         .tet_voxel
         .iter()
         .enumerate()
         .find(|(_, &v)| v as usize >= nv)
     {
-        return Err(format!("tet {i}: voxel {v} out of range ({nv} voxels)"));
+        return Err(AssetCheckError::TetVoxel {
+            tet: i,
+            voxel: v,
+            voxels: nv,
+        });
     }
     len("node_mass", a.node_mass.len(), n, "node")?;
     if let Some(i) = a
@@ -131,10 +236,10 @@ fn check_asset(a: &Asset) -> Result<(), String> {
         .iter()
         .position(|m| !(m.is_finite() && *m >= 0.0))
     {
-        return Err(format!(
-            "node {i}: mass {} is not a non-negative finite number",
-            a.node_mass[i]
-        ));
+        return Err(AssetCheckError::NodeMass {
+            node: i,
+            mass: a.node_mass[i],
+        });
     }
     len("gamma_s", a.gamma_s.len(), t, "tet")?;
     len("gamma_v", a.gamma_v.len(), t, "tet")?;
@@ -145,14 +250,14 @@ fn check_asset(a: &Asset) -> Result<(), String> {
         check_fibres(f, t)?;
     }
     if all_finite(&a.grid.origin).is_some() || !a.grid.h.is_finite() {
-        return Err("voxel grid origin or size is not finite".into());
+        return Err(AssetCheckError::GridNotFinite);
     }
     if nv > 0 && a.grid.h <= 0.0 {
-        return Err(format!("voxel size {} is not positive", a.grid.h));
+        return Err(AssetCheckError::VoxelSize { h: a.grid.h });
     }
     a.rest_yarns
         .validate()
-        .map_err(|e| format!("rest yarns: {e}"))?;
+        .map_err(AssetCheckError::RestYarns)?;
     let m = a.rest_yarns.num_points();
     len(
         "embedding.tet",
@@ -166,43 +271,48 @@ fn check_asset(a: &Asset) -> Result<(), String> {
         m,
         "rest yarn vertex",
     )?;
-    if let Some((i, v)) = a
+    if let Some((i, &v)) = a
         .embedding
         .tet
         .iter()
         .enumerate()
         .find(|(_, &v)| v as usize >= t)
     {
-        return Err(format!("yarn vertex {i}: tet {v} out of range ({t} tets)"));
+        return Err(AssetCheckError::EmbeddingTet {
+            vertex: i,
+            tet: v,
+            tets: t,
+        });
     }
     if let Some(i) = all_finite(a.embedding.weights.as_flattened()) {
-        return Err(format!("yarn vertex {}: weight is not finite", i / 4));
+        return Err(AssetCheckError::EmbeddingWeight { vertex: i / 4 });
     }
     let s = a.steps.num_steps();
     if let Some(i) = all_finite(&a.steps.times) {
-        return Err(format!("step {i}: time is not finite"));
+        return Err(AssetCheckError::StepTime { step: i });
     }
     let want = s
         .checked_mul(n)
-        .ok_or_else(|| format!("{s} steps x {n} nodes overflows"))?;
+        .ok_or(AssetCheckError::StepOverflow { steps: s, nodes: n })?;
     if a.steps.positions.len() != want {
-        return Err(format!(
-            "steps hold {} positions, expected {s} steps x {n} nodes = {want}",
-            a.steps.positions.len()
-        ));
+        return Err(AssetCheckError::StepPositions {
+            got: a.steps.positions.len(),
+            steps: s,
+            nodes: n,
+            want,
+        });
     }
     if let Some(i) = all_finite(a.steps.positions.as_flattened()) {
         let k = i / 3;
-        return Err(format!(
-            "step {}, node {}: position is not finite",
-            k / n.max(1),
-            k % n.max(1)
-        ));
+        return Err(AssetCheckError::StepPosition {
+            step: k / n.max(1),
+            node: k % n.max(1),
+        });
     }
     if !a.steps.fit_error.is_empty() {
         len("steps.fit_error", a.steps.fit_error.len(), s, "step")?;
         if let Some(i) = all_finite(&a.steps.fit_error) {
-            return Err(format!("step {i}: fit_error is not finite"));
+            return Err(AssetCheckError::StepFitError { step: i });
         }
     }
     Ok(())
@@ -478,7 +588,7 @@ const FIBRE_CELL_DATA: [&str; 4] = [
 ];
 
 /// Unit directions (to 1e-6) and finite stiffnesses `>= 0`, one per tet.
-fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
+fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), AssetCheckError> {
     for (name, n) in [
         ("course_direction", f.course.len()),
         ("wale_direction", f.wale.len()),
@@ -486,12 +596,20 @@ fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), String> {
         ("gamma_wale", f.gamma_wale.len()),
     ] {
         if n != t {
-            return Err(format!("{name} has {n} entries for {t} tets"));
+            return Err(AssetCheckError::FibreLength {
+                name,
+                got: n,
+                tets: t,
+            });
         }
     }
     for (name, d) in [("course_direction", &f.course), ("wale_direction", &f.wale)] {
         if let Some(i) = d.iter().position(|v| !is_unit_vector(v)) {
-            return Err(format!("tet {i}: {name} {:?} is not a unit vector", d[i]));
+            return Err(AssetCheckError::FibreDirection {
+                tet: i,
+                name,
+                direction: d[i],
+            });
         }
     }
     check_stiffness("gamma_course", &f.gamma_course)?;
@@ -509,12 +627,13 @@ fn stiffness_in_range(v: f64) -> bool {
 }
 
 /// Every stiffness of `name` (Pa) finite and in `[0, MAX_STIFFNESS_PA]`.
-fn check_stiffness(name: &str, g: &[f64]) -> Result<(), String> {
+fn check_stiffness(name: &'static str, g: &[f64]) -> Result<(), AssetCheckError> {
     match g.iter().position(|v| !stiffness_in_range(*v)) {
-        Some(i) => Err(format!(
-            "tet {i}: {name} {:e} Pa is not a finite value in [0, {MAX_STIFFNESS_PA:e}] Pa",
-            g[i]
-        )),
+        Some(i) => Err(AssetCheckError::Stiffness {
+            tet: i,
+            name,
+            value: g[i],
+        }),
         None => Ok(()),
     }
 }

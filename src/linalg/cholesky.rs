@@ -16,6 +16,8 @@ use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SparseColMatRef;
 use faer::{MatMut, Par};
 
+use super::error::LinalgError;
+
 /// Systems below this size are solved in one task (the split costs more
 /// than it saves).
 const PARALLEL_SOLVE_MIN_ROWS: usize = 2000;
@@ -35,7 +37,7 @@ pub struct SparseCholesky<S = SymbolicCholesky<usize>> {
 fn symbolic_with(
     lower: SparseColMatRef<'_, usize, f64>,
     params: CholeskySymbolicParams<'_>,
-) -> Result<SymbolicCholesky<usize>, String> {
+) -> Result<SymbolicCholesky<usize>, LinalgError> {
     symbolic_ordered_with(lower, SymmetricOrdering::Amd, params)
 }
 
@@ -43,16 +45,16 @@ fn symbolic_ordered_with(
     lower: SparseColMatRef<'_, usize, f64>,
     ordering: SymmetricOrdering<'_, usize>,
     params: CholeskySymbolicParams<'_>,
-) -> Result<SymbolicCholesky<usize>, String> {
+) -> Result<SymbolicCholesky<usize>, LinalgError> {
     factorize_symbolic_cholesky(lower.symbolic(), faer::Side::Lower, ordering, params)
-        .map_err(|e| format!("{e:?}"))
+        .map_err(LinalgError::Symbolic)
 }
 
 impl SparseCholesky {
     /// Symbolic analysis of the pattern of `lower` (lower triangle of the matrix).
     pub fn symbolic(
         lower: SparseColMatRef<'_, usize, f64>,
-    ) -> Result<SymbolicCholesky<usize>, String> {
+    ) -> Result<SymbolicCholesky<usize>, LinalgError> {
         symbolic_with(lower, Default::default())
     }
 
@@ -62,7 +64,7 @@ impl SparseCholesky {
     /// a 1,568-node mesh, and PD refactors whenever its contact set grows.
     pub fn symbolic_supernodal(
         lower: SparseColMatRef<'_, usize, f64>,
-    ) -> Result<SymbolicCholesky<usize>, String> {
+    ) -> Result<SymbolicCholesky<usize>, LinalgError> {
         symbolic_with(
             lower,
             CholeskySymbolicParams {
@@ -78,7 +80,7 @@ impl SparseCholesky {
     pub fn symbolic_ordered(
         lower: SparseColMatRef<'_, usize, f64>,
         ordering: PermRef<'_, usize>,
-    ) -> Result<SymbolicCholesky<usize>, String> {
+    ) -> Result<SymbolicCholesky<usize>, LinalgError> {
         symbolic_ordered_with(
             lower,
             SymmetricOrdering::Custom(ordering),
@@ -99,14 +101,17 @@ impl SparseCholesky {
     }
 
     /// Symbolic and numeric factorization in one go.
-    pub fn new(lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, String> {
+    pub fn new(lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, LinalgError> {
         Self::numeric(Self::symbolic(lower)?, lower)
     }
 }
 
 impl<S: std::borrow::Borrow<SymbolicCholesky<usize>> + Sync> SparseCholesky<S> {
     /// Numeric factorization of `lower` with a symbolic analysis of its pattern.
-    pub fn numeric(symbolic: S, lower: SparseColMatRef<'_, usize, f64>) -> Result<Self, String> {
+    pub fn numeric(
+        symbolic: S,
+        lower: SparseColMatRef<'_, usize, f64>,
+    ) -> Result<Self, LinalgError> {
         Self::numeric_into(symbolic, lower, Vec::new())
     }
 
@@ -117,7 +122,7 @@ impl<S: std::borrow::Borrow<SymbolicCholesky<usize>> + Sync> SparseCholesky<S> {
         symbolic: S,
         lower: SparseColMatRef<'_, usize, f64>,
         mut values: Vec<f64>,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, LinalgError> {
         let par = Par::Seq;
         let sym = symbolic.borrow();
         let len = sym.len_val();
@@ -137,8 +142,7 @@ impl<S: std::borrow::Borrow<SymbolicCholesky<usize>> + Sync> SparseCholesky<S> {
                 sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
             )),
             Default::default(),
-        )
-        .map_err(|e| format!("{e:?}"))?;
+        )?;
         Ok(SparseCholesky { symbolic, values })
     }
 

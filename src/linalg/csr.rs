@@ -1,6 +1,8 @@
 //! Compressed sparse row matrices for the iterative parts of the global step
 //! (Jacobi / Chebyshev iterations on the CPU and the GPU share this layout).
 
+use super::error::LinalgError;
+
 /// A square sparse matrix in CSR form with `f64` values. Row `r` holds the
 /// columns `col[row_ptr[r]..row_ptr[r + 1]]` (sorted, distinct) with the
 /// values at the same positions. Symmetric matrices store both triangles.
@@ -19,9 +21,12 @@ pub struct CsrMatrix {
 impl CsrMatrix {
     /// Builds the matrix from `(row, col, value)` entries; duplicates are
     /// summed. Entries out of range are an error naming the first one.
-    pub fn from_triplets(n: usize, entries: &[(usize, usize, f64)]) -> Result<CsrMatrix, String> {
+    pub fn from_triplets(
+        n: usize,
+        entries: &[(usize, usize, f64)],
+    ) -> Result<CsrMatrix, LinalgError> {
         if let Some(&(r, c, _)) = entries.iter().find(|(r, c, _)| *r >= n || *c >= n) {
-            return Err(format!("entry ({r}, {c}) outside a {n} x {n} matrix"));
+            return Err(LinalgError::EntryOutOfRange { row: r, col: c, n });
         }
         let mut sorted: Vec<(usize, usize, f64)> = entries.to_vec();
         sorted.sort_by_key(|a| (a.0, a.1));

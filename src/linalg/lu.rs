@@ -3,15 +3,18 @@
 
 use faer::sparse::{SparseColMat, Triplet};
 
+use super::error::LinalgError;
+
 /// faer's sparse LU of a square `f64` matrix.
 pub type SparseLu = faer::sparse::linalg::solvers::Lu<usize, f64>;
 
 /// Sparse LU of the square matrix given by `entries` (duplicates summed).
-pub fn sparse_lu(n: usize, entries: &[(usize, usize, f64)]) -> Result<SparseLu, String> {
+pub fn sparse_lu(n: usize, entries: &[(usize, usize, f64)]) -> Result<SparseLu, LinalgError> {
     let trip: Vec<Triplet<usize, usize, f64>> = entries
         .iter()
         .map(|&(r, c, v)| Triplet::new(r, c, v))
         .collect();
-    let a = SparseColMat::try_new_from_triplets(n, n, &trip).map_err(|e| format!("{e:?}"))?;
-    a.sp_lu().map_err(|e| format!("sparse LU: {e:?}"))
+    let a =
+        SparseColMat::try_new_from_triplets(n, n, &trip).map_err(LinalgError::InvalidPattern)?;
+    Ok(a.sp_lu()?)
 }

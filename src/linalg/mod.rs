@@ -8,11 +8,15 @@
 //! * [`anderson`]: Anderson acceleration of fixed-point iterations (Peng et
 //!   al. 2018).
 //! * [`lu`]: sparse LU of square, possibly indefinite systems.
+//! * [`error`]: why a matrix could not be built or factored.
 //!
 //! Pure: no files, no printing, no environment.
 
 pub mod anderson;
 pub mod cholesky;
 pub mod csr;
+pub mod error;
 pub mod lu;
 pub mod woodbury;
+
+pub use error::LinalgError;

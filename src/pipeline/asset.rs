@@ -600,12 +600,21 @@ pub fn asset_materials(asset: &Asset) -> crate::fit::elastic::MaterialFields {
     }
 }
 
+/// Material fields with another number of fibre families than an asset
+/// keeps (none, or a course and a wale).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("{families} fibre families; an asset keeps a course and a wale")]
+pub struct FibreFamilyCount {
+    /// The number of families given.
+    pub families: usize,
+}
+
 /// Writes `m` into the asset's materials (the inverse of
 /// [`asset_materials`]); `m` has no fibre families or two (course, wale).
 pub fn set_asset_materials(
     asset: &mut Asset,
     m: &crate::fit::elastic::MaterialFields,
-) -> Result<(), String> {
+) -> Result<(), FibreFamilyCount> {
     asset.gamma_s = m.gamma_s.clone();
     asset.gamma_v = m.gamma_v.clone();
     asset.fibres = match m.fibres.as_slice() {
@@ -616,12 +625,7 @@ pub fn set_asset_materials(
             gamma_course: c.gamma.clone(),
             gamma_wale: w.gamma.clone(),
         }),
-        f => {
-            return Err(format!(
-                "{} fibre families; an asset keeps a course and a wale",
-                f.len()
-            ))
-        }
+        f => return Err(FibreFamilyCount { families: f.len() }),
     };
     Ok(())
 }

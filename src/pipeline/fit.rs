@@ -43,7 +43,7 @@ use std::time::Instant;
 use crate::fit::elastic::adjoint::{equilibrium, equilibrium_continued, Anchor};
 use crate::fit::elastic::{
     fit_materials, ElasticFitError, ElasticFitParams, FitInputs, FitReport, Frame, FrameTarget,
-    MaterialFields, Sample,
+    MaterialFields, Sample, SolveError,
 };
 use crate::fit::{ShapeFitParams, ShapeFitter};
 use crate::geom::{
@@ -750,7 +750,7 @@ fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
     let kind = v["kind"]
         .as_str()
         .ok_or_else(|| bad("no kind".into()))
-        .and_then(|k| super::util::parse_kind(k).map_err(bad))?;
+        .and_then(|k| super::util::parse_kind(k).map_err(|e| bad(e.to_string())))?;
     let mut params = PoseParams::new(kind, v["amount"].as_f64().unwrap_or(0.0));
     params.mirror = v["mirror"].as_bool().unwrap_or(false);
     if let Some(f) = v["folds"].as_u64() {
@@ -796,6 +796,22 @@ pub fn anchors_of(report: &FitReport, samples: &[Sample], joint: bool) -> Vec<Ve
     }
 }
 
+/// Why a frame has no equilibrium under a material.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum SettleError {
+    /// Newton from the frame's start failed, and there was no equilibrium
+    /// of the fit to continue from.
+    #[error(transparent)]
+    Newton(SolveError),
+    /// The continuation from the fit's equilibrium failed, and so did
+    /// Newton from the frame's start.
+    #[error("{newton}; from the fit's equilibrium: {continued}")]
+    Both {
+        newton: SolveError,
+        continued: SolveError,
+    },
+}
+
 /// Equilibrium of `frame` under `model` (material `gamma`): by continuation
 /// from the fit's `anchor` when there is one (the equilibrium the fit itself
 /// reached, so losses agree with the fit's), else, or when that fails, by
@@ -808,7 +824,7 @@ fn settle(
     frame: &Frame,
     anchor: Option<&Anchor>,
     params: &ElasticFitParams,
-) -> Result<Vec<Vec3>, String> {
+) -> Result<Vec<Vec3>, SettleError> {
     let mut via_anchor = None;
     if let Some(a) = anchor {
         match equilibrium_continued(mesh, mass, frame, gamma, a, &params.statics()) {
@@ -818,9 +834,9 @@ fn settle(
     }
     equilibrium(model, mass, frame, &frame.start, &params.statics())
         .map(|(x, _)| x)
-        .map_err(|e| match via_anchor {
-            Some(c) => format!("{e}; from the fit's equilibrium: {c}"),
-            None => e,
+        .map_err(|newton| match via_anchor {
+            Some(continued) => SettleError::Both { newton, continued },
+            None => SettleError::Newton(newton),
         })
 }
 
@@ -850,11 +866,11 @@ fn settle_samples(
                 .enumerate()
                 .map(|(i, f)| {
                     let anchor = anchors.get(k).and_then(|a| a.get(i));
-                    settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+                    settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|e| {
                         ElasticFitError::Sample {
                             sample: s.name.clone(),
                             frame: i,
-                            message,
+                            message: e.to_string(),
                         }
                     })
                 })
@@ -982,11 +998,11 @@ pub fn force_scale(
                 continue;
             }
             let anchor = anchors.get(k).and_then(|a| a.get(i));
-            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|message| {
+            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|e| {
                 ElasticFitError::Sample {
                     sample: s.name.clone(),
                     frame: i,
-                    message,
+                    message: e.to_string(),
                 }
             })?;
             let g = model
@@ -1288,7 +1304,7 @@ fn fit_start(
     asset: &Asset,
     earlier: &MaterialFields,
     fibres: bool,
-) -> Result<(MaterialFields, Option<f64>), String> {
+) -> Result<(MaterialFields, Option<f64>), crate::embed::EmbedError> {
     if !fibres || !earlier.fibres.is_empty() {
         return Ok((earlier.clone(), None));
     }
@@ -1297,8 +1313,7 @@ fn fit_start(
         &asset.grid,
         &asset.tet_voxel,
         &Default::default(),
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let family = |directions: Vec<Vec3>| crate::sim::fibre::FibreFamily {
         directions,
         gamma: earlier.gamma_s.clone(),
@@ -1477,7 +1492,8 @@ impl Stage for FitJob {
             params: serde_json::to_value(&self.params)
                 .map_err(|e| Error::Internal(e.to_string()))?,
         };
-        set_asset_materials(&mut asset, &fitted.gamma).map_err(Error::Internal)?;
+        set_asset_materials(&mut asset, &fitted.gamma)
+            .map_err(|e| Error::Internal(e.to_string()))?;
         asset.set_fit_record(&record);
         for p in &self.train {
             asset.provenance.inputs.push(crate::geom::InputFile {

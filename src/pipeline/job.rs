@@ -223,7 +223,7 @@ fn bad(path: &Path, message: String) -> Error {
     .into()
 }
 
-fn parse_key<T: std::str::FromStr<Err = String>>(
+fn parse_key<T: std::str::FromStr<Err: std::fmt::Display>>(
     path: &Path,
     key: &str,
     v: &Option<String>,

@@ -19,7 +19,7 @@ use crate::anim::pins::BodyPins;
 use crate::anim::{Character, TriangleMesh};
 use crate::geom::{Asset, Vec3};
 use crate::io;
-use crate::geom::bvh::{MeshCollider, MeshTopology};
+use crate::geom::bvh::{BvhError, MeshCollider, MeshTopology};
 use crate::sim::collide::{Collider, ColliderSet, Shape};
 use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::shot::Schedule;
@@ -525,7 +525,7 @@ fn pin_to_body(
     if let (Some(b), Some(c)) = (body, &scene.character) {
         if c.pins {
             let bind = MeshCollider::new(&b.topology, &b.bind)
-                .map_err(|m| invalid(&scene.character_path().unwrap_or_default(), m))?;
+                .map_err(|e| invalid(&scene.character_path().unwrap_or_default(), e.to_string()))?;
             let all = BodyPins::select(&b.topology, &bind, x, c.pin_distance);
             for (k, &nd) in all.nodes.iter().enumerate() {
                 if !is_pinned[nd] {
@@ -602,7 +602,9 @@ impl ShotSetup {
         if let Some(b) = &self.body {
             let pts = b.positions(t);
             if b.collide {
-                let bad = |m| invalid(&scene.character_path().unwrap_or_default(), m);
+                let bad = |e: BvhError| {
+                    invalid(&scene.character_path().unwrap_or_default(), e.to_string())
+                };
                 let mut m = MeshCollider::new(&b.topology, &pts).map_err(bad)?;
                 if let Some(prev) = previous {
                     m = m.with_previous(prev).map_err(bad)?;

@@ -47,31 +47,55 @@ pub enum BackendChoice {
     Auto,
 }
 
+/// Why a scene value given as text could not be read; `text` is the
+/// value as given (cut to an excerpt).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ValueError {
+    /// Not one of the known choices.
+    #[error("'{text}': expected {expected}")]
+    UnknownChoice {
+        text: String,
+        expected: &'static str,
+    },
+    /// The numerator of a time `a/b` is not a number.
+    #[error("'{text}': bad numerator")]
+    Numerator { text: String },
+    /// The denominator of a time `a/b` is not a number.
+    #[error("'{text}': bad denominator")]
+    Denominator { text: String },
+    /// Neither a number of seconds nor a fraction.
+    #[error("'{text}': expected seconds, e.g. 0.0066 or 1/150")]
+    NotSeconds { text: String },
+    /// A time that is not finite or not above 0 s.
+    #[error("'{text}': must be a finite time > 0 s")]
+    NotPositive { text: String },
+}
+
 impl std::str::FromStr for SolverChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = ValueError;
+    fn from_str(s: &str) -> Result<Self, ValueError> {
         match s {
             "direct" => Ok(SolverChoice::Direct),
             "dd" => Ok(SolverChoice::Dd),
-            _ => Err(format!(
-                "'{}': expected direct or dd",
-                crate::geom::excerpt(s)
-            )),
+            _ => Err(ValueError::UnknownChoice {
+                text: crate::geom::excerpt(s),
+                expected: "direct or dd",
+            }),
         }
     }
 }
 
 impl std::str::FromStr for BackendChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = ValueError;
+    fn from_str(s: &str) -> Result<Self, ValueError> {
         match s {
             "cpu" => Ok(BackendChoice::Cpu),
             "gpu" => Ok(BackendChoice::Gpu),
             "auto" => Ok(BackendChoice::Auto),
-            _ => Err(format!(
-                "'{}': expected cpu, gpu or auto",
-                crate::geom::excerpt(s)
-            )),
+            _ => Err(ValueError::UnknownChoice {
+                text: crate::geom::excerpt(s),
+                expected: "cpu, gpu or auto",
+            }),
         }
     }
 }
@@ -96,29 +120,29 @@ impl BackendChoice {
 }
 
 /// Parses a time step: seconds as a number or a fraction `1/150`.
-pub fn parse_seconds(s: &str) -> Result<f64, String> {
-    let shown = crate::geom::excerpt(s);
+pub fn parse_seconds(s: &str) -> Result<f64, ValueError> {
+    let text = || crate::geom::excerpt(s);
     let v = match s.split_once('/') {
         Some((a, b)) => {
             let a: f64 = a
                 .trim()
                 .parse()
-                .map_err(|_| format!("'{shown}': bad numerator"))?;
+                .map_err(|_| ValueError::Numerator { text: text() })?;
             let b: f64 = b
                 .trim()
                 .parse()
-                .map_err(|_| format!("'{shown}': bad denominator"))?;
+                .map_err(|_| ValueError::Denominator { text: text() })?;
             a / b
         }
         None => s
             .trim()
             .parse()
-            .map_err(|_| format!("'{shown}': expected seconds, e.g. 0.0066 or 1/150"))?,
+            .map_err(|_| ValueError::NotSeconds { text: text() })?,
     };
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(format!("'{shown}': must be a finite time > 0 s"))
+        Err(ValueError::NotPositive { text: text() })
     }
 }
 
@@ -368,6 +392,25 @@ pub struct SceneError {
     pub message: String,
 }
 
+/// A scene value out of its range: `key` names it (`simulation.fps`,
+/// `pin[0].end`), `message` says what it must be.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{key}: {message}")]
+pub struct SceneValueError {
+    /// The key of the value, with its table (`character.scale`).
+    pub key: String,
+    /// What the value must be, and what it was.
+    pub message: String,
+}
+
+/// The error of the value at `key`.
+fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneValueError {
+    SceneValueError {
+        key: key.into(),
+        message: message.into(),
+    }
+}
+
 /// A TOML error as one line, `line L, column C: message`: toml's own text
 /// quotes the input line under a caret over several lines, and serde's
 /// messages quote whole values.
@@ -419,90 +462,109 @@ impl Scene {
             message: toml_error_line(&e, text),
         })?;
         scene.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        scene.validate().map_err(|message| SceneError {
+        scene.validate().map_err(|e| SceneError {
             path: path.to_path_buf(),
-            message,
+            message: e.to_string(),
         })?;
         Ok(scene)
     }
 
     /// Checks values serde cannot: ranges and finiteness. Messages start with the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SceneValueError> {
         let s = &self.simulation;
         if !(s.fps.is_finite() && s.fps > 0.0) {
-            return Err(format!("simulation.fps: must be > 0 (got {})", s.fps));
+            return Err(invalid(
+                "simulation.fps",
+                format!("must be > 0 (got {})", s.fps),
+            ));
         }
         if !finite(&s.gravity) {
-            return Err("simulation.gravity: must be finite".into());
+            return Err(invalid("simulation.gravity", "must be finite"));
         }
         if !(s.damping.is_finite() && s.damping >= 0.0) {
-            return Err(format!(
-                "simulation.damping: must be >= 0 (got {})",
-                s.damping
+            return Err(invalid(
+                "simulation.damping",
+                format!("must be >= 0 (got {})", s.damping),
             ));
         }
         if !(s.tolerance.is_finite() && s.tolerance >= 0.0) {
-            return Err(format!(
-                "simulation.tolerance: must be >= 0 (got {})",
-                s.tolerance
+            return Err(invalid(
+                "simulation.tolerance",
+                format!("must be >= 0 (got {})", s.tolerance),
             ));
         }
         if let Some(p) = s.preroll.filter(|p| !(p.is_finite() && *p >= 0.0)) {
-            return Err(format!("simulation.preroll: must be >= 0 (got {p})"));
+            return Err(invalid(
+                "simulation.preroll",
+                format!("must be >= 0 (got {p})"),
+            ));
         }
         if !(0.0..=1.0).contains(&s.friction) {
-            return Err(format!(
-                "simulation.friction: must be in 0..1 (got {})",
-                s.friction
+            return Err(invalid(
+                "simulation.friction",
+                format!("must be in 0..1 (got {})", s.friction),
             ));
         }
         if s.max_iterations == 0 {
-            return Err("simulation.max_iterations: must be >= 1".into());
+            return Err(invalid("simulation.max_iterations", "must be >= 1"));
         }
         if s.max_iterations > MAX_PD_ITERATIONS {
-            return Err(format!(
-                "simulation.max_iterations: {} is more than the limit of {MAX_PD_ITERATIONS}",
-                s.max_iterations
+            return Err(invalid(
+                "simulation.max_iterations",
+                format!(
+                    "{} is more than the limit of {MAX_PD_ITERATIONS}",
+                    s.max_iterations
+                ),
             ));
         }
         if s.anderson_window > MAX_ANDERSON_WINDOW {
-            return Err(format!(
-                "simulation.anderson_window: {} is more than the limit of {MAX_ANDERSON_WINDOW}",
-                s.anderson_window
+            return Err(invalid(
+                "simulation.anderson_window",
+                format!(
+                    "{} is more than the limit of {MAX_ANDERSON_WINDOW}",
+                    s.anderson_window
+                ),
             ));
         }
         if !(s.dt.0.is_finite() && s.dt.0 > 0.0) {
-            return Err(format!(
-                "simulation.dt: must be > 0 and finite (got {})",
-                s.dt.0
+            return Err(invalid(
+                "simulation.dt",
+                format!("must be > 0 and finite (got {})", s.dt.0),
             ));
         }
         if !finite(&self.garment.rotate_deg)
             || !finite(&self.garment.translate)
             || self.garment.center.is_some_and(|c| !finite(&c))
         {
-            return Err("garment: rotate_deg, center and translate must be finite".into());
+            return Err(invalid(
+                "garment",
+                "rotate_deg, center and translate must be finite",
+            ));
         }
         for (i, p) in self.pin.iter().enumerate() {
             let key = format!("pin[{i}]");
             if p.box_min.is_some() != p.box_max.is_some() {
-                return Err(format!("{key}.box_min/box_max: give both or neither"));
+                return Err(invalid(
+                    format!("{key}.box_min/box_max"),
+                    "give both or neither",
+                ));
             }
             if p.box_min.is_none() && p.nodes.is_empty() {
-                return Err(format!("{key}: give box_min/box_max or nodes"));
+                return Err(invalid(key.as_str(), "give box_min/box_max or nodes"));
             }
             for v in [p.box_min, p.box_max, p.pivot].into_iter().flatten() {
                 if !finite(&v) {
-                    return Err(format!("{key}: box and pivot must be finite"));
+                    return Err(invalid(key.as_str(), "box and pivot must be finite"));
                 }
             }
             if !finite(&p.velocity) || !finite(&p.angular_velocity_deg) {
-                return Err(format!(
-                    "{key}: velocity and angular_velocity_deg must be finite"
+                return Err(invalid(
+                    key.as_str(),
+                    "velocity and angular_velocity_deg must be finite",
                 ));
             }
             if !p.start.is_finite() || p.end.is_some_and(|e| !(e >= p.start)) {
-                return Err(format!("{key}.end: must be >= start"));
+                return Err(invalid(format!("{key}.end"), "must be >= start"));
             }
         }
         for (i, c) in self.collider.iter().enumerate() {
@@ -514,10 +576,13 @@ impl Scene {
                     thickness,
                 } => {
                     if !finite(point) || !finite(normal) || normal.iter().all(|x| *x == 0.0) {
-                        return Err(format!("{key}.normal: must be finite and non-zero"));
+                        return Err(invalid(
+                            format!("{key}.normal"),
+                            "must be finite and non-zero",
+                        ));
                     }
                     if !(thickness.is_finite() && *thickness >= 0.0) {
-                        return Err(format!("{key}.thickness: must be >= 0"));
+                        return Err(invalid(format!("{key}.thickness"), "must be >= 0"));
                     }
                 }
                 ColliderSection::Sphere {
@@ -526,41 +591,47 @@ impl Scene {
                     thickness,
                 } => {
                     if !finite(center) {
-                        return Err(format!("{key}.center: must be finite"));
+                        return Err(invalid(format!("{key}.center"), "must be finite"));
                     }
                     if !(radius.is_finite() && *radius > 0.0) {
-                        return Err(format!("{key}.radius: must be > 0 (got {radius})"));
+                        return Err(invalid(
+                            format!("{key}.radius"),
+                            format!("must be > 0 (got {radius})"),
+                        ));
                     }
                     if !(thickness.is_finite() && *thickness >= 0.0) {
-                        return Err(format!("{key}.thickness: must be >= 0"));
+                        return Err(invalid(format!("{key}.thickness"), "must be >= 0"));
                     }
                 }
             }
         }
         if let Some(c) = &self.character {
             if c.file.as_os_str().is_empty() {
-                return Err("character.file: missing".into());
+                return Err(invalid("character.file", "missing"));
             }
             if !(c.scale.is_finite() && c.scale > 0.0) {
-                return Err(format!("character.scale: must be > 0 (got {})", c.scale));
+                return Err(invalid(
+                    "character.scale",
+                    format!("must be > 0 (got {})", c.scale),
+                ));
             }
             if !finite(&c.translate) {
-                return Err("character.translate: must be finite".into());
+                return Err(invalid("character.translate", "must be finite"));
             }
             if !(c.pin_distance.is_finite() && c.pin_distance >= 0.0) {
-                return Err(format!(
-                    "character.pin_distance: must be >= 0 (got {})",
-                    c.pin_distance
+                return Err(invalid(
+                    "character.pin_distance",
+                    format!("must be >= 0 (got {})", c.pin_distance),
                 ));
             }
             if !(c.thickness.is_finite() && c.thickness >= 0.0) {
-                return Err(format!(
-                    "character.thickness: must be >= 0 (got {})",
-                    c.thickness
+                return Err(invalid(
+                    "character.thickness",
+                    format!("must be >= 0 (got {})", c.thickness),
                 ));
             }
             if !c.time_offset.is_finite() || !c.fit_gap.is_finite() {
-                return Err("character.time_offset/fit_gap: must be finite".into());
+                return Err(invalid("character.time_offset/fit_gap", "must be finite"));
             }
         }
         Ok(())

@@ -17,7 +17,9 @@ use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::asset::{check_asset_ext, StageError};
 use crate::pipeline::util::sha256_file;
 use crate::pipeline::{Error, FrameProgress, Observer, Stage};
-use crate::yarn::fabric::pose::{kind_name, run_pose, FabricPlane, PoseRunParams, PoseStep};
+use crate::yarn::fabric::pose::{
+    kind_name, run_pose, FabricPlane, PoseRunError, PoseRunParams, PoseStep,
+};
 use crate::yarn::fabric::{FabricParams, MaterialChoice, RigFrame};
 
 /// The training-pose stage: an asset -> one pose's equilibrium frames.
@@ -158,29 +160,23 @@ impl Stage for TrainJob {
         });
         writer.add_text("parameters_json", &parameters.to_string())?;
         let total = self.pose.steps;
-        let mut io_error: Option<IoError> = None;
         let mut last_frame = Instant::now();
-        let mut on_frame = |f: &RigFrame| -> Result<(), String> {
+        let mut on_frame = |f: &RigFrame| -> Result<(), IoError> {
             let r = writer
                 .push(f.parameter, f.points)
                 .and_then(|_| writer.push_mechanics(f.energy, &f.reactions, &f.external));
             observer.frame(&FrameProgress::of_rig(f.index, total, &mut last_frame));
-            r.map_err(|e| {
-                let m = e.to_string();
-                io_error = Some(e);
-                m
-            })
+            r
         };
-        let result = run_pose(rest, &fabric, &self.pose, &mut on_frame);
-        if let Some(e) = io_error {
-            return Err(e.into());
-        }
-        let run = result.map_err(|e| {
-            let what = format!("pose {}: {e}", kind_name(self.pose.pose.kind));
-            if e.is_usage() {
-                Error::Usage(what)
-            } else {
-                self.invalid(what)
+        let run = run_pose(rest, &fabric, &self.pose, &mut on_frame).map_err(|e| match e {
+            PoseRunError::Frame { error, .. } => Error::from(error),
+            e => {
+                let what = format!("pose {}: {e}", kind_name(self.pose.pose.kind));
+                if e.is_usage() {
+                    Error::Usage(what)
+                } else {
+                    self.invalid(what)
+                }
             }
         })?;
         let output = writer.finish()?;

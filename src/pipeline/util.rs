@@ -57,14 +57,26 @@ pub fn held_nodes(mesh: &TetMesh, embedding: &Embedding, held: &[bool]) -> Vec<u
     (0..is.len()).filter(|&i| is[i]).collect()
 }
 
+/// A pose kind that no schema name matches.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown pose {name:?} (one of {})", known.join(", "))]
+pub struct UnknownPoseKind {
+    /// The name as given.
+    pub name: String,
+    /// The names of the training poses.
+    pub known: Vec<String>,
+}
+
 /// Parses a pose kind by its schema name (`stretch_courses`, ...).
-pub fn parse_kind(s: &str) -> Result<PoseKind, String> {
+pub fn parse_kind(s: &str) -> Result<PoseKind, UnknownPoseKind> {
     serde_json::from_value::<PoseKind>(serde_json::Value::String(s.to_string())).map_err(|_| {
-        let names: Vec<String> = crate::yarn::fabric::pose::TRAINING_KINDS
-            .iter()
-            .map(|k| kind_name(*k))
-            .collect();
-        format!("unknown pose {s:?} (one of {})", names.join(", "))
+        UnknownPoseKind {
+            name: s.to_string(),
+            known: crate::yarn::fabric::pose::TRAINING_KINDS
+                .iter()
+                .map(|k| kind_name(*k))
+                .collect(),
+        }
     })
 }
 

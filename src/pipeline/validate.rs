@@ -38,7 +38,8 @@ use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
-use crate::pipeline::validate_pd::HomogenizedRun;
+use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
+use crate::sim::SimError;
 use crate::pipeline::{Error, Observer, Stage};
 use std::sync::Arc;
 
@@ -258,7 +259,7 @@ pub fn homogenized_run(
     damping: f64,
     times: &[f64],
     colliders: &[Arc<dyn PointCollider>],
-) -> Result<HomogenizedRun, String> {
+) -> Result<HomogenizedRun, HomogenizedRunError> {
     match how.solver {
         HomogenizedSolver::Newton => {
             homogenized_frames(asset, gamma, driver, gravity, times, colliders)
@@ -299,7 +300,7 @@ fn frame_steps(
     f_ext: &[Vec3],
     params: &StaticParams,
     contact_at: &dyn Fn(f64) -> Option<ContactPenalty>,
-) -> Result<(Vec<Vec3>, Vec<Vec3>, u64, (usize, f64)), String> {
+) -> Result<(Vec<Vec3>, Vec<Vec3>, u64, (usize, f64)), SimError> {
     let dt = (t1 - t0) / sub as f64;
     let (mut x, mut v) = (x.to_vec(), v.to_vec());
     let (mut iterations, mut contacts, mut depth) = (0u64, 0usize, 0.0f64);
@@ -309,9 +310,7 @@ fn frame_steps(
         for &i in pinned {
             x0[i] = target(i, t);
         }
-        solver
-            .set_contact(contact_at(t))
-            .map_err(|e| e.to_string())?;
+        solver.set_contact(contact_at(t))?;
         // Eq. 13's x̃ = 2 x_prev - x_prevprev with x_prevprev = x - v Δt.
         let back: Vec<Vec3> = x
             .iter()
@@ -323,9 +322,7 @@ fn frame_steps(
             x_prevprev: &back,
             dt,
         });
-        let (xn, st) = solver
-            .solve(&x0, f_ext, inertia, params)
-            .map_err(|e| e.to_string())?;
+        let (xn, st) = solver.solve(&x0, f_ext, inertia, params)?;
         iterations += st.iterations as u64;
         if let Some(c) = solver.contact() {
             let (count, d) = c.penetration(&xn);
@@ -354,14 +351,13 @@ pub fn homogenized_frames(
     gravity: Vec3,
     times: &[f64],
     colliders: &[Arc<dyn PointCollider>],
-) -> Result<HomogenizedRun, String> {
+) -> Result<HomogenizedRun, HomogenizedRunError> {
     let mesh = &asset.mesh;
     let n = mesh.num_nodes();
     let group = super::clamp_drive::node_groups(asset, driver);
     let pinned: Vec<usize> = (0..n).filter(|&i| group[i].is_some()).collect();
-    let model = gamma.model(mesh).map_err(|e| e.to_string())?;
-    let mut solver =
-        StaticSolver::new(model, &asset.node_mass, &pinned).map_err(|e| e.to_string())?;
+    let model = gamma.model(mesh)?;
+    let mut solver = StaticSolver::new(model, &asset.node_mass, &pinned)?;
     let stiffest = (0..mesh.num_tets())
         .map(|e| {
             gamma.gamma_s[e]
@@ -421,8 +417,13 @@ pub fn homogenized_frames(
                 &contact_at,
             ) {
                 Ok(r) => break r,
-                Err(e) if sub >= 16 => {
-                    return Err(format!("frame {k} (t = {t1} s, {sub} substeps): {e}"))
+                Err(source) if sub >= 16 => {
+                    return Err(HomogenizedRunError::NewtonFrame {
+                        frame: k,
+                        time: t1,
+                        substeps: sub,
+                        source,
+                    })
                 }
                 Err(_) => sub *= 2,
             }
@@ -554,9 +555,9 @@ impl Stage for ValidateJob {
         let record =
             asset
                 .fit_record()
-                .map_err(|m| crate::pipeline::asset::StageError::Invalid {
+                .map_err(|e| crate::pipeline::asset::StageError::Invalid {
                     path: self.asset.clone(),
-                    message: m,
+                    message: e.to_string(),
                 })?;
         let uniform = match (&record, self.uniform) {
             (Some(r), _) => Some(r.uniform),

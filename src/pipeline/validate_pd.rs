@@ -28,10 +28,48 @@ use crate::geom::vec3::{dot, sub};
 use crate::geom::{Asset, Vec3};
 use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::pd::{PdParams, PdSolver};
+use crate::sim::SimError;
 use crate::yarn::sim::PointCollider;
 
 use super::sim_scene::{BackendChoice, SolverChoice};
-use super::simulate::{attach_backend, global_solver};
+use super::simulate::{attach_backend, global_solver, SimulateError};
+
+/// Why a homogenized run of `validate` failed.
+#[derive(Debug, thiserror::Error)]
+pub enum HomogenizedRunError {
+    /// The simulator refused the material, the mesh or the pins.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The PD solver could not be put on the asked backend.
+    #[error(transparent)]
+    Backend(#[from] SimulateError),
+    /// The largest PD step (s) is not a positive finite time.
+    #[error("PD step {max_dt} s must be finite and > 0")]
+    BadStep { max_dt: f64 },
+    /// The scene needs more PD steps than a run may take.
+    #[error("a PD step of {max_dt} s needs {steps:.0} steps over the scene, more than the limit of {limit}")]
+    TooManySteps {
+        max_dt: f64,
+        steps: f64,
+        limit: usize,
+    },
+    /// A PD step of frame `frame` (ending at `time`, s) failed.
+    #[error("frame {frame} (t = {time} s): {source}")]
+    PdStep {
+        frame: usize,
+        time: f64,
+        source: SimError,
+    },
+    /// The Newton solves of frame `frame` (ending at `time`, s) failed even
+    /// in `substeps` backward-Euler substeps.
+    #[error("frame {frame} (t = {time} s, {substeps} substeps): {source}")]
+    NewtonFrame {
+        frame: usize,
+        time: f64,
+        substeps: usize,
+        source: SimError,
+    },
+}
 
 /// What a homogenized run of `validate` ([`super::validate::homogenized_run`])
 /// computed, by Newton or by PD.
@@ -268,10 +306,8 @@ fn yarn_penetration(
 }
 
 /// Puts `solver` on `backend` (see [`attach_backend`]).
-fn run_backend(solver: &mut PdSolver, backend: BackendChoice) -> Result<(), String> {
-    attach_backend(solver, backend)
-        .map(|_| ())
-        .map_err(|e| e.to_string())
+fn run_backend(solver: &mut PdSolver, backend: BackendChoice) -> Result<(), SimulateError> {
+    attach_backend(solver, backend).map(|_| ())
 }
 
 /// Homogenized frames at `times` (s; `times[0]` is the rest state) by PD
@@ -287,23 +323,22 @@ pub fn pd_frames(
     times: &[f64],
     colliders: &[Arc<dyn PointCollider>],
     params: &PdRunParams,
-) -> Result<HomogenizedRun, String> {
+) -> Result<HomogenizedRun, HomogenizedRunError> {
     if !(params.max_dt > 0.0 && params.max_dt.is_finite()) {
-        return Err(format!(
-            "PD step {} s must be finite and > 0",
-            params.max_dt
-        ));
+        return Err(HomogenizedRunError::BadStep {
+            max_dt: params.max_dt,
+        });
     }
     let mesh = &asset.mesh;
     let steps_of = |t0: f64, t1: f64| ((t1 - t0) / params.max_dt - 1e-9).ceil().max(1.0) as usize;
     // Bounded before running, as `simulate` bounds its shots.
     let total: f64 = times.windows(2).map(|w| steps_of(w[0], w[1]) as f64).sum();
     if !(total <= super::simulate::MAX_TOTAL_STEPS as f64) {
-        return Err(format!(
-            "a PD step of {} s needs {total:.0} steps over the scene, more than the limit of {}",
-            params.max_dt,
-            super::simulate::MAX_TOTAL_STEPS
-        ));
+        return Err(HomogenizedRunError::TooManySteps {
+            max_dt: params.max_dt,
+            steps: total,
+            limit: super::simulate::MAX_TOTAL_STEPS,
+        });
     }
     let first_dt = match times {
         [t0, t1, ..] => (t1 - t0) / steps_of(*t0, *t1) as f64,
@@ -319,9 +354,8 @@ pub fn pd_frames(
         global: global_solver(params.global),
         ..PdParams::default()
     };
-    let model = gamma.model(mesh).map_err(|e| e.to_string())?;
-    let mut solver = PdSolver::with_model(mesh, model, &asset.node_mass, pinned, pd, None)
-        .map_err(|e| e.to_string())?;
+    let model = gamma.model(mesh)?;
+    let mut solver = PdSolver::with_model(mesh, model, &asset.node_mass, pinned, pd, None)?;
     run_backend(&mut solver, params.backend)?;
     let stars = NodeStars::new(asset);
     let radius: Vec<f64> = (0..asset.rest_yarns.num_points())
@@ -338,9 +372,7 @@ pub fn pd_frames(
         let sub = steps_of(t0, t1);
         let dt = (t1 - t0) / sub as f64;
         if (dt - dt_now).abs() > 1e-12 * dt_now {
-            solver
-                .set_time_step(dt, params.mass_damping)
-                .map_err(|e| e.to_string())?;
+            solver.set_time_step(dt, params.mass_damping)?;
             // A new time step puts the solver back on the CPU.
             run_backend(&mut solver, params.backend)?;
             dt_now = dt;
@@ -368,7 +400,11 @@ pub fn pd_frames(
             };
             let st = solver
                 .step_with_contacts(&mut x, &mut v, &pins, &proj)
-                .map_err(|e| format!("frame {k} (t = {t} s): {e}"))?;
+                .map_err(|source| HomogenizedRunError::PdStep {
+                    frame: k,
+                    time: t,
+                    source,
+                })?;
             run.iterations += st.iterations as u64;
             run.steps += 1;
             run.local_s += st.local_ms * 1e-3;

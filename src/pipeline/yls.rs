@@ -313,6 +313,17 @@ pub fn scene_params(scene: &YlsScene, file: &Path) -> Result<YarnSimParams, YlsE
     Ok(p)
 }
 
+/// Why a character cannot be made into a yarn collider.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CharacterColliderError {
+    /// The file has no animation of this name.
+    #[error("no animation {name:?}; the file has {known:?}")]
+    UnknownAnimation { name: String, known: Vec<String> },
+    /// The character has no skinned triangles to collide with.
+    #[error("the character has no skinned triangles")]
+    NoSkinnedTriangles,
+}
+
 /// A skinned glTF body as a yarn collider: the body is posed at the query
 /// time (re-posed when the time moves by more than `repose_s`) and the
 /// signed distance comes from the mesh's BVH and pseudo-normals.
@@ -334,19 +345,19 @@ impl CharacterCollider {
         animation: Option<&str>,
         scale: f64,
         offset: Vec3,
-    ) -> Result<CharacterCollider, String> {
+    ) -> Result<CharacterCollider, CharacterColliderError> {
         let animation = match animation {
             None => None,
             Some(name) => Some(character.animation_index(name).ok_or_else(|| {
-                format!(
-                    "no animation {name:?}; the file has {:?}",
-                    character.animation_names()
-                )
+                CharacterColliderError::UnknownAnimation {
+                    name: name.to_string(),
+                    known: character.animation_names(),
+                }
             })?),
         };
         let rest = character.body_mesh(None, 0.0);
         if rest.triangles.is_empty() {
-            return Err("the character has no skinned triangles".into());
+            return Err(CharacterColliderError::NoSkinnedTriangles);
         }
         let (topology, _) = MeshTopology::welded(&rest.triangles, &rest.positions);
         Ok(CharacterCollider {
@@ -636,9 +647,9 @@ pub fn scene_colliders(
                         scale.unwrap_or(1.0),
                         offset.unwrap_or([0.0; 3]),
                     )
-                    .map_err(|message| YlsError::Setup {
+                    .map_err(|e| YlsError::Setup {
                         file: file.clone(),
-                        message,
+                        message: e.to_string(),
                     })?,
                 )
             }

@@ -61,6 +61,7 @@ use rayon::prelude::*;
 
 use crate::linalg::cholesky::SparseCholesky;
 use crate::linalg::csr::CsrMatrix;
+use crate::linalg::LinalgError;
 use super::jacobi::JacobiParams;
 use super::partition::{Partition, DEFAULT_NODES_PER_DOMAIN};
 use super::SimError;
@@ -198,7 +199,7 @@ pub struct DdSolver {
     stats: DdStats,
 }
 
-fn chol_err(what: &str) -> impl Fn(String) -> SimError + '_ {
+fn chol_err(what: &str) -> impl Fn(LinalgError) -> SimError + '_ {
     move |e| SimError::Inconsistent(format!("{what} is not positive definite: {e}"))
 }
 
@@ -533,7 +534,8 @@ fn build_domain(
             }
         }
     }
-    let kii_csr = CsrMatrix::from_triplets(ni, &kii).map_err(SimError::Inconsistent)?;
+    let kii_csr =
+        CsrMatrix::from_triplets(ni, &kii).map_err(|e| SimError::Inconsistent(e.to_string()))?;
     let (modes, lambda) = lowest_modes(&kii_csr, &factor, m_wanted.min(ni));
     Ok((
         Domain {

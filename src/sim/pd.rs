@@ -626,7 +626,7 @@ fn full_csr(n: usize, lower: &[Triplet<usize, usize, f64>]) -> Result<CsrMatrix,
             t.push((e.col, e.row, e.val));
         }
     }
-    CsrMatrix::from_triplets(n, &t).map_err(SimError::Inconsistent)
+    CsrMatrix::from_triplets(n, &t).map_err(|e| SimError::Inconsistent(e.to_string()))
 }
 
 /// `y = (A + W) x` for n x 3 row-major vectors, parallel over rows.
@@ -662,6 +662,8 @@ fn dot3(a: &[f64], b: &[f64]) -> [f64; 3] {
     s
 }
 
+/// A PD matrix that faer could not build or factor; the reason is shown
+/// in Debug form (a factorization's reason quoted, as it has always been).
 fn llt_error(e: impl std::fmt::Debug) -> SimError {
     SimError::Inconsistent(format!("the PD matrix K is not positive definite: {e:?}"))
 }
@@ -840,9 +842,13 @@ impl PdSolver {
                     .map_err(llt_error)?;
                 let sym = match self.factor.take() {
                     Some(f) if !symbolic => f.into_symbolic(),
-                    _ => SparseCholesky::symbolic_supernodal(a.as_ref()).map_err(llt_error)?,
+                    _ => SparseCholesky::symbolic_supernodal(a.as_ref())
+                        .map_err(|e| llt_error(e.to_string()))?,
                 };
-                self.factor = Some(SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?);
+                self.factor = Some(
+                    SparseCholesky::numeric(sym, a.as_ref())
+                        .map_err(|e| llt_error(e.to_string()))?,
+                );
                 let diag = diagonal_positions(&a)?;
                 self.k_lower = Some((a, diag));
                 self.dd = None;
@@ -1180,9 +1186,11 @@ impl PdSolver {
             }
             let sym = match self.contact_factor.take() {
                 Some(c) => c.factor.into_symbolic(),
-                None => SparseCholesky::symbolic_supernodal(a.as_ref()).map_err(llt_error)?,
+                None => SparseCholesky::symbolic_supernodal(a.as_ref())
+                    .map_err(|e| llt_error(e.to_string()))?,
             };
-            let factor = SparseCholesky::numeric(sym, a.as_ref()).map_err(llt_error)?;
+            let factor =
+                SparseCholesky::numeric(sym, a.as_ref()).map_err(|e| llt_error(e.to_string()))?;
             self.contact_factor = Some(ContactFactor {
                 weights: w.to_vec(),
                 factor,

@@ -10,4 +10,4 @@ pub mod sim;
 pub mod statics;
 pub mod tile;
 
-pub use tile::PeriodicTile;
+pub use tile::{PeriodicTile, TileError};

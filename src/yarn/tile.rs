@@ -4,6 +4,30 @@
 
 use crate::geom::{Vec3, Yarns};
 
+/// Why a periodic tile is not well formed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TileError {
+    /// There is not one continuation per curve.
+    #[error("{continuations} continuations for {curves} curves")]
+    ContinuationCount { continuations: usize, curves: usize },
+    /// Curve `curve` continues into a curve the tile does not have.
+    #[error("curve {curve} continues into curve {into} of {curves}")]
+    UnknownCurve {
+        curve: usize,
+        into: usize,
+        curves: usize,
+    },
+    /// Two curves continue into curve `curve`.
+    #[error("two curves continue into curve {curve}")]
+    SharedContinuation { curve: usize },
+    /// Curve `curve` is closed.
+    #[error("curve {curve} is closed; tile curves must be open")]
+    ClosedCurve { curve: usize },
+    /// The lattice vectors (m) are not finite or are parallel.
+    #[error("lattice vectors {a:?}, {b:?} span no area")]
+    DegenerateLattice { a: Vec3, b: Vec3 },
+}
+
 /// One tile of a doubly periodic yarn pattern. Copies of the tile sit at
 /// `i * lattice[0] + j * lattice[1]` for all integers `i`, `j`.
 ///
@@ -28,21 +52,28 @@ impl PeriodicTile {
     /// Checks that `next` has one entry per curve, names existing curves,
     /// that no two curves continue into the same curve, that the curves are
     /// open, and that the lattice vectors are finite and independent.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), TileError> {
         let n = self.yarns.num_curves();
         if self.next.len() != n {
-            return Err(format!("{} continuations for {n} curves", self.next.len()));
+            return Err(TileError::ContinuationCount {
+                continuations: self.next.len(),
+                curves: n,
+            });
         }
         let mut seen = vec![false; n];
         for (c, &(to, _)) in self.next.iter().enumerate() {
             if to >= n {
-                return Err(format!("curve {c} continues into curve {to} of {n}"));
+                return Err(TileError::UnknownCurve {
+                    curve: c,
+                    into: to,
+                    curves: n,
+                });
             }
             if std::mem::replace(&mut seen[to], true) {
-                return Err(format!("two curves continue into curve {to}"));
+                return Err(TileError::SharedContinuation { curve: to });
             }
             if self.yarns.closed[c] {
-                return Err(format!("curve {c} is closed; tile curves must be open"));
+                return Err(TileError::ClosedCurve { curve: c });
             }
         }
         let [a, b] = self.lattice;
@@ -53,7 +84,7 @@ impl PeriodicTile {
         ];
         let area = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
         if !(area.is_finite() && area > 0.0) {
-            return Err(format!("lattice vectors {a:?}, {b:?} span no area"));
+            return Err(TileError::DegenerateLattice { a, b });
         }
         Ok(())
     }

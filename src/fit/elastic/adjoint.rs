@@ -16,9 +16,10 @@ use faer::linalg::solvers::SolveCore;
 use faer::{Conj, Mat};
 use rayon::prelude::*;
 
+use super::error::SolveError;
 use super::jacobian::{KFactor, KPatternCache, SYMMETRY_TOLERANCE};
-use crate::linalg::lu::sparse_lu;
 use super::loss::FrameTarget;
+use crate::linalg::lu::sparse_lu;
 use super::types::{Frame, MaterialFields};
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
@@ -79,7 +80,7 @@ pub fn equilibrium(
     frame: &Frame,
     start: &[Vec3],
     params: &StaticParams,
-) -> Result<(Vec<Vec3>, StaticStats), String> {
+) -> Result<(Vec<Vec3>, StaticStats), SolveError> {
     equilibrium_with(model, mass, frame, start, params, &FrameCache::default())
 }
 
@@ -100,11 +101,9 @@ pub fn equilibrium_with(
     start: &[Vec3],
     params: &StaticParams,
     cache: &FrameCache,
-) -> Result<(Vec<Vec3>, StaticStats), String> {
+) -> Result<(Vec<Vec3>, StaticStats), SolveError> {
     let analysis = std::mem::take(&mut *cache.statics.lock().unwrap_or_else(|e| e.into_inner()));
-    let mut solver = StaticSolver::new(model.clone(), mass, &frame.pinned)
-        .map_err(|e| e.to_string())?
-        .with_analysis(analysis);
+    let mut solver = StaticSolver::new(model.clone(), mass, &frame.pinned)?.with_analysis(analysis);
     let result = equilibrium_of(&mut solver, model, frame, start, params);
     *cache.statics.lock().unwrap_or_else(|e| e.into_inner()) = solver.into_analysis();
     result
@@ -116,7 +115,7 @@ fn equilibrium_of(
     frame: &Frame,
     start: &[Vec3],
     params: &StaticParams,
-) -> Result<(Vec<Vec3>, StaticStats), String> {
+) -> Result<(Vec<Vec3>, StaticStats), SolveError> {
     let mut x0 = start.to_vec();
     for &p in &frame.pinned {
         x0[p] = frame.start[p];
@@ -136,9 +135,13 @@ fn equilibrium_of(
             };
             solver
                 .solve(&x0, &frame.f_ext, None, &looser)
-                .map_err(|e| format!("no equilibrium: {first}; to {STALLED_TOLERANCE:e}: {e}"))?
+                .map_err(|second| SolveError::Stalled {
+                    first,
+                    tolerance: STALLED_TOLERANCE,
+                    second,
+                })?
         }
-        Err(e) => return Err(format!("no equilibrium: {e}")),
+        Err(e) => return Err(SolveError::NoEquilibrium(e)),
     };
     let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
     let (mut g, mut rel) = residual(model, frame, &x, &free)?;
@@ -174,10 +177,10 @@ fn equilibrium_of(
         }
     }
     if !(rel <= params.tolerance) || !x.iter().flatten().all(|v| v.is_finite()) {
-        return Err(format!(
-            "no equilibrium: relative residual {rel:e} > {:e}",
-            params.tolerance
-        ));
+        return Err(SolveError::NotConverged {
+            residual: rel,
+            tolerance: params.tolerance,
+        });
     }
     Ok((x, stats))
 }
@@ -211,11 +214,11 @@ pub fn equilibrium_continued(
     fields: &MaterialFields,
     anchor: &Anchor,
     params: &StaticParams,
-) -> Result<(Vec<Vec3>, u32), String> {
+) -> Result<(Vec<Vec3>, u32), SolveError> {
     let gamma = &fields.stacked();
     let len = fields.num_fields() * mesh.num_tets();
     if gamma.len() != len || anchor.gamma.len() != len || anchor.x.len() != mesh.num_nodes() {
-        return Err("continuation anchor does not match the mesh".into());
+        return Err(SolveError::AnchorMismatch);
     }
     let (mut t, mut h, mut solves) = (0.0f64, 1.0f64, 0u32);
     let mut x = anchor.x.clone();
@@ -233,10 +236,7 @@ pub fn equilibrium_continued(
                 }
             })
             .collect();
-        let m = fields
-            .with_stacked(&g)
-            .model(mesh)
-            .map_err(|e| e.to_string())?;
+        let m = fields.with_stacked(&g).model(mesh)?;
         solves += 1;
         match equilibrium(&m, mass, frame, &x, params) {
             Ok((xn, _)) => {
@@ -247,10 +247,10 @@ pub fn equilibrium_continued(
             Err(e) => {
                 h *= 0.5;
                 if h < 0.5f64.powi(CONTINUATION_HALVINGS as i32) {
-                    return Err(format!(
-                        "{e} (the continuation stopped {:.0}% of the way in ln γ)",
-                        100.0 * t
-                    ));
+                    return Err(SolveError::Continuation {
+                        error: Box::new(e),
+                        fraction: t,
+                    });
                 }
             }
         }
@@ -266,8 +266,8 @@ fn residual(
     frame: &Frame,
     x: &[Vec3],
     free: &FreeDofs,
-) -> Result<(Vec<f64>, f64), String> {
-    let grad = model.gradient(x).map_err(|e| e.to_string())?;
+) -> Result<(Vec<f64>, f64), SolveError> {
+    let grad = model.gradient(x)?;
     let mut g = vec![0.0; free.ndof];
     let (mut worst, mut scale) = (0.0f64, 0.0f64);
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
@@ -288,7 +288,7 @@ fn residual(
     }
     let rel = if scale > 0.0 { worst / scale } else { worst };
     if !rel.is_finite() {
-        return Err("non-finite residual".into());
+        return Err(SolveError::NonFiniteResidual);
     }
     Ok((g, rel))
 }
@@ -298,7 +298,7 @@ fn assemble_k(
     model: &ElasticModel,
     x: &[Vec3],
     free: &FreeDofs,
-) -> Result<Vec<(usize, usize, f64)>, String> {
+) -> Result<Vec<(usize, usize, f64)>, SolveError> {
     Ok(assemble_k_checked(model, x, free)?.0)
 }
 
@@ -311,8 +311,8 @@ fn assemble_k_checked(
     model: &ElasticModel,
     x: &[Vec3],
     free: &FreeDofs,
-) -> Result<(Entries, bool), String> {
-    let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
+) -> Result<(Entries, bool), SolveError> {
+    let f = model.deformation_gradients(x)?;
     let rest = model.rest();
     let blocks: Vec<_> = (0..rest.len())
         .into_par_iter()
@@ -372,9 +372,9 @@ pub fn linearize(
     frame: &Frame,
     x: &[Vec3],
     cache: &FrameCache,
-) -> Result<FrameLinearization, String> {
+) -> Result<FrameLinearization, SolveError> {
     let free = FreeDofs::new(model.num_nodes(), &frame.pinned);
-    let f = model.deformation_gradients(x).map_err(|e| e.to_string())?;
+    let f = model.deformation_gradients(x)?;
     let rest = model.rest();
     let ne = rest.len();
     let (k, symmetric) = assemble_k_checked(model, x, &free)?;
@@ -408,13 +408,12 @@ pub fn linearize(
             de_dx[*d..*d + 3].copy_from_slice(&dfull[i]);
         }
     }
-    let factor = KFactor::new(free.ndof, &k, symmetric, &cache.jacobian)
-        .map_err(|e| format!("force Jacobian: {e}"))?;
+    let factor = KFactor::new(free.ndof, &k, symmetric, &cache.jacobian)?;
     let mut rhs = Mat::<f64>::from_fn(free.ndof, 1, |i, _| de_dx[i]);
     factor.solve_transpose_in_place(rhs.as_mut());
     let lambda: Vec<f64> = (0..free.ndof).map(|i| rhs[(i, 0)]).collect();
     if !lambda.iter().all(|v| v.is_finite()) {
-        return Err("the force Jacobian is singular (adjoint not finite)".into());
+        return Err(SolveError::SingularAdjoint);
     }
     let mut grad = vec![0.0; nf * ne];
     for &(row, j, v) in &c {

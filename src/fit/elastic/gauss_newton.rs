@@ -39,13 +39,14 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 use super::adjoint::{equilibrium_with, linearize, FrameCache, FrameLinearization};
-use crate::linalg::lu::sparse_lu;
+use super::error::{SampleError, SolveError};
 use super::regularizer::Regularizer;
 use super::row_lists::RowLists;
 use super::types::{
     CgParams, ElasticFitError, ElasticFitParams, Evaluated, FitProgress, MaterialFields, Sample,
 };
 use crate::geom::{TetMesh, Vec3};
+use crate::linalg::lu::sparse_lu;
 use crate::sim::energy::ElasticModel;
 
 /// The parametrization of a stage: `γ` itself or harmonic coefficients.
@@ -170,7 +171,7 @@ pub fn gn_solve(
     kappa: f64,
     fixed: &[bool],
     cg: &CgParams,
-) -> Result<Vec<f64>, String> {
+) -> Result<Vec<f64>, SolveError> {
     let damping = vec![kappa; grad.len()];
     gn_solve_damped(lins, basis, ne, grad, &damping, &[], fixed, cg)
 }
@@ -190,10 +191,10 @@ pub fn gn_solve_damped(
     coupling: &[(usize, usize, f64)],
     fixed: &[bool],
     cg: &CgParams,
-) -> Result<Vec<f64>, String> {
+) -> Result<Vec<f64>, SolveError> {
     if let Basis::Harmonic(_) = basis {
         if !coupling.is_empty() {
-            return Err("a parameter coupling needs the full basis".into());
+            return Err(SolveError::CouplingNeedsFullBasis);
         }
         return gn_solve_subspace(lins, basis, ne, grad, damping, fixed);
     }
@@ -234,7 +235,7 @@ pub fn gn_solve_damped(
     for e in t.iter_mut() {
         e.2 *= scale[e.0] * scale[e.1];
     }
-    let lu = sparse_lu(total, &t).map_err(|e| format!("Gauss-Newton system: {e}"))?;
+    let lu = sparse_lu(total, &t).map_err(SolveError::GaussNewtonSystem)?;
     let mut rhs = Mat::<f64>::zeros(total, 1);
     for j in 0..m {
         rhs[(dcol + j, 0)] = if fixed[j] {
@@ -248,7 +249,7 @@ pub fn gn_solve_damped(
         .map(|j| rhs[(dcol + j, 0)] * scale[dcol + j])
         .collect();
     if !d.iter().all(|v| v.is_finite()) {
-        return Err("Gauss-Newton direction is not finite".into());
+        return Err(SolveError::NonFiniteDirection);
     }
     Ok(d)
 }
@@ -267,11 +268,11 @@ fn gn_solve_subspace(
     grad: &[f64],
     damping: &[f64],
     fixed: &[bool],
-) -> Result<Vec<f64>, String> {
+) -> Result<Vec<f64>, SolveError> {
     let m = grad.len();
     let parts: Vec<DMatrix<f64>> = lins
         .par_iter()
-        .map(|l| -> Result<DMatrix<f64>, String> {
+        .map(|l| -> Result<DMatrix<f64>, SolveError> {
             let n = l.free.ndof;
             let dense = basis.dense_columns(&l.c, n, ne, m);
             let mut j = Mat::<f64>::from_fn(n, m, |row, col| dense[(row, col)]);
@@ -305,12 +306,9 @@ fn gn_solve_subspace(
             rhs[j] = grad[j];
         }
     }
-    let d = p
-        .lu()
-        .solve(&rhs)
-        .ok_or("Gauss-Newton system: the subspace matrix is singular")?;
+    let d = p.lu().solve(&rhs).ok_or(SolveError::SingularSubspace)?;
     if !d.iter().all(|v| v.is_finite()) {
-        return Err("Gauss-Newton direction is not finite".into());
+        return Err(SolveError::NonFiniteDirection);
     }
     Ok(d.iter().copied().collect())
 }
@@ -343,7 +341,7 @@ pub fn gn_solve_cg(
     coupling: &[(usize, usize, f64)],
     fixed: &[bool],
     params: &CgParams,
-) -> Result<(Vec<f64>, CgStats), String> {
+) -> Result<(Vec<f64>, CgStats), SolveError> {
     let m = grad.len();
     // Per frame: C, G and Cᵀ as row lists (the products below are then
     // gathers; the same sums, bit for bit, as scattering the triplets).
@@ -357,7 +355,7 @@ pub fn gn_solve_cg(
                 RowLists::new(m, l.c.iter().map(|&(r, j, c)| (j, r, c)))?,
             ])
         })
-        .collect::<Result<_, String>>()?;
+        .collect::<Result<_, SolveError>>()?;
     let apply = |v: &[f64]| -> Vec<f64> {
         let parts: Vec<Vec<f64>> = lins
             .par_iter()
@@ -439,10 +437,9 @@ pub fn gn_solve_cg(
         }
     }
     if !x.iter().all(|v| v.is_finite()) || stats.iterations == 0 {
-        return Err(format!(
-            "Gauss-Newton direction: conjugate gradients failed (relative residual {:e})",
-            stats.residual
-        ));
+        return Err(SolveError::ConjugateGradients {
+            residual: stats.residual,
+        });
     }
     Ok((x, stats))
 }
@@ -588,11 +585,8 @@ impl SampleFit<'_> {
     }
 
     /// The elastic model of the stacked stiffnesses `gamma`.
-    pub(super) fn model(&self, gamma: &[f64]) -> Result<ElasticModel, String> {
-        self.fields
-            .with_stacked(gamma)
-            .model(self.mesh)
-            .map_err(|e| e.to_string())
+    pub(super) fn model(&self, gamma: &[f64]) -> Result<ElasticModel, SolveError> {
+        Ok(self.fields.with_stacked(gamma).model(self.mesh)?)
     }
 
     /// Equilibria and loss at `gamma`, warm-started from `starts`. The error
@@ -601,10 +595,10 @@ impl SampleFit<'_> {
         &self,
         gamma: &[f64],
         starts: &[Vec<Vec3>],
-    ) -> Result<Evaluated, (usize, String)> {
+    ) -> Result<Evaluated, (usize, SolveError)> {
         let model = self.model(gamma).map_err(|e| (0, e))?;
         let (mass, statics, caches) = (self.mass, self.params.statics(), &self.caches);
-        let frames: Vec<Result<(Vec<Vec3>, f64, f64, u64), (usize, String)>> = self
+        let frames: Vec<Result<(Vec<Vec3>, f64, f64, u64), (usize, SolveError)>> = self
             .sample
             .frames
             .par_iter()
@@ -614,7 +608,7 @@ impl SampleFit<'_> {
                     .map_err(|e| (i, e))?;
                 let loss = fr.target.loss(&model, &x);
                 if !loss.is_finite() {
-                    return Err((i, "the loss is not finite".into()));
+                    return Err((i, SolveError::NonFiniteLoss));
                 }
                 let res = st.residuals.last().copied().unwrap_or(0.0);
                 Ok((x, loss, res, st.iterations as u64))
@@ -658,11 +652,12 @@ impl SampleFit<'_> {
         }
     }
 
-    fn error(&self, frame: usize, message: String) -> ElasticFitError {
+    /// The error of frame `frame` of this sample, with `e`'s message.
+    fn error(&self, frame: usize, e: impl std::fmt::Display) -> ElasticFitError {
         ElasticFitError::Sample {
             sample: self.sample.name.clone(),
             frame,
-            message,
+            message: e.to_string(),
         }
     }
 
@@ -672,7 +667,7 @@ impl SampleFit<'_> {
         ev: &Evaluated,
     ) -> Result<(Vec<FrameLinearization>, Vec<f64>), ElasticFitError> {
         let caches = &self.caches;
-        let lins: Vec<Result<FrameLinearization, (usize, String)>> = self
+        let lins: Vec<Result<FrameLinearization, (usize, SolveError)>> = self
             .sample
             .frames
             .par_iter()
@@ -1009,33 +1004,41 @@ fn validate(
     mass: &[f64],
     sample: &Sample,
     model: &ElasticModel,
-) -> Result<(), (usize, String)> {
+) -> Result<(), (usize, SampleError)> {
     let n = mesh.num_nodes();
     if sample.frames.is_empty() {
-        return Err((0, "the sample has no frames".into()));
+        return Err((0, SampleError::NoFrames));
     }
     if !(sample.energy > 0.0 && sample.energy.is_finite()) {
         return Err((
             0,
-            format!("energy weight {} must be > 0 and finite", sample.energy),
+            SampleError::EnergyWeight {
+                weight: sample.energy,
+            },
         ));
     }
     if mass.len() != n {
-        return Err((0, format!("{} masses for {n} nodes", mass.len())));
+        return Err((
+            0,
+            SampleError::MassCount {
+                masses: mass.len(),
+                nodes: n,
+            },
+        ));
     }
     for (i, f) in sample.frames.iter().enumerate() {
         if f.start.len() != n || f.f_ext.len() != n {
             return Err((
                 i,
-                format!(
-                    "{} start positions and {} forces for {n} nodes",
-                    f.start.len(),
-                    f.f_ext.len()
-                ),
+                SampleError::FrameLengths {
+                    starts: f.start.len(),
+                    forces: f.f_ext.len(),
+                    nodes: n,
+                },
             ));
         }
-        if let Some(p) = f.pinned.iter().find(|&&p| p >= n) {
-            return Err((i, format!("pinned node {p} but the mesh has {n} nodes")));
+        if let Some(&p) = f.pinned.iter().find(|&&p| p >= n) {
+            return Err((i, SampleError::PinnedOutOfRange { node: p, nodes: n }));
         }
         if !f
             .start
@@ -1044,9 +1047,9 @@ fn validate(
             .flatten()
             .all(|v| v.is_finite())
         {
-            return Err((i, "non-finite start position or force".into()));
+            return Err((i, SampleError::NonFinite));
         }
-        f.target.validate(model).map_err(|e| (i, e))?;
+        f.target.validate(model).map_err(|e| (i, e.into()))?;
     }
     Ok(())
 }

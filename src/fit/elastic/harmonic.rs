@@ -18,6 +18,18 @@ use nalgebra::DMatrix;
 
 use crate::geom::TetMesh;
 use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::LinalgError;
+
+/// Why the harmonic basis could not be computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum HarmonicError {
+    /// faer could not build the Laplacian from its entries.
+    #[error(transparent)]
+    Matrix(LinalgError),
+    /// The shifted Laplacian could not be factored.
+    #[error("Laplacian: {0}")]
+    Laplacian(LinalgError),
+}
 
 /// Graph Laplacian of the tets' face adjacency: entries (row, col, value).
 pub fn tet_laplacian(mesh: &TetMesh) -> Vec<(usize, usize, f64)> {
@@ -87,7 +99,7 @@ fn orthonormalize(x: &mut DMatrix<f64>) {
 
 /// The `r` lowest eigenvectors of [`tet_laplacian`] as the columns of an
 /// `n_E x r` matrix (first column constant). `r` is capped at `n_E`.
-pub fn harmonic_basis(mesh: &TetMesh, r: usize) -> Result<DMatrix<f64>, String> {
+pub fn harmonic_basis(mesh: &TetMesh, r: usize) -> Result<DMatrix<f64>, HarmonicError> {
     let n = mesh.num_tets();
     let r = r.min(n);
     let mut h = DMatrix::zeros(n, r);
@@ -106,8 +118,9 @@ pub fn harmonic_basis(mesh: &TetMesh, r: usize) -> Result<DMatrix<f64>, String> 
         .filter(|(i, j, _)| i >= j)
         .map(|&(i, j, v)| Triplet::new(i, j, v + if i == j { sigma } else { 0.0 }))
         .collect();
-    let lower = SparseColMat::try_new_from_triplets(n, n, &trip).map_err(|e| format!("{e:?}"))?;
-    let chol = SparseCholesky::new(lower.as_ref()).map_err(|e| format!("Laplacian: {e}"))?;
+    let lower = SparseColMat::try_new_from_triplets(n, n, &trip)
+        .map_err(|e| HarmonicError::Matrix(LinalgError::InvalidPattern(e)))?;
+    let chol = SparseCholesky::new(lower.as_ref()).map_err(HarmonicError::Laplacian)?;
     let apply_l = |x: &DMatrix<f64>| {
         let mut y = DMatrix::zeros(x.nrows(), x.ncols());
         for &(i, j, v) in &lap {

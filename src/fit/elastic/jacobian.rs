@@ -14,12 +14,31 @@
 
 use faer::linalg::solvers::SolveCore;
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
-use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat};
+use faer::sparse::{Argsort, CreationError, FaerError, Pair, SparseColMat, SymbolicSparseColMat};
 use faer::{Conj, MatMut};
 use std::sync::{Arc, OnceLock};
 
-use crate::linalg::lu::{sparse_lu, SparseLu};
 use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::lu::{sparse_lu, SparseLu};
+use crate::linalg::LinalgError;
+
+/// Why a frame's force Jacobian could not be set up or factored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum JacobianError {
+    /// faer could not build the lower-triangle pattern from the entries.
+    #[error("force Jacobian pattern: {0:?}")]
+    Pattern(CreationError),
+    /// faer could not place the values on the pattern.
+    #[error("force Jacobian: {0:?}")]
+    Values(FaerError),
+    /// The assembly has another number of entries than the pattern was
+    /// made from.
+    #[error("force Jacobian: {got} entries for a pattern of {expected}")]
+    EntryCount { got: usize, expected: usize },
+    /// The symbolic analysis or the LU factorization failed.
+    #[error(transparent)]
+    Factor(#[from] LinalgError),
+}
 
 /// Largest asymmetry `max |H - Hᵀ|` of an element block, relative to its
 /// largest entry, for which `K` is factored as symmetric (its symmetric
@@ -42,13 +61,13 @@ pub struct KPattern {
 impl KPattern {
     /// The pattern of the `n x n` matrix given by `k` (row, col, value;
     /// duplicates summed, both triangles).
-    pub fn new(n: usize, k: &[(usize, usize, f64)]) -> Result<KPattern, String> {
+    pub fn new(n: usize, k: &[(usize, usize, f64)]) -> Result<KPattern, JacobianError> {
         let pairs: Vec<Pair<usize, usize>> = k
             .iter()
             .map(|&(r, c, _)| Pair::new(r.max(c), r.min(c)))
             .collect();
         let (lower, argsort) = SymbolicSparseColMat::try_new_from_indices(n, n, &pairs)
-            .map_err(|e| format!("force Jacobian pattern: {e:?}"))?;
+            .map_err(JacobianError::Pattern)?;
         let matrix = symmetric_lower(&lower, &argsort, k)?;
         let symbolic = SparseCholesky::symbolic(matrix.as_ref())?;
         Ok(KPattern {
@@ -62,13 +81,15 @@ impl KPattern {
 
     /// The lower triangle of `(K + Kᵀ) / 2` for entries `k` in the order
     /// the pattern was made from.
-    fn lower_matrix(&self, k: &[(usize, usize, f64)]) -> Result<SparseColMat<usize, f64>, String> {
+    fn lower_matrix(
+        &self,
+        k: &[(usize, usize, f64)],
+    ) -> Result<SparseColMat<usize, f64>, JacobianError> {
         if k.len() != self.entries {
-            return Err(format!(
-                "force Jacobian: {} entries for a pattern of {}",
-                k.len(),
-                self.entries
-            ));
+            return Err(JacobianError::EntryCount {
+                got: k.len(),
+                expected: self.entries,
+            });
         }
         symmetric_lower(&self.lower, &self.argsort, k)
     }
@@ -80,15 +101,14 @@ fn symmetric_lower(
     lower: &SymbolicSparseColMat<usize>,
     argsort: &Argsort<usize>,
     k: &[(usize, usize, f64)],
-) -> Result<SparseColMat<usize, f64>, String> {
+) -> Result<SparseColMat<usize, f64>, JacobianError> {
     // Each off-diagonal entry lands in the lower slot of its pair with half
     // its value, so the slot holds the symmetric part.
     let vals: Vec<f64> = k
         .iter()
         .map(|&(r, c, v)| if r == c { v } else { 0.5 * v })
         .collect();
-    SparseColMat::new_from_argsort(lower.clone(), argsort, &vals)
-        .map_err(|e| format!("force Jacobian: {e:?}"))
+    SparseColMat::new_from_argsort(lower.clone(), argsort, &vals).map_err(JacobianError::Values)
 }
 
 /// A frame's [`KPattern`], made at its first symmetric factorization
@@ -119,7 +139,7 @@ impl KFactor {
         k: &[(usize, usize, f64)],
         symmetric: bool,
         cache: &KPatternCache,
-    ) -> Result<KFactor, String> {
+    ) -> Result<KFactor, JacobianError> {
         if let Some(p) = symmetric.then(|| cache.get_or_make(n, k)).flatten() {
             if p.n == n {
                 let lower = p.lower_matrix(k)?;

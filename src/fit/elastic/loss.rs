@@ -17,6 +17,41 @@ use crate::geom::Vec3;
 use crate::sim::element::{node_gradients, TetRest};
 use crate::sim::energy::ElasticModel;
 
+/// Why a frame's targets cannot be made or do not fit the model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TargetError {
+    /// The target positions or the masses do not match the model's nodes.
+    #[error("{positions} target positions and {masses} masses for {nodes} nodes")]
+    Lengths {
+        positions: usize,
+        masses: usize,
+        nodes: usize,
+    },
+    /// The voxel size is not positive and finite, or `alpha` is negative
+    /// or not finite.
+    #[error("voxel size {h} and alpha {alpha} must be > 0, >= 0")]
+    Scale { h: f64, alpha: f64 },
+    /// The node masses do not sum to a positive finite mass (kg).
+    #[error("total node mass {mass} kg must be > 0")]
+    TotalMass { mass: f64 },
+    /// There is not one target deformation gradient per tet.
+    #[error("{targets} target F for {tets} tets")]
+    TargetCount { targets: usize, tets: usize },
+    /// The weight of the position term is negative or not finite.
+    #[error("alpha {alpha} must be finite and >= 0")]
+    Alpha { alpha: f64 },
+    /// A target deformation gradient has a non-finite entry.
+    #[error("target F of tet {tet} is not finite")]
+    NonFiniteTarget { tet: usize },
+    /// A target tet is inverted or flat (`det F̂ <= 0`).
+    #[error("target F of tet {tet} is inverted (det {det:e})")]
+    InvertedTarget { tet: usize, det: f64 },
+    /// A position term names a node outside the model, or has a non-finite
+    /// value or a negative weight.
+    #[error("position term {term}: nodes within {nodes}, finite values and weight >= 0 required")]
+    PositionTerm { term: usize, nodes: usize },
+}
+
 /// One position term of Eq. 10: the point `Σ_a coeffs[a] x[nodes[a]]`
 /// should be at `target` (m), with weight `weight` (dimensionless, >= 0).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,24 +103,22 @@ impl FrameTarget {
         mass: &[f64],
         alpha: f64,
         h: f64,
-    ) -> Result<FrameTarget, String> {
+    ) -> Result<FrameTarget, TargetError> {
         let n = model.num_nodes();
         if x_hat.len() != n || mass.len() != n {
-            return Err(format!(
-                "{} target positions and {} masses for {n} nodes",
-                x_hat.len(),
-                mass.len()
-            ));
+            return Err(TargetError::Lengths {
+                positions: x_hat.len(),
+                masses: mass.len(),
+                nodes: n,
+            });
         }
         if !(h > 0.0 && h.is_finite() && alpha >= 0.0 && alpha.is_finite()) {
-            return Err(format!(
-                "voxel size {h} and alpha {alpha} must be > 0, >= 0"
-            ));
+            return Err(TargetError::Scale { h, alpha });
         }
         let total_mass: f64 = mass.iter().sum();
         let volume: f64 = model.rest().iter().map(|r| r.volume).sum();
         if !(total_mass > 0.0 && total_mass.is_finite()) {
-            return Err(format!("total node mass {total_mass} kg must be > 0"));
+            return Err(TargetError::TotalMass { mass: total_mass });
         }
         let f_target = model
             .rest()
@@ -111,21 +144,24 @@ impl FrameTarget {
     /// Checks the targets against `model`; the message names the problem.
     /// An inverted or flat target tet (det F̂ <= 0) is refused: no
     /// simulation of the Eq. 7 energy can be asked to reach it.
-    pub fn validate(&self, model: &ElasticModel) -> Result<(), String> {
+    pub fn validate(&self, model: &ElasticModel) -> Result<(), TargetError> {
         let (nt, n) = (model.rest().len(), model.num_nodes());
         if self.f_target.len() != nt {
-            return Err(format!("{} target F for {nt} tets", self.f_target.len()));
+            return Err(TargetError::TargetCount {
+                targets: self.f_target.len(),
+                tets: nt,
+            });
         }
         if !(self.alpha >= 0.0 && self.alpha.is_finite()) {
-            return Err(format!("alpha {} must be finite and >= 0", self.alpha));
+            return Err(TargetError::Alpha { alpha: self.alpha });
         }
         for (e, f) in self.f_target.iter().enumerate() {
             if !f.iter().all(|v| v.is_finite()) {
-                return Err(format!("target F of tet {e} is not finite"));
+                return Err(TargetError::NonFiniteTarget { tet: e });
             }
             let d = f.determinant();
             if !(d > 0.0) {
-                return Err(format!("target F of tet {e} is inverted (det {d:e})"));
+                return Err(TargetError::InvertedTarget { tet: e, det: d });
             }
         }
         for (k, p) in self.positions.iter().enumerate() {
@@ -133,9 +169,7 @@ impl FrameTarget {
                 || !(p.weight >= 0.0 && p.weight.is_finite())
                 || !p.target.iter().chain(&p.coeffs).all(|v| v.is_finite())
             {
-                return Err(format!(
-                    "position term {k}: nodes within {n}, finite values and weight >= 0 required"
-                ));
+                return Err(TargetError::PositionTerm { term: k, nodes: n });
             }
         }
         Ok(())

@@ -5,6 +5,7 @@
 //!   plus the α position term), its gradient and its constant Hessian `G`.
 //! * [`adjoint`]: the equilibrium of Eq. 14 per frame ([`crate::sim::statics`])
 //!   and the adjoint gradient of the loss (Eq. 16-17).
+//! * [`error`]: why a frame's solve or a sample's check failed.
 //! * [`jacobian`]: the factor of a frame's force Jacobian `K` that the
 //!   adjoint and the Gauss-Newton products solve with (sparse Cholesky
 //!   where `K` is symmetric positive definite, its analysis kept per frame;
@@ -24,6 +25,7 @@
 //! Pure: no files, no printing, no environment.
 
 pub mod adjoint;
+pub mod error;
 pub mod gauss_newton;
 pub mod harmonic;
 pub mod jacobian;
@@ -38,8 +40,9 @@ mod types;
 mod tests;
 
 
+pub use error::{SampleError, SolveError};
 pub use gauss_newton::{fit_sample, StageReport};
-pub use loss::{FrameTarget, PositionTerm};
+pub use loss::{FrameTarget, PositionTerm, TargetError};
 pub use samples::{fit_materials, FitInputs, FitReport, SampleReport};
 pub use types::{
     CgParams, ElasticFitError, ElasticFitParams, FitProgress, Frame, MaterialFields, Sample,

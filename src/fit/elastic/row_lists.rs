@@ -5,6 +5,8 @@
 //! triplets, and each output sums its terms in the entries' order from
 //! zero, exactly as the scatter did: the products are the same bit for bit.
 
+use super::error::SolveError;
+
 /// `(row, col, value)` entries bucketed by row (a stable counting sort).
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct RowLists {
@@ -15,16 +17,18 @@ pub(super) struct RowLists {
 
 impl RowLists {
     /// The entries of a matrix with `rows` rows; columns must fit in `u32`.
-    pub(super) fn new<I>(rows: usize, entries: I) -> Result<RowLists, String>
+    pub(super) fn new<I>(rows: usize, entries: I) -> Result<RowLists, SolveError>
     where
         I: Iterator<Item = (usize, usize, f64)> + Clone,
     {
         let mut ptr = vec![0usize; rows + 1];
         for (r, c, _) in entries.clone() {
             if r >= rows || c > u32::MAX as usize {
-                return Err(format!(
-                    "entry ({r}, {c}) outside {rows} rows of u32 columns"
-                ));
+                return Err(SolveError::RowEntryOutOfRange {
+                    row: r,
+                    col: c,
+                    rows,
+                });
             }
             ptr[r + 1] += 1;
         }

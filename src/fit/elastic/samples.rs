@@ -128,7 +128,8 @@ pub fn fit_materials(
         .filter(|&r| r < ne)
         .max()
         .unwrap_or(0);
-    let basis = harmonic_basis(inputs.mesh, rmax).map_err(ElasticFitError::Harmonic)?;
+    let basis =
+        harmonic_basis(inputs.mesh, rmax).map_err(|e| ElasticFitError::Harmonic(e.to_string()))?;
     let mut report = FitReport {
         harmonic_ms: t.elapsed().as_secs_f64() * 1e3,
         ..Default::default()

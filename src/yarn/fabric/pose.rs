@@ -18,6 +18,7 @@
 //!
 //! Pure: no files, no printing, no environment.
 
+use std::convert::Infallible;
 use std::time::Instant;
 
 use super::model::{Fabric, FabricError, FabricParams, Settle};
@@ -134,9 +135,10 @@ pub fn default_amount(kind: PoseKind) -> Option<f64> {
 /// issue's pull-through bound during a test is 0.75.
 pub const MIN_START_DISTANCE_RATIO: f64 = 0.5;
 
-/// Why a pose run failed.
+/// Why a pose run failed; `E` is the error of its frame callback (none
+/// for the checks made before a run).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum PoseRunError {
+pub enum PoseRunError<E = Infallible> {
     /// A parameter out of range (a usage error).
     #[error("pose parameter {0}")]
     Parameter(String),
@@ -156,9 +158,13 @@ pub enum PoseRunError {
         #[source]
         source: FabricError,
     },
-    /// The frame callback stopped the run.
-    #[error("frame {step}: {message}")]
-    Frame { step: usize, message: String },
+    /// The frame callback stopped the run with `error`.
+    #[error("frame {step}: {error}")]
+    Frame {
+        step: usize,
+        #[source]
+        error: E,
+    },
     /// The rest yarns pass through each other: two segments start closer
     /// than [`MIN_START_DISTANCE_RATIO`] x (rA + rB) (the swatch's fault).
     #[error(
@@ -170,6 +176,30 @@ pub enum PoseRunError {
 }
 
 impl PoseRunError {
+    /// The same error as one of a run whose frame callback fails with `E`.
+    pub fn in_run<E>(self) -> PoseRunError<E> {
+        match self {
+            PoseRunError::Parameter(m) => PoseRunError::Parameter(m),
+            PoseRunError::Pose(e) => PoseRunError::Pose(e),
+            PoseRunError::Model(e) => PoseRunError::Model(e),
+            PoseRunError::Step {
+                step,
+                steps,
+                amount,
+                source,
+            } => PoseRunError::Step {
+                step,
+                steps,
+                amount,
+                source,
+            },
+            PoseRunError::Frame { error, .. } => match error {},
+            PoseRunError::Crossing { ratio } => PoseRunError::Crossing { ratio },
+        }
+    }
+}
+
+impl<E> PoseRunError<E> {
     /// Whether the request (not the swatch) is at fault.
     pub fn is_usage(&self) -> bool {
         matches!(
@@ -270,14 +300,15 @@ pub struct PoseRun {
 
 /// Runs the pose on `yarns` (their stored rest shape when they carry one,
 /// else their positions as rest), handing every equilibrium frame (steps 1
-/// to `steps`, in the yarns' own coordinates) to `on_frame`.
-pub fn run_pose(
+/// to `steps`, in the yarns' own coordinates) to `on_frame`; an error of
+/// `on_frame` stops the run ([`PoseRunError::Frame`]).
+pub fn run_pose<E>(
     yarns: &Yarns,
     fabric_params: &FabricParams,
     params: &PoseRunParams,
-    on_frame: &mut dyn FnMut(&RigFrame) -> Result<(), String>,
-) -> Result<PoseRun, PoseRunError> {
-    params.check()?;
+    on_frame: &mut dyn FnMut(&RigFrame) -> Result<(), E>,
+) -> Result<PoseRun, PoseRunError<E>> {
+    params.check().map_err(PoseRunError::in_run)?;
     let t0 = Instant::now();
     let plane = FabricPlane::of(&yarns.points);
     let mut posed = yarns.clone();
@@ -410,7 +441,7 @@ pub fn run_pose(
             reactions,
             external,
         })
-        .map_err(|message| PoseRunError::Frame { step: k, message })?;
+        .map_err(|error| PoseRunError::Frame { step: k, error })?;
         let force = clamp_forces
             .iter()
             .map(|f| crate::geom::vec3::norm(*f))
@@ -659,16 +690,25 @@ mod tests {
         for kind in [PoseKind::Hang, PoseKind::Free] {
             let mut p = PoseRunParams::new(kind);
             p.pose.amount = 0.1;
-            let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| Ok(())).unwrap_err();
+            let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| {
+                Ok::<(), Infallible>(())
+            })
+            .unwrap_err();
             assert!(e.is_usage(), "{e}");
         }
         let mut p = PoseRunParams::new(PoseKind::Shear);
         p.steps = 0;
-        let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| Ok(())).unwrap_err();
+        let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| {
+            Ok::<(), Infallible>(())
+        })
+        .unwrap_err();
         assert!(e.is_usage() && e.to_string().contains("steps"), "{e}");
         let mut p = PoseRunParams::new(PoseKind::MultiFold);
         p.pose.amount = 0.7;
-        let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| Ok(())).unwrap_err();
+        let e = run_pose(&y, &FabricParams::default(), &p, &mut |_| {
+            Ok::<(), Infallible>(())
+        })
+        .unwrap_err();
         assert!(e.is_usage(), "{e}");
     }
 
@@ -693,7 +733,7 @@ mod tests {
         let mut frames = Vec::new();
         let r = run_pose(&y, &fp, &p, &mut |f| {
             frames.push((f.points.to_vec(), f.reactions.clone()));
-            Ok(())
+            Ok::<(), Infallible>(())
         })
         .unwrap();
         assert_eq!(r.plane, FabricPlane::Xy);
@@ -737,7 +777,7 @@ mod tests {
             let mut last = None;
             run_pose(&y, &fp, &p, &mut |f| {
                 last = Some((f.points.to_vec(), f.reactions.clone(), f.external.clone()));
-                Ok(())
+                Ok::<(), Infallible>(())
             })
             .unwrap();
             last.unwrap()
@@ -796,7 +836,7 @@ mod tests {
                 "{carried} vs {weight}"
             );
             drops.push((d, weight));
-            Ok(())
+            Ok::<(), Infallible>(())
         })
         .unwrap();
         eprintln!("tip drops and weights: {drops:?}");
@@ -852,7 +892,7 @@ mod tests {
         let mut frames = 0;
         let e = run_pose(&y, &fp, &p, &mut |_| {
             frames += 1;
-            Ok(())
+            Ok::<(), Infallible>(())
         })
         .unwrap_err();
         assert!(

@@ -34,14 +34,24 @@ impl Direction {
     }
 }
 
+/// A direction name other than `weft`, `warp` and `bias`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown direction {name:?} (weft, warp, bias)")]
+pub struct UnknownDirection {
+    /// The name as given.
+    pub name: String,
+}
+
 impl std::str::FromStr for Direction {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = UnknownDirection;
+    fn from_str(s: &str) -> Result<Self, UnknownDirection> {
         match s {
             "weft" => Ok(Direction::Weft),
             "warp" => Ok(Direction::Warp),
             "bias" => Ok(Direction::Bias),
-            _ => Err(format!("unknown direction {s:?} (weft, warp, bias)")),
+            _ => Err(UnknownDirection {
+                name: s.to_string(),
+            }),
         }
     }
 }

@@ -51,7 +51,7 @@ pub fn build_tile(pattern: &Pattern, params: &PatternParams) -> Result<PatternTi
     tile.tile.yarns.validate()?;
     tile.tile
         .validate()
-        .map_err(|m| PatternError::Geometry(GeomError::Layout(m)))?;
+        .map_err(|e| PatternError::Geometry(GeomError::Layout(e.to_string())))?;
     Ok(tile)
 }
 
@@ -370,7 +370,7 @@ fn follow_chain(t: &PeriodicTile, c: usize, copy: [i64; 2], axis: usize, extent:
 /// to where it started). Used to check tiles (3x3) and by the relaxation stage.
 pub fn tile_periodic(t: &PeriodicTile, n: [usize; 2]) -> Result<Yarns, PatternError> {
     t.validate()
-        .map_err(|m| PatternError::Geometry(GeomError::Layout(m)))?;
+        .map_err(|e| PatternError::Geometry(GeomError::Layout(e.to_string())))?;
     let nc = t.yarns.num_curves();
     let inside =
         |i: [i64; 2]| i[0] >= 0 && i[1] >= 0 && (i[0] as usize) < n[0] && (i[1] as usize) < n[1];

@@ -1,6 +1,8 @@
 //! Errors of the yarn-level simulator.
 
+use super::handles::HandleError;
 use crate::geom::GeomError;
+use crate::yarn::tile::TileError;
 
 /// Errors of the yarn-level simulator.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -10,13 +12,13 @@ pub enum YarnSimError {
     Geom(#[from] GeomError),
     /// The periodic tile is not well formed.
     #[error("invalid periodic tile: {0}")]
-    Tile(String),
+    Tile(#[from] TileError),
     /// A parameter or input value out of range.
     #[error("invalid {name}: {message}")]
     Param { name: &'static str, message: String },
     /// A handle description that does not fit the yarns.
     #[error("invalid handle: {0}")]
-    Handle(String),
+    Handle(#[from] HandleError),
     /// The simulation diverged at time step `step` (1-based, counted over the
     /// simulator's life) at simulated time `time`; `vertex` is the worst vertex.
     #[error(

@@ -4,6 +4,41 @@
 
 use crate::geom::Vec3;
 
+/// Why a handle does not fit the yarns or its motion is malformed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum HandleError {
+    /// A handle vertex the yarns do not have.
+    #[error("vertex {vertex} out of range ({vertices} vertices)")]
+    VertexOutOfRange { vertex: usize, vertices: usize },
+    /// The start time is not finite.
+    #[error("start_time is not finite")]
+    StartTime,
+    /// A translation with a non-finite velocity or a negative duration.
+    #[error("translate: velocity must be finite, duration >= 0")]
+    Translate,
+    /// A rotation with a non-finite centre or speed, or a zero axis.
+    #[error("rotate: center, axis (nonzero) and angular velocity must be finite")]
+    Rotate,
+    /// A rotation with a negative duration.
+    #[error("rotate: duration must be >= 0")]
+    RotateDuration,
+    /// A curve with no keys, or another number of times than points.
+    #[error("follow_curve: {times} times for {points} points (need equal, at least 1)")]
+    CurveKeys { times: usize, points: usize },
+    /// A curve whose times do not start at 0 or do not increase.
+    #[error("follow_curve: times must start at 0 and increase")]
+    CurveTimes,
+    /// A curve with a non-finite time or point.
+    #[error("follow_curve: non-finite key")]
+    CurveNonFinite,
+    /// A pose group the pose driver does not have.
+    #[error("pose group {group} of {groups}")]
+    PoseGroup { group: usize, groups: usize },
+    /// A handle on a periodic tile.
+    #[error("handles are not supported on periodic tiles")]
+    PeriodicTile,
+}
+
 /// How a handle moves its vertices (time `t` in seconds since the handle's
 /// `start_time`; before it the vertices stay where they were attached).
 #[derive(Debug, Clone, PartialEq)]
@@ -69,19 +104,22 @@ impl Handle {
     }
 
     /// Checks the motion description.
-    pub fn validate(&self, num_vertices: usize) -> Result<(), String> {
-        if let Some(v) = self.vertices.iter().find(|&&v| v >= num_vertices) {
-            return Err(format!("vertex {v} out of range ({num_vertices} vertices)"));
+    pub fn validate(&self, num_vertices: usize) -> Result<(), HandleError> {
+        if let Some(&v) = self.vertices.iter().find(|&&v| v >= num_vertices) {
+            return Err(HandleError::VertexOutOfRange {
+                vertex: v,
+                vertices: num_vertices,
+            });
         }
         if !self.start_time.is_finite() {
-            return Err("start_time is not finite".into());
+            return Err(HandleError::StartTime);
         }
         let fin = |v: &Vec3| v.iter().all(|x| x.is_finite());
         match &self.motion {
             HandleMotion::Fixed => Ok(()),
             HandleMotion::Translate { velocity, duration } => {
                 if !fin(velocity) || duration.is_some_and(|d| !(d >= 0.0)) {
-                    return Err("translate: velocity must be finite, duration >= 0".into());
+                    return Err(HandleError::Translate);
                 }
                 Ok(())
             }
@@ -93,34 +131,34 @@ impl Handle {
             } => {
                 let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
                 if !fin(center) || !(n > 0.0 && n.is_finite()) || !angular_velocity.is_finite() {
-                    return Err(
-                        "rotate: center, axis (nonzero) and angular velocity must be finite".into(),
-                    );
+                    return Err(HandleError::Rotate);
                 }
                 if duration.is_some_and(|d| !(d >= 0.0)) {
-                    return Err("rotate: duration must be >= 0".into());
+                    return Err(HandleError::RotateDuration);
                 }
                 Ok(())
             }
             HandleMotion::FollowCurve { times, points } => {
                 if times.is_empty() || times.len() != points.len() {
-                    return Err(format!(
-                        "follow_curve: {} times for {} points (need equal, at least 1)",
-                        times.len(),
-                        points.len()
-                    ));
+                    return Err(HandleError::CurveKeys {
+                        times: times.len(),
+                        points: points.len(),
+                    });
                 }
                 if times[0] != 0.0 || times.windows(2).any(|w| !(w[1] > w[0])) {
-                    return Err("follow_curve: times must start at 0 and increase".into());
+                    return Err(HandleError::CurveTimes);
                 }
                 if !points.iter().all(fin) || !times.iter().all(|t| t.is_finite()) {
-                    return Err("follow_curve: non-finite key".into());
+                    return Err(HandleError::CurveNonFinite);
                 }
                 Ok(())
             }
             HandleMotion::Pose { driver, group } => {
                 if *group >= driver.num_groups() {
-                    return Err(format!("pose group {group} of {}", driver.num_groups()));
+                    return Err(HandleError::PoseGroup {
+                        group: *group,
+                        groups: driver.num_groups(),
+                    });
                 }
                 Ok(())
             }

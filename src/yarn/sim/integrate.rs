@@ -29,7 +29,7 @@ use rayon::prelude::*;
 use super::colliders::{resolve, PointCollider};
 use super::contact::ContactSet;
 use super::damping::{damped_velocity, damping_dt_limit};
-use super::handles::Handle;
+use super::handles::{Handle, HandleError};
 use super::model::Model;
 use super::params::YarnSimParams;
 use super::rod::{bend, stretch};
@@ -387,9 +387,7 @@ impl YarnSim {
     /// (the later one wins).
     pub fn add_handle(&mut self, handle: Handle) -> Result<usize, YarnSimError> {
         if self.model.lattice.is_some() {
-            return Err(YarnSimError::Handle(
-                "handles are not supported on periodic tiles".into(),
-            ));
+            return Err(YarnSimError::Handle(HandleError::PeriodicTile));
         }
         handle
             .validate(self.model.n_real)

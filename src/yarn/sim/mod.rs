@@ -24,7 +24,7 @@ pub mod periodic;
 pub mod rod;
 
 pub use colliders::{PlaneCollider, PointCollider, SphereCollider};
-pub use handles::{Handle, HandleMotion};
+pub use handles::{Handle, HandleError, HandleMotion};
 pub use integrate::{EnergyTerms, FrameStats, Timings, YarnSim};
 pub use params::YarnSimParams;
 pub use periodic::{relax, relax_periodic, tile_yarns, RelaxOptions, RelaxStats};

@@ -24,6 +24,7 @@ use faer::Mat;
 use super::assemble::LowerCsc;
 use super::term::{EnergyTerm, Triplets};
 use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::LinalgError;
 
 /// Controls of [`solve_static`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -119,8 +120,11 @@ pub enum StaticError {
         residual: f64,
         dof: usize,
     },
-    #[error("static solve: the Hessian cannot be factored at iteration {iteration}: {message}")]
-    Factorization { iteration: usize, message: String },
+    #[error("static solve: the Hessian cannot be factored at iteration {iteration}: {source}")]
+    Factorization {
+        iteration: usize,
+        source: LinalgError,
+    },
     #[error("static solve: no equilibrium after {iterations} iterations (largest force {residual:.3e} N at coordinate {dof}, tolerance {tolerance:.1e} N)")]
     NotConverged {
         iterations: usize,
@@ -202,7 +206,7 @@ impl SymbolicCache {
         &mut self,
         lower: &LowerCsc,
         stats: &mut StaticStats,
-    ) -> Result<SymbolicCholesky<usize>, String> {
+    ) -> Result<SymbolicCholesky<usize>, LinalgError> {
         let same = self
             .key
             .as_ref()
@@ -317,10 +321,10 @@ pub fn solve_static(
         let mean_diag = (diag_sum / nf as f64).max(f64::MIN_POSITIVE);
         let mut shift = 0.0;
         let factor = loop {
-            let symbolic = cache.analysis(&lower, &mut stats).map_err(|message| {
+            let symbolic = cache.analysis(&lower, &mut stats).map_err(|source| {
                 StaticError::Factorization {
                     iteration: it,
-                    message,
+                    source,
                 }
             })?;
             stats.numeric_factorizations += 1;
@@ -329,7 +333,7 @@ pub fn solve_static(
             let buffer = std::mem::take(&mut cache.values);
             match SparseCholesky::numeric_into(symbolic, lower.as_ref(), buffer) {
                 Ok(f) => break f,
-                Err(message) => {
+                Err(source) => {
                     cache.key = None;
                     let next = if shift == 0.0 {
                         1e-10 * mean_diag
@@ -339,7 +343,7 @@ pub fn solve_static(
                     if next > 1e6 * mean_diag {
                         return Err(StaticError::Factorization {
                             iteration: it,
-                            message,
+                            source,
                         });
                     }
                     lower.shift_diagonal(next);
