@@ -1,8 +1,8 @@
 //! Colliders (`sim::collide`): BVH closest points against brute force,
 //! inside/outside signs on closed meshes, exact plane and sphere projections.
 
-use knitvox::geom::Vec3;
 use knitvox::geom::bvh::{closest_point_on_triangle, MeshCollider, MeshTopology};
+use knitvox::geom::Vec3;
 use knitvox::sim::collide::{Collider, ColliderSet, Shape};
 use knitvox::sim::contact::NodeProjector;
 use proptest::prelude::*;

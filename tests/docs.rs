@@ -50,7 +50,10 @@ fn readme_is_a_manual_of_at_most_300_lines_with_the_two_commands() {
     }
     // CI runs the second command.
     let ci = std::fs::read_to_string(root().join(".ci/run")).unwrap();
-    assert!(ci.contains(README_COMMANDS[1]), ".ci/run does not run the README's test command");
+    assert!(
+        ci.contains(README_COMMANDS[1]),
+        ".ci/run does not run the README's test command"
+    );
 }
 
 /// Words of the development process: a numbered step or ticket. Matches
@@ -62,7 +65,9 @@ fn process_words(line: &str) -> Option<String> {
         while let Some(i) = lower[from..].find(word) {
             let at = from + i;
             let after = &lower[at + word.len()..];
-            let starts_word = at == 0 || !(lower.as_bytes()[at - 1].is_ascii_alphanumeric() || lower.as_bytes()[at - 1] == b'-');
+            let starts_word = at == 0
+                || !(lower.as_bytes()[at - 1].is_ascii_alphanumeric()
+                    || lower.as_bytes()[at - 1] == b'-');
             if starts_word && after.starts_with(|c: char| c.is_ascii_digit()) {
                 let end = (at + word.len() + 8).min(line.len());
                 return Some(line.get(at..end).unwrap_or(line).to_string());
@@ -90,17 +95,26 @@ fn no_words_of_the_development_process_in_the_product() {
     let mut hits = Vec::new();
     let mut all = vec![r.join("README.md")];
     for dir in ["docs", "src", "tests", "examples", "schemas", "pipelines"] {
-        all.extend(files(&r.join(dir), &["md", "rs", "toml", "json", "grid", "py", "sh", "txt"]));
+        all.extend(files(
+            &r.join(dir),
+            &["md", "rs", "toml", "json", "grid", "py", "sh", "txt"],
+        ));
     }
     for f in all {
-        let Ok(text) = std::fs::read_to_string(&f) else { continue };
+        let Ok(text) = std::fs::read_to_string(&f) else {
+            continue;
+        };
         for (n, line) in text.lines().enumerate() {
             if let Some(w) = process_words(line) {
                 hits.push(format!("{}:{}: {w}", rel(&f), n + 1));
             }
         }
     }
-    assert!(hits.is_empty(), "development-process words:\n{}", hits.join("\n"));
+    assert!(
+        hits.is_empty(),
+        "development-process words:\n{}",
+        hits.join("\n")
+    );
 }
 
 /// Repository paths (`docs/...`, `schemas/...`, `examples/...`,
@@ -113,7 +127,9 @@ fn repo_paths(text: &str) -> Vec<String> {
             let at = from + i;
             from = at + prefix.len();
             let before = text[..at].chars().next_back();
-            if before.is_some_and(|c| c.is_ascii_alphanumeric() || c == '/' || c == '_' || c == '-' || c == '.') {
+            if before.is_some_and(|c| {
+                c.is_ascii_alphanumeric() || c == '/' || c == '_' || c == '-' || c == '.'
+            }) {
                 continue;
             }
             let tail: String = text[at..]
@@ -149,7 +165,11 @@ fn every_repository_path_the_docs_and_help_texts_name_exists() {
     }
     missing.sort();
     missing.dedup();
-    assert!(missing.is_empty(), "named but missing:\n{}", missing.join("\n"));
+    assert!(
+        missing.is_empty(),
+        "named but missing:\n{}",
+        missing.join("\n")
+    );
 }
 
 #[test]
@@ -163,7 +183,10 @@ fn schemas_readme_indexes_every_schema() {
             unlisted.push(name);
         }
     }
-    assert!(unlisted.is_empty(), "schemas/README.md does not index: {unlisted:?}");
+    assert!(
+        unlisted.is_empty(),
+        "schemas/README.md does not index: {unlisted:?}"
+    );
 }
 
 /// Relative Markdown links (`[text](path)`, `path#anchor`) in `text`.
@@ -173,10 +196,16 @@ fn md_links(text: &str) -> Vec<String> {
     while let Some(i) = text[from..].find("](") {
         let at = from + i + 2;
         from = at;
-        let Some(end) = text[at..].find(')') else { break };
+        let Some(end) = text[at..].find(')') else {
+            break;
+        };
         let target = text[at..at + end].trim();
         let target = target.split('#').next().unwrap_or("");
-        if target.is_empty() || target.contains("://") || target.starts_with("mailto:") || target.contains(' ') {
+        if target.is_empty()
+            || target.contains("://")
+            || target.starts_with("mailto:")
+            || target.contains(' ')
+        {
             continue;
         }
         out.push(target.to_string());

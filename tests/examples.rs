@@ -107,7 +107,10 @@ fn credits_name_the_fox_by_its_sha256() {
         .map(|b| format!("{b:02x}"))
         .collect();
     assert!(credits.contains("## Fox.glb"), "{credits}");
-    assert!(credits.contains(&hex), "Fox.glb is {hex}; CREDITS.md: {credits}");
+    assert!(
+        credits.contains(&hex),
+        "Fox.glb is {hex}; CREDITS.md: {credits}"
+    );
 }
 
 /// `example_swatch.bcc` is the swatch `knitvox demo` writes (the analytic
@@ -241,7 +244,10 @@ fn rib_band_grid_knits_a_rib_cuff_under_stockinette() {
     assert!(v["min_distance_ratio"].as_f64().unwrap() >= BOUND, "{v}");
     assert_eq!(v["relaxed"], true, "{v}");
     let x = &v["relaxation"];
-    assert!(x["min_distance_ratio_seen"].as_f64().unwrap() >= 0.75, "{x}");
+    assert!(
+        x["min_distance_ratio_seen"].as_f64().unwrap() >= 0.75,
+        "{x}"
+    );
     let d = io::read_path(&out, &ReadOptions::default()).unwrap();
     assert_eq!(d.yarns.num_points() as u64, v["vertices"].as_u64().unwrap());
     assert!(d.yarns.rest.is_some(), "the h5 keeps the rest shape");
@@ -259,21 +265,126 @@ struct SceneFacts {
 }
 
 const SCENES: [SceneFacts; 15] = [
-    SceneFacts { file: "yls-bend-central.toml", kind: PoseKind::BendCentral, amount: 2.094, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-bend-diagonal.toml", kind: PoseKind::BendDiagonal, amount: 1.571, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-biaxial.toml", kind: PoseKind::Biaxial, amount: 0.2, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-cantilever.toml", kind: PoseKind::Cantilever, amount: 0.0, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-character.toml", kind: PoseKind::Free, amount: 0.0, rods: false, pattern: "stockinette", colliders: 1 },
-    SceneFacts { file: "yls-demo-rib-stretch.toml", kind: PoseKind::StretchCourses, amount: 0.3, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-drape.toml", kind: PoseKind::Free, amount: 0.0, rods: false, pattern: "stockinette", colliders: 1 },
-    SceneFacts { file: "yls-drape-rods.toml", kind: PoseKind::Free, amount: 0.0, rods: true, pattern: "stockinette", colliders: 1 },
-    SceneFacts { file: "yls-fan.toml", kind: PoseKind::Fan, amount: 0.4, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-hang.toml", kind: PoseKind::Hang, amount: 0.0, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-multi-fold.toml", kind: PoseKind::MultiFold, amount: 0.3, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-shear.toml", kind: PoseKind::Shear, amount: 0.3, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-stretch-courses.toml", kind: PoseKind::StretchCourses, amount: 0.3, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-stretch-wales.toml", kind: PoseKind::StretchWales, amount: 0.3, rods: false, pattern: "rib1x1", colliders: 0 },
-    SceneFacts { file: "yls-twist.toml", kind: PoseKind::Twist, amount: 3.1416, rods: false, pattern: "rib1x1", colliders: 0 },
+    SceneFacts {
+        file: "yls-bend-central.toml",
+        kind: PoseKind::BendCentral,
+        amount: 2.094,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-bend-diagonal.toml",
+        kind: PoseKind::BendDiagonal,
+        amount: 1.571,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-biaxial.toml",
+        kind: PoseKind::Biaxial,
+        amount: 0.2,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-cantilever.toml",
+        kind: PoseKind::Cantilever,
+        amount: 0.0,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-character.toml",
+        kind: PoseKind::Free,
+        amount: 0.0,
+        rods: false,
+        pattern: "stockinette",
+        colliders: 1,
+    },
+    SceneFacts {
+        file: "yls-demo-rib-stretch.toml",
+        kind: PoseKind::StretchCourses,
+        amount: 0.3,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-drape.toml",
+        kind: PoseKind::Free,
+        amount: 0.0,
+        rods: false,
+        pattern: "stockinette",
+        colliders: 1,
+    },
+    SceneFacts {
+        file: "yls-drape-rods.toml",
+        kind: PoseKind::Free,
+        amount: 0.0,
+        rods: true,
+        pattern: "stockinette",
+        colliders: 1,
+    },
+    SceneFacts {
+        file: "yls-fan.toml",
+        kind: PoseKind::Fan,
+        amount: 0.4,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-hang.toml",
+        kind: PoseKind::Hang,
+        amount: 0.0,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-multi-fold.toml",
+        kind: PoseKind::MultiFold,
+        amount: 0.3,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-shear.toml",
+        kind: PoseKind::Shear,
+        amount: 0.3,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-stretch-courses.toml",
+        kind: PoseKind::StretchCourses,
+        amount: 0.3,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-stretch-wales.toml",
+        kind: PoseKind::StretchWales,
+        amount: 0.3,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
+    SceneFacts {
+        file: "yls-twist.toml",
+        kind: PoseKind::Twist,
+        amount: 3.1416,
+        rods: false,
+        pattern: "rib1x1",
+        colliders: 0,
+    },
 ];
 
 /// Every scene in `examples/scenes/` reads as a yls scene (unknown keys are
@@ -300,9 +411,19 @@ fn every_yarn_level_example_scene_reads_as_its_pose() {
             "{}",
             f.file
         );
-        assert_eq!(scene.swatch.pattern.as_deref(), Some(f.pattern), "{}", f.file);
+        assert_eq!(
+            scene.swatch.pattern.as_deref(),
+            Some(f.pattern),
+            "{}",
+            f.file
+        );
         assert_eq!(scene.colliders.len(), f.colliders, "{}", f.file);
-        assert!(scene.num_frames() >= 6, "{}: {} frames", f.file, scene.num_frames());
+        assert!(
+            scene.num_frames() >= 6,
+            "{}: {} frames",
+            f.file,
+            scene.num_frames()
+        );
     }
     // The character scene's glTF is the committed fox, found from the scene.
     let scene = YlsScene::read(&dir.join("yls-character.toml")).unwrap();
@@ -364,7 +485,12 @@ fn every_yarn_level_example_scene_runs_through_knitvox_yls() {
         let r = last_json(&o);
         assert_eq!(r["event"], "report", "{}: {r}", f.file);
         assert_eq!(r["frames"], 1, "{}: {r}", f.file);
-        assert_eq!(r["model"], if f.rods { "rods" } else { "explicit" }, "{}", f.file);
+        assert_eq!(
+            r["model"],
+            if f.rods { "rods" } else { "explicit" },
+            "{}",
+            f.file
+        );
         let ratio = r["min_distance_ratio"].as_f64().unwrap();
         assert!(ratio >= 0.75, "{}: min distance / 2r {ratio}", f.file);
         assert_eq!(io::h5::frame_count(&out).unwrap(), 2, "{}", f.file);
@@ -434,7 +560,12 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
     let asset = d.join("swatch.vtkhdf");
     let o = knitvox(&["embed", s(&yarns), "--up-axis", "z", "-o", s(&asset)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for file in ["biaxial.toml", "drape.toml", "multi_fold.toml", "shear.toml"] {
+    for file in [
+        "biaxial.toml",
+        "drape.toml",
+        "multi_fold.toml",
+        "shear.toml",
+    ] {
         let text = std::fs::read_to_string(examples().join("validate").join(file)).unwrap();
         let scene = d.join(file);
         std::fs::write(&scene, shrunk(&text, 1.0)).unwrap();
@@ -479,13 +610,25 @@ fn job_manifest_plans_embed_shot_and_export() {
         .map(|st| st["name"].as_str().unwrap())
         .collect();
     assert_eq!(names, ["embed", "shot", "export"], "{plan}");
-    assert_eq!(plan["stages"][1]["after"], serde_json::json!(["embed"]), "{plan}");
-    assert_eq!(plan["stages"][2]["after"], serde_json::json!(["shot"]), "{plan}");
+    assert_eq!(
+        plan["stages"][1]["after"],
+        serde_json::json!(["embed"]),
+        "{plan}"
+    );
+    assert_eq!(
+        plan["stages"][2]["after"],
+        serde_json::json!(["shot"]),
+        "{plan}"
+    );
     assert!(
         plan["output"].as_str().unwrap().ends_with("job.out"),
         "{plan}"
     );
-    assert_eq!(files_below(&examples()), before, "--plan wrote into examples/");
+    assert_eq!(
+        files_below(&examples()),
+        before,
+        "--plan wrote into examples/"
+    );
 }
 
 /// `job.toml` runs as its comment says, in a copy of the folder: the stages

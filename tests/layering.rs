@@ -135,7 +135,11 @@ fn tokenize(src: &str) -> Vec<Tok> {
                 b'!' => "!",
                 _ => "",
             };
-            out.push(if p.is_empty() { Tok::Other } else { Tok::Punct(p) });
+            out.push(if p.is_empty() {
+                Tok::Other
+            } else {
+                Tok::Punct(p)
+            });
             i += 1;
         }
     }
@@ -185,7 +189,10 @@ fn parse_use_tree(toks: &[Tok], i: &mut usize, prefix: &[String], out: &mut Vec<
                 *i += 1;
                 let alias = toks.get(*i).and_then(ident).unwrap_or("_").to_string();
                 *i += 1;
-                out.push(UseLeaf { name: Some(alias), path });
+                out.push(UseLeaf {
+                    name: Some(alias),
+                    path,
+                });
                 return;
             }
             Some(Tok::Ident(s)) => {
@@ -355,7 +362,10 @@ fn scan_file(file: &str, base: &ModPath, src: &str, mods: &mut BTreeMap<ModPath,
                 let mut child = cur.clone();
                 child.push(name.to_string());
                 if !in_test {
-                    mods.entry(cur.clone()).or_default().defs.insert(name.to_string());
+                    mods.entry(cur.clone())
+                        .or_default()
+                        .defs
+                        .insert(name.to_string());
                 } else if toks.get(j + 2) == Some(&Tok::Punct(";")) {
                     mods.entry(child.clone()).or_default().test_only = true;
                 }
@@ -371,20 +381,26 @@ fn scan_file(file: &str, base: &ModPath, src: &str, mods: &mut BTreeMap<ModPath,
                 continue;
             }
         }
-        if matches!(kw, "fn" | "struct" | "enum" | "trait" | "type" | "const" | "static" | "union")
-            || (kw == "macro_rules" && toks.get(j + 1) == Some(&Tok::Punct("!")))
+        if matches!(
+            kw,
+            "fn" | "struct" | "enum" | "trait" | "type" | "const" | "static" | "union"
+        ) || (kw == "macro_rules" && toks.get(j + 1) == Some(&Tok::Punct("!")))
         {
             let off = if kw == "macro_rules" { 2 } else { 1 };
             if let Some(name) = toks.get(j + off).and_then(ident) {
                 if !in_test {
-                    mods.entry(cur.clone()).or_default().defs.insert(name.to_string());
+                    mods.entry(cur.clone())
+                        .or_default()
+                        .defs
+                        .insert(name.to_string());
                 }
             }
             i = j + off + 1;
             continue;
         }
         // A path `a::b::c` in code.
-        if toks.get(i + 1) == Some(&Tok::Punct("::")) && (i == 0 || toks[i - 1] != Tok::Punct("::")) {
+        if toks.get(i + 1) == Some(&Tok::Punct("::")) && (i == 0 || toks[i - 1] != Tok::Punct("::"))
+        {
             let mut path = vec![word.to_string()];
             let mut k = i + 1;
             while toks.get(k) == Some(&Tok::Punct("::")) {
@@ -494,7 +510,11 @@ impl Graph {
                 let mut p = gm.clone();
                 p.extend(path[n..].iter().cloned());
                 if let Some(f) = self.defining_file(&p, depth + 1) {
-                    if f != self.mods.get(&gm).map(|m| m.file.clone()).unwrap_or_default()
+                    if f != self
+                        .mods
+                        .get(&gm)
+                        .map(|m| m.file.clone())
+                        .unwrap_or_default()
                         || self.mods.get(&gm).is_some_and(|m| m.defs.contains(item))
                     {
                         return Some(f);
@@ -506,12 +526,19 @@ impl Graph {
     }
 
     fn is_test_only(&self, at: &ModPath) -> bool {
-        (1..=at.len()).any(|n| self.mods.get(&at[..n].to_vec()).is_some_and(|m| m.test_only))
+        (1..=at.len()).any(|n| {
+            self.mods
+                .get(&at[..n].to_vec())
+                .is_some_and(|m| m.test_only)
+        })
     }
 
     /// File-level edges (importer -> defining file), self-edges removed.
     fn edges(&self) -> BTreeMap<String, BTreeSet<String>> {
-        self.edges_with_reasons().into_iter().map(|(k, v)| (k, v.into_keys().collect())).collect()
+        self.edges_with_reasons()
+            .into_iter()
+            .map(|(k, v)| (k, v.into_keys().collect()))
+            .collect()
     }
 
     /// Edges with the paths that make each one.
@@ -523,13 +550,19 @@ impl Graph {
             }
             e.entry(m.file.clone()).or_default();
             for r in &m.refs {
-                let Some(abs) = self.absolute(at, r, 0) else { continue };
+                let Some(abs) = self.absolute(at, r, 0) else {
+                    continue;
+                };
                 if abs.is_empty() {
                     continue;
                 }
                 if let Some(f) = self.defining_file(&abs, 0) {
                     if f != m.file {
-                        e.entry(m.file.clone()).or_default().entry(f).or_default().insert(r.join("::"));
+                        e.entry(m.file.clone())
+                            .or_default()
+                            .entry(f)
+                            .or_default()
+                            .insert(r.join("::"));
                     }
                 }
             }
@@ -593,7 +626,10 @@ fn cycles(edges: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
         t.next += 1;
         t.stack.push(v);
         t.on.insert(v);
-        let succ: Vec<&'a str> = t.e.get(v).map(|s| s.iter().map(String::as_str).collect()).unwrap_or_default();
+        let succ: Vec<&'a str> =
+            t.e.get(v)
+                .map(|s| s.iter().map(String::as_str).collect())
+                .unwrap_or_default();
         for w in succ {
             if !t.index.contains_key(w) {
                 visit(t, w);
@@ -622,7 +658,15 @@ fn cycles(edges: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
             }
         }
     }
-    let mut t = T { e: edges, index: BTreeMap::new(), low: BTreeMap::new(), on: BTreeSet::new(), stack: vec![], next: 0, out: vec![] };
+    let mut t = T {
+        e: edges,
+        index: BTreeMap::new(),
+        low: BTreeMap::new(),
+        on: BTreeSet::new(),
+        stack: vec![],
+        next: 0,
+        out: vec![],
+    };
     let nodes: Vec<&str> = edges.keys().map(String::as_str).collect();
     for v in nodes {
         if !t.index.contains_key(v) {
@@ -635,13 +679,20 @@ fn cycles(edges: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
 
 fn read_src(root: &Path) -> BTreeMap<String, String> {
     fn walk(dir: &Path, root: &Path, out: &mut BTreeMap<String, String>) {
-        let mut entries: Vec<_> = std::fs::read_dir(dir).expect("read src").map(|e| e.unwrap().path()).collect();
+        let mut entries: Vec<_> = std::fs::read_dir(dir)
+            .expect("read src")
+            .map(|e| e.unwrap().path())
+            .collect();
         entries.sort();
         for p in entries {
             if p.is_dir() {
                 walk(&p, root, out);
             } else if p.extension().is_some_and(|x| x == "rs") {
-                let rel = p.strip_prefix(root).unwrap().to_string_lossy().replace('\\', "/");
+                let rel = p
+                    .strip_prefix(root)
+                    .unwrap()
+                    .to_string_lossy()
+                    .replace('\\', "/");
                 out.insert(rel, std::fs::read_to_string(&p).expect("read source"));
             }
         }
@@ -656,7 +707,10 @@ fn real_graph() -> Graph {
 }
 
 /// Each cycle's edges with the paths that make them.
-fn report(groups: &[Vec<String>], reasons: &BTreeMap<String, BTreeMap<String, BTreeSet<String>>>) -> String {
+fn report(
+    groups: &[Vec<String>],
+    reasons: &BTreeMap<String, BTreeMap<String, BTreeSet<String>>>,
+) -> String {
     let mut s = String::new();
     for g in groups {
         s.push_str(&format!("cycle of {} files:\n", g.len()));
@@ -675,18 +729,29 @@ fn report(groups: &[Vec<String>], reasons: &BTreeMap<String, BTreeMap<String, BT
 #[test]
 fn math_modules_import_no_io_pipeline_daemon_or_cli() {
     let v = layering_violations(&real_graph().edges());
-    assert!(v.is_empty(), "math modules import outer layers:\n{}", v.join("\n"));
+    assert!(
+        v.is_empty(),
+        "math modules import outer layers:\n{}",
+        v.join("\n")
+    );
 }
 
 #[test]
 fn no_file_level_import_cycle_in_src() {
     let g = real_graph();
     let c = cycles(&g.edges());
-    assert!(c.is_empty(), "file-level import cycles:\n{}", report(&c, &g.edges_with_reasons()));
+    assert!(
+        c.is_empty(),
+        "file-level import cycles:\n{}",
+        report(&c, &g.edges_with_reasons())
+    );
 }
 
 fn synthetic(files: &[(&str, &str)]) -> BTreeMap<String, BTreeSet<String>> {
-    let m: BTreeMap<String, String> = files.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
+    let m: BTreeMap<String, String> = files
+        .iter()
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect();
     Graph::from_sources(&m).edges()
 }
 
@@ -700,10 +765,16 @@ fn the_checker_sees_planted_violations_and_cycles() {
         ("src/lib.rs", lib),
         ("src/io/mod.rs", "pub fn read() {}"),
         ("src/sim/mod.rs", "pub mod pd;\npub use pd::Step;"),
-        ("src/sim/pd.rs", "use crate::io;\npub struct Step; fn f() { io::read(); }"),
+        (
+            "src/sim/pd.rs",
+            "use crate::io;\npub struct Step; fn f() { io::read(); }",
+        ),
         ("src/geom/mod.rs", "pub struct V;"),
     ]);
-    assert_eq!(layering_violations(&planted), vec!["src/sim/pd.rs -> src/io/mod.rs".to_string()]);
+    assert_eq!(
+        layering_violations(&planted),
+        vec!["src/sim/pd.rs -> src/io/mod.rs".to_string()]
+    );
     assert!(cycles(&planted).is_empty(), "a re-export is not an edge");
 
     let looped = synthetic(&[
@@ -711,9 +782,24 @@ fn the_checker_sees_planted_violations_and_cycles() {
         ("src/io/mod.rs", ""),
         ("src/geom/mod.rs", "pub mod a; pub mod b; pub use b::B;"),
         ("src/geom/a.rs", "use super::B; pub struct A;"),
-        ("src/geom/b.rs", "pub struct B; fn f() -> crate::geom::a::A { todo!() }"),
-        ("src/sim/mod.rs", "#[cfg(test)]\nmod tests { use crate::io::x; }"),
+        (
+            "src/geom/b.rs",
+            "pub struct B; fn f() -> crate::geom::a::A { todo!() }",
+        ),
+        (
+            "src/sim/mod.rs",
+            "#[cfg(test)]\nmod tests { use crate::io::x; }",
+        ),
     ]);
-    assert_eq!(cycles(&looped), vec![vec!["src/geom/a.rs".to_string(), "src/geom/b.rs".to_string()]]);
-    assert!(layering_violations(&looped).is_empty(), "test code may use any layer");
+    assert_eq!(
+        cycles(&looped),
+        vec![vec![
+            "src/geom/a.rs".to_string(),
+            "src/geom/b.rs".to_string()
+        ]]
+    );
+    assert!(
+        layering_violations(&looped).is_empty(),
+        "test code may use any layer"
+    );
 }

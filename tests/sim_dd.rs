@@ -2,6 +2,7 @@
 //! (Wang 2015), the partition, swappable backends and contacts in the PD
 //! time loop, on small Kuhn-tet boxes.
 
+use knitvox::embed::box_mesh;
 use knitvox::geom::{TetMesh, Vec3};
 use knitvox::sim::backend::{ElasticRhs, JacobiSolve, LocalEval};
 use knitvox::sim::contact::NodeProjector;
@@ -9,7 +10,6 @@ use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::sim::dd::{DdParams, Interiors};
 use knitvox::sim::jacobi::{CpuJacobi, JacobiParams};
 use knitvox::sim::partition::Partition;
-use knitvox::embed::box_mesh;
 use knitvox::sim::pd::{GlobalSolver, PdParams, PdSolver, StepStats};
 use knitvox::sim::SimError;
 use nalgebra::{DMatrix, DVector};

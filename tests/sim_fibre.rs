@@ -6,13 +6,13 @@
 mod common;
 
 use common::Rng;
+use knitvox::embed::box_mesh;
 use knitvox::geom::Vec3;
 use knitvox::sim::backend::ElasticRhs;
 use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::sim::element::node_gradients;
 use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::fibre::FibreFamily;
-use knitvox::embed::box_mesh;
 use knitvox::sim::pd::{PdParams, PdSolver};
 use knitvox::sim::statics::{StaticParams, StaticSolver};
 

@@ -13,10 +13,10 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::Mat;
 use knitvox::embed::tetrahedralize;
 use knitvox::geom::{TetMesh, Vec3, VoxelGrid};
-use knitvox::sim::backend::{ElasticRhs, JacobiSolve};
 use knitvox::linalg::cholesky::SparseCholesky;
-use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::linalg::csr::CsrMatrix;
+use knitvox::sim::backend::{ElasticRhs, JacobiSolve};
+use knitvox::sim::cpu::CpuElasticRhs;
 use knitvox::sim::element::node_gradients;
 use knitvox::sim::energy::ElasticModel;
 use knitvox::sim::fibre::FibreFamily;
@@ -721,7 +721,7 @@ fn stretch_run(
     steps: usize,
 ) -> Vec<Vec3> {
     use knitvox::embed::box_mesh;
-use knitvox::sim::pd::{PdParams, PdSolver};
+    use knitvox::sim::pd::{PdParams, PdSolver};
     let (mesh, mass) = box_mesh([8, 3, 4], 0.01, 200.0);
     let nt = mesh.num_tets();
     let xmax = 0.08;

@@ -5,7 +5,7 @@
 use knitvox::geom::Yarns;
 use knitvox::yarn::rods::{RodEnergy, RodParams, RodRest, RodTopology};
 use knitvox::yarn::statics::{
-    reaction_forces, solve_static, EnergyTerm, GravityTerm, YarnStaticParams, SymbolicCache,
+    reaction_forces, solve_static, EnergyTerm, GravityTerm, SymbolicCache, YarnStaticParams,
 };
 
 const R: f64 = 1e-3;

@@ -14,9 +14,9 @@
 // `!(a > b)` is deliberate throughout: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use crate::geom::bvh::{MeshCollider, MeshTopology};
 use crate::geom::vec3::{cross, dot, sub};
 use crate::geom::Vec3;
-use crate::geom::bvh::{MeshCollider, MeshTopology};
 
 /// Default pin distance (m): garment nodes within this unsigned distance of
 /// the bind-pose body surface are pinned. 5 mm: a few voxels of the default

@@ -245,7 +245,10 @@ pub fn fabric_test(kind: &FabricTestKind) -> anyhow::Result<ExitCode> {
 }
 
 fn print_report(r: &FabricTestReport) {
-    println!("yarn material: {}", super::yarn_material::describe_choice(&r.material));
+    println!(
+        "yarn material: {}",
+        super::yarn_material::describe_choice(&r.material)
+    );
     if let Some(x) = &r.relaxation {
         println!(
             "relaxed {} ({} vertices) into contact: rest length scale {}, {} Newton iterations, residual {:.1e} N, \

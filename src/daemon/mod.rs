@@ -22,8 +22,8 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-pub use self::paths::Paths;
 use self::claims::{Claim, Owner};
+pub use self::paths::Paths;
 use self::scan::{Drop, Readiness, Stability};
 use self::worker::{Outcome, RunResult};
 use crate::io::IoError;

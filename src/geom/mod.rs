@@ -24,6 +24,7 @@ pub use asset::{
     FitPose, FitRecord, FitRecordError, PoseLosses, TrainingFidelity, UniformMaterial,
     FIT_RECORD_KEY,
 };
+pub use error::GeomError;
 pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
 pub use frame_spec::{
     check_frame_number, FrameNumberError, FrameSpec, FrameSpecError, MAX_FRAME_NUMBER,
@@ -33,7 +34,6 @@ pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
 pub use units::{Units, UnknownUnit, UnknownUpAxis, UpAxis};
-pub use error::GeomError;
 pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// A 3D point or vector in metres.

@@ -5,7 +5,9 @@
 use std::path::Path;
 
 use super::error::{FormatError, IoError};
-use super::types::{DirResources, Format, Provenance, ReadOptions, Resources, WriteOptions, YarnData, Decoded};
+use super::types::{
+    Decoded, DirResources, Format, Provenance, ReadOptions, Resources, WriteOptions, YarnData,
+};
 use super::{bcc, gltf, h5, obj, ply, poly, pyp};
 use crate::geom::{GeomError, Units, UpAxis, Yarns};
 

@@ -110,7 +110,10 @@ pub struct YlsBench {
     pub report: crate::yarn::sim::BenchReport,
 }
 
-fn time_ms<T>(runs: usize, mut f: impl FnMut() -> Result<T, BenchError>) -> Result<f64, BenchError> {
+fn time_ms<T>(
+    runs: usize,
+    mut f: impl FnMut() -> Result<T, BenchError>,
+) -> Result<f64, BenchError> {
     let mut t = Vec::with_capacity(runs);
     for _ in 0..runs.max(1) {
         let s = Instant::now();
@@ -252,12 +255,9 @@ pub fn embed(a: &EmbedRequest) -> Result<EmbedBench, BenchError> {
         ..EmbedParams::default()
     };
     let e = run_embed(&yarns, &params)?;
-    let embed_ms = time_ms(a.runs, || {
-        Ok(run_embed(&yarns, &params)?)
-    })?;
+    let embed_ms = time_ms(a.runs, || Ok(run_embed(&yarns, &params)?))?;
     let t = Instant::now();
-    let fitter =
-        ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default())?;
+    let fitter = ShapeFitter::from_embedded(&yarns, &e, &ShapeFitParams::default())?;
     let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
     let frames = crate::pipeline::demo::demo_frames(&yarns, a.frames.max(1));
     let mut per_frame = Vec::new();
@@ -584,7 +584,8 @@ fn prestretch(
         last = Some(f.points.to_vec());
         Ok(())
     })?;
-    yarns.points = last.ok_or_else(|| BenchError::Internal("the pre-stretch gave no frame".into()))?;
+    yarns.points =
+        last.ok_or_else(|| BenchError::Internal("the pre-stretch gave no frame".into()))?;
     let end = r.points.last().expect("at least the rest point");
     Ok(PrestretchReport {
         stretch,
@@ -595,4 +596,3 @@ fn prestretch(
         seconds: r.seconds,
     })
 }
-

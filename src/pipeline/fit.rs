@@ -54,8 +54,8 @@ use crate::io::{self, plot, IoError, ReadOptions};
 use crate::pipeline::asset::{
     asset_materials, check_asset_ext, re_embed, set_asset_materials, yarn_distances, StageError,
 };
-use crate::pipeline::util::{held_nodes, rms_max, sha256_file};
 use crate::pipeline::clamp_drive::ClampDrive;
+use crate::pipeline::util::{held_nodes, rms_max, sha256_file};
 use crate::pipeline::yls_scene::YlsScene;
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::energy::ElasticModel;

@@ -16,13 +16,13 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::asset::{EmbedJob, ExportJob};
-use super::util::sha256_file;
 use super::fit::FitJob;
 use super::sim_scene::{CharacterSection, Scene, Seconds};
 use super::simulate::{
     read_scene, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest, DEFAULT_CHECKPOINT_EVERY,
 };
 use super::train::TrainJob;
+use super::util::sha256_file;
 use super::{Error, Observer, Stage};
 use crate::embed::EmbedParams;
 use crate::fit::elastic::ElasticFitParams;

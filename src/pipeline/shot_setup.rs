@@ -12,14 +12,14 @@ use std::path::Path;
 
 use nalgebra::{Rotation3, Vector3};
 
-use super::sim_scene::{CharacterSection, ColliderSection, Scene, SimulationSection};
 use super::shot_error::{invalid, SimulateError};
+use super::sim_scene::{CharacterSection, ColliderSection, Scene, SimulationSection};
 use crate::anim::cache::BodyCache;
 use crate::anim::pins::BodyPins;
 use crate::anim::{Character, TriangleMesh};
+use crate::geom::bvh::{BvhError, MeshCollider, MeshTopology};
 use crate::geom::{Asset, Vec3};
 use crate::io;
-use crate::geom::bvh::{BvhError, MeshCollider, MeshTopology};
 use crate::sim::collide::{Collider, ColliderSet, Shape};
 use crate::sim::contact::{Contact, NodeProjector};
 use crate::sim::shot::Schedule;

@@ -17,12 +17,12 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::frames::{FrameSink, YarnFrameWriter};
-pub use super::shot_error::SimulateError;
 use super::shot_error::invalid;
-use super::util::median;
-pub use super::shot_setup::{CharacterReport, DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS};
+pub use super::shot_error::SimulateError;
 use super::shot_setup::{self, Posed};
+pub use super::shot_setup::{CharacterReport, DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS};
 use super::sim_scene::{BackendChoice, Scene, SimulationSection, SolverChoice};
+use super::util::median;
 use crate::geom::{Asset, NodeSteps, Vec3};
 use crate::io::checkpoint::{self, Checkpoint, CheckpointHeader};
 use crate::io::{self, IoError, WriteOptions};
@@ -241,8 +241,6 @@ fn refuse_input_overwrite(
     outputs.extend(req.yarns_out.as_deref());
     Ok(io::overwrite::refuse_inputs(&outputs, &inputs)?)
 }
-
-
 
 /// How a shot is split into chunks and resumed (`knitvox simulate
 /// --checkpoint-every`, `--resume`, `--shot-start`, `--checkpoint`;

@@ -29,18 +29,16 @@ use std::time::Instant;
 use crate::fit::elastic::MaterialFields;
 use crate::geom::{Asset, Vec3, YarnFrames, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
 use crate::io::{self, plot, IoError, WriteOptions};
-use crate::pipeline::asset::{
-    asset_materials, check_asset_ext, uniform_material, yarn_distances,
-};
-use crate::pipeline::util::rms_max;
-use crate::pipeline::util::held_nodes;
+use crate::pipeline::asset::{asset_materials, check_asset_ext, uniform_material, yarn_distances};
 use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
+use crate::pipeline::util::held_nodes;
+use crate::pipeline::util::rms_max;
+use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
-use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
-use crate::sim::SimError;
 use crate::pipeline::{Error, Observer, Stage};
+use crate::sim::SimError;
 use std::sync::Arc;
 
 use crate::fit::{ShapeFitParams, ShapeFitter};

@@ -9,13 +9,13 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use crate::anim::Character;
+use crate::geom::bvh::{MeshCollider, MeshTopology};
 use crate::geom::{Vec3, Yarns};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{generate, PatternJob, PatternSource, PatternStageError};
 use crate::pipeline::util::median;
 use crate::pipeline::yls_scene::{ColliderSpec, SceneError, YarnModel, YlsScene};
 use crate::pipeline::{Error, ErrorClass, FrameProgress, Observer, Stage};
-use crate::geom::bvh::{MeshCollider, MeshTopology};
 use crate::yarn::fabric::{FabricError, FabricParams, RelaxParams, RodDynamics, RodDynamicsParams};
 use crate::yarn::pattern::{Layout, PatternParams};
 use crate::yarn::poses::{PoseDriver, PoseError};

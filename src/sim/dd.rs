@@ -59,12 +59,12 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::Mat;
 use rayon::prelude::*;
 
-use crate::linalg::cholesky::SparseCholesky;
-use crate::linalg::csr::CsrMatrix;
-use crate::linalg::LinalgError;
 use super::jacobi::JacobiParams;
 use super::partition::{Partition, DEFAULT_NODES_PER_DOMAIN};
 use super::SimError;
+use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::csr::CsrMatrix;
+use crate::linalg::LinalgError;
 
 /// Rounds of subspace iteration for the domain modes.
 pub const EIGEN_ITERATIONS: usize = 6;

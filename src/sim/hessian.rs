@@ -43,8 +43,6 @@ use nalgebra::{Matrix3, Vector3};
 use super::element::{node_gradients, Mat12, TetRest, Vec12};
 use super::projection::{project_diag_sl3, signed_svd, SINGULAR_VALUE_FLOOR};
 
-
-
 /// `∂d/∂s` of Eq. 26 at the clamped input `sc` with solution `d`, multiplier
 /// from the KKT system (see the module doc). Rows/columns of values held at the
 /// floor, and columns of inputs below the floor, are zero.

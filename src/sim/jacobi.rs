@@ -44,8 +44,8 @@
 use rayon::prelude::*;
 
 use super::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
-use crate::linalg::csr::CsrMatrix;
 use super::SimError;
+use crate::linalg::csr::CsrMatrix;
 
 /// Lanczos steps of the spectral estimate (the extreme Ritz values of a
 /// 3D stiffness matrix are accurate to a few percent after ~60 steps).
@@ -408,7 +408,8 @@ mod tests {
 
     /// 1D Laplacian plus a mass shift, on `n` rows.
     fn laplace(n: usize, shift: f64) -> CsrMatrix {
-        CsrMatrix::from_triplets(n, &crate::linalg::csr::tridiagonal_triplets(n, 2.0 + shift)).unwrap()
+        CsrMatrix::from_triplets(n, &crate::linalg::csr::tridiagonal_triplets(n, 2.0 + shift))
+            .unwrap()
     }
 
     #[test]

@@ -58,4 +58,3 @@ pub fn local_step(
         .collect();
     Ok((targets, stats))
 }
-

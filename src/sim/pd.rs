@@ -135,20 +135,20 @@ use faer::Mat;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use crate::linalg::anderson::Anderson;
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
-use crate::linalg::cholesky::SparseCholesky;
 use super::contact::{friction_target, NoContact, NodeProjector};
 use super::cpu::CpuElasticRhs;
-use crate::linalg::csr::CsrMatrix;
 use super::dd::{DdParams, DdSolver, DdStats, Interiors};
 use super::energy::ElasticModel;
 use super::jacobi::CpuJacobi;
 use super::partition::Partition;
-use crate::linalg::woodbury::LowRankUpdate;
 use super::SimError;
 use crate::geom::vec3::norm;
 use crate::geom::{TetMesh, Vec3};
+use crate::linalg::anderson::Anderson;
+use crate::linalg::cholesky::SparseCholesky;
+use crate::linalg::csr::CsrMatrix;
+use crate::linalg::woodbury::LowRankUpdate;
 
 /// Which solver does the global step.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -32,10 +32,10 @@ use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat, Triplet};
 use faer::Mat;
 use rayon::prelude::*;
 
-use crate::linalg::cholesky::SparseCholesky;
 use super::energy::ElasticModel;
 use super::SimError;
 use crate::geom::Vec3;
+use crate::linalg::cholesky::SparseCholesky;
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
 
 /// Parameters of [`StaticSolver::solve`].

@@ -62,10 +62,10 @@ pub fn slide_on_incline(
     steps: usize,
     attach: &dyn Fn(&mut knitvox::sim::pd::PdSolver),
 ) -> (f64, f64, Vec<knitvox::geom::Vec3>) {
+    use knitvox::embed::box_mesh;
     use knitvox::geom::Vec3;
     use knitvox::sim::collide::{Collider, ColliderSet, Shape};
-    use knitvox::embed::box_mesh;
-use knitvox::sim::pd::{PdParams, PdSolver};
+    use knitvox::sim::pd::{PdParams, PdSolver};
     let (mesh, mass) = box_mesh([3, 2, 3], 0.01, 200.0);
     let nt = mesh.num_tets();
     let th = SLOPE_DEG.to_radians();

@@ -39,7 +39,6 @@ mod types;
 #[cfg(test)]
 mod tests;
 
-
 pub use error::{SampleError, SolveError};
 pub use gauss_newton::{fit_sample, StageReport};
 pub use loss::{FrameTarget, PositionTerm, TargetError};

@@ -14,9 +14,9 @@
 //! is `D⁻¹ (·) D⁻¹` with `D = diag(γ)` (the Gauss-Newton form: the term of
 //! the θ-gradient times `∂²θ/∂γ²` is left out, as for the loss).
 
-use super::types::Evaluated;
 use super::harmonic::tet_laplacian;
 use super::types::ElasticFitParams;
+use super::types::Evaluated;
 use crate::geom::TetMesh;
 
 /// The active regularizers of one stage (both weights zero: inactive).

@@ -6,13 +6,13 @@ use nalgebra::{DMatrix, DVector};
 
 use super::adjoint::{equilibrium, linearize, FrameLinearization};
 use super::gauss_newton::{gn_solve, gn_solve_cg, gn_solve_damped, Basis, StageStop};
-use super::types::CgParams;
 use super::harmonic::{harmonic_basis, tet_laplacian};
 use super::samples::fold;
+use super::types::CgParams;
 use super::*;
+use crate::embed::box_mesh;
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::{element_energy, ElasticModel};
-use crate::embed::box_mesh;
 use crate::sim::statics::StaticParams;
 
 const H: f64 = 0.01;

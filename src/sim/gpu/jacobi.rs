@@ -23,8 +23,8 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::{grid, grid_groups, to_u32, GpuContext, GpuError};
-use crate::sim::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
 use crate::linalg::csr::CsrMatrix;
+use crate::sim::backend::{check_jacobi_inputs, IterStats, JacobiSolve};
 use crate::sim::SimError;
 
 const SHADER: &str = include_str!("jacobi.wgsl");

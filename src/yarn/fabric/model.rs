@@ -8,7 +8,7 @@ use crate::yarn::rods::{HingeHessian, RodEnergy, RodError, RodParams, RodRest, R
 use crate::yarn::sim::{YarnSimError, YarnSimParams};
 use crate::yarn::statics::{
     evaluate, solve_static, Carry, ContactStats, ContactTerm, EnergyTerm, FrictionParams,
-    FrictionTerm, StaticError, YarnStaticParams, StaticStats, SymbolicCache,
+    FrictionTerm, StaticError, StaticStats, SymbolicCache, YarnStaticParams,
 };
 
 /// Smallest distance ratio (to 2r) a predicted start (the stretch test's

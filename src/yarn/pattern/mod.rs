@@ -32,8 +32,8 @@ use super::PeriodicTile;
 
 pub use builtin::{builtin, BUILTIN_NAMES};
 pub use character::{character, Character};
-pub use distance::{min_segment_distance, MinDistance};
 pub(crate) use curve::ease;
+pub use distance::{min_segment_distance, MinDistance};
 pub use grid::parse_grid;
 pub use types::{
     KnitGrid, KnitShape, Pattern, PatternError, PatternParams, PatternTile, Stitch, WeaveMatrix,

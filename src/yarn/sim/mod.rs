@@ -30,7 +30,7 @@ pub use params::YarnSimParams;
 pub use periodic::{relax, relax_periodic, tile_yarns, RelaxOptions, RelaxStats};
 
 pub use bench_scenes::{
-    bench, bench_yarns, plain_weave_swatch, stretch_scene, BenchGeometry, BenchOptions, BenchReport,
-    BENCH_FRAME,
+    bench, bench_yarns, plain_weave_swatch, stretch_scene, BenchGeometry, BenchOptions,
+    BenchReport, BENCH_FRAME,
 };
 pub use error::YarnSimError;

@@ -21,6 +21,7 @@ pub use contact::{ContactStats, ContactTerm, NEAR_FACTOR};
 pub use external::GravityTerm;
 pub use friction::{Carry, FrictionContact, FrictionParams, FrictionTerm};
 pub use solver::{
-    evaluate, reaction_forces, solve_static, StaticError, YarnStaticParams, StaticStats, SymbolicCache,
+    evaluate, reaction_forces, solve_static, StaticError, StaticStats, SymbolicCache,
+    YarnStaticParams,
 };
 pub use term::{EnergyTerm, Triplets};
