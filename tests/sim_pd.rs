@@ -488,8 +488,9 @@ fn refactor_matches_a_fresh_solver_and_bad_inputs_are_refused() {
 #[test]
 #[ignore]
 fn bench_slab_report() {
+    use knitvox::pipeline::bench::bench_slab_thick;
     use knitvox::sim::dd::DdParams;
-    use knitvox::sim::pd::{bench_slab_thick, GlobalSolver};
+    use knitvox::sim::pd::GlobalSolver;
     let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
     let steps: usize = env("KNITVOX_BENCH_STEPS", "10").parse().unwrap();
     let which = env("KNITVOX_BENCH_SOLVER", "both");

@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::geom::Vec3;
 use crate::io::{self, Format, IoError, ReadOptions, WriteOptions};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::util::median;
@@ -594,5 +595,104 @@ fn prestretch(
         contacts_per_vertex: end.contacts_per_vertex,
         newton_iterations: r.points.iter().map(|p| p.newton_iterations).sum(),
         seconds: r.seconds,
+    })
+}
+
+/// What [`bench_slab`] measured.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct SlabBench {
+    /// Global solver ("direct", "dd").
+    pub solver: &'static str,
+    /// Slab size in voxels (x, y, z).
+    pub voxels: [usize; 3],
+    /// Tets of the slab.
+    pub tets: usize,
+    /// Nodes of the slab.
+    pub nodes: usize,
+    /// rayon threads.
+    pub threads: usize,
+    /// Solver construction (assembly, factor or DD precomputation) (ms).
+    pub setup_ms: f64,
+    /// Median wall time per step (ms).
+    pub ms_per_step: f64,
+    /// Mean PD iterations per step.
+    pub pd_iterations: f64,
+    /// Mean iterative global-solver iterations per step.
+    pub global_iterations: f64,
+    /// Largest relative residual of the iterative global solves.
+    pub global_residual: f64,
+    /// Domains (domain-decomposed solver; 0 for direct).
+    pub domains: usize,
+    /// Size of the reduced system per coordinate (domain-decomposed solver).
+    pub reduced_size: usize,
+}
+
+/// Benchmark of the time loop on a horizontal slab of about `tets` tets
+/// (3 voxels thick, square, 1 cm voxels, 200 kg/m³, γs = γv = 1e4 Pa, the
+/// asset defaults) pinned along the x = 0 edge, falling under gravity at
+/// Δt = 1/150 s with the default PD parameters and `global` as the solver:
+/// `steps` steps (at least 5), median time per step.
+pub fn bench_slab(
+    tets: usize,
+    global: crate::sim::pd::GlobalSolver,
+    steps: usize,
+) -> Result<SlabBench, crate::sim::SimError> {
+    let params = crate::sim::pd::PdParams {
+        global,
+        report_residual: false,
+        ..Default::default()
+    };
+    bench_slab_thick(tets, 3, params, steps)
+}
+
+/// [`bench_slab`] with a slab `thick` voxels thick (at least 1; a 2-voxel
+/// slab is closer to a rib swatch's cross-section) and the given parameters
+/// (`params.global` is the solver).
+pub fn bench_slab_thick(
+    tets: usize,
+    thick: usize,
+    params: crate::sim::pd::PdParams,
+    steps: usize,
+) -> Result<SlabBench, crate::sim::SimError> {
+    let thick = thick.max(1);
+    let global = params.global;
+    let side = ((tets as f64 / (6.0 * thick as f64)).sqrt().round() as usize).max(1);
+    let vox = [side, thick, side];
+    let (mesh, mass) = crate::embed::box_mesh(vox, 0.01, 200.0);
+    let nt = mesh.num_tets();
+    let pins: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][0] < 1e-9)
+        .collect();
+    let pin_pos: Vec<Vec3> = pins.iter().map(|&i| mesh.nodes[i]).collect();
+    let t0 = Instant::now();
+    let g = vec![crate::geom::DEFAULT_GAMMA_S; nt];
+    let mut solver = crate::sim::pd::PdSolver::new(&mesh, &mass, &g, &g, &pins, params)?;
+    let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+    let steps = steps.max(5);
+    let mut times = Vec::with_capacity(steps);
+    let (mut its, mut gits, mut gres) = (0u64, 0u64, 0.0f64);
+    for _ in 0..steps {
+        let st = solver.step(&mut x, &mut v, &pin_pos)?;
+        times.push(st.ms);
+        its += st.iterations as u64;
+        gits += st.global_iterations as u64;
+        gres = gres.max(st.global_residual);
+    }
+    times.sort_by(f64::total_cmp);
+    let dd = solver.dd_stats().unwrap_or_default();
+    Ok(SlabBench {
+        solver: global.name(),
+        voxels: vox,
+        tets: nt,
+        nodes: mesh.num_nodes(),
+        threads: rayon::current_num_threads(),
+        setup_ms,
+        ms_per_step: times[times.len() / 2],
+        pd_iterations: its as f64 / steps as f64,
+        global_iterations: gits as f64 / steps as f64,
+        global_residual: gres,
+        domains: dd.domains,
+        reduced_size: dd.reduced_size,
     })
 }
