@@ -118,10 +118,17 @@ fn no_words_of_the_development_process_in_the_product() {
 }
 
 /// Repository paths (`docs/...`, `schemas/...`, `examples/...`,
-/// `pipelines/...`) named in `text`.
+/// `pipelines/...`, `src/...`, `tests/...`) named in `text`.
 fn repo_paths(text: &str) -> Vec<String> {
     let mut out = Vec::new();
-    for prefix in ["docs/", "schemas/", "examples/", "pipelines/"] {
+    for prefix in [
+        "docs/",
+        "schemas/",
+        "examples/",
+        "pipelines/",
+        "src/",
+        "tests/",
+    ] {
         let mut from = 0;
         while let Some(i) = text[from..].find(prefix) {
             let at = from + i;
