@@ -155,21 +155,24 @@ fn twill_grid_is_the_builtin_twill_and_weaves_wefts_and_warps() {
     assert_eq!(pattern.repeat(), [4, 4]);
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("twill.ply");
-    let o = knitvox(&[
-        "pattern",
-        "--grid",
-        s(&grid),
-        "--courses",
-        "6",
-        "--wales",
-        "8",
-        "--no-relax",
-        "--json",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // The grid knitted 6 courses x 8 wales, unrelaxed, with `extra` flags.
+    let knit = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec![
+            "pattern",
+            "--grid",
+            s(&grid),
+            "--courses",
+            "6",
+            "--wales",
+            "8",
+        ];
+        args.extend(["--no-relax", "--json", "-o", s(&out)]);
+        args.extend(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let v = knit(&[]);
     assert_eq!(v["kind"], "woven", "{v}");
     assert_eq!(v["repeat"], serde_json::json!([4, 4]), "{v}");
     assert_eq!(v["courses"], 6, "{v}");
@@ -179,22 +182,7 @@ fn twill_grid_is_the_builtin_twill_and_weaves_wefts_and_warps() {
     let yarns = io::read_path(&out, &ReadOptions::default()).unwrap().yarns;
     assert_eq!(yarns.num_curves(), 9);
     assert_eq!(yarns.num_points() as u64, v["vertices"].as_u64().unwrap());
-    let o = knitvox(&[
-        "pattern",
-        "--grid",
-        s(&grid),
-        "--courses",
-        "6",
-        "--wales",
-        "8",
-        "--no-relax",
-        "--separate-courses",
-        "--json",
-        "-o",
-        s(&out),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = knit(&["--separate-courses"]);
     assert_eq!(v["curves"], 6 + 8, "one yarn per weft and per warp: {v}");
     assert!(v["min_distance_ratio"].as_f64().unwrap() >= BOUND, "{v}");
 }

@@ -13,7 +13,6 @@ use crate::geom::Vec3;
 use crate::io::{self, Format, IoError, ReadOptions, WriteOptions};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::util::median;
-use crate::pipeline::Error;
 use crate::yarn::analytic::knit_swatch_with_points;
 
 /// Why a benchmark could not run. Each variant keeps the error it wraps as
@@ -23,8 +22,6 @@ use crate::yarn::analytic::knit_swatch_with_points;
 pub enum BenchError {
     #[error("{0}")]
     Io(#[from] IoError),
-    #[error("{0}")]
-    Pipeline(#[from] Error),
     #[error("{0}")]
     Embed(#[from] crate::embed::EmbedError),
     #[error("{0}")]
@@ -342,8 +339,8 @@ pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
         if let Some(t) = a.dd_tolerance {
             dp.tolerance = t;
         }
-        if a.dd_interiors == Some(crate::sim::dd::Interiors::Modes) {
-            dp.interiors = crate::sim::dd::Interiors::Modes;
+        if let Some(i) = a.dd_interiors {
+            dp.interiors = i;
         }
     }
     let solver_name = global.name();
