@@ -64,6 +64,14 @@ pub enum ConfinedError {
         path: String,
         kind: &'static str,
     },
+    /// A path a job, scene or manifest names resolves (symlinks followed)
+    /// outside every folder it may read from.
+    #[error("refusing '{path}': it resolves to '{resolved}', outside {roots}; a job reads only files inside its own folder (an operator can allow more folders)")]
+    OutsideRoots {
+        path: String,
+        resolved: String,
+        roots: String,
+    },
     /// The file holds fewer bytes than declared.
     #[error("'{path}' holds {bytes} bytes, fewer than the {declared} declared")]
     TooShort {
@@ -215,6 +223,35 @@ pub fn read_confined(
     Ok(data)
 }
 
+/// Resolves `path` (symlinks followed, `..` applied) and checks that it
+/// lies inside one of `roots` (themselves resolved). Returns the resolved
+/// path; nothing is opened or read, so a refused file's contents never
+/// reach a message. A path that does not exist is an error naming it.
+pub fn resolve_inside(path: &Path, roots: &[PathBuf]) -> Result<PathBuf, ConfinedError> {
+    let resolved = std::fs::canonicalize(path).map_err(|source| ConfinedError::Read {
+        path: shown_path(path),
+        source,
+    })?;
+    let mut shown_roots = Vec::new();
+    for root in roots {
+        match std::fs::canonicalize(root) {
+            Ok(r) if resolved.starts_with(&r) => return Ok(resolved),
+            Ok(r) => shown_roots.push(shown_path(&r)),
+            Err(_) => shown_roots.push(shown_path(root)),
+        }
+    }
+    let roots = match shown_roots.len() {
+        0 => "every allowed folder (none is allowed)".to_string(),
+        1 => format!("'{}'", shown_roots[0]),
+        _ => format!("the allowed folders '{}'", shown_roots.join("', '")),
+    };
+    Err(ConfinedError::OutsideRoots {
+        path: shown_path(path),
+        resolved: shown_path(&resolved),
+        roots,
+    })
+}
+
 fn kind_of(meta: &std::fs::Metadata) -> &'static str {
     let ft = meta.file_type();
     if ft.is_dir() {
@@ -238,6 +275,28 @@ fn kind_of(meta: &std::fs::Metadata) -> &'static str {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn resolve_inside_refuses_dotdot_absolute_and_symlinks_that_leave() {
+        let d = tempfile::tempdir().unwrap();
+        let root = d.path().join("job");
+        let outside = d.path().join("secret.bcc");
+        std::fs::create_dir(&root).unwrap();
+        std::fs::write(&outside, b"secret").unwrap();
+        std::fs::write(root.join("ok.bcc"), b"x").unwrap();
+        std::os::unix::fs::symlink(&outside, root.join("link.bcc")).unwrap();
+        std::os::unix::fs::symlink(root.join("ok.bcc"), root.join("inner.bcc")).unwrap();
+        let roots = [root.clone()];
+        assert!(super::resolve_inside(&root.join("ok.bcc"), &roots).is_ok());
+        assert!(super::resolve_inside(&root.join("inner.bcc"), &roots).is_ok());
+        for bad in [root.join("../secret.bcc"), outside.clone(), root.join("link.bcc")] {
+            let e = super::resolve_inside(&bad, &roots).unwrap_err().to_string();
+            assert!(e.contains("outside"), "{e}");
+            assert!(!e.contains("secret\""), "{e}");
+        }
+        // A second allowed root lets the outside file through.
+        assert!(super::resolve_inside(&outside, &[root.clone(), d.path().to_path_buf()]).is_ok());
+    }
+
     use super::*;
 
     #[test]
