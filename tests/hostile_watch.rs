@@ -421,6 +421,34 @@ fn a_ply_copied_in_six_chunks_a_second_apart_is_done_not_failed() {
     );
 }
 
+/// The same copy with a settle time shorter than its pauses: the drop is
+/// taken mid-copy, fails to parse, and is run again as the copy goes on,
+/// until it is whole.
+#[test]
+fn a_ply_copied_in_six_chunks_past_a_short_settle_is_done_not_failed() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("root");
+    std::fs::create_dir_all(root.join("inbox")).unwrap();
+    let full = swatch_bytes(6, "ply");
+    let copy = slow_copy(
+        &root.join("inbox/slow.ply"),
+        &full,
+        6,
+        Duration::from_secs(1),
+    );
+    let mut d = Daemon::start(&root, &["--once", "--poll", "1", "--settle", "0.5"]);
+    assert_eq!(
+        d.wait_exit(Duration::from_secs(120)),
+        Some(0),
+        "{}",
+        d.dump()
+    );
+    copy.join().unwrap();
+    assert_eq!(d.jobs("done"), ["slow"], "{}", d.dump());
+    assert!(d.events("failed").is_empty(), "{}", d.dump());
+    assert_eq!(std::fs::read(root.join("done/slow.ply")).unwrap(), full);
+}
+
 /// A drop taken while its file still changes (here: an mtime in the
 /// future, as a skewed NFS server gives) fails to parse, and is run again
 /// once its file held still, not filed as failed.

@@ -673,7 +673,7 @@ fn process(sh: &Shared, task: Task) -> JobEnd {
 
 /// Runs of a job whose drop was still changing when it failed as bad
 /// input, before a failure is filed as it is.
-const NOT_READY_RUNS: u32 = 5;
+const NOT_READY_RUNS: u32 = 10;
 
 fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failure> {
     let name = &task.name;
@@ -721,7 +721,7 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
     let mut still_changing = |f: &worker::Failure, attempt: u32| -> Option<bool> {
         if f.class != ErrorClass::BadInput
             || not_ready >= NOT_READY_RUNS
-            || !worker::still_changing(dir, &drop, claimed.as_ref(), sh.cfg.settle)
+            || !worker::still_changing(dir, &drop, claimed.as_ref(), sh.cfg.settle, stopped)
         {
             return None;
         }

@@ -768,18 +768,31 @@ fn newest_age(sig: &BTreeMap<String, Signature>) -> Duration {
     })
 }
 
-/// Whether a job's files changed since they were claimed (`claimed`), or
-/// changed less than `settle` ago: a parse failure may then be a copy
-/// still under way.
+/// Whether a job's files changed since they were claimed (`claimed`),
+/// changed less than `settle` ago, or change within the next `settle`
+/// (watched unless `stop`): a parse failure may then be a copy still
+/// under way.
 pub fn still_changing(
     dir: &Path,
     drop: &Drop,
     claimed: Option<&BTreeMap<String, Signature>>,
     settle: Duration,
+    stop: impl Fn() -> bool,
 ) -> bool {
     let now = input_signature(dir, drop);
     let changed = claimed.is_some_and(|c| without_folder_times(c.clone(), dir) != now);
-    changed || newest_age(&now) < settle
+    if changed || newest_age(&now) < settle {
+        return true;
+    }
+    // A copy pausing between writes: the next write comes soon.
+    let end = Instant::now() + settle;
+    while Instant::now() < end && !stop() {
+        sleep_unless(Duration::from_millis(100).min(settle), &stop);
+        if input_signature(dir, drop) != now {
+            return true;
+        }
+    }
+    false
 }
 
 /// Waits until a job's files held still for `settle` (looking at least
