@@ -42,7 +42,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Simulate(a) => simulate::simulate(&a),
         Command::Bake(a) => bake::bake(&a),
         Command::Run(a) => run::run(&a),
-        Command::Watch(a) => watch::watch(&a),
+        Command::Watch(a) => watch::watch(&a, cli.max_memory),
         Command::Bench(a) => match a.target {
             BenchTarget::Io(b) => bench::io(&b),
             BenchTarget::Embed(b) => bench::embed(&b),

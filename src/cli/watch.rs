@@ -29,9 +29,10 @@ pub struct WatchArgs {
     /// With --status: print it as JSON. (The daemon's log is always JSON lines.)
     #[arg(long)]
     pub json: bool,
-    /// A drop is taken once its files' sizes and mtimes held across two scans this many seconds apart.
-    #[arg(long, value_name = "SECONDS", default_value_t = 0.5, value_parser = parse_non_negative)]
-    pub settle: f64,
+    /// A drop is taken once its files' sizes and mtimes held across two scans this many seconds apart
+    /// [default: 2, or 60 when ROOT is on a network filesystem (NFS attribute caches hide changes)].
+    #[arg(long, value_name = "SECONDS", value_parser = parse_non_negative)]
+    pub settle: Option<f64>,
     /// Claim heartbeat period in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 2.0, value_parser = parse_positive)]
     pub heartbeat: f64,
@@ -47,6 +48,21 @@ pub struct WatchArgs {
     /// Poll only (no inotify hint); the default on network filesystems.
     #[arg(long)]
     pub no_inotify: bool,
+    /// A folder outside ROOT that jobs may read (repeatable); a job reads
+    /// only its own drop (and, for a top-level manifest, the inbox) otherwise.
+    #[arg(long, value_name = "DIR")]
+    pub allow_root: Vec<PathBuf>,
+}
+
+/// The settle time when `--settle` is not given: 2 s, or 60 s on a
+/// network filesystem, whose attribute cache can hide a growing file's
+/// size and mtime for up to about a minute.
+pub fn default_settle(root: &std::path::Path) -> f64 {
+    if daemon::scan::network_filesystem(root) {
+        60.0
+    } else {
+        2.0
+    }
 }
 
 /// SIGTERM/SIGINT received so far (the handler only counts).
@@ -60,11 +76,14 @@ fn secs(s: f64) -> Duration {
     Duration::from_secs_f64(s)
 }
 
-pub fn watch(a: &WatchArgs) -> anyhow::Result<ExitCode> {
+/// `max_memory`: the global `--max-memory`, the budget of the whole
+/// daemon (default: a quarter of the physical memory), shared by the workers.
+pub fn watch(a: &WatchArgs, max_memory: Option<u64>) -> anyhow::Result<ExitCode> {
     let heartbeat = secs(a.heartbeat);
     let stale_after = a.stale_after.map_or(heartbeat * 3, secs);
+    let settle = a.settle.unwrap_or_else(|| default_settle(&a.root));
     if a.status {
-        return status(a, stale_after);
+        return status(a, settle, stale_after);
     }
     // SAFETY: the handler only touches an atomic (async-signal-safe).
     unsafe {
@@ -77,9 +96,27 @@ pub fn watch(a: &WatchArgs) -> anyhow::Result<ExitCode> {
         path: a.root.clone(),
         source,
     })?;
+    let mut allow_roots = Vec::new();
+    for r in &a.allow_root {
+        // The children run in work/NAME: the folders go to them absolute.
+        let abs = std::fs::canonicalize(r).map_err(|e| {
+            crate::pipeline::Error::Usage(format!(
+                "--allow-root {}: cannot resolve the folder: {e}",
+                r.display()
+            ))
+        })?;
+        if !abs.is_dir() {
+            return Err(crate::pipeline::Error::Usage(format!(
+                "--allow-root {}: not a folder",
+                r.display()
+            ))
+            .into());
+        }
+        allow_roots.push(abs);
+    }
     let cfg = Config {
         poll: secs(a.poll),
-        settle: secs(a.settle),
+        settle: secs(settle),
         workers: a.workers as usize,
         once: a.once,
         heartbeat,
@@ -87,6 +124,8 @@ pub fn watch(a: &WatchArgs) -> anyhow::Result<ExitCode> {
         retries: a.retries,
         grace: secs(a.grace),
         inotify: !a.no_inotify && !daemon::scan::network_filesystem(&a.root),
+        allow_roots,
+        max_memory: Some(max_memory.unwrap_or_else(super::guard::default_max_memory)),
         ..Config::new(a.root.clone(), exe)
     };
     let log = |e: &Event| {
@@ -104,8 +143,8 @@ pub fn watch(a: &WatchArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::Success)
 }
 
-fn status(a: &WatchArgs, stale_after: Duration) -> anyhow::Result<ExitCode> {
-    let s = daemon::status::status(&a.root, secs(a.settle), stale_after)?;
+fn status(a: &WatchArgs, settle: f64, stale_after: Duration) -> anyhow::Result<ExitCode> {
+    let s = daemon::status::status(&a.root, secs(settle), stale_after)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(ExitCode::Success);
@@ -135,7 +174,14 @@ fn status(a: &WatchArgs, stale_after: Duration) -> anyhow::Result<ExitCode> {
         let beat = w
             .heartbeat_age_s
             .map_or("-".into(), |a| format!("{a:.1} s ago"));
-        println!("  {:<24} {:<9} {who}, heartbeat {beat}", w.job, w.state);
+        let mut at = String::new();
+        if let Some(st) = &w.stage {
+            at = format!(", stage {st}");
+        }
+        if let (Some(f), Some(d), Some(t)) = (w.frame, w.frames_done, w.frames_total) {
+            at.push_str(&format!(", frame {f} ({d}/{t})"));
+        }
+        println!("  {:<24} {:<9} {who}, heartbeat {beat}{at}", w.job, w.state);
     }
     println!("done: {}  failed: {}", s.done, s.failed);
     Ok(ExitCode::Success)

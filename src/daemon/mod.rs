@@ -14,7 +14,7 @@ pub mod scan;
 pub mod status;
 pub mod worker;
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -24,7 +24,7 @@ use serde::Serialize;
 
 use self::claims::{Claim, Owner};
 pub use self::paths::Paths;
-use self::scan::{Drop, Readiness, Stability};
+use self::scan::{Drop, Readiness, Signature, Stability};
 use self::worker::{Outcome, RunResult};
 use crate::io::IoError;
 use crate::pipeline::{Error, ErrorClass};
@@ -39,7 +39,8 @@ pub struct Config {
     /// Rescan interval (s) [default 2]: the truth, inotify only hints.
     pub poll: Duration,
     /// A drop is taken when its files' sizes and mtimes held across two
-    /// scans at least this far apart (s) [default 0.5].
+    /// scans at least this far apart (s) [default 2; the CLI makes it 60 on
+    /// a network filesystem, whose attribute cache hides changes].
     pub settle: Duration,
     /// Jobs run at once [default 1].
     pub workers: usize,
@@ -58,6 +59,13 @@ pub struct Config {
     pub grace: Duration,
     /// Use inotify as a hint (off on network filesystems) [default true].
     pub inotify: bool,
+    /// Folders outside ROOT that jobs may read (each child gets them as
+    /// `--allow-root DIR`; absolute paths).
+    pub allow_roots: Vec<PathBuf>,
+    /// The memory budget of the whole daemon (bytes): each child gets
+    /// `--max-memory` of this divided by `workers` [default: none given,
+    /// each child takes its own default].
+    pub max_memory: Option<u64>,
 }
 
 impl Config {
@@ -68,7 +76,7 @@ impl Config {
             root,
             exe,
             poll: Duration::from_secs(2),
-            settle: Duration::from_millis(500),
+            settle: Duration::from_secs(2),
             workers: 1,
             once: false,
             heartbeat,
@@ -77,7 +85,15 @@ impl Config {
             retry_delay: Duration::from_secs(2),
             grace: Duration::from_secs(30),
             inotify: true,
+            allow_roots: Vec::new(),
+            max_memory: None,
         }
+    }
+
+    /// The memory budget of one child: the daemon's over its workers.
+    pub fn child_max_memory(&self) -> Option<u64> {
+        self.max_memory
+            .map(|m| (m / self.workers.max(1) as u64).max(1))
     }
 }
 
@@ -94,6 +110,9 @@ pub enum Event {
         settle_s: f64,
         stale_after_s: f64,
         inotify: bool,
+        /// Each child's `--max-memory` (bytes), where the daemon has a budget.
+        child_max_memory: Option<u64>,
+        allow_roots: Vec<PathBuf>,
     },
     /// A new drop was claimed.
     Claimed {
@@ -149,8 +168,25 @@ pub enum Event {
     Lost {
         job: String,
     },
-    /// Something the daemon works around (an inotify error: full rescan).
+    /// Something the daemon works around (an inotify error: full rescan),
+    /// or a warning of a job's run (`job` set).
     Warning {
+        #[serde(skip_serializing_if = "Option::is_none")]
+        job: Option<String>,
+        message: String,
+    },
+    /// A run failed as bad input while the drop's files were still
+    /// changing (or younger than the settle time): not filed; run again
+    /// once they held still.
+    NotReady {
+        job: String,
+        attempt: u32,
+        message: String,
+    },
+    /// The job could not be filed away, persistently: left in work/NAME
+    /// with `parked.json`, not taken again until that file is removed.
+    Parked {
+        job: String,
         message: String,
     },
     Stopping {
@@ -168,6 +204,7 @@ pub struct Summary {
     pub done: usize,
     pub failed: usize,
     pub interrupted: usize,
+    pub parked: usize,
 }
 
 /// A job handed to a worker.
@@ -176,6 +213,8 @@ struct Task {
     claim: Claim,
     /// The drop, for a new claim; `None` for a takeover (read from work/).
     drop: Option<Drop>,
+    /// The signature of each of the drop's entries when it was claimed.
+    signature: Option<BTreeMap<String, Signature>>,
 }
 
 /// A running job as the main loop and the worker share it.
@@ -196,6 +235,7 @@ enum JobEnd {
     Done,
     Failed,
     Interrupted,
+    Parked,
 }
 
 struct Shared<'a> {
@@ -245,6 +285,8 @@ pub fn run(
         settle_s: cfg.settle.as_secs_f64(),
         stale_after_s: cfg.stale_after.as_secs_f64(),
         inotify: watcher.is_some(),
+        child_max_memory: cfg.child_max_memory(),
+        allow_roots: cfg.allow_roots.clone(),
     });
     let shared = Shared {
         cfg,
@@ -302,6 +344,7 @@ fn hint_watcher(
         Ok(w) => w,
         Err(e) => {
             log(&Event::Warning {
+                job: None,
                 message: format!("inotify unavailable ({e}): polling only"),
             });
             return None;
@@ -311,6 +354,7 @@ fn hint_watcher(
         Ok(()) => Some(w),
         Err(e) => {
             log(&Event::Warning {
+                job: None,
                 message: format!("cannot watch {} ({e}): polling only", inbox.display()),
             });
             None
@@ -380,6 +424,7 @@ fn main_loop(
                         JobEnd::Done => summary.done += 1,
                         JobEnd::Failed => summary.failed += 1,
                         JobEnd::Interrupted => summary.interrupted += 1,
+                        JobEnd::Parked => summary.parked += 1,
                     }
                     next_scan = Instant::now(); // a worker is free
                 }
@@ -444,6 +489,7 @@ fn dispatch(
     claims: &mut Claims,
     claim: Claim,
     drop: Option<Drop>,
+    signature: Option<BTreeMap<String, Signature>>,
 ) {
     let name = claim
         .dir
@@ -454,7 +500,12 @@ fn dispatch(
     if let Ok(mut r) = sh.running.lock() {
         r.insert(name.clone(), Running::default());
     }
-    let _ = tasks.send(Task { name, claim, drop });
+    let _ = tasks.send(Task {
+        name,
+        claim,
+        drop,
+        signature,
+    });
 }
 
 type Claims = HashMap<String, Claim>;
@@ -490,8 +541,8 @@ fn take_over_abandoned(sh: &Shared, me: &Owner, claims: &mut Claims, tasks: &mps
             clean_removing(&dir, sh.cfg.stale_after);
             continue;
         }
-        if claims.contains_key(&name) {
-            continue;
+        if claims.contains_key(&name) || dir.join(worker::PARKED).exists() {
+            continue; // running here, or parked for the operator
         }
         let dead = claims::current(&dir)
             .ok()
@@ -513,7 +564,7 @@ fn take_over_abandoned(sh: &Shared, me: &Owner, claims: &mut Claims, tasks: &mps
                 heartbeat_age_s: prev.as_ref().map(|p| p.age.as_secs_f64()),
                 released: owner.is_some_and(|o| o.released),
             });
-            dispatch(sh, tasks, claims, claim, None);
+            dispatch(sh, tasks, claims, claim, None, None);
         }
     }
 }
@@ -532,13 +583,22 @@ fn take_new_drops(
         Ok(e) => e,
         Err(e) => {
             (sh.log)(&Event::Warning {
+                job: None,
                 message: format!("cannot list {}: {e}", inbox.display()),
             });
             return None;
         }
     };
     stability.retain(&entries);
-    let drops = scan::classify(&entries, |n| std::fs::read_to_string(inbox.join(n)).ok());
+    let mut drops = scan::classify(&entries, |n| std::fs::read_to_string(inbox.join(n)).ok());
+    // A drop keeps the name it was given while it waits (its namesake may
+    // have left the inbox meanwhile).
+    scan::unique_names(&mut drops, |first, _| stability.names.get(first).cloned());
+    for d in &drops {
+        if let Some(first) = d.entries().into_iter().next() {
+            stability.names.insert(first, d.name.clone());
+        }
+    }
     let now = Instant::now();
     let mut pending: Option<Instant> = None;
     for d in drops.into_iter().filter(Drop::runnable) {
@@ -546,9 +606,11 @@ fn take_new_drops(
             continue; // a job of that name is in work/: after it
         }
         let mut ready = true;
+        let mut signature = BTreeMap::new();
         for e in d.entries() {
             match scan::signature(&inbox.join(&e)) {
                 Some(sig) => {
+                    signature.insert(e.clone(), sig.clone());
                     if let Readiness::Settling(at) = stability.observe(&e, sig, now, sh.cfg.settle)
                     {
                         ready = false;
@@ -567,10 +629,11 @@ fn take_new_drops(
                     job: d.name.clone(),
                     entries: d.entries(),
                 });
-                dispatch(sh, tasks, claims, claim, Some(d));
+                dispatch(sh, tasks, claims, claim, Some(d), Some(signature));
             }
             Ok(None) => {}
             Err(e) => (sh.log)(&Event::Warning {
+                job: None,
                 message: format!("cannot claim {}: {e}", d.name),
             }),
         }
@@ -608,6 +671,10 @@ fn process(sh: &Shared, task: Task) -> JobEnd {
     end
 }
 
+/// Runs of a job whose drop was still changing when it failed as bad
+/// input, before a failure is filed as it is.
+const NOT_READY_RUNS: u32 = 10;
+
 fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failure> {
     let name = &task.name;
     let internal = |e: IoError| {
@@ -619,16 +686,10 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
         return Ok(file(sh, task, dir, &outcome, Instant::now()));
     }
     let drop = match &task.drop {
-        Some(d) => {
-            worker::take_in(&sh.paths, dir, d).map_err(internal)?;
-            d.clone()
-        }
+        Some(d) => d.clone(),
         None => match worker::recorded_drop(dir) {
-            Some(d) => {
-                // Entries a dead owner had not moved yet are still in the inbox.
-                worker::take_in(&sh.paths, dir, &d).map_err(internal)?;
-                d
-            }
+            // Entries a dead owner had not moved yet are still in the inbox.
+            Some(d) => d,
             None => {
                 // Died before recording the drop: nothing left the inbox.
                 let _ = worker::remove_tree(dir);
@@ -636,12 +697,57 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
             }
         },
     };
-    worker::derive_manifest(&sh.paths, dir, &drop)?;
+    // Links are refused before anything is read; the drop still moves in
+    // (a rename, never followed), so it is filed and not taken again.
+    let links = worker::check_links(&sh.paths, dir, &drop);
+    if !worker::take_in(&sh.paths, dir, &drop).map_err(internal)? {
+        // Another daemon took the drop under another name first.
+        let _ = worker::remove_tree(dir);
+        return Ok(JobEnd::Interrupted);
+    }
+    links?;
+    let stopped = || sh.stop.load(Ordering::SeqCst) > 0;
+    let interrupted = || {
+        let _ = task.claim.release();
+        (sh.log)(&Event::Interrupted { job: name.clone() });
+        Ok(JobEnd::Interrupted)
+    };
+    let mut claimed = task.signature.clone();
     let t = Instant::now();
     let mut attempt = 0;
+    let mut not_ready = 0;
+    // A bad-input failure while the drop was still changing: wait until it
+    // holds still, then run it again (a bounded number of times).
+    let mut still_changing = |f: &worker::Failure, attempt: u32| -> Option<bool> {
+        if f.class != ErrorClass::BadInput
+            || not_ready >= NOT_READY_RUNS
+            || !worker::still_changing(dir, &drop, claimed.as_ref(), sh.cfg.settle, stopped)
+        {
+            return None;
+        }
+        not_ready += 1;
+        (sh.log)(&Event::NotReady {
+            job: name.clone(),
+            attempt,
+            message: f.message.clone(),
+        });
+        claimed = Some(worker::wait_still(dir, &drop, sh.cfg.settle, stopped));
+        Some(stopped())
+    };
+    let reads = loop {
+        match worker::derive_manifest(&sh.paths, dir, &drop, &sh.cfg.allow_roots) {
+            Ok(r) => break r,
+            Err(f) => match still_changing(&f, 0) {
+                Some(false) => continue,
+                Some(true) => return interrupted(),
+                None => return Err(f),
+            },
+        }
+    };
+    let args = child_args(sh, &reads);
     loop {
         attempt += 1;
-        let result = run_child(sh, name, dir, attempt).map_err(|e| {
+        let result = run_child(sh, name, dir, attempt, &args).map_err(|e| {
             worker::failure(
                 name,
                 ErrorClass::Unavailable,
@@ -649,8 +755,19 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
                 None,
             )
         })?;
+        let warnings = match &result {
+            RunResult::Done(_, w) => w.clone(),
+            RunResult::Failed(f) => f.warnings.clone(),
+            RunResult::Signalled => Vec::new(),
+        };
+        for w in warnings {
+            (sh.log)(&Event::Warning {
+                job: Some(name.clone()),
+                message: w,
+            });
+        }
         match result {
-            RunResult::Done(stages) => {
+            RunResult::Done(stages, warnings) => {
                 for s in &stages {
                     (sh.log)(&Event::Stage {
                         job: name.clone(),
@@ -659,17 +776,12 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
                         ms: s.ms,
                     });
                 }
-                return Ok(file(sh, task, dir, &Outcome::Done { stages }, t));
+                let outcome = Outcome::Done { stages, warnings };
+                return Ok(file(sh, task, dir, &outcome, t));
             }
-            RunResult::Signalled => {
-                let _ = task.claim.release();
-                (sh.log)(&Event::Interrupted { job: name.clone() });
-                return Ok(JobEnd::Interrupted);
-            }
+            RunResult::Signalled => return interrupted(),
             RunResult::Failed(f)
-                if f.class.retryable()
-                    && attempt <= sh.cfg.retries
-                    && sh.stop.load(Ordering::SeqCst) == 0 =>
+                if f.class.retryable() && attempt <= sh.cfg.retries && !stopped() =>
             {
                 let delay = sh.cfg.retry_delay * attempt;
                 (sh.log)(&Event::Retry {
@@ -679,15 +791,18 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
                     message: f.message.clone(),
                     delay_s: delay.as_secs_f64(),
                 });
-                worker::sleep_unless(delay, || sh.stop.load(Ordering::SeqCst) > 0);
-                if sh.stop.load(Ordering::SeqCst) > 0 {
+                worker::sleep_unless(delay, stopped);
+                if stopped() {
                     // Stopping: no new attempt; the next owner retries.
-                    let _ = task.claim.release();
-                    (sh.log)(&Event::Interrupted { job: name.clone() });
-                    return Ok(JobEnd::Interrupted);
+                    return interrupted();
                 }
             }
             RunResult::Failed(mut f) => {
+                match still_changing(&f, attempt) {
+                    Some(false) => continue,
+                    Some(true) => return interrupted(),
+                    None => {}
+                }
                 f.attempts = attempt;
                 if f.file.is_none() {
                     f.file = drop.entries().into_iter().next();
@@ -698,9 +813,35 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
     }
 }
 
+/// The child's arguments after `run job.toml --json`: its share of the
+/// memory budget, the operator's allowed folders, and the inbox where a
+/// top-level manifest or sidecar names files there.
+fn child_args(sh: &Shared, reads: &worker::Reads) -> Vec<std::ffi::OsString> {
+    let mut a: Vec<std::ffi::OsString> = Vec::new();
+    if let Some(m) = sh.cfg.child_max_memory() {
+        a.push("--max-memory".into());
+        a.push(m.to_string().into());
+    }
+    let inbox = reads
+        .inbox
+        .then(|| std::fs::canonicalize(&sh.paths.inbox).unwrap_or_else(|_| sh.paths.inbox.clone()));
+    for r in sh.cfg.allow_roots.iter().chain(inbox.as_ref()) {
+        a.push("--allow-root".into());
+        a.push(r.clone().into_os_string());
+    }
+    a
+}
+
 /// Runs the child once, its pid known to the main loop while it runs.
-fn run_child(sh: &Shared, name: &str, dir: &Path, attempt: u32) -> std::io::Result<RunResult> {
-    let child = worker::spawn(&sh.cfg.exe, dir)?;
+/// Its frame progress goes to `work/NAME/progress.json` as it comes.
+fn run_child(
+    sh: &Shared,
+    name: &str,
+    dir: &Path,
+    attempt: u32,
+    args: &[std::ffi::OsString],
+) -> std::io::Result<RunResult> {
+    let mut child = worker::spawn(&sh.cfg.exe, dir, args)?;
     let pid = child.id();
     let mut signalled = false;
     if let Ok(mut r) = sh.running.lock() {
@@ -718,7 +859,27 @@ fn run_child(sh: &Shared, name: &str, dir: &Path, attempt: u32) -> std::io::Resu
         attempt,
         pid,
     });
-    let out = child.wait_with_output()?;
+    let stdout = child.stdout.take();
+    let stderr = child.stderr.take();
+    let progress = dir.join(worker::PROGRESS);
+    let (out, err) = std::thread::scope(|s| {
+        let err = s.spawn(move || {
+            let mut v = Vec::new();
+            if let Some(mut e) = stderr {
+                let _ = std::io::Read::read_to_end(&mut e, &mut v);
+            }
+            v
+        });
+        let out = stdout.map_or_else(Vec::new, |o| worker::read_progress(o, &progress, attempt));
+        (out, err.join().unwrap_or_default())
+    });
+    let status = child.wait()?;
+    let _ = std::fs::remove_file(&progress);
+    let out = std::process::Output {
+        status,
+        stdout: out,
+        stderr: err,
+    };
     let signalled = sh.running.lock().map_or(true, |mut r| {
         let run = r.entry(name.to_string()).or_default();
         run.child = None;
@@ -727,19 +888,36 @@ fn run_child(sh: &Shared, name: &str, dir: &Path, attempt: u32) -> std::io::Resu
     Ok(worker::result_of(name, &out, signalled))
 }
 
-/// Files the job under done/ or failed/ (only while the claim is held).
+/// Filing attempts before a job is parked.
+const FILING_TRIES: u32 = 3;
+
+/// Files the job under done/ or failed/ (only while the claim is held). A
+/// filing error is tried again twice; one that persists parks the job.
 fn file(sh: &Shared, task: &Task, dir: &Path, outcome: &Outcome, t: Instant) -> JobEnd {
     let name = &task.name;
     if !task.claim.held() {
         (sh.log)(&Event::Lost { job: name.clone() });
         return JobEnd::Interrupted;
     }
-    if let Err(e) = worker::finish(&sh.paths, dir, name, outcome) {
-        (sh.log)(&Event::Warning {
-            message: format!("{name}: cannot file the job away ({e}); it stays in work/"),
-        });
-        let _ = task.claim.release();
-        return JobEnd::Interrupted;
+    let mut tries = 0;
+    loop {
+        tries += 1;
+        match worker::finish(&sh.paths, dir, name, outcome) {
+            Ok(_) => break,
+            Err(_) if tries < FILING_TRIES => {
+                worker::sleep_unless(Duration::from_millis(500) * tries, || false);
+            }
+            Err(e) => {
+                let message = format!("cannot file the job away: {e}");
+                let _ = worker::park(dir, name, &message);
+                (sh.log)(&Event::Parked {
+                    job: name.clone(),
+                    message,
+                });
+                let _ = task.claim.release();
+                return JobEnd::Parked;
+            }
+        }
     }
     match outcome {
         Outcome::Done { .. } => {

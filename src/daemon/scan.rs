@@ -6,7 +6,7 @@
 //! half-copied file keeps growing or being touched, so it is never taken
 //! (docs/design.md, pipeline conventions: polling is the truth).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime};
 
@@ -120,6 +120,7 @@ pub fn classify(entries: &[(String, bool)], read: impl Fn(&str) -> Option<String
         .filter_map(|(n, _)| Path::new(n).file_stem()?.to_str().map(|s| (s, n.as_str())))
         .collect();
     let mut drops = Vec::new();
+    let mut sidecars_given = HashSet::new();
     for (n, is_dir) in names {
         let kind = if *is_dir {
             DropKind::Folder { dir: n.clone() }
@@ -139,10 +140,10 @@ pub fn classify(entries: &[(String, bool)], read: impl Fn(&str) -> Option<String
                 .and_then(|s| s.to_str())
                 .unwrap_or(n);
             let side = format!("{stem}.job.toml");
-            let sidecar = entries
-                .iter()
-                .any(|(e, d)| !d && *e == side)
-                .then_some(side);
+            // A sidecar goes with the first yarn file of its stem only.
+            let sidecar = (entries.iter().any(|(e, d)| !d && *e == side)
+                && sidecars_given.insert(side.clone()))
+            .then_some(side);
             DropKind::Yarns {
                 file: n.clone(),
                 sidecar,
@@ -163,7 +164,58 @@ pub fn classify(entries: &[(String, bool)], read: impl Fn(&str) -> Option<String
         };
         drops.push(Drop { name, kind });
     }
+    unique_names(&mut drops, |_, _| None);
     drops
+}
+
+/// Gives drops that would share a job name distinct names: the first (in
+/// name order) keeps NAME, a later one is named by its entry's full name
+/// (`dup.obj` beside `dup.bcc`). `given` returns the name a drop was given
+/// at an earlier scan, which it keeps while it waits.
+pub fn unique_names(drops: &mut [Drop], given: impl Fn(&str, &str) -> Option<String>) {
+    let mut used: HashSet<String> = HashSet::new();
+    for d in drops.iter_mut() {
+        let first = d.entries().into_iter().next().unwrap_or_default();
+        if let Some(name) = given(&first, &d.name).filter(|n| !used.contains(n)) {
+            d.name = name;
+        } else if used.contains(&d.name) && !used.contains(&first) {
+            d.name = first;
+        }
+        used.insert(d.name.clone());
+    }
+}
+
+/// The first symlink of a drop entry (the entry itself, or inside a
+/// folder drop) that leads out of the drop: an entry that is a symlink
+/// always does (its target is not the drop), a link inside a folder when
+/// it resolves (or dangles) outside the folder. Nothing is read.
+pub fn link_outside(path: &Path) -> Option<PathBuf> {
+    let meta = std::fs::symlink_metadata(path).ok()?;
+    if meta.file_type().is_symlink() {
+        return Some(path.to_path_buf());
+    }
+    if !meta.is_dir() {
+        return None;
+    }
+    let top = std::fs::canonicalize(path).ok()?;
+    fn walk(dir: &Path, top: &Path, depth: usize) -> Option<PathBuf> {
+        for e in std::fs::read_dir(dir).ok()?.flatten() {
+            let p = e.path();
+            let Ok(t) = e.file_type() else { continue };
+            if t.is_symlink() {
+                match std::fs::canonicalize(&p) {
+                    Ok(r) if r.starts_with(top) => {}
+                    _ => return Some(p),
+                }
+            } else if t.is_dir() && depth < 64 {
+                if let Some(p) = walk(&p, top, depth + 1) {
+                    return Some(p);
+                }
+            }
+        }
+        None
+    }
+    walk(path, &top, 0)
 }
 
 /// Size and mtime of every file of an entry (recursively for a folder).
@@ -248,6 +300,8 @@ pub fn network_filesystem(path: &Path) -> bool {
 #[derive(Debug, Default)]
 pub struct Stability {
     seen: HashMap<String, (Signature, Instant)>,
+    /// The job name each waiting drop (by its first entry) was given.
+    pub names: HashMap<String, String>,
 }
 
 /// What [`Stability::observe`] says about an entry.
@@ -286,6 +340,8 @@ impl Stability {
     /// Forgets entries that are no longer in the inbox.
     pub fn retain(&mut self, present: &[(String, bool)]) {
         self.seen.retain(|k, _| present.iter().any(|(n, _)| n == k));
+        self.names
+            .retain(|k, _| present.iter().any(|(n, _)| n == k));
     }
 }
 

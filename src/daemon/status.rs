@@ -28,12 +28,22 @@ pub struct Queued {
 pub struct Working {
     pub job: String,
     /// `running`, `stale` (no heartbeat: will be taken over), `released`
-    /// (stopped on purpose: will be taken at once) or `unclaimed`.
+    /// (stopped on purpose: will be taken at once), `parked` (could not be
+    /// filed away: `parked.json` says why) or `unclaimed`.
     pub state: &'static str,
     pub generation: Option<u64>,
     pub host: Option<String>,
     pub pid: Option<u32>,
     pub heartbeat_age_s: Option<f64>,
+    /// The stage the child runs now (its `out/NAME/.knitvox/STAGE.lock`).
+    pub stage: Option<String>,
+    /// The child's last computed frame, and frames done of how many in
+    /// this run (`work/NAME/progress.json`).
+    pub frame: Option<i64>,
+    pub frames_done: Option<u64>,
+    pub frames_total: Option<u64>,
+    /// Why a parked job could not be filed.
+    pub parked: Option<String>,
 }
 
 /// The whole picture.
@@ -50,6 +60,24 @@ fn newest_age(path: &Path) -> Option<Duration> {
     let sig = scan::signature(path)?;
     let newest = sig.values().map(|(_, t)| *t).max()?;
     Some(SystemTime::now().duration_since(newest).unwrap_or_default())
+}
+
+/// The stage whose lock is held in a job's output folder (the stage
+/// `knitvox run` works on), if any.
+fn running_stage(out: &Path) -> Option<String> {
+    let records = out.join(".knitvox");
+    let mut locks: Vec<String> = std::fs::read_dir(records)
+        .ok()?
+        .flatten()
+        .filter_map(|e| {
+            e.file_name()
+                .to_str()?
+                .strip_suffix(".lock")
+                .map(String::from)
+        })
+        .collect();
+    locks.sort();
+    locks.into_iter().next()
 }
 
 fn read_list(dir: &Path) -> Result<Vec<(String, bool)>, IoError> {
@@ -98,7 +126,21 @@ pub fn status(root: &Path, settle: Duration, stale_after: Duration) -> Result<St
         }
         let cur = claims::current(&p.work.join(&name)).ok().flatten();
         let owner = cur.as_ref().and_then(|c| c.owner.clone());
+        let dir = p.work.join(&name);
+        let parked = std::fs::read_to_string(dir.join(super::worker::PARKED))
+            .ok()
+            .map(|t| {
+                serde_json::from_str::<serde_json::Value>(&t)
+                    .ok()
+                    .and_then(|v| v["message"].as_str().map(String::from))
+                    .unwrap_or_default()
+            });
+        let progress = std::fs::read_to_string(dir.join(super::worker::PROGRESS))
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+        let stage = running_stage(&p.out.join(&name));
         let state = match &cur {
+            _ if parked.is_some() => "parked",
             None => "unclaimed",
             Some(_) if owner.as_ref().is_some_and(|o| o.released) => "released",
             Some(c) if c.age > stale_after => "stale",
@@ -111,9 +153,15 @@ pub fn status(root: &Path, settle: Duration, stale_after: Duration) -> Result<St
             host: owner.as_ref().map(|o| o.host.clone()),
             pid: owner.as_ref().map(|o| o.pid),
             heartbeat_age_s: cur.as_ref().map(|c| c.age.as_secs_f64()),
+            stage,
+            frame: progress.as_ref().and_then(|v| v["frame"].as_i64()),
+            frames_done: progress.as_ref().and_then(|v| v["done"].as_u64()),
+            frames_total: progress.as_ref().and_then(|v| v["total"].as_u64()),
+            parked,
         });
     }
-    let done_entries = read_list(&p.done)?;
+    let mut done_entries = read_list(&p.done)?;
+    done_entries.retain(|(n, _)| !n.ends_with(".warnings.json"));
     let done = scan::classify(&done_entries, |n| {
         std::fs::read_to_string(p.done.join(n)).ok()
     })

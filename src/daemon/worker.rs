@@ -7,13 +7,14 @@
 //! child is `knitvox run`, whose stage records make a rerun skip the stages
 //! that finished (schemas/job.md, "Caching").
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use serde::{Deserialize, Serialize};
 
-use super::scan::{Drop, DropKind};
+use super::scan::{Drop, DropKind, Signature};
 use super::Paths;
 use crate::io::IoError;
 use crate::pipeline::job::Manifest;
@@ -34,13 +35,21 @@ pub struct Failure {
     pub place: Option<String>,
     /// Runs made (transient failures are retried).
     pub attempts: u32,
+    /// The run's warnings (`warning: ...` lines of the child).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// How a job ended (`work/NAME/result.json` while it is being filed).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "outcome", rename_all = "snake_case")]
 pub enum Outcome {
-    Done { stages: Vec<StageLine> },
+    Done {
+        stages: Vec<StageLine>,
+        /// The run's warnings (kept as `done/NAME.warnings.json`).
+        #[serde(default)]
+        warnings: Vec<String>,
+    },
     Failed(Failure),
 }
 
@@ -55,7 +64,7 @@ pub struct StageLine {
 /// What one run of the child gave.
 #[derive(Debug)]
 pub enum RunResult {
-    Done(Vec<StageLine>),
+    Done(Vec<StageLine>, Vec<String>),
     Failed(Failure),
     /// Killed by a signal this daemon sent (stop, lost claim).
     Signalled,
@@ -96,6 +105,7 @@ pub(super) fn failure(
         message,
         file,
         attempts: 0,
+        warnings: Vec::new(),
     }
 }
 
@@ -138,16 +148,60 @@ fn write_json(path: &Path, v: &impl Serialize) -> Result<(), IoError> {
 
 /// Records the drop, then moves its entries from the inbox into
 /// `work/NAME/input/` (entries already moved by a previous owner are kept).
-pub fn take_in(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), IoError> {
-    write_json(&dir.join("drop.json"), drop)?;
+/// `Ok(false)`: none of the drop is in the inbox or in `input/` (another
+/// daemon took it under another name first): nothing to run.
+pub fn take_in(paths: &Paths, dir: &Path, drop: &Drop) -> Result<bool, IoError> {
     let input = dir.join("input");
+    let here = |e: &String| {
+        std::fs::symlink_metadata(paths.inbox.join(e)).is_ok()
+            || std::fs::symlink_metadata(input.join(e)).is_ok()
+    };
+    if !drop.entries().iter().any(here) {
+        return Ok(false);
+    }
+    write_json(&dir.join("drop.json"), drop)?;
     std::fs::create_dir_all(&input).map_err(|e| write_err(&input, e))?;
     for e in drop.entries() {
         let (from, to) = (paths.inbox.join(&e), input.join(&e));
         match std::fs::rename(&from, &to) {
             Ok(()) => {}
-            Err(err) if err.kind() == std::io::ErrorKind::NotFound && to.exists() => {}
+            Err(err)
+                if err.kind() == std::io::ErrorKind::NotFound
+                    && std::fs::symlink_metadata(&to).is_ok() => {}
             Err(err) => return Err(read_err(&from, err)),
+        }
+    }
+    Ok(true)
+}
+
+/// Refuses a drop that is a symlink, or a folder drop holding a symlink
+/// that leads outside it, before anything of it is read: a bad-input
+/// failure naming the entry.
+pub fn check_links(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Failure> {
+    let input = dir.join("input");
+    for e in drop.entries() {
+        let mut base = &paths.inbox;
+        if std::fs::symlink_metadata(base.join(&e)).is_err() {
+            base = &input; // moved in already by a previous owner
+        }
+        let path = base.join(&e);
+        if let Some(link) = super::scan::link_outside(&path) {
+            let shown = link
+                .strip_prefix(base)
+                .unwrap_or(&link)
+                .display()
+                .to_string();
+            let what = if link == path {
+                "the drop is a symlink"
+            } else {
+                "a symlink in the drop leads outside it"
+            };
+            return Err(failure(
+                &drop.name,
+                ErrorClass::BadInput,
+                format!("{shown}: refusing: {what}; drop files, not links to them"),
+                Some(shown),
+            ));
         }
     }
     Ok(())
@@ -205,12 +259,42 @@ fn parse_manifest(
         .map_err(|e| bad(e.message().trim().to_string()))
 }
 
+/// The input paths a manifest names, with their keys.
+fn named_paths(m: &Manifest) -> Vec<(&'static str, PathBuf)> {
+    let mut v = vec![("garment.yarns", m.garment.yarns.clone())];
+    if let Some(s) = m.shot.as_ref().and_then(|s| s.scene.clone()) {
+        v.push(("shot.scene", s));
+    }
+    if let Some(c) = &m.character {
+        v.push(("character.file", c.file.clone()));
+    }
+    v
+}
+
+/// What a job's child may read besides its own folder.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Reads {
+    /// A path of a top-level manifest or sidecar names a file in the inbox.
+    pub inbox: bool,
+}
+
 /// Writes `work/NAME/job.toml`: the drop's manifest (or the default job of
 /// a bare yarn file) with its paths rebased onto `work/NAME/` and its
 /// output set to `out/NAME/`. Paths are relative where the files moved
 /// with the drop, so the child's provenance (and so its output bytes) does
 /// not depend on where ROOT is.
-pub fn derive_manifest(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Failure> {
+///
+/// Every input path the manifest names must resolve (symlinks followed)
+/// inside the job's folder, the inbox for a top-level manifest or sidecar
+/// (whose relative paths mean the inbox), or one of `allow` (the
+/// operator's `--allow-root`s); else the job fails as bad input naming the
+/// dropped file, the key and the path as written, and nothing is read.
+pub fn derive_manifest(
+    paths: &Paths,
+    dir: &Path,
+    drop: &Drop,
+    allow: &[PathBuf],
+) -> Result<Reads, Failure> {
     let job = drop.name.as_str();
     let input = dir.join("input");
     // Top-level drops: relative paths mean the inbox, where they were dropped.
@@ -222,18 +306,26 @@ pub fn derive_manifest(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Fai
             inbox.join(p)
         }
     };
+    // (the file shown in errors, the paths as written, whether relative paths mean the inbox)
+    let shown: String;
+    let written: Vec<(&'static str, PathBuf)>;
+    let mut top_level = true;
     let mut m = match &drop.kind {
         DropKind::Yarns { file, sidecar } => {
             let mut m = match sidecar {
                 Some(s) => parse_manifest(job, &input.join(s), s, Some(file))?,
                 None => Manifest::for_yarns(file.into()),
             };
+            shown = sidecar.clone().unwrap_or_else(|| file.clone());
+            written = named_paths(&m);
             m.map_paths(&from_inbox);
             m.garment.yarns = Path::new("input").join(file);
             m
         }
         DropKind::Manifest { file } => {
             let mut m = parse_manifest(job, &input.join(file), file, None)?;
+            shown = file.clone();
+            written = named_paths(&m);
             m.map_paths(&from_inbox);
             m
         }
@@ -247,8 +339,10 @@ pub fn derive_manifest(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Fai
                     Some(format!("{d}/")),
                 )
             })?;
-            let shown = format!("{d}/{name}");
+            shown = format!("{d}/{name}");
             let mut m = parse_manifest(job, &folder.join(&name), &shown, None)?;
+            written = named_paths(&m);
+            top_level = false;
             let base = Path::new("input").join(d);
             m.map_paths(|p| if p.is_absolute() { p.to_path_buf() } else { base.join(p) });
             m
@@ -264,6 +358,43 @@ pub fn derive_manifest(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Fai
             ))
         }
     };
+    let mut roots = vec![dir.to_path_buf()];
+    if top_level {
+        roots.push(paths.inbox.clone());
+    }
+    roots.extend(allow.iter().cloned());
+    let canon = |p: &Path| std::fs::canonicalize(p).ok();
+    let own_dir = canon(dir);
+    let allowed: Vec<PathBuf> = allow.iter().filter_map(|p| canon(p)).collect();
+    let mut reads = Reads::default();
+    for ((key, path), (_, as_written)) in named_paths(&m).into_iter().zip(written) {
+        let full = if path.is_absolute() {
+            path
+        } else {
+            dir.join(path)
+        };
+        let refuse = |class, e: &dyn std::fmt::Display| {
+            failure(
+                job,
+                class,
+                format!("{shown}: {key} = \"{}\": {e}", as_written.display()),
+                Some(shown.clone()),
+            )
+        };
+        match crate::io::confined::resolve_inside(&full, &roots) {
+            Ok(r) => {
+                // Neither in the job's folder nor an allowed root: in the inbox.
+                let in_dir = own_dir.as_ref().is_some_and(|d| r.starts_with(d));
+                if !in_dir && !allowed.iter().any(|a| r.starts_with(a)) {
+                    reads.inbox = true;
+                }
+            }
+            Err(e @ crate::io::confined::ConfinedError::OutsideRoots { .. }) => {
+                return Err(refuse(ErrorClass::BadInput, &e))
+            }
+            Err(e) => return Err(refuse(ErrorClass::Missing, &e)),
+        }
+    }
     // Outputs always go to out/NAME (a dropped `output` key is replaced).
     m.output = Some(Path::new("../..").join("out").join(job));
     let text = m
@@ -271,7 +402,8 @@ pub fn derive_manifest(paths: &Paths, dir: &Path, drop: &Drop) -> Result<(), Fai
         .map_err(|e| failure(job, ErrorClass::Internal, e.to_string(), None))?;
     let path = dir.join("job.toml");
     crate::io::atomic::write_bytes(&path, text.as_bytes())
-        .map_err(|e| failure(job, ErrorClass::Output, e.to_string(), None))
+        .map_err(|e| failure(job, ErrorClass::Output, e.to_string(), None))?;
+    Ok(reads)
 }
 
 fn manifest_in_folder(folder: &Path) -> Option<String> {
@@ -291,9 +423,14 @@ fn manifest_in_folder(folder: &Path) -> Option<String> {
 /// as the daemon), so a killed daemon leaves nobody writing outputs; it has
 /// its own process group, so a terminal's Ctrl-C reaches only the daemon,
 /// which decides what the children get.
-pub fn spawn(exe: &Path, dir: &Path) -> std::io::Result<std::process::Child> {
+pub fn spawn(
+    exe: &Path,
+    dir: &Path,
+    extra: &[std::ffi::OsString],
+) -> std::io::Result<std::process::Child> {
     let mut cmd = Command::new(exe);
     cmd.args(["run", "job.toml", "--json"])
+        .args(extra)
         .current_dir(dir)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -332,6 +469,7 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
     if signalled && !out.status.success() {
         return RunResult::Signalled;
     }
+    let warnings = warnings_of(&stdout, &stderr);
     if out.status.success() {
         // `run --json` prints a line per computed frame, the report last.
         let stages = stdout
@@ -340,7 +478,7 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
             .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
             .find_map(|v| serde_json::from_value::<Vec<StageLine>>(v["stages"].clone()).ok())
             .unwrap_or_default();
-        return RunResult::Done(stages);
+        return RunResult::Done(stages, warnings);
     }
     let class = out
         .status
@@ -393,12 +531,72 @@ pub fn result_of(job: &str, out: &std::process::Output, signalled: bool) -> RunR
             .filter(|f| !f.contains(' ') && f != "error");
     }
     let file = file.map(|f| f.trim_start_matches("input/").to_string());
-    RunResult::Failed(failure(job, class, message, file))
+    let mut f = failure(job, class, message, file);
+    f.warnings = warnings;
+    RunResult::Failed(f)
+}
+
+/// The child's warnings: its `warning: ...` stderr lines, and the
+/// `warnings` of its JSON report where it carries them (each once, in
+/// order), with the work folder's `input/` stripped from file names.
+fn warnings_of(stdout: &str, stderr: &str) -> Vec<String> {
+    let mut v: Vec<String> = Vec::new();
+    let report = stdout
+        .lines()
+        .rev()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .find(|v| v["event"] == "report");
+    let from_report = report
+        .as_ref()
+        .and_then(|r| r["warnings"].as_array().cloned())
+        .unwrap_or_default();
+    let lines = stderr.lines().filter_map(|l| l.strip_prefix("warning: "));
+    for w in from_report
+        .iter()
+        .filter_map(|w| w.as_str())
+        .chain(lines)
+        .map(|w| w.trim().replace("input/", ""))
+    {
+        if !w.is_empty() && !v.contains(&w) {
+            v.push(w);
+        }
+    }
+    v
+}
+
+/// The name an entry of job `job` is filed under with suffix `n`: itself
+/// for 0, else `.N` after the job name (`coll.1`, `dup.1.bcc`,
+/// `dup.1.job.toml`, `dup.1.error.json`), or at the end for an entry that
+/// does not start with it.
+pub fn filed_name(entry: &str, job: &str, n: u32) -> String {
+    if n == 0 {
+        return entry.to_string();
+    }
+    if entry == job {
+        return format!("{job}.{n}");
+    }
+    match entry.strip_prefix(job).and_then(|r| r.strip_prefix('.')) {
+        Some(rest) => format!("{job}.{n}.{rest}"),
+        None => format!("{entry}.{n}"),
+    }
+}
+
+/// The smallest suffix under which none of `names` (nor the job's error
+/// and warnings files) exists in `dest`: filing never replaces anything.
+fn free_suffix(dest: &Path, job: &str, names: &[String]) -> u32 {
+    let records = [format!("{job}.error.json"), format!("{job}.warnings.json")];
+    let taken = |n: u32| {
+        names
+            .iter()
+            .chain(records.iter())
+            .any(|e| std::fs::symlink_metadata(dest.join(filed_name(e, job, n))).is_ok())
+    };
+    (0..u32::MAX).find(|&n| !taken(n)).unwrap_or(u32::MAX)
 }
 
 /// Files the job's drop (everything in `work/NAME/input/`) under `dest`
-/// (done/ or failed/), replacing an earlier drop of the same name.
-pub fn file_away(dir: &Path, dest: &Path) -> Result<(), IoError> {
+/// (done/ or failed/) with suffix `n`.
+pub fn file_away(dir: &Path, dest: &Path, job: &str, n: u32) -> Result<(), IoError> {
     let input = dir.join("input");
     let entries = match std::fs::read_dir(&input) {
         Ok(r) => r,
@@ -407,9 +605,14 @@ pub fn file_away(dir: &Path, dest: &Path) -> Result<(), IoError> {
     };
     for e in entries {
         let e = e.map_err(|err| read_err(&input, err))?;
-        let to = dest.join(e.file_name());
-        if to.is_dir() {
-            remove_tree(&to)?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        let to = dest.join(filed_name(&name, job, n));
+        if std::fs::symlink_metadata(&to).is_ok() {
+            // Taken since the suffix was chosen: never replaced.
+            return Err(write_err(
+                &to,
+                std::io::Error::from(std::io::ErrorKind::AlreadyExists),
+            ));
         }
         std::fs::rename(e.path(), &to).map_err(|err| write_err(&to, err))?;
     }
@@ -429,31 +632,191 @@ pub fn remove_tree(dir: &Path) -> Result<(), IoError> {
     std::fs::remove_dir_all(&hidden).map_err(|e| write_err(&hidden, e))
 }
 
-/// Records the outcome, files the drop, removes `work/NAME/`.
-pub fn finish(paths: &Paths, dir: &Path, job: &str, outcome: &Outcome) -> Result<(), IoError> {
+/// Records the outcome, files the drop (under a suffixed name where its
+/// names are taken, [`filed_name`]), removes `work/NAME/`. Returns the
+/// suffix (0: none).
+pub fn finish(paths: &Paths, dir: &Path, job: &str, outcome: &Outcome) -> Result<u32, IoError> {
     let result = dir.join("result.json");
     if !result.exists() {
         write_json(&result, outcome)?;
     }
-    let dest = match outcome {
-        Outcome::Done { .. } => &paths.done,
-        Outcome::Failed(f) => {
-            write_json(&paths.failed.join(format!("{job}.error.json")), f)?;
-            &paths.failed
+    let (dest, warnings) = match outcome {
+        Outcome::Done { warnings, .. } => (&paths.done, warnings),
+        Outcome::Failed(f) => (&paths.failed, &f.warnings),
+    };
+    // The suffix is recorded before anything moves, so a new owner that
+    // finishes the filing uses the same one.
+    let filing = dir.join("filing.json");
+    let n = match std::fs::read_to_string(&filing)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["suffix"].as_u64())
+    {
+        Some(n) => n as u32,
+        None => {
+            let input = dir.join("input");
+            let names: Vec<String> = std::fs::read_dir(&input)
+                .map(|r| {
+                    r.flatten()
+                        .map(|e| e.file_name().to_string_lossy().into_owned())
+                        .collect()
+                })
+                .unwrap_or_default();
+            let n = free_suffix(dest, job, &names);
+            write_json(&filing, &serde_json::json!({ "suffix": n }))?;
+            n
         }
     };
-    file_away(dir, dest)?;
+    if let Outcome::Failed(f) = outcome {
+        write_json(
+            &dest.join(filed_name(&format!("{job}.error.json"), job, n)),
+            f,
+        )?;
+    }
+    if !warnings.is_empty() {
+        let w = serde_json::json!({ "job": job, "warnings": warnings });
+        write_json(
+            &dest.join(filed_name(&format!("{job}.warnings.json"), job, n)),
+            &w,
+        )?;
+    }
+    file_away(dir, dest, job, n)?;
     if matches!(outcome, Outcome::Failed(_)) {
         // A job that failed before writing anything leaves no empty out/NAME.
         let _ = std::fs::remove_dir(paths.out.join(job));
     }
-    remove_tree(dir)
+    remove_tree(dir)?;
+    Ok(n)
 }
 
 /// The outcome recorded by a previous owner that died while filing.
 pub fn recorded_outcome(dir: &Path) -> Option<Outcome> {
     let text = std::fs::read_to_string(dir.join("result.json")).ok()?;
     serde_json::from_str(&text).ok()
+}
+
+/// `work/NAME/parked.json`: a job that could not be filed away (removing
+/// the file lets a daemon take it again).
+pub const PARKED: &str = "parked.json";
+
+/// `work/NAME/progress.json`: the running child's last frame.
+pub const PROGRESS: &str = "progress.json";
+
+/// Records why a job is parked.
+pub fn park(dir: &Path, job: &str, message: &str) -> Result<(), IoError> {
+    let v = serde_json::json!({ "job": job, "message": message, "t": super::claims::unix_now() });
+    write_json(&dir.join(PARKED), &v)
+}
+
+/// Reads the child's stdout to its end (returned), writing each `frame`
+/// event to `progress` as it comes (for `--status`).
+pub fn read_progress(out: impl std::io::Read, progress: &Path, attempt: u32) -> Vec<u8> {
+    use std::io::BufRead;
+    let mut all = Vec::new();
+    let mut r = std::io::BufReader::new(out);
+    let mut line = Vec::new();
+    while matches!(r.read_until(b'\n', &mut line), Ok(n) if n > 0) {
+        if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&line) {
+            if v["event"] == "frame" {
+                let p = serde_json::json!({
+                    "attempt": attempt,
+                    "frame": v["frame"],
+                    "done": v["done"],
+                    "total": v["total"],
+                    "t": super::claims::unix_now(),
+                });
+                let _ = write_json(progress, &p);
+            }
+        }
+        all.append(&mut line);
+    }
+    all
+}
+
+/// The signatures of a job's entries in `work/NAME/input/`.
+fn input_signature(dir: &Path, drop: &Drop) -> BTreeMap<String, Signature> {
+    let input = dir.join("input");
+    drop.entries()
+        .into_iter()
+        .filter_map(|e| {
+            let mut s = super::scan::signature(&input.join(&e))?;
+            // A moved folder's own mtime may change with the move.
+            if input.join(&e).is_dir() {
+                s.remove(Path::new(""));
+            }
+            Some((e, s))
+        })
+        .collect()
+}
+
+fn without_folder_times(
+    mut sig: BTreeMap<String, Signature>,
+    dir: &Path,
+) -> BTreeMap<String, Signature> {
+    for (e, s) in sig.iter_mut() {
+        if dir.join("input").join(e).is_dir() {
+            s.remove(Path::new(""));
+        }
+    }
+    sig
+}
+
+fn newest_age(sig: &BTreeMap<String, Signature>) -> Duration {
+    let newest = sig.values().flat_map(|s| s.values().map(|(_, t)| *t)).max();
+    newest.map_or(Duration::MAX, |t| {
+        SystemTime::now().duration_since(t).unwrap_or_default()
+    })
+}
+
+/// Whether a job's files changed since they were claimed (`claimed`),
+/// changed less than `settle` ago, or change within the next `settle`
+/// (watched unless `stop`): a parse failure may then be a copy still
+/// under way.
+pub fn still_changing(
+    dir: &Path,
+    drop: &Drop,
+    claimed: Option<&BTreeMap<String, Signature>>,
+    settle: Duration,
+    stop: impl Fn() -> bool,
+) -> bool {
+    let now = input_signature(dir, drop);
+    let changed = claimed.is_some_and(|c| without_folder_times(c.clone(), dir) != now);
+    if changed || newest_age(&now) < settle {
+        return true;
+    }
+    // A copy pausing between writes: the next write comes soon.
+    let end = Instant::now() + settle;
+    while Instant::now() < end && !stop() {
+        sleep_unless(Duration::from_millis(100).min(settle), &stop);
+        if input_signature(dir, drop) != now {
+            return true;
+        }
+    }
+    false
+}
+
+/// Waits until a job's files held still for `settle` (looking at least
+/// every 100 ms; at most 10 minutes, or until `stop`); their signature.
+pub fn wait_still(
+    dir: &Path,
+    drop: &Drop,
+    settle: Duration,
+    stop: impl Fn() -> bool,
+) -> BTreeMap<String, Signature> {
+    let end = Instant::now() + Duration::from_secs(600);
+    let step = settle.clamp(Duration::from_millis(100), Duration::from_secs(5));
+    let mut last = input_signature(dir, drop);
+    let mut since = Instant::now();
+    while Instant::now() < end && !stop() {
+        sleep_unless(step, &stop);
+        let now = input_signature(dir, drop);
+        if now != last {
+            (last, since) = (now, Instant::now());
+        } else if since.elapsed() >= settle && newest_age(&now) >= settle {
+            break;
+        }
+    }
+    last
 }
 
 /// Waits `d`, waking early when `stop` says so.
@@ -485,6 +848,68 @@ mod tests {
         );
         assert_eq!(place_of("a.bcc: no such file"), None);
         assert_eq!(place_of("inline 3"), Some("line 3".into()));
+    }
+
+    #[test]
+    fn filed_names_put_the_suffix_after_the_job_name() {
+        assert_eq!(filed_name("coll", "coll", 0), "coll");
+        assert_eq!(filed_name("coll", "coll", 1), "coll.1");
+        assert_eq!(filed_name("dup.bcc", "dup", 2), "dup.2.bcc");
+        assert_eq!(filed_name("dup.job.toml", "dup", 1), "dup.1.job.toml");
+        assert_eq!(filed_name("dup.error.json", "dup", 1), "dup.1.error.json");
+        assert_eq!(filed_name("dup.obj", "dup.obj", 1), "dup.obj.1");
+        assert_eq!(filed_name("other", "dup", 1), "other.1");
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("a.bcc"), b"").unwrap();
+        assert_eq!(free_suffix(d.path(), "a", &["a.bcc".into()]), 1);
+        std::fs::write(d.path().join("a.1.error.json"), b"").unwrap();
+        assert_eq!(free_suffix(d.path(), "a", &["a.bcc".into()]), 2);
+        assert_eq!(free_suffix(d.path(), "b", &["b.bcc".into()]), 0);
+    }
+
+    /// An absolute yarns path of a top-level manifest: refused outside the
+    /// job's folder and the inbox, unless an allowed root holds it; an
+    /// inbox file is read with the inbox allowed.
+    #[test]
+    fn manifest_paths_must_lie_in_the_job_the_inbox_or_an_allowed_root() {
+        let d = tempfile::tempdir().unwrap();
+        let paths = Paths::new(&d.path().join("root"));
+        paths.create().unwrap();
+        let outside = d.path().join("outside");
+        std::fs::create_dir_all(&outside).unwrap();
+        std::fs::write(outside.join("x.bcc"), b"never read").unwrap();
+        std::fs::write(paths.inbox.join("y.bcc"), b"").unwrap();
+        let job = |name: &str, text: &str| {
+            let dir = paths.work.join(name);
+            std::fs::create_dir_all(dir.join("input")).unwrap();
+            let file = format!("{name}.toml");
+            std::fs::write(dir.join("input").join(&file), text).unwrap();
+            let drop = Drop {
+                name: name.into(),
+                kind: DropKind::Manifest { file },
+            };
+            (dir, drop)
+        };
+        let abs = format!(
+            "[garment]\nyarns = \"{}\"\n",
+            outside.join("x.bcc").display()
+        );
+        let (dir, drop) = job("abs", &abs);
+        let f = derive_manifest(&paths, &dir, &drop, &[]).unwrap_err();
+        assert_eq!(f.class, ErrorClass::BadInput);
+        assert_eq!(f.file.as_deref(), Some("abs.toml"));
+        assert!(f.message.contains("garment.yarns"), "{}", f.message);
+        assert!(!f.message.contains("never read"), "{}", f.message);
+        assert!(!dir.join("job.toml").exists());
+        let reads = derive_manifest(&paths, &dir, &drop, &[outside.clone()]).unwrap();
+        assert_eq!(reads, Reads { inbox: false });
+        assert!(dir.join("job.toml").is_file());
+        let (dir, drop) = job("inb", "[garment]\nyarns = \"y.bcc\"\n");
+        let reads = derive_manifest(&paths, &dir, &drop, &[]).unwrap();
+        assert_eq!(reads, Reads { inbox: true });
+        let (dir, drop) = job("gone", "[garment]\nyarns = \"nothere.bcc\"\n");
+        let f = derive_manifest(&paths, &dir, &drop, &[]).unwrap_err();
+        assert_eq!(f.class, ErrorClass::Missing, "{}", f.message);
     }
 
     #[test]
@@ -553,7 +978,7 @@ mod tests {
             ),
             "",
         );
-        let RunResult::Done(s) = result_of("c", &ok, false) else {
+        let RunResult::Done(s, _) = result_of("c", &ok, false) else {
             panic!("not done")
         };
         assert_eq!(
