@@ -483,24 +483,30 @@ impl Job {
     /// as written; nothing outside is opened, so no file's contents reach
     /// a message. Only the scene (once inside) is read, for its character.
     pub fn check_confined(&self, allowed: &[PathBuf]) -> Result<Vec<JobInput>, Error> {
-        let roots = self.roots(allowed);
+        self.check_inside(&self.roots(allowed))
+    }
+
+    /// [`Job::check_confined`] with exactly `roots` allowed (the manifest's
+    /// folder only if listed): a caller that knows a narrower folder (a
+    /// drop's own) confines the job to it.
+    pub fn check_inside(&self, roots: &[PathBuf]) -> Result<Vec<JobInput>, Error> {
         let m = &self.manifest;
         let mut inputs = vec![self.confine(
             "[garment] yarns",
             &m.garment.yarns,
             &self.resolve(&m.garment.yarns),
-            &roots,
+            roots,
         )?];
         if let Some(c) = &m.character {
             inputs.push(self.confine(
                 "[character] file",
                 &c.file,
                 &self.resolve(&c.file),
-                &roots,
+                roots,
             )?);
         }
         if m.shot.is_some() {
-            let (_, shot_inputs) = self.scene_within(&roots)?;
+            let (_, shot_inputs) = self.scene_within(roots)?;
             for i in shot_inputs {
                 if !inputs.iter().any(|j| j.path == i.path) {
                     inputs.push(i);
@@ -513,7 +519,7 @@ impl Job {
     /// Refuses (exit 2) a stage output that is, or would replace, one of
     /// `inputs`: the assets, the pose files, the export files and what
     /// knitvox keeps in `OUT/.knitvox/` and `OUT/checkpoints/`.
-    fn check_outputs(&self, inputs: &[JobInput]) -> Result<(), Error> {
+    pub fn check_outputs(&self, inputs: &[JobInput]) -> Result<(), Error> {
         let stages = self.stages();
         let mut files: Vec<(&'static str, PathBuf)> = vec![("embed", self.garment_asset())];
         if stages.contains(&"train") {
@@ -1559,6 +1565,28 @@ mod tests {
         let bare = Manifest::for_yarns("a.ply".into());
         let job = Job::load(&write(dir.path(), "b.toml", &bare.to_toml().unwrap())).unwrap();
         assert_eq!(job.stages(), vec!["embed", "export"]);
+    }
+
+    #[test]
+    fn check_inside_confines_to_exactly_the_roots_given() {
+        let dir = tempfile::tempdir().unwrap();
+        for d in ["in", "other"] {
+            std::fs::create_dir(dir.path().join(d)).unwrap();
+        }
+        write(&dir.path().join("in"), "y.bcc", "");
+        let job = Job::load(&write(
+            dir.path(),
+            "j.toml",
+            "[garment]\nyarns = \"in/y.bcc\"\n",
+        ))
+        .unwrap();
+        assert_eq!(job.inputs().len(), 1);
+        assert_eq!(job.inputs()[0].key, "[garment] yarns");
+        let inputs = job.check_inside(&[dir.path().join("in")]).unwrap();
+        assert_eq!(inputs, job.inputs());
+        let e = job.check_inside(&[dir.path().join("other")]).unwrap_err();
+        assert_eq!(e.class(), super::super::ErrorClass::BadInput);
+        assert!(e.to_string().contains("[garment] yarns 'in/y.bcc'"), "{e}");
     }
 
     #[test]
