@@ -273,7 +273,7 @@ pub struct JobInput {
 #[derive(Debug, thiserror::Error)]
 pub enum JobPathError {
     /// A path resolves (symlinks followed) outside every allowed folder.
-    #[error("{}: {key} '{}': {source} (knitvox run --allow-root DIR)", manifest.display(), excerpt_path(written))]
+    #[error("{}: {key} '{}': {source}; `knitvox run --allow-root DIR` allows another folder", manifest.display(), excerpt_path(written))]
     Outside {
         manifest: PathBuf,
         key: String,
