@@ -317,13 +317,18 @@ format = "obj"
     );
     let job = dir.path().join("fox.toml");
     std::fs::write(&job, &text).unwrap();
+    // The character lies outside the job's folder: allowed by name.
+    let examples = fox.parent().unwrap().to_str().unwrap();
+    let allowed = ["--json", "--allow-root", examples];
+    let refused = run(&job, &["--json"]);
+    assert_eq!(refused.status.code(), Some(65));
     assert_eq!(
-        statuses(&run(&job, &["--json"])),
+        statuses(&run(&job, &allowed)),
         pairs(&[("embed", "ran"), ("shot", "ran"), ("export", "ran")])
     );
     assert!(dir.path().join("fox.out/export/garment.0001.obj").is_file());
     assert_eq!(
-        statuses(&run(&job, &["--json"])),
+        statuses(&run(&job, &allowed)),
         pairs(&[
             ("embed", "cached"),
             ("shot", "cached"),
@@ -333,7 +338,7 @@ format = "obj"
     // A character parameter reruns the shot and what follows, not embed.
     std::fs::write(&job, text.replace("scale = 0.0025", "scale = 0.003")).unwrap();
     assert_eq!(
-        statuses(&run(&job, &["--json"])),
+        statuses(&run(&job, &allowed)),
         pairs(&[("embed", "cached"), ("shot", "ran"), ("export", "ran")])
     );
 }

@@ -49,6 +49,12 @@ pub struct RunArgs {
     /// The knitvox executable the farm's nodes run [default: this one].
     #[arg(long, value_name = "PATH")]
     pub knitvox: Option<PathBuf>,
+    /// A folder the job may also read from (repeatable; absolute, or
+    /// relative to the working folder). Without it every file the manifest
+    /// and its scene name must resolve, symlinks followed, inside the
+    /// manifest's folder.
+    #[arg(long, value_name = "DIR")]
+    pub allow_root: Vec<PathBuf>,
 }
 
 fn node_executable(a: &RunArgs) -> anyhow::Result<PathBuf> {
@@ -97,7 +103,7 @@ fn farm(a: &RunArgs, job: &Job) -> anyhow::Result<ExitCode> {
 }
 
 pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
-    let mut job = Job::load(&a.job)?;
+    let mut job = Job::load_allowing(&a.job, &a.allow_root)?;
     if a.plan || a.submit.is_some() {
         return farm(a, &job);
     }

@@ -17,7 +17,7 @@ use sha2::{Digest, Sha256};
 
 use super::asset::{EmbedJob, ExportJob};
 use super::fit::FitJob;
-use super::sim_scene::{CharacterSection, Scene, Seconds};
+use super::sim_scene::{shown_number, CharacterSection, Scene, Seconds};
 use super::simulate::{
     read_scene, ChunkOptions, ChunkedShotJob, ShotJob, ShotRequest, DEFAULT_CHECKPOINT_EVERY,
 };
@@ -27,6 +27,7 @@ use super::{Error, Observer, Stage};
 use crate::embed::EmbedParams;
 use crate::fit::elastic::ElasticFitParams;
 use crate::geom::{FrameSpec, Units, UpAxis, Vec3};
+use crate::io::confined::{resolve_inside, ConfinedError};
 use crate::io::{self, IoError, ReadOptions, WriteOptions};
 use crate::yarn::fabric::pose::PoseRunParams;
 use crate::yarn::fabric::FabricParams;
@@ -247,11 +248,140 @@ pub struct Job {
     /// `OUT/checkpoints/` and stops (exit 75); the next run resumes it.
     /// `None` [the default of `load`]: signals are not this job's business.
     pub interrupt: Option<&'static super::Interrupt>,
+    /// Folders besides the manifest's own that the job may read from
+    /// (`run --allow-root`), resolved.
+    allowed: Vec<PathBuf>,
+    /// Every file the job reads, each inside the allowed folders.
+    inputs: Vec<JobInput>,
+}
+
+/// A file a job reads: the key that names it, the path as written, the
+/// path it is read from (against the manifest's or the scene's folder) and
+/// where that resolves (symlinks followed).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobInput {
+    /// `[garment] yarns`, `[shot] scene`, `[character] file`, or `[character]
+    /// file of the scene 'S'`.
+    pub key: String,
+    pub written: PathBuf,
+    pub path: PathBuf,
+    pub resolved: PathBuf,
+}
+
+/// A job that would read outside its folders or overwrite its own inputs.
+/// Paths are shown as written, cut to an excerpt; no file is read to decide.
+#[derive(Debug, thiserror::Error)]
+pub enum JobPathError {
+    /// A path resolves (symlinks followed) outside every allowed folder.
+    #[error("{}: {key} '{}': {source}; `knitvox run --allow-root DIR` allows another folder", manifest.display(), excerpt_path(written))]
+    Outside {
+        manifest: PathBuf,
+        key: String,
+        written: PathBuf,
+        #[source]
+        source: ConfinedError,
+    },
+    /// A path cannot be resolved (missing, unreadable folder).
+    #[error("{}: {key} '{}': cannot read: {source}", manifest.display(), excerpt_path(written))]
+    Unreadable {
+        manifest: PathBuf,
+        key: String,
+        written: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// An output of a stage is, or would replace, one of the job's inputs.
+    #[error("{}: stage '{stage}' would write '{}', which is the input {key} '{}': a job never overwrites its own inputs; choose another `output` folder or `[export] name`",
+        manifest.display(), output.display(), excerpt_path(written))]
+    OutputIsInput {
+        manifest: PathBuf,
+        stage: &'static str,
+        output: PathBuf,
+        key: String,
+        written: PathBuf,
+    },
+}
+
+/// The canonical folder of `p` joined with its file name (as `io::overwrite`
+/// compares a path that need not exist).
+fn canonical_place(p: &Path) -> Option<PathBuf> {
+    let dir = p
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    Some(std::fs::canonicalize(dir).ok()?.join(p.file_name()?))
+}
+
+fn excerpt_path(p: &Path) -> String {
+    crate::geom::excerpt(&p.display().to_string())
+}
+
+impl JobPathError {
+    pub fn class(&self) -> super::ErrorClass {
+        match self {
+            JobPathError::Outside { .. } => super::ErrorClass::BadInput,
+            JobPathError::Unreadable { .. } => super::ErrorClass::Missing,
+            JobPathError::OutputIsInput { .. } => super::ErrorClass::Usage,
+        }
+    }
+}
+
+impl super::StageFailure for JobPathError {
+    fn class(&self) -> super::ErrorClass {
+        JobPathError::class(self)
+    }
+    fn file(&self) -> Option<PathBuf> {
+        match self {
+            JobPathError::Outside { manifest, .. }
+            | JobPathError::Unreadable { manifest, .. }
+            | JobPathError::OutputIsInput { manifest, .. } => Some(manifest.clone()),
+        }
+    }
+    fn as_error(&self) -> &(dyn std::error::Error + 'static) {
+        self
+    }
+}
+
+impl From<JobPathError> for Error {
+    fn from(e: JobPathError) -> Self {
+        Error::stage(e)
+    }
+}
+
+/// A manifest number that must be finite and satisfy `ok`; `rule` says
+/// what it must be. The message shows the value short.
+fn number(
+    path: &Path,
+    key: &str,
+    v: Option<f64>,
+    ok: impl Fn(f64) -> bool,
+    rule: &str,
+) -> Result<(), Error> {
+    match v {
+        Some(x) if !(x.is_finite() && ok(x)) => Err(bad(
+            path,
+            format!(
+                "key '{key}': {} is out of range (must be {rule})",
+                shown_number(x)
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 impl Job {
-    /// Reads and checks a manifest (exit 65 naming the file and key; 66 when missing).
+    /// Reads and checks a manifest (exit 65 naming the file and key; 66 when
+    /// missing): every file it names must lie inside the manifest's folder.
     pub fn load(path: &Path) -> Result<Job, Error> {
+        Job::load_allowing(path, &[])
+    }
+
+    /// [`Job::load`], with the job also reading from the folders `allowed`
+    /// (`run --allow-root`; relative ones against the working folder).
+    /// Before any stage: numbers in range, every input (the scene's
+    /// character too) resolved inside the manifest's folder or one of
+    /// `allowed` (exit 65), no output of a stage on an input (exit 2).
+    pub fn load_allowing(path: &Path, allowed: &[PathBuf]) -> Result<Job, Error> {
         let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
             path: path.to_path_buf(),
             source,
@@ -268,15 +398,190 @@ impl Job {
             Some(o) => base.join(o),
             None => base.join(format!("{stem}.out")),
         };
-        let job = Job {
+        let mut job = Job {
             path: path.to_path_buf(),
             manifest,
             base,
             output,
             interrupt: None,
+            allowed: Vec::new(),
+            inputs: Vec::new(),
         };
         job.check()?;
+        job.allowed = allowed
+            .iter()
+            .map(|r| {
+                std::fs::canonicalize(r).map_err(|source| {
+                    Error::Usage(format!(
+                        "--allow-root '{}': cannot resolve the folder: {source}",
+                        excerpt_path(r)
+                    ))
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        job.inputs = job.check_confined(&job.allowed)?;
+        job.check_outputs(&job.inputs)?;
         Ok(job)
+    }
+
+    /// The folders besides the manifest's own this job may read from.
+    pub fn allowed_roots(&self) -> &[PathBuf] {
+        &self.allowed
+    }
+
+    /// Every file the job reads (as checked by [`Job::load_allowing`]).
+    pub fn inputs(&self) -> &[JobInput] {
+        &self.inputs
+    }
+
+    /// The manifest's folder and `allowed`: where the job may read.
+    fn roots(&self, allowed: &[PathBuf]) -> Vec<PathBuf> {
+        let own = if self.base.as_os_str().is_empty() {
+            PathBuf::from(".")
+        } else {
+            self.base.clone()
+        };
+        std::iter::once(own)
+            .chain(allowed.iter().cloned())
+            .collect()
+    }
+
+    /// `path` (read as `key` names it) resolved inside `roots`, or why not.
+    fn confine(
+        &self,
+        key: &str,
+        written: &Path,
+        path: &Path,
+        roots: &[PathBuf],
+    ) -> Result<JobInput, Error> {
+        let resolved = resolve_inside(path, roots).map_err(|e| match e {
+            ConfinedError::Read { source, .. } => JobPathError::Unreadable {
+                manifest: self.path.clone(),
+                key: key.into(),
+                written: written.to_path_buf(),
+                source,
+            },
+            other => JobPathError::Outside {
+                manifest: self.path.clone(),
+                key: key.into(),
+                written: written.to_path_buf(),
+                source: other,
+            },
+        })?;
+        Ok(JobInput {
+            key: key.into(),
+            written: written.to_path_buf(),
+            path: path.to_path_buf(),
+            resolved,
+        })
+    }
+
+    /// Checks that every file the job reads (garment yarns, scene, the
+    /// character, the scene's own character) resolves, symlinks followed,
+    /// inside the manifest's folder or one of `allowed`, and returns them.
+    /// Refused paths are errors naming the manifest, the key and the path
+    /// as written; nothing outside is opened, so no file's contents reach
+    /// a message. Only the scene (once inside) is read, for its character.
+    pub fn check_confined(&self, allowed: &[PathBuf]) -> Result<Vec<JobInput>, Error> {
+        self.check_inside(&self.roots(allowed))
+    }
+
+    /// [`Job::check_confined`] with exactly `roots` allowed (the manifest's
+    /// folder only if listed): a caller that knows a narrower folder (a
+    /// drop's own) confines the job to it.
+    pub fn check_inside(&self, roots: &[PathBuf]) -> Result<Vec<JobInput>, Error> {
+        let m = &self.manifest;
+        let mut inputs = vec![self.confine(
+            "[garment] yarns",
+            &m.garment.yarns,
+            &self.resolve(&m.garment.yarns),
+            roots,
+        )?];
+        if let Some(c) = &m.character {
+            inputs.push(self.confine(
+                "[character] file",
+                &c.file,
+                &self.resolve(&c.file),
+                roots,
+            )?);
+        }
+        if m.shot.is_some() {
+            let (_, shot_inputs) = self.scene_within(roots)?;
+            for i in shot_inputs {
+                if !inputs.iter().any(|j| j.path == i.path) {
+                    inputs.push(i);
+                }
+            }
+        }
+        Ok(inputs)
+    }
+
+    /// Refuses (exit 2) a stage output that is, or would replace, one of
+    /// `inputs`: the assets, the pose files, the export files and what
+    /// knitvox keeps in `OUT/.knitvox/` and `OUT/checkpoints/`.
+    pub fn check_outputs(&self, inputs: &[JobInput]) -> Result<(), Error> {
+        let stages = self.stages();
+        let mut files: Vec<(&'static str, PathBuf)> = vec![("embed", self.garment_asset())];
+        if stages.contains(&"train") {
+            files.extend((0..self.manifest.train.len()).map(|i| ("train", self.pose_file(i))));
+        }
+        if stages.contains(&"fit") {
+            files.push(("fit", self.fitted_asset()));
+        }
+        if stages.contains(&"shot") {
+            files.push(("shot", self.shot_asset()));
+        }
+        // Folders whose every file knitvox writes or removes.
+        let owned = [
+            ("records", self.output.join(".knitvox")),
+            ("shot", self.checkpoint_dir()),
+        ];
+        let export = self.manifest.export.as_ref().map(|e| {
+            let name = e.name.clone().unwrap_or_else(|| "garment".into());
+            (self.output.join("export"), format!("{name}."))
+        });
+        let refuse =
+            |stage: &'static str, output: &Path, i: &JobInput| JobPathError::OutputIsInput {
+                manifest: self.path.clone(),
+                stage,
+                output: output.to_path_buf(),
+                key: i.key.clone(),
+                written: i.written.clone(),
+            };
+        for i in inputs {
+            // Where the input is named and where it resolves to: writing
+            // over either changes what the job reads.
+            let places: Vec<PathBuf> = [canonical_place(&i.path), Some(i.resolved.clone())]
+                .into_iter()
+                .flatten()
+                .collect();
+            for (stage, f) in &files {
+                if io::overwrite::overlaps(&i.path, f) || io::overwrite::overlaps(&i.resolved, f) {
+                    return Err(refuse(stage, f, i).into());
+                }
+            }
+            for (stage, dir) in &owned {
+                if let Ok(d) = std::fs::canonicalize(dir) {
+                    if places.iter().any(|p| p.starts_with(&d)) {
+                        return Err(refuse(stage, dir, i).into());
+                    }
+                }
+            }
+            if let Some((dir, prefix)) = &export {
+                if let Ok(d) = std::fs::canonicalize(dir) {
+                    let hit = places.iter().any(|p| {
+                        p.parent() == Some(d.as_path())
+                            && p.file_name()
+                                .and_then(|n| n.to_str())
+                                .is_some_and(|n| n.starts_with(prefix.as_str()))
+                    });
+                    if hit {
+                        return Err(refuse("export", &dir.join(format!("{prefix}*")), i).into());
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 
     fn check(&self) -> Result<(), Error> {
@@ -310,9 +615,51 @@ impl Job {
             parse_key::<super::sim_scene::BackendChoice>(p, "shot.backend", &s.backend)?;
             parse_key::<super::sim_scene::SolverChoice>(p, "shot.solver", &s.solver)?;
             for (k, v) in [("shot.dt", s.dt), ("shot.fps", s.fps)] {
-                if v.is_some_and(|x| !(x.is_finite() && x > 0.0)) {
-                    return Err(bad(p, format!("key '{k}': must be a positive number")));
+                number(p, k, v, |x| x > 0.0, "a positive number")?;
+            }
+            let max = super::sim_scene::MAX_PREROLL_S;
+            number(
+                p,
+                "shot.preroll",
+                s.preroll,
+                |x| (0.0..=max).contains(&x),
+                &format!("0 to {max} s"),
+            )?;
+            for (k, v) in [
+                ("shot.garment_rotate", s.garment_rotate),
+                ("shot.garment_offset", s.garment_offset),
+            ] {
+                for x in v.into_iter().flatten() {
+                    number(p, k, Some(x), |_| true, "finite")?;
                 }
+            }
+        }
+        if let Some(c) = &m.character {
+            let (lo, hi) = super::sim_scene::CHARACTER_SCALE_RANGE;
+            number(
+                p,
+                "character.scale",
+                c.scale,
+                |x| (lo..=hi).contains(&x),
+                &format!(
+                    "{} to {} metres per unit",
+                    shown_number(lo),
+                    shown_number(hi)
+                ),
+            )?;
+            number(
+                p,
+                "character.pin_distance",
+                c.pin_distance,
+                |x| x >= 0.0,
+                ">= 0 m",
+            )?;
+        }
+        if let Some(e) = &m.embed {
+            number(p, "embed.voxel_size", e.voxel_size, |x| x > 0.0, "> 0 m")?;
+            number(p, "embed.density", e.density, |x| x > 0.0, "> 0 kg/m³")?;
+            if e.max_voxels == Some(0) {
+                return Err(bad(p, "key 'embed.max_voxels': must be at least 1".into()));
             }
         }
         if let Some(f) = &m.frames {
@@ -327,6 +674,12 @@ impl Job {
             }
             if f.samples == Some(0) {
                 return Err(bad(p, "key 'fit.samples': must be at least 1".into()));
+            }
+            if f.harmonic.as_ref().is_some_and(|h| h.contains(&0)) {
+                return Err(bad(
+                    p,
+                    "key 'fit.harmonic': ranks must be at least 1".into(),
+                ));
             }
         }
         if let Some(e) = &m.export {
@@ -418,13 +771,25 @@ impl Job {
         let kind = super::util::parse_kind(&t.kind)
             .map_err(|e| bad(&self.path, format!("{}: {e}", key("kind"))))?;
         let mut pose = PoseRunParams::new(kind);
+        let p = &self.path;
+        let k = |name: &str| format!("train[{i}].{name}");
+        number(p, &k("amount"), t.amount, |_| true, "finite")?;
+        number(p, &k("friction"), t.friction, |x| x >= 0.0, ">= 0")?;
+        number(
+            p,
+            &k("gravity"),
+            t.gravity,
+            |x| (0.0..=1000.0).contains(&x),
+            "0 to 1000 m/s²",
+        )?;
+        number(
+            p,
+            &k("band"),
+            t.band,
+            |x| x > 0.0 && x < 0.95,
+            "in (0, 0.95)",
+        )?;
         if let Some(a) = t.amount {
-            if !a.is_finite() {
-                return Err(bad(
-                    &self.path,
-                    format!("{}: must be finite", key("amount")),
-                ));
-            }
             pose.pose.amount = a;
         }
         pose.pose.mirror = t.mirror.unwrap_or(false);
@@ -467,14 +832,24 @@ impl Job {
         })
     }
 
+    /// The shot's scene (the manifest's overrides applied) and the files it
+    /// reads, every one inside the job's folders.
     fn scene(&self) -> Result<(Scene, Vec<PathBuf>), Error> {
+        let (scene, inputs) = self.scene_within(&self.roots(&self.allowed))?;
+        Ok((scene, inputs.into_iter().map(|i| i.path).collect()))
+    }
+
+    /// [`Job::scene`] with the files confined to `roots`: the scene file is
+    /// checked before it is read, its character before anything reads it.
+    fn scene_within(&self, roots: &[PathBuf]) -> Result<(Scene, Vec<JobInput>), Error> {
         let s = self.manifest.shot.clone().unwrap_or_default();
         let mut inputs = Vec::new();
         let mut scene = match (&s.scene, &self.manifest.character) {
             (Some(f), _) => {
-                let f = self.resolve(f);
-                inputs.push(f.clone());
-                read_scene(&f)?
+                let i = self.confine("[shot] scene", f, &self.resolve(f), roots)?;
+                let scene = read_scene(&i.path)?;
+                inputs.push(i);
+                scene
             }
             (None, Some(c)) => {
                 let d = CharacterSection::default();
@@ -500,7 +875,13 @@ impl Job {
             }
         };
         if let Some(c) = &scene.character {
-            inputs.push(scene.base_dir.join(&c.file));
+            // A scene's own character is relative to the scene's folder.
+            let key = match &s.scene {
+                Some(f) => format!("[character] file of the scene '{}'", excerpt_path(f)),
+                None => "[character] file".into(),
+            };
+            let path = scene.base_dir.join(&c.file);
+            inputs.push(self.confine(&key, &c.file, &path, roots)?);
         }
         if let Some(r) = s.garment_rotate {
             scene.garment.rotate_deg = r;
@@ -524,7 +905,43 @@ impl Job {
         if let Some(v) = parse_key(&self.path, "shot.solver", &s.solver)? {
             sim.solver = v;
         }
+        // The manifest's values as the scene's own are checked.
+        scene
+            .validate()
+            .map_err(|e| bad(&self.path, format!("key '{}': {}", e.key, e.message)))?;
+        self.check_step_count(&scene)?;
         Ok((scene, inputs))
+    }
+
+    /// A shot asking for more PD steps than a shot may take is refused
+    /// before any stage runs (the shot checks the same bound again).
+    fn check_step_count(&self, scene: &Scene) -> Result<(), Error> {
+        use super::shot_setup::{DEFAULT_CHARACTER_PREROLL, MAX_TOTAL_STEPS};
+        let frames: Option<FrameSpec> = parse_key(&self.path, "frames", &self.manifest.frames)?;
+        let frames = frames.map(|f| f.frames()).unwrap_or_default();
+        let (Some(first), Some(last)) = (frames.iter().min(), frames.iter().max()) else {
+            return Ok(());
+        };
+        let sim = &scene.simulation;
+        let per_frame = ((1.0 / sim.fps) / sim.dt.0).ceil().max(1.0);
+        let preroll = match &scene.character {
+            Some(_) => sim.preroll.unwrap_or(DEFAULT_CHARACTER_PREROLL),
+            None => 0.0,
+        };
+        let steps = per_frame * (last - first) as f64 + (preroll / sim.dt.0).ceil();
+        if !(steps <= MAX_TOTAL_STEPS as f64) {
+            return Err(bad(
+                &self.path,
+                format!(
+                    "key 'frames': frames {first}-{last} at {} fps with dt {} s (pre-roll {} s) need {} steps, more than the limit of {MAX_TOTAL_STEPS}",
+                    shown_number(sim.fps),
+                    shown_number(sim.dt.0),
+                    shown_number(preroll),
+                    shown_number(steps)
+                ),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -610,15 +1027,20 @@ fn invalidate(out: &Path, stage: &str) -> Result<Vec<PathBuf>, Error> {
 
 /// Deletes the previous run's outputs that this run did not write again
 /// (another export name or format), so OUT holds one run's files. Only
-/// plain relative paths inside OUT are touched.
-fn remove_stale(out: &Path, old: &[PathBuf], new: &[PathBuf]) {
+/// plain relative paths inside OUT are touched, and never an input of the
+/// job (a record may list a file that has since become one).
+fn remove_stale(out: &Path, old: &[PathBuf], new: &[PathBuf], inputs: &[JobInput]) {
     for o in old.iter().filter(|o| !new.contains(o)) {
         let inside = o
             .components()
             .all(|c| matches!(c, std::path::Component::Normal(_)));
-        if inside {
+        let path = out.join(o);
+        let an_input = inputs.iter().any(|i| {
+            io::overwrite::same_file(&i.path, &path) || io::overwrite::same_file(&i.resolved, &path)
+        });
+        if inside && !an_input {
             // A file already gone is what we want.
-            let _ = std::fs::remove_file(out.join(o));
+            let _ = std::fs::remove_file(path);
         }
     }
 }
@@ -690,12 +1112,10 @@ pub fn run_tasks(
         }
     }
     let out = &job.output;
-    // knitvox never overwrites an input (an `output` folder holding one).
-    let yarns = job.resolve(&job.manifest.garment.yarns);
-    let mut outputs = vec![job.garment_asset(), job.shot_asset(), job.fitted_asset()];
-    outputs.extend((0..job.manifest.train.len()).map(|i| job.pose_file(i)));
-    let refs: Vec<&Path> = outputs.iter().map(PathBuf::as_path).collect();
-    io::overwrite::refuse_inputs(&refs, &[&yarns])?;
+    // knitvox never overwrites an input: checked at load, and again now
+    // (the files may have changed since).
+    let inputs = job.check_confined(&job.allowed)?;
+    job.check_outputs(&inputs)?;
     let mut report = RunReport {
         stages: Vec::new(),
         ran: 0,
@@ -745,6 +1165,7 @@ pub fn run_tasks(
             }
             report.stages.push(run_unit(
                 out,
+                &inputs,
                 &unit,
                 key,
                 run_it,
@@ -764,6 +1185,7 @@ fn hex(bytes: &[u8]) -> String {
 /// outputs.
 fn run_unit(
     out: &Path,
+    inputs: &[JobInput],
     name: &str,
     key: String,
     run_it: StageRun,
@@ -796,7 +1218,7 @@ fn run_unit(
             Some(io::lock::Lock::acquire(&lock_path)?)
         }
     };
-    let result = run_locked(out, name, key, run_it, observer, outcome);
+    let result = run_locked(out, inputs, name, key, run_it, observer, outcome);
     match &result {
         Ok(o) if o.status == "ran" => *ran += 1,
         Ok(_) => {}
@@ -813,6 +1235,7 @@ fn run_unit(
 /// [`run_unit`] with the stage's lock held.
 fn run_locked(
     out: &Path,
+    inputs: &[JobInput],
     name: &str,
     key: String,
     run_it: StageRun,
@@ -830,7 +1253,7 @@ fn run_locked(
             outcome.outputs = written.iter().map(|p| relative(out, p)).collect();
             // The record only after every output exists.
             write_record(out, name, &key, &outcome.outputs)?;
-            remove_stale(out, &stale, &outcome.outputs);
+            remove_stale(out, &stale, &outcome.outputs, inputs);
             outcome.status = "ran".into();
             outcome.ms = t.elapsed().as_secs_f64() * 1e3;
         }
@@ -1101,6 +1524,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let sub = dir.path().join("sub");
         std::fs::create_dir(&sub).unwrap();
+        // Only resolved, never read: empty files do.
+        write(&sub, "y.bcc", "");
+        write(&sub, "c.glb", "");
         let text =
             "frames = \"1\"\n[garment]\nyarns = \"y.bcc\"\n[character]\nfile = \"c.glb\"\n[shot]\n";
         let job = Job::load(&write(&sub, "shot.toml", text)).unwrap();
@@ -1122,6 +1548,10 @@ mod tests {
     fn a_mapped_manifest_round_trips_through_toml() {
         let dir = tempfile::tempdir().unwrap();
         let text = "frames = \"1\"\n[garment]\nyarns = \"y.bcc\"\nunits = \"mm\"\n[character]\nfile = \"c.glb\"\n[shot]\ngarment_offset = [0.0, 1.0, 0.0]\n";
+        std::fs::create_dir(dir.path().join("in")).unwrap();
+        for f in ["y.bcc", "c.glb", "in/y.bcc", "in/c.glb", "a.ply"] {
+            write(dir.path(), f, "");
+        }
         let mut m = Job::load(&write(dir.path(), "j.toml", text))
             .unwrap()
             .manifest;
@@ -1135,6 +1565,28 @@ mod tests {
         let bare = Manifest::for_yarns("a.ply".into());
         let job = Job::load(&write(dir.path(), "b.toml", &bare.to_toml().unwrap())).unwrap();
         assert_eq!(job.stages(), vec!["embed", "export"]);
+    }
+
+    #[test]
+    fn check_inside_confines_to_exactly_the_roots_given() {
+        let dir = tempfile::tempdir().unwrap();
+        for d in ["in", "other"] {
+            std::fs::create_dir(dir.path().join(d)).unwrap();
+        }
+        write(&dir.path().join("in"), "y.bcc", "");
+        let job = Job::load(&write(
+            dir.path(),
+            "j.toml",
+            "[garment]\nyarns = \"in/y.bcc\"\n",
+        ))
+        .unwrap();
+        assert_eq!(job.inputs().len(), 1);
+        assert_eq!(job.inputs()[0].key, "[garment] yarns");
+        let inputs = job.check_inside(&[dir.path().join("in")]).unwrap();
+        assert_eq!(inputs, job.inputs());
+        let e = job.check_inside(&[dir.path().join("other")]).unwrap_err();
+        assert_eq!(e.class(), super::super::ErrorClass::BadInput);
+        assert!(e.to_string().contains("[garment] yarns 'in/y.bcc'"), "{e}");
     }
 
     #[test]

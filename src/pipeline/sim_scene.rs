@@ -168,7 +168,8 @@ impl<'de> Deserialize<'de> for Seconds {
             Ok(Seconds(v))
         } else {
             Err(serde::de::Error::custom(format!(
-                "{v}: must be a finite time > 0 s"
+                "{}: must be a finite time > 0 s",
+                shown_number(v)
             )))
         }
     }
@@ -211,6 +212,24 @@ pub struct SimulationSection {
     pub solver: SolverChoice,
     /// Backend. Default auto.
     pub backend: BackendChoice,
+}
+
+/// Longest pre-roll (s) a shot may ask for: an hour of shot time before the
+/// first frame is a typo, not a setting.
+pub const MAX_PREROLL_S: f64 = 3600.0;
+
+/// Smallest and largest `[character] scale` (metres per character unit): a
+/// micrometre to a thousand kilometres per unit covers every file unit.
+pub const CHARACTER_SCALE_RANGE: (f64, f64) = (1e-6, 1e6);
+
+/// A number as a message shows it: short (`1e300`, not 301 digits), so a
+/// value out of range never makes a message long.
+pub fn shown_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e6).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
 /// Frames per second of a scene without `fps`.
@@ -475,7 +494,7 @@ impl Scene {
         if !(s.fps.is_finite() && s.fps > 0.0) {
             return Err(invalid(
                 "simulation.fps",
-                format!("must be > 0 (got {})", s.fps),
+                format!("must be > 0 (got {})", shown_number(s.fps)),
             ));
         }
         if !finite(&s.gravity) {
@@ -484,25 +503,28 @@ impl Scene {
         if !(s.damping.is_finite() && s.damping >= 0.0) {
             return Err(invalid(
                 "simulation.damping",
-                format!("must be >= 0 (got {})", s.damping),
+                format!("must be >= 0 (got {})", shown_number(s.damping)),
             ));
         }
         if !(s.tolerance.is_finite() && s.tolerance >= 0.0) {
             return Err(invalid(
                 "simulation.tolerance",
-                format!("must be >= 0 (got {})", s.tolerance),
+                format!("must be >= 0 (got {})", shown_number(s.tolerance)),
             ));
         }
-        if let Some(p) = s.preroll.filter(|p| !(p.is_finite() && *p >= 0.0)) {
+        if let Some(p) = s
+            .preroll
+            .filter(|p| !(p.is_finite() && (0.0..=MAX_PREROLL_S).contains(p)))
+        {
             return Err(invalid(
                 "simulation.preroll",
-                format!("must be >= 0 (got {p})"),
+                format!("must be 0 to {MAX_PREROLL_S} s (got {})", shown_number(p)),
             ));
         }
         if !(0.0..=1.0).contains(&s.friction) {
             return Err(invalid(
                 "simulation.friction",
-                format!("must be in 0..1 (got {})", s.friction),
+                format!("must be in 0..1 (got {})", shown_number(s.friction)),
             ));
         }
         if s.max_iterations == 0 {
@@ -529,7 +551,7 @@ impl Scene {
         if !(s.dt.0.is_finite() && s.dt.0 > 0.0) {
             return Err(invalid(
                 "simulation.dt",
-                format!("must be > 0 and finite (got {})", s.dt.0),
+                format!("must be > 0 and finite (got {})", shown_number(s.dt.0)),
             ));
         }
         if !finite(&self.garment.rotate_deg)
@@ -596,7 +618,7 @@ impl Scene {
                     if !(radius.is_finite() && *radius > 0.0) {
                         return Err(invalid(
                             format!("{key}.radius"),
-                            format!("must be > 0 (got {radius})"),
+                            format!("must be > 0 (got {})", shown_number(*radius)),
                         ));
                     }
                     if !(thickness.is_finite() && *thickness >= 0.0) {
@@ -609,10 +631,16 @@ impl Scene {
             if c.file.as_os_str().is_empty() {
                 return Err(invalid("character.file", "missing"));
             }
-            if !(c.scale.is_finite() && c.scale > 0.0) {
+            let (lo, hi) = CHARACTER_SCALE_RANGE;
+            if !(c.scale.is_finite() && (lo..=hi).contains(&c.scale)) {
                 return Err(invalid(
                     "character.scale",
-                    format!("must be > 0 (got {})", c.scale),
+                    format!(
+                        "must be {} to {} metres per unit (got {})",
+                        shown_number(lo),
+                        shown_number(hi),
+                        shown_number(c.scale)
+                    ),
                 ));
             }
             if !finite(&c.translate) {
@@ -621,13 +649,13 @@ impl Scene {
             if !(c.pin_distance.is_finite() && c.pin_distance >= 0.0) {
                 return Err(invalid(
                     "character.pin_distance",
-                    format!("must be >= 0 (got {})", c.pin_distance),
+                    format!("must be >= 0 (got {})", shown_number(c.pin_distance)),
                 ));
             }
             if !(c.thickness.is_finite() && c.thickness >= 0.0) {
                 return Err(invalid(
                     "character.thickness",
-                    format!("must be >= 0 (got {})", c.thickness),
+                    format!("must be >= 0 (got {})", shown_number(c.thickness)),
                 ));
             }
             if !c.time_offset.is_finite() || !c.fit_gap.is_finite() {

@@ -135,14 +135,22 @@ pub fn plan(job: &Job, exe: &Path) -> Result<Plan, Error> {
             name: s.to_string(),
             after,
             tasks: job.tasks(s),
-            argv: vec![
+            argv: [
                 exe.display().to_string(),
                 "run".into(),
                 manifest.display().to_string(),
                 "--stage".into(),
                 s.to_string(),
                 "--json".into(),
-            ],
+            ]
+            .into_iter()
+            // A node reads from the same folders as this run.
+            .chain(
+                job.allowed_roots()
+                    .iter()
+                    .flat_map(|r| ["--allow-root".to_string(), r.display().to_string()]),
+            )
+            .collect(),
         });
     }
     Ok(Plan {
