@@ -495,7 +495,7 @@ mod tests {
         for trial in 0..40 {
             let mut y = Yarns::new();
             for _ in 0..1 + trial % 4 {
-                let n = 2 + (next() * 12.0) as usize;
+                let n = 3 + (next() * 12.0) as usize;
                 let step = 0.002 + 0.02 * next();
                 let mut p = [next(), next(), next()].map(|x| 0.1 * x);
                 let mut pts = Vec::new();
