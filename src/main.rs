@@ -37,10 +37,17 @@ fn main() -> std::process::ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
-            let _ = e.print();
+            // Help and version go out whole; an error is cut short like
+            // every other (a 10 MB argument quoted back).
+            let plain = e.to_string();
+            if e.use_stderr() && plain.len() > knitvox::geom::MAX_MESSAGE_BYTES {
+                eprint!("{}", cli::exit::short(&plain));
+            } else {
+                let _ = e.print();
+            }
             if json && e.use_stderr() {
                 let text = e.kind().to_string();
-                let message = e.to_string();
+                let message = plain;
                 let first = message.lines().next().unwrap_or(&text);
                 let first = first.strip_prefix("error: ").unwrap_or(first);
                 println!("{}", error_json(ErrorClass::Usage, first, None));

@@ -480,7 +480,7 @@ fn guards_give_the_right_errors() {
     ]);
     assert!(matches!(
         embed(&far, &params_h(1e-6)),
-        Err(EmbedError::Parameter(_))
+        Err(EmbedError::GridTooWide { .. })
     ));
     for bad in [
         EmbedParams {

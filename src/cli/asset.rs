@@ -105,7 +105,9 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         command: command_line(),
     };
     let mut console = super::console::Console::new(false, 0, "");
-    let r = job.run(&mut console)?;
+    let r = job
+        .run(&mut console)
+        .map_err(|e| voxel_size_usage(e, a.voxel_size))?;
     let stats = &r.stats;
     if a.json {
         println!(
@@ -129,6 +131,26 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::Success)
+}
+
+/// A voxel size given on the command line that needs more voxels or
+/// memory than allowed is a usage error naming the flag (exit 2); from a
+/// manifest or the default rule it stays bad input.
+fn voxel_size_usage(e: crate::pipeline::Error, given: Option<f64>) -> crate::pipeline::Error {
+    use crate::embed::EmbedError;
+    let Some(h) = given else { return e };
+    match e.downcast_stage::<stages::StageError>() {
+        Some(stages::StageError::Embed {
+            source:
+                source @ (EmbedError::TooManyVoxels { .. }
+                | EmbedError::TooMuchWork { .. }
+                | EmbedError::GridTooWide { .. }),
+            ..
+        }) => {
+            crate::pipeline::Error::Usage(format!("--voxel-size {}: {source}", crate::geom::num(h)))
+        }
+        _ => e,
+    }
 }
 
 pub fn shapefit(a: &ShapefitArgs) -> anyhow::Result<ExitCode> {

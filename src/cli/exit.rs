@@ -52,8 +52,21 @@ impl From<ErrorClass> for ExitCode {
 /// The one-line message of an error and its causes, each cause printed
 /// once: library errors both embed their source in their own message and
 /// return it from `source()` (so `{e:#}` would print it twice), and a cause
-/// whose text the message already holds adds nothing.
+/// whose text the message already holds adds nothing. Cut in the middle to
+/// [`MAX_MESSAGE_BYTES`](crate::geom::MAX_MESSAGE_BYTES) (see [`short`]).
 pub fn error_message(err: &anyhow::Error) -> String {
+    short(&full_message(err))
+}
+
+/// `text` cut in the middle to [`MAX_MESSAGE_BYTES`](crate::geom::MAX_MESSAGE_BYTES):
+/// every error the binary prints (stderr, `--json`, a watch folder's
+/// error file) passes here, so an input that quotes a 10 MB path or line
+/// still gives a short message.
+pub fn short(text: &str) -> String {
+    crate::geom::cap_message(text, crate::geom::MAX_MESSAGE_BYTES).into_owned()
+}
+
+fn full_message(err: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in err.chain() {
         let part = cause.to_string();
@@ -104,8 +117,8 @@ pub fn error_json(
         "event": "error",
         "class": class,
         "exit_code": class.exit_code(),
-        "message": message,
-        "file": file.map(|f| f.display().to_string()),
+        "message": short(message),
+        "file": file.map(|f| short(&f.display().to_string())),
     })
 }
 

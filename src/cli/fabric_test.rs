@@ -140,7 +140,7 @@ pub struct HangArgs {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 enum SwatchArgsError {
     /// A swatch width or length (m) outside `(0, 2]`.
-    #[error("--width and --length must be in (0, 2] m, got {width} and {length}")]
+    #[error("--width and --length must be in (0, 2] m, got {} and {}", crate::geom::num(*.width), crate::geom::num(*.length))]
     Size { width: f64, length: f64 },
     /// No yarn file, built-in pattern or grid file.
     #[error("give a yarn file, --pattern NAME or --grid FILE")]

@@ -8,7 +8,7 @@ use super::asset::command_line;
 use super::parse::ValueError;
 use super::ExitCode;
 use crate::fit::elastic::ElasticFitParams;
-use crate::pipeline::fit::{FitJob, DEFAULT_SAMPLES};
+use crate::pipeline::fit::{FitJob, DEFAULT_SAMPLES, MAX_ITERATIONS, MAX_SAMPLES};
 use crate::pipeline::Stage;
 
 #[derive(Debug, Args)]
@@ -20,16 +20,19 @@ pub struct FitArgs {
     #[arg(long, required = true, num_args = 1.., value_name = "POSE")]
     pub train: Vec<PathBuf>,
     /// Frames fitted per pose, chosen evenly (the last frame always among them).
-    #[arg(long, default_value_t = DEFAULT_SAMPLES, value_name = "N")]
+    #[arg(long, default_value_t = DEFAULT_SAMPLES, value_name = "N",
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_SAMPLES as u64))]
     pub samples: usize,
     /// Harmonic initialization ranks (VH §6.5), comma-separated; 0 for none.
     #[arg(long, default_value = "1,10,30", value_name = "R,R,..", value_parser = parse_ranks)]
     pub harmonic: Ranks,
     /// Gradient-descent iterations per stage (VH §6.3: 10-15).
-    #[arg(long, default_value_t = ElasticFitParams::default().gd_iterations, value_name = "N")]
+    #[arg(long, default_value_t = ElasticFitParams::default().gd_iterations, value_name = "N",
+          value_parser = clap::value_parser!(u32).range(0..=MAX_ITERATIONS as i64))]
     pub gd_iterations: u32,
     /// Gauss-Newton iterations per stage (VH §6.3: 20-30).
-    #[arg(long, default_value_t = ElasticFitParams::default().gn_iterations, value_name = "N")]
+    #[arg(long, default_value_t = ElasticFitParams::default().gn_iterations, value_name = "N",
+          value_parser = clap::value_parser!(u32).range(0..=MAX_ITERATIONS as i64))]
     pub gn_iterations: u32,
     /// Most conjugate-gradient iterations per Gauss-Newton direction of a
     /// full field too large to factor (>= 1; fewer: faster, coarser

@@ -359,6 +359,7 @@ fn check_character_names(a: &SimulateArgs) -> anyhow::Result<()> {
 /// for more PD steps than a shot may take is a usage error (exit 2), found
 /// before the asset is read; the pipeline checks the same bound again.
 fn check_step_count(a: &SimulateArgs, scene: &Scene) -> anyhow::Result<()> {
+    use crate::geom::num;
     use crate::pipeline::simulate::MAX_TOTAL_STEPS;
     let frames = a.frames.frames();
     let (Some(first), Some(last)) = (frames.iter().min(), frames.iter().max()) else {
@@ -370,11 +371,12 @@ fn check_step_count(a: &SimulateArgs, scene: &Scene) -> anyhow::Result<()> {
     let steps = per_frame * (last - first) as f64 + preroll.ceil();
     if !(steps <= MAX_TOTAL_STEPS as f64) {
         return Err(crate::pipeline::Error::Usage(format!(
-            "--frames {} at {} fps with dt {} s (pre-roll {} s) needs {steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
+            "--frames {} at {} fps with dt {} s (pre-roll {} s) needs {} steps, more than the limit of {MAX_TOTAL_STEPS}",
             a.frames,
-            s.fps,
-            s.dt.0,
-            s.preroll.unwrap_or(0.0)
+            num(s.fps),
+            num(s.dt.0),
+            num(s.preroll.unwrap_or(0.0)),
+            num(steps.round())
         ))
         .into());
     }

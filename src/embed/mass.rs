@@ -17,7 +17,7 @@ use crate::geom::{Vec3, VoxelGrid, YarnPiece};
 use rayon::prelude::*;
 
 /// The linear forms whose integer level sets bound the Kuhn tets.
-const FORMS: [[f64; 3]; 6] = [
+pub(crate) const FORMS: [[f64; 3]; 6] = [
     [1.0, 0.0, 0.0],
     [0.0, 1.0, 0.0],
     [0.0, 0.0, 1.0],

@@ -113,7 +113,29 @@ pub fn embed(yarns: &Yarns, params: &EmbedParams) -> Result<Embedded, EmbedError
     let start = Instant::now();
     let (grid, extra, rule) = match params.voxel_size {
         Some(h) => {
-            let (grid, extra) = voxelize(yarns, h, None, params.max_voxels)?;
+            // Refused from the counts alone, before the walk allocates.
+            let prep = voxelize::Prepared::new(yarns, h, None)?;
+            if prep.min_voxels > params.max_voxels as f64 {
+                return Err(EmbedError::TooManyVoxels {
+                    h,
+                    estimate: prep.min_voxels.min(u64::MAX as f64) as u64,
+                    limit: params.max_voxels,
+                });
+            }
+            let work = prep.work(params.max_voxels);
+            if work.bytes > params.max_memory {
+                return Err(EmbedError::TooMuchWork {
+                    h,
+                    pieces: work.pieces,
+                    bytes: work.bytes,
+                    limit: params.max_memory,
+                });
+            }
+            let (keys, extra) = prep.voxels_capped(params.max_voxels)?;
+            let grid = VoxelGrid {
+                voxels: keys.into_iter().map(keys::key_cell).collect(),
+                ..prep.grid
+            };
             (grid, extra, format!("given: {h} m"))
         }
         None => {
@@ -221,13 +243,15 @@ fn check_params(params: &EmbedParams) -> Result<(), EmbedError> {
     let r = params.target_node_ratio;
     if !(r.is_finite() && r > 0.0) {
         return Err(EmbedError::Parameter(format!(
-            "target_node_ratio {r} must be a positive finite number"
+            "target_node_ratio {} must be a positive finite number",
+            crate::geom::num(r)
         )));
     }
     let d = params.material_density;
     if !(d.is_finite() && d > 0.0) {
         return Err(EmbedError::Parameter(format!(
-            "material_density {d} kg/m^3 must be a positive finite number"
+            "material_density {} kg/m^3 must be a positive finite number",
+            crate::geom::num(d)
         )));
     }
     Ok(())

@@ -38,8 +38,10 @@ pub(crate) struct Chosen {
 /// (`log h += (log N* - log n) / s` with the slope `s` of the last two
 /// evaluations, clamped to `[-3, -0.5]`, each step at most a factor 4) until
 /// `n` is within 2 % of `N*` or 6 evaluations are done; the evaluated `h`
-/// closest to the target (in `|log(n / N*)|`, first on ties) wins. Sizes whose
-/// voxel bound exceeds `max_voxels` count as "too many nodes". Deterministic.
+/// closest to the target (in `|log(n / N*)|`, first on ties) wins. Sizes with
+/// more than `max_voxels` voxels, or whose walk and yarn pieces would take
+/// more than `max_memory` (estimated before allocating), count as "too many
+/// nodes". Deterministic.
 pub fn default_voxel_size(
     yarns: &Yarns,
     params: &EmbedParams,
@@ -53,7 +55,8 @@ pub(crate) fn choose(yarns: &Yarns, params: &EmbedParams) -> Result<Chosen, Embe
     let ratio = params.target_node_ratio;
     if !(ratio.is_finite() && ratio > 0.0) {
         return Err(EmbedError::Parameter(format!(
-            "target_node_ratio {ratio} must be a positive finite number"
+            "target_node_ratio {} must be a positive finite number",
+            crate::geom::num(ratio)
         )));
     }
     let target = (ratio * yarns.num_points() as f64).max(8.0);
@@ -62,7 +65,7 @@ pub(crate) fn choose(yarns: &Yarns, params: &EmbedParams) -> Result<Chosen, Embe
     let mut h = h0;
     // First evaluation; sizes too fine for max_voxels double until one fits.
     for _ in 0..64 {
-        match evaluate(yarns, h, params.max_voxels)? {
+        match evaluate(yarns, h, params)? {
             Some(t) => {
                 trials.push(t);
                 break;
@@ -83,7 +86,7 @@ pub(crate) fn choose(yarns: &Yarns, params: &EmbedParams) -> Result<Chosen, Embe
         first.h * 1.5
     };
     while trials.len() < MAX_EVALS {
-        let Some(t) = evaluate(yarns, next, params.max_voxels)? else {
+        let Some(t) = evaluate(yarns, next, params)? else {
             break; // finer than max_voxels allows: keep what we have
         };
         trials.push(t);
@@ -155,13 +158,19 @@ fn start_size(yarns: &Yarns) -> f64 {
 
 /// Voxelizes at `h` (default origin) and counts nodes; `None` when there are
 /// more than `max_voxels` voxels.
-fn evaluate(yarns: &Yarns, h: f64, max_voxels: u64) -> Result<Option<Trial>, EmbedError> {
+fn evaluate(yarns: &Yarns, h: f64, params: &EmbedParams) -> Result<Option<Trial>, EmbedError> {
+    let max_voxels = params.max_voxels;
     let prep = match Prepared::new(yarns, h, None) {
         Ok(p) => p,
         // A grid wider than 2^30 voxels: far too fine, like a bound overflow.
-        Err(EmbedError::Parameter(_)) => return Ok(None),
+        Err(EmbedError::GridTooWide { .. }) => return Ok(None),
         Err(e) => return Err(e),
     };
+    // Too many pieces or walk entries for the memory budget (many yarns
+    // over the same voxels): too fine, like too many voxels.
+    if prep.work(max_voxels).bytes > params.max_memory {
+        return Ok(None);
+    }
     let (keys, extra) = match prep.voxels_capped(max_voxels) {
         Ok(v) => v,
         Err(EmbedError::TooManyVoxels { .. }) => return Ok(None),

@@ -67,6 +67,32 @@ pub(crate) struct Prepared {
     pub grid: VoxelGrid,
     pub g: Vec<Vec3>,
     pub segments: Vec<[usize; 2]>,
+    /// A lower bound of the unique voxels: the most any one curve needs (see
+    /// [`curve_min_voxels`]), counted from the points alone.
+    pub min_voxels: f64,
+}
+
+/// Walk entries per batch at most when the whole walk does not fit at once:
+/// keeps the walk's scratch memory bounded whatever the segments.
+const BATCH_ENTRIES: u64 = 1 << 24;
+
+/// Bytes of one walk entry while a batch is walked, sorted and merged (the
+/// key, its copy in the concatenated batch, and the merge output).
+const WALK_ENTRY_BYTES: u64 = 48;
+
+/// Bytes of one yarn piece while the segments are split: the piece with its
+/// weights (64) and spare vector capacity (measured: 200K segments cut into
+/// 28M pieces peak at 2.0 GB in all, about 70 bytes a piece).
+const PIECE_BYTES: u64 = 128;
+
+/// What an embedding at this voxel size will cost, estimated from the
+/// segments before anything is allocated.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Work {
+    /// Yarn pieces at most (every segment split at every tet boundary).
+    pub pieces: u64,
+    /// Peak memory (bytes) of the walk or of the pieces, whichever is larger.
+    pub bytes: u64,
 }
 
 impl Prepared {
@@ -92,13 +118,55 @@ impl Prepared {
         };
         let g: Vec<Vec3> = yarns.points.par_iter().map(|&p| grid.to_grid(p)).collect();
         if let Some(bad) = g.iter().find(|p| !p.iter().all(|x| x.abs() < MAX_INDEX)) {
-            return Err(EmbedError::Parameter(format!(
-                "voxel size {h} m puts a yarn point at grid coordinate {bad:?}, beyond the \
-                 supported range of +-2^30 voxels from the origin"
-            )));
+            let far = bad.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            return Err(EmbedError::GridTooWide { h, voxels: far });
         }
         let segments = yarns.segments().collect();
-        Ok(Prepared { grid, g, segments })
+        let min_voxels = curve_min_voxels(yarns, &g);
+        Ok(Prepared {
+            grid,
+            g,
+            segments,
+            min_voxels,
+        })
+    }
+
+    /// The work of embedding at this size: an upper bound of the yarn
+    /// pieces (per segment one plus the integers strictly between its ends
+    /// on each of the six Kuhn forms, as `mass::split_segments` cuts) and
+    /// the peak memory of the walk or the pieces. Counts only, saturating.
+    pub fn work(&self, max_voxels: u64) -> Work {
+        let (pieces, biggest) = self
+            .segments
+            .par_iter()
+            .map(|&[a, b]| (self.segment_pieces(a, b), self.segment_bound(a, b)))
+            .reduce(|| (0, 0), |x, y| (x.0.saturating_add(y.0), x.1.max(y.1)));
+        let total = self.voxel_bound();
+        let batch = if total <= max_voxels {
+            total
+        } else {
+            BATCH_ENTRIES.max(biggest).min(total)
+        };
+        // The running set of unique voxels is bounded by `max_voxels`, the
+        // limit of its own that the mesh built from it needs anyway.
+        let walk = batch.saturating_mul(WALK_ENTRY_BYTES);
+        Work {
+            pieces,
+            bytes: walk.max(pieces.saturating_mul(PIECE_BYTES)),
+        }
+    }
+
+    fn segment_pieces(&self, a: usize, b: usize) -> u64 {
+        let dot = |f: [f64; 3], p: Vec3| f[0] * p[0] + f[1] * p[1] + f[2] * p[2];
+        super::mass::FORMS
+            .iter()
+            .map(|&f| {
+                let (x, y) = (dot(f, self.g[a]), dot(f, self.g[b]));
+                let (lo, hi) = if x < y { (x, y) } else { (y, x) };
+                // One more than the integers strictly between lo and hi.
+                (hi.ceil() - lo.floor()).max(1.0) as u64
+            })
+            .fold(1u64, u64::saturating_add)
     }
 
     /// Upper bound of the voxel entries the walk produces: per segment
@@ -135,16 +203,9 @@ impl Prepared {
             estimate,
             limit: max_voxels,
         };
-        // A segment crossing n planes on one axis visits at least n + 1
-        // distinct voxels: beyond the limit by itself, no walk needed.
-        for &[a, b] in &self.segments {
-            let lower = (0..3)
-                .map(|k| (self.g[b][k] - self.g[a][k]).abs().floor())
-                .fold(0.0f64, f64::max)
-                + 1.0;
-            if lower > max_voxels as f64 {
-                return Err(too_many(lower.min(u64::MAX as f64) as u64));
-            }
+        // One curve alone needs more voxels than allowed: no walk needed.
+        if self.min_voxels > max_voxels as f64 {
+            return Err(too_many(self.min_voxels.min(u64::MAX as f64) as u64));
         }
         let walk = |chunk: &[[usize; 2]]| {
             let mut out = Walk::default();
@@ -160,16 +221,30 @@ impl Prepared {
             all.dedup();
             (open, all)
         };
-        let batch = if self.voxel_bound() <= max_voxels {
-            self.segments.len().max(1)
+        let batches = if self.voxel_bound() <= max_voxels {
+            vec![0..self.segments.len()]
         } else {
-            // Enough segments per batch to keep every thread busy; few
-            // batches so the linear merges stay cheap.
-            CHUNK * 64
+            // Batches of at most BATCH_ENTRIES walk entries (a longer
+            // segment alone is its own batch): enough to keep every thread
+            // busy, few so the linear merges stay cheap, and the walk's
+            // scratch stays bounded however many entries the segments make.
+            let mut out = Vec::new();
+            let (mut start, mut entries) = (0, 0u64);
+            for (i, &[a, b]) in self.segments.iter().enumerate() {
+                let e = self.segment_bound(a, b);
+                if i > start && entries.saturating_add(e) > BATCH_ENTRIES {
+                    out.push(start..i);
+                    (start, entries) = (i, 0);
+                }
+                entries = entries.saturating_add(e);
+            }
+            out.push(start..self.segments.len());
+            out
         };
         let mut open: Vec<u128> = Vec::new();
         let mut all: Vec<u128> = Vec::new();
-        for segs in self.segments.chunks(batch) {
+        for range in batches {
+            let segs = &self.segments[range];
             let parts: Vec<(Vec<u128>, Vec<u128>)> = segs.par_chunks(CHUNK).map(walk).collect();
             let mut bo: Vec<u128> = parts.iter().flat_map(|p| p.0.iter().copied()).collect();
             let mut ba: Vec<u128> = parts.into_iter().flat_map(|p| p.1).collect();
@@ -213,6 +288,37 @@ fn merge_dedup(a: &[u128], b: &[u128]) -> Vec<u128> {
     out.extend_from_slice(&a[i..]);
     out.extend_from_slice(&b[j..]);
     out
+}
+
+/// A lower bound of the unique voxels of the supercover: the most any one
+/// curve needs. A curve's voxels are face-connected (the walk steps one axis
+/// at a time, and the closed-cube contacts at a shared vertex join the
+/// voxels of the two segments), so a curve whose voxels span `n_k + 1`
+/// indices on axis `k` has at least `1 + n_0 + n_1 + n_2` voxels. Every
+/// vertex is a segment end, whose closed-cube contacts include voxel
+/// `ceil(x) - 1` and voxel `floor(x)` on each axis, so points from `lo` to
+/// `hi` span at least `floor(hi) - ceil(lo) + 1` index steps. Counted from
+/// the points before any walk, so an absurdly fine voxel size is refused at
+/// once.
+fn curve_min_voxels(yarns: &Yarns, g: &[Vec3]) -> f64 {
+    (0..yarns.num_curves())
+        .into_par_iter()
+        .map(|c| {
+            let pts = &g[yarns.curve_range(c)];
+            let Some(first) = pts.first() else {
+                return 0.0;
+            };
+            let (lo, hi) = pts.iter().fold((*first, *first), |(lo, hi), p| {
+                (
+                    std::array::from_fn(|k| lo[k].min(p[k])),
+                    std::array::from_fn(|k| hi[k].max(p[k])),
+                )
+            });
+            1.0 + (0..3)
+                .map(|k| (hi[k].floor() - lo[k].ceil() + 1.0).max(0.0))
+                .sum::<f64>()
+        })
+        .reduce(|| 0.0, f64::max)
 }
 
 /// `Empty` for no curves or no points, else the yarns' own validation.
@@ -373,6 +479,49 @@ mod tests {
         assert_eq!(open, vec![[0, 0, 0], [1, 0, 0]]);
         // Closed cubes at the endpoints x = 0 and x = 2 add voxels -1 and 2.
         assert_eq!(all, vec![[-1, 0, 0], [0, 0, 0], [1, 0, 0], [2, 0, 0]]);
+    }
+
+    /// The counts taken before the walk bound what the walk and the split
+    /// really make: the voxels from below, the pieces from above.
+    #[test]
+    fn counts_before_the_walk_bound_the_real_voxels_and_pieces() {
+        let mut seed = 7u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for trial in 0..40 {
+            let mut y = Yarns::new();
+            for _ in 0..1 + trial % 4 {
+                let n = 3 + (next() * 12.0) as usize;
+                let step = 0.002 + 0.02 * next();
+                let mut p = [next(), next(), next()].map(|x| 0.1 * x);
+                let mut pts = Vec::new();
+                for _ in 0..n {
+                    pts.push(p);
+                    p = p.map(|x| x + step * (next() - 0.5));
+                }
+                y.push_curve(&pts, trial % 3 == 0, 0.001);
+            }
+            let h = 0.001 + 0.01 * next();
+            let prep = Prepared::new(&y, h, None).unwrap();
+            let (voxels, _) = prep.voxels_capped(u64::MAX).unwrap();
+            assert!(prep.min_voxels <= voxels.len() as f64, "trial {trial}");
+            let e = crate::embed::embed(
+                &y,
+                &crate::embed::EmbedParams {
+                    voxel_size: Some(h),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            assert!(
+                prep.work(u64::MAX).pieces >= e.pieces.len() as u64,
+                "trial {trial}"
+            );
+        }
     }
 
     #[test]

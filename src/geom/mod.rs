@@ -8,7 +8,7 @@
 mod asset;
 pub mod bvh;
 mod error;
-mod excerpt;
+pub mod excerpt;
 mod frame_spec;
 mod mesh;
 mod plausible;
@@ -25,7 +25,7 @@ pub use asset::{
     FIT_RECORD_KEY,
 };
 pub use error::GeomError;
-pub use excerpt::{excerpt, excerpt_chars, MAX_EXCERPT_CHARS};
+pub use excerpt::{cap_message, excerpt, excerpt_chars, num, MAX_EXCERPT_CHARS, MAX_MESSAGE_BYTES};
 pub use frame_spec::{
     check_frame_number, FrameNumberError, FrameSpec, FrameSpecError, MAX_FRAME_NUMBER,
     MAX_SPEC_FRAMES,

@@ -66,7 +66,12 @@ pub fn build_asset(
     command: &str,
 ) -> Result<(Asset, EmbedStats), StageError> {
     let data = io::read_path(input, read)?;
-    let e = embed::embed(&data.yarns, params).map_err(|source| StageError::Embed {
+    // The embedding's memory is bounded by the process's budget too.
+    let bounded = EmbedParams {
+        max_memory: io::max_memory(),
+        ..params.clone()
+    };
+    let e = embed::embed(&data.yarns, &bounded).map_err(|source| StageError::Embed {
         path: input.to_path_buf(),
         source,
     })?;
@@ -116,20 +121,29 @@ pub fn build_asset(
 /// Rebuilds the embedding (pieces, densities) of an asset from its rest yarns
 /// and voxel size, and checks it reproduces the stored mesh.
 pub fn re_embed(asset: &Asset, path: &Path) -> Result<Embedded, StageError> {
+    // The stored mesh has exactly as many voxels as the re-embedding must
+    // make, so a file's voxel size cannot ask for more work than that.
     let params = EmbedParams {
         voxel_size: Some(asset.grid.h),
-        max_voxels: u64::MAX,
+        max_voxels: asset.grid.voxels.len() as u64,
+        max_memory: io::max_memory(),
         ..EmbedParams::default()
     };
-    let e = embed::embed(&asset.rest_yarns, &params).map_err(|source| StageError::Embed {
+    let mismatch = || {
+        StageError::Invalid {
         path: path.to_path_buf(),
-        source,
+        message: "the stored mesh does not match its rest yarns re-embedded at its voxel size (edited file, or written by an incompatible knitvox)".into(),
+    }
+    };
+    let e = embed::embed(&asset.rest_yarns, &params).map_err(|source| match source {
+        EmbedError::TooManyVoxels { .. } => mismatch(),
+        source => StageError::Embed {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     if e.mesh != asset.mesh || e.embedding != asset.embedding {
-        return Err(StageError::Invalid {
-            path: path.to_path_buf(),
-            message: "the stored mesh does not match its rest yarns re-embedded at its voxel size (edited file, or written by an incompatible knitvox)".into(),
-        });
+        return Err(mismatch());
     }
     Ok(e)
 }

@@ -64,6 +64,13 @@ use crate::yarn::poses::{PoseDriver, PoseKind, PoseParams};
 
 /// Frames fitted per pose when `--samples` is not given.
 pub const DEFAULT_SAMPLES: usize = 2;
+/// Most frames fitted per pose (`--samples`, a manifest's `[fit] samples`):
+/// each is a shape fit and an equilibrium solve per iteration, so more
+/// would run for days; far beyond the frames a training pose holds.
+pub const MAX_SAMPLES: usize = 10_000;
+/// Most gradient-descent or Gauss-Newton iterations per stage
+/// (`--gd-iterations`, `--gn-iterations`; VH §6.3 uses 10 to 30).
+pub const MAX_ITERATIONS: u32 = 10_000;
 /// Weight α of the loss's position term (VH §5, Eq. 6 and 10).
 pub const LOSS_ALPHA: f64 = 0.1;
 
@@ -375,6 +382,35 @@ fn invalid(path: &Path, message: String) -> Error {
     .into()
 }
 
+/// A pose's frame times must be finite and never decrease: the fit takes
+/// its frames in time order, and the inertia of Eq. 13 differences them.
+fn check_times(path: &Path, times: &[f64]) -> Result<(), Error> {
+    let at = |i: usize, what: String| {
+        invalid(
+            path,
+            format!("/frames/times: frame {i}: {what}: a pose's frame times must increase"),
+        )
+    };
+    let num = crate::geom::num;
+    for (i, &t) in times.iter().enumerate() {
+        if !t.is_finite() {
+            return Err(at(i, format!("time {} s is not finite", num(t))));
+        }
+        if i > 0 && t < times[i - 1] {
+            return Err(at(
+                i,
+                format!(
+                    "time {} s is before frame {}'s {} s",
+                    num(t),
+                    i - 1,
+                    num(times[i - 1])
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// One training pose as `fit` uses it.
 struct PoseInput {
     sample: Sample,
@@ -418,6 +454,7 @@ fn read_pose(
     if nf == 0 {
         return Err(invalid(path, "holds no frames".into()));
     }
+    check_times(path, &frames.times)?;
     let chosen = choose_frames(nf, cx.samples);
     let up = data.up_axis.0;
     let reactions = mechanics(path, "reaction_forces", nf, n, up)?;
@@ -1372,6 +1409,22 @@ impl Stage for FitJob {
         }
         if self.samples == 0 {
             return Err(Error::Usage("--samples must be at least 1".into()));
+        }
+        if self.samples > MAX_SAMPLES {
+            return Err(Error::Usage(format!(
+                "samples {} is more than the limit of {MAX_SAMPLES} frames per pose",
+                self.samples
+            )));
+        }
+        for (name, n) in [
+            ("gd_iterations", self.params.gd_iterations),
+            ("gn_iterations", self.params.gn_iterations),
+        ] {
+            if n > MAX_ITERATIONS {
+                return Err(Error::Usage(format!(
+                    "{name} {n} is more than the limit of {MAX_ITERATIONS}"
+                )));
+            }
         }
         let mut inputs: Vec<&Path> = vec![&self.asset];
         inputs.extend(self.train.iter().map(PathBuf::as_path));
