@@ -557,12 +557,21 @@ fn warnings_of(stdout: &str, stderr: &str) -> Vec<String> {
         .chain(lines)
         .map(|w| w.trim().replace("input/", ""))
     {
+        // Kept short and few: a record must not grow with a hostile input.
+        let w = crate::geom::cap_message(&w, crate::geom::MAX_MESSAGE_BYTES).into_owned();
+        if v.len() == MAX_WARNINGS {
+            v.push("further warnings left out".into());
+            break;
+        }
         if !w.is_empty() && !v.contains(&w) {
             v.push(w);
         }
     }
     v
 }
+
+/// The most warnings a job's record keeps.
+const MAX_WARNINGS: usize = 100;
 
 /// The name an entry of job `job` is filed under with suffix `n`: itself
 /// for 0, else `.N` after the job name (`coll.1`, `dup.1.bcc`,
@@ -668,9 +677,16 @@ pub fn finish(paths: &Paths, dir: &Path, job: &str, outcome: &Outcome) -> Result
         }
     };
     if let Outcome::Failed(f) = outcome {
+        // A second guard: whatever the child said, a record stays short.
+        let cap =
+            |s: &str| crate::geom::cap_message(s, crate::geom::MAX_MESSAGE_BYTES).into_owned();
+        let mut f = f.clone();
+        f.message = cap(&f.message);
+        f.file = f.file.as_deref().map(cap);
+        f.place = f.place.as_deref().map(cap);
         write_json(
             &dest.join(filed_name(&format!("{job}.error.json"), job, n)),
-            f,
+            &f,
         )?;
     }
     if !warnings.is_empty() {

@@ -675,6 +675,15 @@ impl Job {
             if f.samples == Some(0) {
                 return Err(bad(p, "key 'fit.samples': must be at least 1".into()));
             }
+            if let Some(n) = f.samples.filter(|&n| n > super::fit::MAX_SAMPLES) {
+                return Err(bad(
+                    p,
+                    format!(
+                        "key 'fit.samples': {n} is more than the maximum of {}",
+                        super::fit::MAX_SAMPLES
+                    ),
+                ));
+            }
             if f.harmonic.as_ref().is_some_and(|h| h.contains(&0)) {
                 return Err(bad(
                     p,

@@ -289,8 +289,10 @@ fn frame_timing(
         return Err(invalid(
         asset_path,
         format!(
-            "frames {first}-{last} at {} fps with dt {} s need {frame_steps:.0} steps, more than the limit of {MAX_TOTAL_STEPS}",
-            sim.fps, sim.dt.0
+            "frames {first}-{last} at {} fps with dt {} s need {} steps, more than the limit of {MAX_TOTAL_STEPS}",
+            crate::geom::num(sim.fps),
+            crate::geom::num(sim.dt.0),
+            crate::geom::num(frame_steps)
         ),
     ));
     }

@@ -600,8 +600,10 @@ impl Stage for ValidateJob {
             let steps = scene.duration / dt;
             if !(dt.is_finite() && dt > 0.0 && steps <= super::simulate::MAX_TOTAL_STEPS as f64) {
                 return Err(Error::Usage(format!(
-                    "--dt {dt}: {} s of scene need {steps:.0} PD steps (must be > 0 s and at most {} steps)",
-                    scene.duration,
+                    "--dt {}: {} s of scene need {} PD steps (must be > 0 s and at most {} steps)",
+                    crate::geom::num(dt),
+                    crate::geom::num(scene.duration),
+                    crate::geom::num(steps),
                     super::simulate::MAX_TOTAL_STEPS
                 )));
             }

@@ -44,10 +44,10 @@ pub enum HomogenizedRunError {
     #[error(transparent)]
     Backend(#[from] SimulateError),
     /// The largest PD step (s) is not a positive finite time.
-    #[error("PD step {max_dt} s must be finite and > 0")]
+    #[error("PD step {} s must be finite and > 0", crate::geom::num(*max_dt))]
     BadStep { max_dt: f64 },
     /// The scene needs more PD steps than a run may take.
-    #[error("a PD step of {max_dt} s needs {steps:.0} steps over the scene, more than the limit of {limit}")]
+    #[error("a PD step of {} s needs {} steps over the scene, more than the limit of {limit}", crate::geom::num(*max_dt), crate::geom::num(*steps))]
     TooManySteps {
         max_dt: f64,
         steps: f64,
