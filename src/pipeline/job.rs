@@ -247,6 +247,10 @@ pub struct Job {
     /// `OUT/checkpoints/` and stops (exit 75); the next run resumes it.
     /// `None` [the default of `load`]: signals are not this job's business.
     pub interrupt: Option<&'static super::Interrupt>,
+    /// The shot stage skips, with a warning, a checkpoint in
+    /// `OUT/checkpoints/` it cannot use, instead of failing (exit 65)
+    /// ([`ChunkOptions::resume_or_restart`]) [default of `load`: false].
+    pub resume_or_restart: bool,
 }
 
 impl Job {
@@ -274,6 +278,7 @@ impl Job {
             base,
             output,
             interrupt: None,
+            resume_or_restart: false,
         };
         job.check()?;
         Ok(job)
@@ -1000,6 +1005,7 @@ impl Job {
                 checkpoint_every: every.unwrap_or(DEFAULT_CHECKPOINT_EVERY),
                 checkpoint_dir: Some(self.checkpoint_dir()),
                 resume: true,
+                resume_or_restart: self.resume_or_restart,
                 stop: interrupt.map(|i| i.flag()),
                 ..ChunkOptions::default()
             },
