@@ -219,7 +219,7 @@ const PRINTABLE: [&str; 8] = [
     "a'; touch PWNED; echo '",
     "a\"; touch PWNED; echo \"",
     "a # --requeue",
-    "a \\ b \\\" c",
+    "a \\\" c",
     "50% of %j",
     " ; touch PWNED & ",
 ];
@@ -297,11 +297,27 @@ fn quotes_and_substitutions_in_names_stay_literal_in_the_slurm_scripts() {
             ]
         })
         .collect();
-    cases.push(("c".into(), combined.clone(), combined.clone()));
+    cases.push(("c".into(), combined.clone(), combined.replace('\\', "")));
     for (folder, stem, output) in &cases {
         let what = format!("folder {folder:?}, manifest {stem:?}, output {output:?}");
         let job = hostile_job(dir.path(), folder, stem, Some(output));
         let o = dry_run(&job, &bin.join("knitvox"));
+        // Slurm drops backslashes from --output: such an output folder is refused.
+        if dir
+            .path()
+            .join(folder)
+            .join(output)
+            .to_string_lossy()
+            .contains('\\')
+        {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(65), "{what}: {err}");
+            assert!(
+                err.contains("backslash") && err.contains("'output'"),
+                "{what}: {err}"
+            );
+            continue;
+        }
         assert!(
             o.status.success(),
             "{what}: {}",

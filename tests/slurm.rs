@@ -293,7 +293,7 @@ fn a_job_with_quotes_and_substitutions_in_its_names_runs_on_slurm() {
     let job = job_dir(&folder);
     let hostile = folder.join("shot #1 $(touch PWNED).toml");
     let text = std::fs::read_to_string(&job).unwrap();
-    std::fs::write(&hostile, format!("output = 'out \\ \"q\" #x'\n{text}")).unwrap();
+    std::fs::write(&hostile, format!("output = 'out \"q\" #x'\n{text}")).unwrap();
     let ids = submit(&cluster, &hostile, &[]);
     for (stage, id) in &ids {
         cluster.wait(id, 300, &format!("{stage} COMPLETED"), |j| {
@@ -306,7 +306,7 @@ fn a_job_with_quotes_and_substitutions_in_its_names_runs_on_slurm() {
         });
         // The log is where --output says, in the folder as named.
         let log = folder
-            .join("out \\ \"q\" #x/.knitvox/submit/slurm")
+            .join("out \"q\" #x/.knitvox/submit/slurm")
             .join(format!("{stage}-{id}.log"));
         let text = std::fs::read_to_string(&log).unwrap_or_default();
         assert!(text.contains("\"status\""), "{}: {text}", log.display());

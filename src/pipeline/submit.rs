@@ -100,6 +100,13 @@ pub enum SubmitError {
         /// Bad input for what a file says, usage for a command-line flag.
         class: ErrorClass,
     },
+    /// Slurm drops every backslash of an `--output` path (and its
+    /// patterns with it), so a log under this folder cannot be named.
+    #[error(
+        "the 'output' key of {job} names the folder {value}, which holds a backslash: \
+         Slurm's --output cannot name a log file there; name the folder without one"
+    )]
+    SlurmBackslash { job: PathBuf, value: String },
 }
 
 impl SubmitError {
@@ -111,6 +118,7 @@ impl SubmitError {
             SubmitError::Refused { .. } | SubmitError::Answer { .. } => ErrorClass::Transient,
             SubmitError::Path { .. } => ErrorClass::Missing,
             SubmitError::UnsafeName { class, .. } => *class,
+            SubmitError::SlurmBackslash { .. } => ErrorClass::BadInput,
         }
     }
 }
@@ -441,6 +449,13 @@ pub fn slurm_script(plan: &Plan, stage: &PlanStage, opts: &SlurmOptions) -> Stri
 /// --parsable`, each `--dependency=afterok:` its upstream jobs.
 pub fn submit_slurm(plan: &Plan, opts: &SlurmOptions) -> Result<SubmitReport, Error> {
     let dir = submit_dir(plan, "slurm");
+    if dir.to_string_lossy().contains('\\') {
+        return Err(SubmitError::SlurmBackslash {
+            job: plan.job.clone(),
+            value: escaped(&plan.output.to_string_lossy()),
+        }
+        .into());
+    }
     std::fs::create_dir_all(&dir).map_err(|source| crate::io::IoError::Write {
         path: dir.clone(),
         source,
