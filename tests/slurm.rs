@@ -278,6 +278,46 @@ fn a_job_runs_on_slurm_as_chained_stages_like_a_local_run() {
     assert!(String::from_utf8_lossy(&again.stdout).contains("nothing to do"));
 }
 
+#[test]
+fn a_job_with_quotes_and_substitutions_in_its_names_runs_on_slurm() {
+    let Some((_one, cluster)) = private_cluster() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // The folder, the manifest and the output folder hold what a shell or
+    // sbatch would read as code, a comment or the end of a value.
+    let folder = dir
+        .path()
+        .join("a b 'c' \"d\" #e $(touch PWNED) `touch PWNED` 50%j");
+    std::fs::create_dir_all(&folder).unwrap();
+    let job = job_dir(&folder);
+    let hostile = folder.join("shot #1 $(touch PWNED).toml");
+    let text = std::fs::read_to_string(&job).unwrap();
+    std::fs::write(&hostile, format!("output = 'out \"q\" #x'\n{text}")).unwrap();
+    let ids = submit(&cluster, &hostile, &[]);
+    for (stage, id) in &ids {
+        cluster.wait(id, 300, &format!("{stage} COMPLETED"), |j| {
+            let s = j.get("JobState").map(String::as_str).unwrap_or("");
+            assert!(
+                !matches!(s, "FAILED" | "CANCELLED" | "TIMEOUT" | "NODE_FAIL"),
+                "{stage}: {j:?}"
+            );
+            s == "COMPLETED"
+        });
+        // The log is where --output says, in the folder as named.
+        let log = folder
+            .join("out \"q\" #x/.knitvox/submit/slurm")
+            .join(format!("{stage}-{id}.log"));
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        assert!(text.contains("\"status\""), "{}: {text}", log.display());
+        // The job name is the plain one.
+        let name = cluster.job(id).get("JobName").cloned().unwrap_or_default();
+        assert_eq!(name, format!("shot__1___touch_PWNED_:{stage}"));
+    }
+    assert!(!folder.join("PWNED").exists() && !dir.path().join("PWNED").exists());
+    assert!(!Path::new("PWNED").exists());
+}
+
 /// A stand-in for knitvox on the nodes: exits with the codes listed in
 /// `STAGE.codes` (one per attempt), then runs the real binary.
 fn fake_knitvox(dir: &Path) -> PathBuf {

@@ -28,10 +28,41 @@ import subprocess
 import sys
 
 
+def unsafe(value):
+    """A control byte (below 0x20, or 0x7f) would start a new line of a
+    submission file or a shell command; knitvox refuses such names when it
+    builds the plan, and this submitter refuses them again."""
+    return any(ord(c) < 0x20 or ord(c) == 0x7f for c in value)
+
+
+def refuse(what, value, code):
+    shown = repr(value)
+    if len(shown) > 120:
+        shown = shown[:120] + "..."
+    sys.stderr.write(f"error: {what} {shown} holds a control character\n")
+    sys.exit(code)
+
+
+def check_plan(node, where="plan"):
+    """Every string of the plan, keys included (exit 65, bad input)."""
+    if isinstance(node, str):
+        if unsafe(node):
+            refuse(f"the {where} value", node, 65)
+    elif isinstance(node, dict):
+        for k, v in node.items():
+            check_plan(k, where)
+            check_plan(v, f"{where}.{k}")
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            check_plan(v, f"{where}[{i}]")
+
+
 def plan(knitvox, job):
     out = subprocess.run([knitvox, "run", job, "--plan", "--json", "--knitvox", knitvox],
                          check=True, capture_output=True, text=True)
-    return json.loads(out.stdout)
+    p = json.loads(out.stdout)
+    check_plan(p)
+    return p
 
 
 def write(path, lines):
@@ -50,6 +81,9 @@ def main():
     ap.add_argument("--deadlinecommand", default="deadlinecommand")
     ap.add_argument("--dry-run", action="store_true")
     a = ap.parse_args()
+    for flag in ("pool", "group", "deadlinecommand", "knitvox"):
+        if unsafe(getattr(a, flag)):
+            refuse(f"--{flag}", getattr(a, flag), 2)
 
     p = plan(a.knitvox, os.path.abspath(a.job))
     folder = os.path.join(p["output"], ".knitvox", "submit", "deadline")

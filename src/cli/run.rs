@@ -55,6 +55,11 @@ pub struct RunArgs {
     /// manifest's folder.
     #[arg(long, value_name = "DIR")]
     pub allow_root: Vec<PathBuf>,
+    /// A checkpoint in OUT/checkpoints/ that the shot stage cannot use (damaged, truncated, of
+    /// another version or shot) is skipped with a warning instead of failing (exit 65): the shot
+    /// then continues from an older checkpoint or starts from rest.
+    #[arg(long, conflicts_with_all = ["submit", "plan"])]
+    pub resume_or_restart: bool,
 }
 
 fn node_executable(a: &RunArgs) -> anyhow::Result<PathBuf> {
@@ -108,15 +113,19 @@ pub fn run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         return farm(a, &job);
     }
     job.interrupt = Some(super::console::relay_sigterm());
+    job.resume_or_restart = a.resume_or_restart;
+    let mut console =
+        super::console::Console::with_mode(super::console::ProgressMode::of(a.json), 0, "run");
     let r = job::run_tasks(
         &job,
         a.stage.as_deref(),
         a.task,
         &super::asset::command_line(),
-        &mut super::console::Console::with_mode(super::console::ProgressMode::of(a.json), 0, "run"),
+        &mut console,
     )?;
     if a.json {
-        super::console::print_json_report(&r, &[])?;
+        let warnings = std::mem::take(&mut console.warnings);
+        super::console::print_json_report(&r, &[("warnings", warnings.into())])?;
         return Ok(ExitCode::Success);
     }
     for s in &r.stages {

@@ -145,6 +145,11 @@ pub struct SimulateArgs {
     /// as usual). SIGTERM checkpoints after the current step and exits 75.
     #[arg(long)]
     pub resume: bool,
+    /// As --resume, but a checkpoint of this shot that cannot be used (damaged, truncated, of
+    /// another version or shot) is skipped with a warning instead of failing (exit 65): the shot
+    /// then continues from an older checkpoint or starts from rest.
+    #[arg(long)]
+    pub resume_or_restart: bool,
     /// Print one JSON line per frame and the report as the last line (errors as JSON too).
     #[arg(long)]
     pub json: bool,
@@ -223,7 +228,8 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             checkpoint_dir: a.checkpoint_dir.clone(),
             checkpoint: a.checkpoint.clone(),
             shot_start: a.shot_start,
-            resume: a.resume,
+            resume: a.resume || a.resume_or_restart,
+            resume_or_restart: a.resume_or_restart,
             stop: interrupt.map(|i| i.flag()),
         },
         shot,

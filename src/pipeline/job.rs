@@ -253,6 +253,10 @@ pub struct Job {
     allowed: Vec<PathBuf>,
     /// Every file the job reads, each inside the allowed folders.
     inputs: Vec<JobInput>,
+    /// The shot stage skips, with a warning, a checkpoint in
+    /// `OUT/checkpoints/` it cannot use, instead of failing (exit 65)
+    /// ([`ChunkOptions::resume_or_restart`]) [default of `load`: false].
+    pub resume_or_restart: bool,
 }
 
 /// A file a job reads: the key that names it, the path as written, the
@@ -406,6 +410,7 @@ impl Job {
             interrupt: None,
             allowed: Vec::new(),
             inputs: Vec::new(),
+            resume_or_restart: false,
         };
         job.check()?;
         job.allowed = allowed
@@ -1432,6 +1437,7 @@ impl Job {
                 checkpoint_every: every.unwrap_or(DEFAULT_CHECKPOINT_EVERY),
                 checkpoint_dir: Some(self.checkpoint_dir()),
                 resume: true,
+                resume_or_restart: self.resume_or_restart,
                 stop: interrupt.map(|i| i.flag()),
                 ..ChunkOptions::default()
             },

@@ -268,6 +268,12 @@ pub struct ChunkOptions {
     /// Continue from the latest checkpoint of this shot up to the request's
     /// last frame (a rerun of a killed chunk); with none, start as usual.
     pub resume: bool,
+    /// A checkpoint named for this shot that cannot be used (unreadable,
+    /// truncated, another version or shot, a hash or header that does not
+    /// match its content) is skipped with a warning naming it and why,
+    /// instead of being an error (exit 65); the run then continues from an
+    /// older one or starts from rest.
+    pub resume_or_restart: bool,
     /// Set from outside (SIGTERM): finish the current step, checkpoint,
     /// stop with [`SimulateError::Interrupted`].
     pub stop: Option<&'static AtomicBool>,
@@ -337,6 +343,9 @@ pub fn simulate_chunk(
         nodes: asset.mesh.num_nodes(),
         preroll: setup.schedule.preroll_steps,
         spf: setup.schedule.steps_per_frame,
+        t0: setup.schedule.t0(),
+        dt: setup.schedule.dt,
+        fps: sim.fps,
     };
     let resumed = resolve_start(&ctx, chunk, &frames, observer)?;
     let start = resumed.shot_start;
@@ -636,6 +645,12 @@ struct ShotKey {
     nodes: usize,
     preroll: usize,
     spf: usize,
+    /// Shot time (s) at step 0 and the step (s): a checkpoint's time must
+    /// be its step's.
+    t0: f64,
+    dt: f64,
+    /// Frames per second: a written frame's time is its number over it.
+    fps: f64,
 }
 
 impl ShotKey {
@@ -741,6 +756,75 @@ fn unusable(
     })
 }
 
+/// `a` and `b` equal up to the rounding of a JSON round trip.
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * b.abs().max(1.0)
+}
+
+/// Why checkpoint `c` is not a state this shot's loop wrote: another
+/// shot's key or node count, a header that disagrees with the file's name
+/// (`found`), a time that is not its step's, written frames out of order or
+/// past its step, frame times that are not theirs. The hash covers every
+/// byte; these catch a header edited and rehashed, and a renamed file.
+fn inconsistent(
+    ctx: &ShotKey,
+    c: &Checkpoint,
+    found: Option<&checkpoint::Found>,
+) -> Option<String> {
+    let h = &c.header;
+    if h.key != ctx.key {
+        return Some(format!(
+            "its header is of another shot (parameters hash {}..; this shot's is {}..)",
+            crate::geom::excerpt_chars(&h.key, 12),
+            &ctx.key[..12]
+        ));
+    }
+    if let Some(f) = found {
+        if (f.shot_start, f.step) != (h.shot_start, h.step) {
+            return Some(format!(
+                "its name says shot start {} step {}, its header shot start {} step {}",
+                f.shot_start, f.step, h.shot_start, h.step
+            ));
+        }
+    }
+    if h.nodes != ctx.nodes as u64 {
+        return Some(format!("it has {} nodes, the asset {}", h.nodes, ctx.nodes));
+    }
+    let t = ctx.t0 + h.step as f64 * ctx.dt;
+    if !close(h.time, t) {
+        return Some(format!(
+            "its time {} s is not the time {t} s of its step {}",
+            h.time, h.step
+        ));
+    }
+    let in_order = h.series_frames.windows(2).all(|w| w[0] < w[1]);
+    let reached = h
+        .series_frames
+        .iter()
+        .all(|&f| f >= h.shot_start && ctx.step_of(f, h.shot_start) <= h.step);
+    if !in_order || !reached {
+        return Some(format!(
+            "its written frames {} are not frames the shot from frame {} reaches by step {}",
+            crate::geom::excerpt(&format!("{:?}", h.series_frames)),
+            h.shot_start,
+            h.step
+        ));
+    }
+    let times_ok = h
+        .series_frames
+        .iter()
+        .zip(&c.series_times)
+        .all(|(&f, &t)| close(t, f as f64 / ctx.fps));
+    (!times_ok).then(|| "the times of its written frames are not those frames' times".into())
+}
+
+/// The reason in a checkpoint reader's error, without the path it starts with.
+fn reason(path: &Path, e: &IoError) -> String {
+    let text = e.to_string();
+    let prefix = format!("{}: ", path.display());
+    text.strip_prefix(&prefix).unwrap_or(&text).to_string()
+}
+
 /// Decides where the run of `frames` (sorted, deduplicated) starts
 /// ([`ChunkOptions`]): from rest at the shot start, or from a checkpoint.
 /// A request that starts after the shot start needs a checkpoint; none is
@@ -768,39 +852,64 @@ fn resolve_start(
             });
         }
         let c = checkpoint::read(path, io::max_memory())?;
+        if let Some(why) = inconsistent(ctx, &c, None) {
+            return Err(invalid(
+                path,
+                format!("not a usable knitvox checkpoint: {why}"),
+            ));
+        }
         return Ok(Resumed {
             shot_start: start,
             from: Some((path.clone(), c)),
         });
     }
-    let mut best: Option<(u64, i64, PathBuf)> = None;
-    for f in checkpoint::list(&ctx.dir, &ctx.key)? {
+    // The checkpoints named for this shot that this run may start from,
+    // latest first.
+    let mut candidates: Vec<checkpoint::Found> = checkpoint::list(&ctx.dir, &ctx.key)?
+        .into_iter()
+        .filter(|f| {
+            let start = f.shot_start;
+            let start_ok = match chunk.shot_start {
+                Some(s) => start == s,
+                None => start <= first,
+            };
+            // A fresh run of a shot from its start ignores older checkpoints.
+            start_ok && !(start == first && !chunk.resume) && f.step <= bound(start)
+        })
+        .collect();
+    candidates.sort_by(|a, b| (b.step, b.shot_start).cmp(&(a.step, a.shot_start)));
+    for f in candidates {
         let start = f.shot_start;
-        let start_ok = match chunk.shot_start {
-            Some(s) => start == s,
-            None => start <= first,
+        // Every candidate is read and checked whole: a damaged one is
+        // never passed over in silence (a silent restart from rest).
+        let why = match checkpoint::read(&f.path, io::max_memory()) {
+            Err(e) => reason(&f.path, &e),
+            Ok(c) => match inconsistent(ctx, &c, Some(&f)) {
+                Some(why) => format!("not a usable knitvox checkpoint: {why}"),
+                // Of this shot, but for other frames: not this run's.
+                None if unusable(ctx, &c.header, start, bound(start), frames).is_some() => continue,
+                None => {
+                    return Ok(Resumed {
+                        shot_start: start,
+                        from: Some((f.path, c)),
+                    })
+                }
+            },
         };
-        // A fresh run of a shot from its start ignores older checkpoints.
-        if !start_ok || (start == first && !chunk.resume) || f.step > bound(start) {
-            continue;
+        if !chunk.resume_or_restart {
+            return Err(invalid(
+                &f.path,
+                format!(
+                    "{why}; this run would continue from it: move it away, or pass \
+                     --resume-or-restart to skip it (the shot then continues from an older \
+                     checkpoint or starts from rest)"
+                ),
+            ));
         }
-        if best.as_ref().is_some_and(|b| (b.0, b.1) >= (f.step, start)) {
-            continue;
-        }
-        match checkpoint::read_header(&f.path) {
-            Ok(h) if unusable(ctx, &h, start, bound(start), frames).is_none() => {
-                best = Some((f.step, start, f.path));
-            }
-            Ok(_) => {}
-            Err(e) => observer.warning(&format!("{e} (skipped)")),
-        }
-    }
-    if let Some((_, start, path)) = best {
-        let c = checkpoint::read(&path, io::max_memory())?;
-        return Ok(Resumed {
-            shot_start: start,
-            from: Some((path, c)),
-        });
+        observer.warning(&format!(
+            "{}: {why}; skipped (--resume-or-restart)",
+            f.path.display()
+        ));
     }
     let start = chunk.shot_start.unwrap_or(first);
     if start < first {

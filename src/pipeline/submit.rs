@@ -85,6 +85,28 @@ pub enum SubmitError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// A name that would go into a farm script holds a control character
+    /// (or is not UTF-8): it could start a new shell line or directive.
+    #[error(
+        "{what} {value} holds a control character or is not UTF-8 (farm scripts \
+         take names without bytes below 0x20, 0x7f or invalid UTF-8; see \
+         docs/guides/jobs-and-farm.md)"
+    )]
+    UnsafeName {
+        /// What the value is: `the manifest's 'output' key in JOB`, ...
+        what: String,
+        /// The value, escaped and capped.
+        value: String,
+        /// Bad input for what a file says, usage for a command-line flag.
+        class: ErrorClass,
+    },
+    /// Slurm drops every backslash of an `--output` path (and its
+    /// patterns with it), so a log under this folder cannot be named.
+    #[error(
+        "the 'output' key of {job} names the folder {value}, which holds a backslash: \
+         Slurm's --output cannot name a log file there; name the folder without one"
+    )]
+    SlurmBackslash { job: PathBuf, value: String },
 }
 
 impl SubmitError {
@@ -95,6 +117,8 @@ impl SubmitError {
             SubmitError::NoScheduler { .. } => ErrorClass::Unavailable,
             SubmitError::Refused { .. } | SubmitError::Answer { .. } => ErrorClass::Transient,
             SubmitError::Path { .. } => ErrorClass::Missing,
+            SubmitError::UnsafeName { class, .. } => *class,
+            SubmitError::SlurmBackslash { .. } => ErrorClass::BadInput,
         }
     }
 }
@@ -106,9 +130,102 @@ fn absolute(p: &Path) -> Result<PathBuf, SubmitError> {
     })
 }
 
+/// Longest escaped value an [`SubmitError::UnsafeName`] shows (characters).
+const MAX_SHOWN: usize = 120;
+
+/// `s` as a Rust string literal (control bytes escaped), capped.
+fn escaped(s: &str) -> String {
+    let quoted = format!("{s:?}");
+    if quoted.chars().count() <= MAX_SHOWN {
+        return quoted;
+    }
+    let mut cut: String = quoted.chars().take(MAX_SHOWN).collect();
+    cut.push_str("…");
+    cut
+}
+
+/// A control byte: one a shell or a `#SBATCH` line reads as a line break,
+/// a carriage return that hides what follows, or a terminal escape.
+fn is_control(c: char) -> bool {
+    (c as u32) < 0x20 || c == '\u{7f}'
+}
+
+/// `p` as UTF-8 without control bytes, or the error naming `what`.
+fn safe_text(p: &Path, what: &str, class: ErrorClass) -> Result<String, SubmitError> {
+    let refuse = |value: String| SubmitError::UnsafeName {
+        what: what.to_string(),
+        value,
+        class,
+    };
+    let Some(s) = p.to_str() else {
+        return Err(refuse(escaped(&p.to_string_lossy())));
+    };
+    if s.chars().any(is_control) {
+        return Err(refuse(escaped(s)));
+    }
+    Ok(s.to_string())
+}
+
+/// The farm's job name from a manifest stem: `[A-Za-z0-9._-]` only (a
+/// scheduler's name field and a `#SBATCH` line take it verbatim), other
+/// characters as `_`, never empty.
+fn job_name(stem: &str) -> String {
+    let name: String = stem
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() {
+        "job".into()
+    } else {
+        name
+    }
+}
+
+/// Checks every text a farm script or submitter gets from `plan`: the
+/// manifest's path, its `output` key, the executable and the stage names
+/// (one place, applied when the plan is built).
+fn check_plan(plan: &Plan, job: &Job) -> Result<(), SubmitError> {
+    let manifest = job.path.display();
+    safe_text(&plan.job, "the job manifest's path", ErrorClass::BadInput)?;
+    safe_text(
+        &plan.output,
+        &format!("the 'output' key of {manifest} (the job's output folder)"),
+        ErrorClass::BadInput,
+    )?;
+    for stage in &plan.stages {
+        safe_text(Path::new(&stage.name), "a stage name", ErrorClass::Internal)?;
+        if let Some(exe) = stage.argv.first() {
+            safe_text(
+                Path::new(exe),
+                "the knitvox executable (--knitvox)",
+                ErrorClass::Usage,
+            )?;
+        }
+    }
+    Ok(())
+}
+
 /// The plan of `job`: one farm job per stage, each after the one before,
-/// running `knitvox` at `exe` (a path valid on the farm's nodes).
+/// running `knitvox` at `exe` (a path valid on the farm's nodes). Refused
+/// ([`SubmitError::UnsafeName`]) when a path or name it would pass to a
+/// farm script holds a control byte or is not UTF-8.
 pub fn plan(job: &Job, exe: &Path) -> Result<Plan, Error> {
+    // The name as given first: canonicalizing it must not be what reveals it.
+    safe_text(&job.path, "the job manifest's path", ErrorClass::BadInput)?;
+    safe_text(
+        &job.output,
+        &format!(
+            "the 'output' key of {} (the job's output folder)",
+            job.path.display()
+        ),
+        ErrorClass::BadInput,
+    )?;
     let manifest = absolute(&job.path).map_err(Error::from)?;
     // The output folder may not exist yet: make its parent absolute.
     let output = if job.output.is_absolute() {
@@ -121,10 +238,12 @@ pub fn plan(job: &Job, exe: &Path) -> Result<Plan, Error> {
             })?
             .join(&job.output)
     };
-    let name = manifest
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "job".into());
+    let name = job_name(
+        &manifest
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    );
     let mut stages: Vec<PlanStage> = Vec::new();
     for s in job.stages() {
         let after = stages
@@ -153,12 +272,14 @@ pub fn plan(job: &Job, exe: &Path) -> Result<Plan, Error> {
             .collect(),
         });
     }
-    Ok(Plan {
+    let plan = Plan {
         job: manifest,
         name,
         output,
         stages,
-    })
+    };
+    check_plan(&plan, job)?;
+    Ok(plan)
 }
 
 /// How to submit to Slurm.
@@ -207,9 +328,34 @@ pub struct SubmitReport {
     pub stages: Vec<Submitted>,
 }
 
-/// Shell single-quoting (a path with spaces or quotes stays one word).
+/// Shell single-quoting (a path with spaces or quotes stays one word; the
+/// plan holds no control byte, so no value spans lines).
 fn quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', r"'\''"))
+}
+
+/// `s` with every control byte as `?`: for a comment line of a script.
+fn one_line(s: &str) -> String {
+    s.chars()
+        .map(|c| if is_control(c) { '?' } else { c })
+        .collect()
+}
+
+/// A `#SBATCH` value: sbatch splits a directive at white space and ends it
+/// at an unquoted `#`, and honours double quotes and backslashes (not the
+/// shell's rules), so the value goes in double quotes with `\` and `"`
+/// escaped. [`plan`] refuses control bytes; one in a plan built by hand
+/// becomes `?` (`#SBATCH` values cannot hold a line break).
+fn sbatch_value(s: &str) -> String {
+    let mut out = String::from("\"");
+    for c in one_line(s).chars() {
+        if matches!(c, '\\' | '"') {
+            out.push('\\');
+        }
+        out.push(c);
+    }
+    out.push('"');
+    out
 }
 
 /// The folder of a plan's scripts and logs.
@@ -252,14 +398,19 @@ esac"#,
 
 /// The batch script of one stage.
 pub fn slurm_script(plan: &Plan, stage: &PlanStage, opts: &SlurmOptions) -> String {
-    let dir = submit_dir(plan, "slurm");
+    // `%` in the folder is literal (`%%`); the file name's `%A`, `%a`, `%j`
+    // are Slurm's patterns.
+    let dir = submit_dir(plan, "slurm")
+        .display()
+        .to_string()
+        .replace('%', "%%");
     let (log, requeue_id) = if stage.tasks > 1 {
         (
-            dir.join(format!("{}-%A_%a.log", stage.name)),
+            format!("{dir}/{}-%A_%a.log", stage.name),
             "${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}",
         )
     } else {
-        (dir.join(format!("{}-%j.log", stage.name)), "$SLURM_JOB_ID")
+        (format!("{dir}/{}-%j.log", stage.name), "$SLURM_JOB_ID")
     };
     let command = stage
         .argv
@@ -276,7 +427,7 @@ pub fn slurm_script(plan: &Plan, stage: &PlanStage, opts: &SlurmOptions) -> Stri
         "#!/bin/bash\n\
          # knitvox {version}: stage '{stage}' of {job}\n\
          # Exit classes and what they do here: schemas/job.md, \"Farm submission\".\n\
-         #SBATCH --job-name={name}:{stage}\n\
+         #SBATCH --job-name={name}\n\
          #SBATCH --output={log}\n\
          #SBATCH --open-mode=append\n\
          #SBATCH --requeue\n\
@@ -286,11 +437,18 @@ pub fn slurm_script(plan: &Plan, stage: &PlanStage, opts: &SlurmOptions) -> Stri
          {policy}\n\
          exit \"$rc\"\n",
         version = env!("CARGO_PKG_VERSION"),
-        stage = stage.name,
-        job = plan.job.display(),
-        name = plan.name,
-        log = log.display(),
-        chdir = plan.job.parent().unwrap_or(Path::new("/")).display(),
+        stage = one_line(&stage.name),
+        job = one_line(&plan.job.display().to_string()),
+        name = sbatch_value(&format!("{}:{}", job_name(&plan.name), stage.name)),
+        log = sbatch_value(&log),
+        chdir = sbatch_value(
+            &plan
+                .job
+                .parent()
+                .unwrap_or(Path::new("/"))
+                .display()
+                .to_string()
+        ),
         policy = exit_policy(opts.max_retries, requeue_id),
     )
 }
@@ -299,6 +457,13 @@ pub fn slurm_script(plan: &Plan, stage: &PlanStage, opts: &SlurmOptions) -> Stri
 /// --parsable`, each `--dependency=afterok:` its upstream jobs.
 pub fn submit_slurm(plan: &Plan, opts: &SlurmOptions) -> Result<SubmitReport, Error> {
     let dir = submit_dir(plan, "slurm");
+    if dir.to_string_lossy().contains('\\') {
+        return Err(SubmitError::SlurmBackslash {
+            job: plan.job.clone(),
+            value: escaped(&plan.output.to_string_lossy()),
+        }
+        .into());
+    }
     std::fs::create_dir_all(&dir).map_err(|source| crate::io::IoError::Write {
         path: dir.clone(),
         source,
@@ -426,13 +591,44 @@ mod tests {
         assert!(s.contains("scontrol requeue \"$SLURM_JOB_ID\""), "{s}");
         assert!(s.contains("  66|74|69)\n"), "{s}");
         assert!(s.contains("-lt 3 ]"), "{s}");
-        assert!(s.contains("#SBATCH --output=/jobs/out/.knitvox/submit/slurm/embed-%j.log"));
+        assert!(
+            s.contains("#SBATCH --output=\"/jobs/out/.knitvox/submit/slurm/embed-%j.log\"\n"),
+            "{s}"
+        );
+        assert!(s.contains("#SBATCH --job-name=\"its:embed\"\n"), "{s}");
+        assert!(s.contains("#SBATCH --chdir=\"/jobs\"\n"), "{s}");
         let a = slurm_script(&p, &p.stages[1], &SlurmOptions::default());
         assert!(a.contains("--task \"$SLURM_ARRAY_TASK_ID\""), "{a}");
         assert!(a.contains("train-%A_%a.log"), "{a}");
         assert!(
             a.contains("${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}"),
             "{a}"
+        );
+    }
+
+    #[test]
+    fn sbatch_values_stay_one_argument_and_job_names_are_plain() {
+        assert_eq!(sbatch_value(r#"/a b/#c"d\e"#), r#""/a b/#c\"d\\e""#);
+        assert_eq!(sbatch_value("a\nb\rc\u{7f}"), "\"a?b?c?\"");
+        assert_eq!(job_name("shot 01 $(id)`x`'\"\n"), "shot_01___id__x____");
+        assert_eq!(job_name(""), "job");
+        assert_eq!(job_name("a.b_c-D9"), "a.b_c-D9");
+        let mut p = two_stage_plan();
+        p.output = "/jobs/50%/out".into();
+        let s = slurm_script(&p, &p.stages[0], &SlurmOptions::default());
+        assert!(
+            s.contains("/jobs/50%%/out/.knitvox/submit/slurm/embed-%j.log"),
+            "{s}"
+        );
+    }
+
+    #[test]
+    fn escaped_values_are_one_line_and_capped() {
+        assert_eq!(escaped("o\ntouch X"), r#""o\ntouch X""#);
+        let long = escaped(&"\n".repeat(500));
+        assert!(
+            long.chars().count() <= MAX_SHOWN + 1 && !long.contains('\n'),
+            "{long}"
         );
     }
 
