@@ -252,10 +252,7 @@ pub struct Job {
 impl Job {
     /// Reads and checks a manifest (exit 65 naming the file and key; 66 when missing).
     pub fn load(path: &Path) -> Result<Job, Error> {
-        let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::io::input::read_input_text(path, "manifest", crate::io::max_memory())?;
         let manifest: Manifest = toml::from_str(&text)
             .map_err(|e| bad(path, super::sim_scene::toml_error_line(&e, &text)))?;
         let base = path
