@@ -495,6 +495,15 @@ impl Ds {
     /// Refuses to read `elems` elements when the file does not store enough
     /// bytes to hold them (uncompressed) or to plausibly expand into them (compressed).
     pub(crate) fn guard_storage(&self, elems: usize) -> Result<(), FormatError> {
+        self.guard_declared(elems)?;
+        // Within the budget, but still far more than the file can justify.
+        let needed = (elems as u64).saturating_mul(self.ty.size as u64);
+        check_bomb(&self.ds, &self.loc, needed)
+    }
+
+    /// [`Ds::guard_storage`] without the compression-bomb rules (a reader
+    /// that checks several datasets together applies them last).
+    pub(crate) fn guard_declared(&self, elems: usize) -> Result<(), FormatError> {
         let needed = (elems as u64).saturating_mul(self.ty.size as u64);
         if needed == 0 {
             return Ok(());
@@ -518,8 +527,7 @@ impl Ds {
                 self.budget
             )));
         }
-        // Within the budget, but still far more than the file can justify.
-        check_bomb(&self.ds, &self.loc, needed)
+        Ok(())
     }
 
     pub(crate) fn read_f64_into(&self, buf: &mut [f64]) -> Result<(), FormatError> {
