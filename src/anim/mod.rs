@@ -225,6 +225,10 @@ impl Character {
     /// Checks every reference, count and number; errors name the glTF path.
     pub fn validate(&self) -> Result<(), AnimError> {
         let nn = self.skeleton.len();
+        // Per node: 0 not walked yet, 1 on the current walk up, 2 known to
+        // reach a root. Each node is walked once, so a deep chain is linear.
+        let mut state = vec![0u8; nn];
+        let mut walk = Vec::new();
         for (i, node) in self.skeleton.iter().enumerate() {
             let path = format!("/nodes/{i}");
             if let Some(p) = node.parent {
@@ -250,19 +254,28 @@ impl Character {
                     }
                 }
             }
-            // Walking up more than nn parents means a cycle.
-            let mut cur = node.parent;
-            for _ in 0..=nn {
-                match cur {
-                    Some(p) => cur = self.skeleton.get(p).and_then(|n| n.parent),
-                    None => break,
+            // Walking up into a node of the same walk means a cycle; a
+            // parent that does not exist ends the walk (reported at its node).
+            walk.clear();
+            let mut cur = Some(i);
+            while let Some(c) = cur.filter(|&c| c < nn) {
+                match state[c] {
+                    2 => break,
+                    1 => {
+                        return Err(err(
+                            path,
+                            "the node is its own ancestor (cycle in the hierarchy)",
+                        ))
+                    }
+                    _ => {
+                        state[c] = 1;
+                        walk.push(c);
+                        cur = self.skeleton[c].parent;
+                    }
                 }
             }
-            if cur.is_some() {
-                return Err(err(
-                    path,
-                    "the node is its own ancestor (cycle in the hierarchy)",
-                ));
+            for &c in &walk {
+                state[c] = 2;
             }
         }
         for (s, skin) in self.skins.iter().enumerate() {

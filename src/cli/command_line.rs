@@ -12,9 +12,10 @@ use super::{asset, bake, fabric_test, fit, parse, pattern, run, simulate, train,
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// Memory budget in bytes (suffixes K, M, G, T: 512M, 4G): the most a reader
-    /// allocates for what a file declares (compressed HDF5, external glTF buffers,
-    /// --tile) [default: a quarter of the physical memory].
+    /// Memory budget in bytes (suffixes K, M, G, T: 512M, 4G): the largest input file
+    /// read whole, and the most a reader allocates for what a file declares
+    /// (compressed HDF5, external glTF buffers, --tile) [default: an eighth of the
+    /// physical memory, at most 2 GiB].
     #[arg(long, global = true, value_name = "BYTES", value_parser = parse::parse_bytes)]
     pub max_memory: Option<u64>,
 }

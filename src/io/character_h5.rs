@@ -13,7 +13,10 @@ use std::path::Path;
 
 use hdf5::Group;
 
-use super::h5::{create_h5, format_err, open_group, open_path, read_str_attr, write_str_attr, Ds};
+use super::h5::{
+    create_h5, format_err, open_group, open_path, open_path_within, read_str_attr, write_str_attr,
+    Ds,
+};
 use super::{FormatError, IoError};
 use crate::anim::cache::BodyCache;
 use crate::geom::{Units, UpAxis, Vec3};
@@ -49,7 +52,7 @@ pub fn is_character_cache(path: &Path) -> bool {
 /// Reads a character cache; `max_memory` bounds what the file may make
 /// knitvox allocate (bytes).
 pub fn read_character_cache(path: &Path, max_memory: u64) -> Result<CharacterCache, IoError> {
-    let file = open_path(path)?;
+    let file = open_path_within(path, "character cache", Some(max_memory))?;
     decode(&file, max_memory).map_err(|e| format_err(path, e))
 }
 

@@ -88,10 +88,7 @@ pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError>
     let decoded = if format == Format::Hdf5 {
         h5::read_file(path, opts)?
     } else {
-        let data = std::fs::read(path).map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let data = super::input::read_input(path, "yarn file", opts.max_memory)?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         decode(format, &data, opts, &DirResources(dir)).map_err(|source| IoError::Format {
             path: path.to_path_buf(),

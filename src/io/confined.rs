@@ -197,15 +197,7 @@ pub fn read_confined(
     if meta.len() < min_bytes {
         return Err(too_short(meta.len()));
     }
-    let mut opts = std::fs::OpenOptions::new();
-    opts.read(true);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        // A FIFO swapped in after the check must not block the open.
-        opts.custom_flags(libc::O_NONBLOCK);
-    }
-    let file = opts.open(&target).map_err(|source| ConfinedError::Open {
+    let file = open_nonblocking(&target).map_err(|source| ConfinedError::Open {
         path: shown_path(&target),
         source,
     })?;
@@ -252,7 +244,22 @@ pub fn resolve_inside(path: &Path, roots: &[PathBuf]) -> Result<PathBuf, Confine
     })
 }
 
-fn kind_of(meta: &std::fs::Metadata) -> &'static str {
+/// Opens `path` read-only, non-blocking and close-on-exec: a FIFO swapped in
+/// after a metadata check cannot block the open, and no child inherits it.
+/// The caller checks the opened file's metadata (it may still be a FIFO).
+pub(crate) fn open_nonblocking(path: &Path) -> std::io::Result<std::fs::File> {
+    let mut opts = std::fs::OpenOptions::new();
+    opts.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        opts.custom_flags(libc::O_NONBLOCK | libc::O_CLOEXEC);
+    }
+    opts.open(path)
+}
+
+/// What a file that is not a regular file is, for messages ("a FIFO").
+pub(crate) fn kind_of(meta: &std::fs::Metadata) -> &'static str {
     let ft = meta.file_type();
     if ft.is_dir() {
         return "a directory";
@@ -288,7 +295,11 @@ mod tests {
         let roots = [root.clone()];
         assert!(super::resolve_inside(&root.join("ok.bcc"), &roots).is_ok());
         assert!(super::resolve_inside(&root.join("inner.bcc"), &roots).is_ok());
-        for bad in [root.join("../secret.bcc"), outside.clone(), root.join("link.bcc")] {
+        for bad in [
+            root.join("../secret.bcc"),
+            outside.clone(),
+            root.join("link.bcc"),
+        ] {
             let e = super::resolve_inside(&bad, &roots).unwrap_err().to_string();
             assert!(e.contains("outside"), "{e}");
             assert!(!e.contains("secret\""), "{e}");

@@ -128,6 +128,24 @@ pub enum IoError {
     },
     #[error("{path}: {message} (transient: retry later)", path = path.display())]
     Busy { path: PathBuf, message: String },
+    /// An input that is a FIFO, device, directory or socket (see `io::input`).
+    #[error("{path}: the {what} is {kind}, not a regular file; knitvox reads inputs only from regular files", path = path.display())]
+    NotRegular {
+        path: PathBuf,
+        what: &'static str,
+        kind: &'static str,
+    },
+    /// An input larger than the memory budget, refused before it is read.
+    #[error("{path}: the {what} holds {size} bytes, more than the memory budget of {budget} bytes; it is not read (raise --max-memory if the file is genuine)", path = path.display(),
+        size = if *grew { format!("at least {bytes}") } else { bytes.to_string() })]
+    TooLarge {
+        path: PathBuf,
+        what: &'static str,
+        bytes: u64,
+        budget: u64,
+        /// The file grew past the budget while it was read.
+        grew: bool,
+    },
     /// An output path that is, or resolves to, an input (see `io::overwrite`).
     #[error("output '{}' is the input '{}': knitvox never overwrites an input; choose another output path",
         output.display(), input.display())]
@@ -145,6 +163,8 @@ impl IoError {
             | IoError::Unsupported { path, .. }
             | IoError::Invalid { path, .. }
             | IoError::UnknownFormat { path, .. }
+            | IoError::NotRegular { path, .. }
+            | IoError::TooLarge { path, .. }
             | IoError::OutputIsInput { output: path, .. } => path,
         }
     }
@@ -154,7 +174,9 @@ impl IoError {
             IoError::Format { .. }
             | IoError::UnknownFormat { .. }
             | IoError::Unsupported { .. }
-            | IoError::Invalid { .. } => ErrorClass::BadInput,
+            | IoError::Invalid { .. }
+            | IoError::NotRegular { .. }
+            | IoError::TooLarge { .. } => ErrorClass::BadInput,
             IoError::Read { source, .. } => match source.kind() {
                 std::io::ErrorKind::NotFound | std::io::ErrorKind::PermissionDenied => {
                     ErrorClass::MissingInput

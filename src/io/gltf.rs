@@ -65,6 +65,10 @@ use super::bytes::ByteReader;
 use super::{Decoded, FormatError, ReadOptions, Resources};
 use crate::geom::{Units, UpAxis, Vec3, Yarns};
 
+/// Most nodes a glTF may hold (yarns or a character): far beyond any rig or
+/// scene, and every walk over them is linear, so the work stays bounded.
+pub const MAX_NODES: usize = 1_000_000;
+
 const GLB_MAGIC: &[u8; 4] = b"glTF";
 const GLB_HEADER_LEN: usize = 12;
 const CHUNK_JSON: u32 = 0x4E4F_534A;
@@ -252,6 +256,15 @@ pub(crate) fn check_root(root: &gltf::json::Root) -> Result<(), FormatError> {
             format!(
                 "glTF version '{}': only glTF 2.x is supported",
                 crate::geom::excerpt(version)
+            ),
+        ));
+    }
+    if root.nodes.len() > MAX_NODES {
+        return Err(at(
+            "/nodes",
+            format!(
+                "{} nodes, more than the {MAX_NODES} knitvox reads",
+                root.nodes.len()
             ),
         ));
     }

@@ -37,10 +37,7 @@ fn at(path: impl Into<String>, message: impl Into<String>) -> FormatError {
 /// Reads a character from a `.gltf` / `.glb` file; external buffers are
 /// loaded relative to the file's directory.
 pub fn read_character(path: &Path) -> Result<Character, IoError> {
-    let data = std::fs::read(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let data = super::input::read_input(path, "character", super::max_memory())?;
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let format = if data.starts_with(b"glTF") {
         Format::Glb

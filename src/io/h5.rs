@@ -48,6 +48,13 @@ pub const MAX_LISTED_OBJECTS: usize = 100_000;
 /// gzip cannot shrink data by more than about 1032:1; a compressed dataset that
 /// claims more than this many times its stored bytes is lying about its size.
 const MAX_COMPRESSION_RATIO: u64 = 1100;
+/// A dataset declaring more than this many bytes (64 MiB) is held to the
+/// compression-bomb rules below before it is read.
+pub const BOMB_MIN_BYTES: u64 = 64 << 20;
+/// Such a dataset, compressed, declaring more than this many times the bytes
+/// it stores is refused as a likely compression bomb: real curves and frames
+/// compress by a few times, not a thousand.
+pub const BOMB_RATIO: u64 = 1000;
 /// Chunk length of the resizable `/frames/times` dataset.
 const TIMES_CHUNK: usize = 1024;
 /// Deepest group nesting [`list_datasets`] follows.
@@ -150,23 +157,24 @@ pub(crate) fn invalid_input(message: String) -> std::io::Error {
 }
 
 /// Opens `path` read-only, classifying failures (missing file, busy, not HDF5).
+/// Datasets are read one by one, each checked against the memory budget, so
+/// the file itself may be larger than the budget (a long frames file).
 pub(crate) fn open_path(path: &Path) -> Result<hdf5::File, IoError> {
-    // Let the OS report missing files and permissions first: clearer than libhdf5's text.
-    let meta = std::fs::metadata(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    if meta.is_dir() {
-        return Err(IoError::Read {
-            path: path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "is a directory"),
-        });
-    }
-    std::fs::File::open(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    if meta.len() == 0 {
+    open_path_within(path, "HDF5 file", None)
+}
+
+/// [`open_path`] for a file read whole (yarns, a character cache): refused
+/// before libhdf5 sees it when it holds more than `max_bytes` bytes.
+pub(crate) fn open_path_within(
+    path: &Path,
+    what: &'static str,
+    max_bytes: Option<u64>,
+) -> Result<hdf5::File, IoError> {
+    // Let the OS report missing files and permissions first: clearer than
+    // libhdf5's text. libhdf5 opens by path and would block on a FIFO, so it
+    // only sees a path checked to be a regular file.
+    let (_checked, len) = super::input::open_regular(path, what, max_bytes)?;
+    if len == 0 {
         return Err(format_err(
             path,
             FormatError::whole_file("empty file (0 bytes): not an HDF5 file"),
@@ -352,6 +360,45 @@ pub(crate) fn loc_err(loc: &str, e: &hdf5::Error) -> FormatError {
     FormatError::at_path(loc, format!("libhdf5 cannot read it: {}", h5_message(e)))
 }
 
+/// Refuses a dataset at `loc` whose whole read would take `needed` bytes
+/// (over [`BOMB_MIN_BYTES`]) from far fewer stored: compressed at more than
+/// [`BOMB_RATIO`] to one, or chunked with chunks missing from the file
+/// (libhdf5 makes them up from the fill value, so a few stored bytes can
+/// declare gigabytes).
+pub(crate) fn check_bomb(ds: &Dataset, loc: &str, needed: u64) -> Result<(), FormatError> {
+    if needed <= BOMB_MIN_BYTES {
+        return Ok(());
+    }
+    let stored = ds.storage_size();
+    if !ds.filters().is_empty() && needed > stored.saturating_mul(BOMB_RATIO) {
+        return Err(FormatError::at_path(
+            loc,
+            format!(
+                "declares {needed} bytes stored compressed in {stored} bytes, more than {BOMB_RATIO} to one: \
+                 refused as a likely compression bomb (datasets over {BOMB_MIN_BYTES} bytes may not exceed that ratio)"
+            ),
+        ));
+    }
+    if let (Some(chunk), Some(allocated)) = (ds.chunk(), ds.num_chunks()) {
+        let shape = ds.shape();
+        let total = shape
+            .iter()
+            .zip(&chunk)
+            .map(|(&s, &c)| s.div_ceil(c.max(1)) as u64)
+            .fold(1u64, u64::saturating_mul);
+        if (allocated as u64) < total {
+            return Err(FormatError::at_path(
+                loc,
+                format!(
+                    "declares {needed} bytes in {total} chunks of which the file stores only {allocated}: \
+                     refused as a likely compression bomb (the missing chunks would be made up from the fill value)"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// A dataset's shape, type, and read helpers with its path for errors.
 pub(crate) struct Ds {
     pub(crate) ds: Dataset,
@@ -448,6 +495,15 @@ impl Ds {
     /// Refuses to read `elems` elements when the file does not store enough
     /// bytes to hold them (uncompressed) or to plausibly expand into them (compressed).
     pub(crate) fn guard_storage(&self, elems: usize) -> Result<(), FormatError> {
+        self.guard_declared(elems)?;
+        // Within the budget, but still far more than the file can justify.
+        let needed = (elems as u64).saturating_mul(self.ty.size as u64);
+        check_bomb(&self.ds, &self.loc, needed)
+    }
+
+    /// [`Ds::guard_storage`] without the compression-bomb rules (a reader
+    /// that checks several datasets together applies them last).
+    pub(crate) fn guard_declared(&self, elems: usize) -> Result<(), FormatError> {
         let needed = (elems as u64).saturating_mul(self.ty.size as u64);
         if needed == 0 {
             return Ok(());
@@ -663,7 +719,7 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
 /// (write flag set, or locked) is [`IoError::Busy`]; content problems are
 /// [`IoError::Format`] naming the dataset.
 pub fn read_file(path: &Path, opts: &ReadOptions) -> Result<Decoded, IoError> {
-    let file = open_path(path)?;
+    let file = open_path_within(path, "yarn file", Some(opts.max_memory))?;
     decode_file(&file, opts).map_err(|e| format_err(path, e))
 }
 
@@ -1485,6 +1541,7 @@ pub fn read_text(path: &Path, name: &str) -> Result<Option<String>, IoError> {
             ),
         ));
     }
+    check_bomb(&ds, &at, ds.size() as u64).map_err(|e| format_err(path, e))?;
     let bytes: Vec<u8> = ds
         .read_raw()
         .map_err(|e| format_err(path, FormatError::at_path(&at, format!("unreadable: {e}"))))?;

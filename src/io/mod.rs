@@ -16,6 +16,7 @@ mod error;
 pub mod gltf;
 pub mod gltf_skin;
 pub mod h5;
+pub mod input;
 pub mod lock;
 pub mod obj;
 pub mod overwrite;

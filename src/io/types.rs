@@ -13,10 +13,10 @@ use crate::geom::{Units, UpAxis, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 /// well below what would exhaust memory.
 pub const DEFAULT_MAX_POINTS: u64 = 1 << 31;
 
-/// Default memory budget of a read (bytes): 4 GiB. The binary replaces it
-/// with `--max-memory` (default a quarter of the physical memory) through
-/// [`set_max_memory`].
-pub const DEFAULT_MAX_MEMORY: u64 = 4 << 30;
+/// Default memory budget of a read (bytes): 2 GiB. The binary replaces it
+/// with `--max-memory` (default an eighth of the physical memory, at most
+/// this) through [`set_max_memory`].
+pub const DEFAULT_MAX_MEMORY: u64 = 2 << 30;
 
 static MAX_MEMORY: std::sync::atomic::AtomicU64 =
     std::sync::atomic::AtomicU64::new(DEFAULT_MAX_MEMORY);
@@ -152,7 +152,7 @@ pub struct ReadOptions {
     /// Memory budget (bytes): the most a reader allocates for data a file
     /// declares (compressed HDF5 datasets, external buffers, tiled copies),
     /// checked before allocating. Default [`max_memory`] ([`DEFAULT_MAX_MEMORY`]
-    /// unless the binary set `--max-memory`, default a quarter of the physical memory).
+    /// unless the binary set `--max-memory`, default an eighth of the physical memory, at most 2 GiB).
     pub max_memory: u64,
 }
 

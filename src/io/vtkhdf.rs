@@ -1118,9 +1118,9 @@ fn check_budget(l: &Layout, positions: bool) -> Result<(), FormatError> {
         0
     };
     // The largest datasets alone first: that error names the dataset.
-    l.rest_nodes.guard_storage(l.n.saturating_mul(3))?;
-    l.connectivity.guard_storage(l.t.saturating_mul(4))?;
-    l.points.guard_storage(stored.saturating_mul(3))?;
+    l.rest_nodes.guard_declared(l.n.saturating_mul(3))?;
+    l.connectivity.guard_declared(l.t.saturating_mul(4))?;
+    l.points.guard_declared(stored.saturating_mul(3))?;
     let bytes = (l.n as u64)
         .saturating_mul(32)
         .saturating_add((l.t as u64).saturating_mul(48))
@@ -1132,7 +1132,10 @@ fn check_budget(l: &Layout, positions: bool) -> Result<(), FormatError> {
             l.n, l.t, l.s
         )));
     }
-    Ok(())
+    // Within the budget together: the compression-bomb rules last.
+    l.rest_nodes.guard_storage(l.n.saturating_mul(3))?;
+    l.connectivity.guard_storage(l.t.saturating_mul(4))?;
+    l.points.guard_storage(stored.saturating_mul(3))
 }
 
 /// Reads everything; the per-step positions only when `positions` is set.

@@ -386,10 +386,7 @@ impl Job {
     /// character too) resolved inside the manifest's folder or one of
     /// `allowed` (exit 65), no output of a stage on an input (exit 2).
     pub fn load_allowing(path: &Path, allowed: &[PathBuf]) -> Result<Job, Error> {
-        let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::io::input::read_input_text(path, "manifest", crate::io::max_memory())?;
         let manifest: Manifest = toml::from_str(&text)
             .map_err(|e| bad(path, super::sim_scene::toml_error_line(&e, &text)))?;
         let base = path

@@ -58,6 +58,9 @@ pub enum PatternStageError {
         column: usize,
         message: String,
     },
+    /// A grid file that is not a regular file or exceeds the memory budget.
+    #[error("{0}")]
+    Input(crate::io::IoError),
     #[error("{0}")]
     UnknownPattern(PatternError),
     #[error("{0}")]
@@ -79,6 +82,7 @@ impl PatternStageError {
                 _ => ErrorClass::Missing,
             },
             PatternStageError::Grid { .. } => ErrorClass::BadInput,
+            PatternStageError::Input(e) => e.class().into(),
             PatternStageError::Pattern(PatternError::BadParameter { .. }) => ErrorClass::Usage,
             PatternStageError::Pattern(_) => ErrorClass::Internal,
             PatternStageError::Relax(_) => ErrorClass::BadInput,
@@ -157,10 +161,14 @@ pub fn load_pattern(source: &PatternSource) -> Result<Pattern, PatternStageError
             pattern::builtin(name).map_err(PatternStageError::UnknownPattern)
         }
         PatternSource::GridFile(path) => {
-            let text = std::fs::read_to_string(path).map_err(|source| PatternStageError::Read {
-                path: path.clone(),
-                source,
-            })?;
+            let text =
+                crate::io::input::read_input_text(path, "pattern grid", crate::io::max_memory())
+                    .map_err(|e| match e {
+                        crate::io::IoError::Read { path, source } => {
+                            PatternStageError::Read { path, source }
+                        }
+                        other => PatternStageError::Input(other),
+                    })?;
             pattern::parse_grid(&text).map_err(|e| grid_error(path, e))
         }
     }

@@ -1148,10 +1148,7 @@ fn stored_domains(domain: &[i32]) -> Option<Vec<u32>> {
 
 /// Reads and parses a scene file.
 pub fn read_scene(path: &Path) -> Result<Scene, SimulateError> {
-    let text = std::fs::read_to_string(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text = crate::io::input::read_input_text(path, "scene", crate::io::max_memory())?;
     Ok(Scene::parse(&text, path)?)
 }
 

@@ -11,13 +11,31 @@ use crate::io::IoError;
 use crate::yarn::fabric::pose::kind_name;
 use crate::yarn::poses::PoseKind;
 
-/// SHA-256 of a file, hex.
+/// SHA-256 of an input file, hex. The file is streamed (memory stays
+/// small whatever its size) and must be a regular file: a FIFO or device
+/// would never end.
 pub fn sha256_file(path: &Path) -> Result<String, IoError> {
-    let bytes = std::fs::read(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    Ok(Sha256::digest(&bytes)
+    let (mut file, _) = crate::io::input::open_regular(path, "input", None)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = match std::io::Read::read(&mut file, &mut buf) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(source) => {
+                return Err(IoError::Read {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            }
+        };
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(hasher
+        .finalize()
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect())

@@ -574,10 +574,8 @@ impl Stage for ValidateJob {
                 None
             }
         };
-        let text = std::fs::read_to_string(&self.scene).map_err(|source| IoError::Read {
-            path: self.scene.clone(),
-            source,
-        })?;
+        let text =
+            crate::io::input::read_input_text(&self.scene, "scene", crate::io::max_memory())?;
         let tmp = tempfile::tempdir().map_err(|source| IoError::Write {
             path: std::env::temp_dir(),
             source,

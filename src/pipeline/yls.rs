@@ -579,10 +579,8 @@ impl Stage for YlsJob {
             }
             .into());
         }
-        let text = std::fs::read_to_string(&self.scene).map_err(|source| IoError::Read {
-            path: self.scene.clone(),
-            source,
-        })?;
+        let text =
+            crate::io::input::read_input_text(&self.scene, "scene", crate::io::max_memory())?;
         let scene = YlsScene::parse(&text, &self.scene).map_err(YlsError::from)?;
         Ok(run_observed(
             &scene,

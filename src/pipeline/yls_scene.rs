@@ -332,10 +332,16 @@ impl YlsScene {
 
     /// Reads and parses a scene file.
     pub fn read(file: &Path) -> Result<YlsScene, SceneError> {
-        let text = std::fs::read_to_string(file).map_err(|e| SceneError {
-            file: file.to_path_buf(),
-            message: format!("cannot read the scene: {e}"),
-        })?;
+        let text = crate::io::input::read_input_text(file, "scene", crate::io::max_memory())
+            .map_err(|e| SceneError {
+                file: file.to_path_buf(),
+                message: match e {
+                    crate::io::IoError::Read { source, .. } => {
+                        format!("cannot read the scene: {source}")
+                    }
+                    other => other.to_string(),
+                },
+            })?;
         YlsScene::parse(&text, file)
     }
 
