@@ -15,14 +15,6 @@ use knitvox::io::{self, WriteOptions};
 use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
 use serde_json::Value;
 
-/// The knitvox binary: `KNITVOX_TEST_BIN` where set (a copy of this
-/// checkout's build, when several checkouts share one target folder).
-fn knitvox_bin() -> std::path::PathBuf {
-    std::env::var_os("KNITVOX_TEST_BIN")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(common::knitvox_bin)
-}
-
 /// A small knit swatch (courses x 4 wales) in the format of `ext`.
 fn swatch_bytes(courses: usize, ext: &str) -> Vec<u8> {
     let dir = tempfile::tempdir().unwrap();
@@ -46,7 +38,7 @@ struct Daemon {
 
 impl Daemon {
     fn start(root: &Path, extra: &[&str]) -> Daemon {
-        let mut child = Command::new(knitvox_bin())
+        let mut child = Command::new(common::knitvox_bin())
             .arg("watch")
             .arg(root)
             .args(["--heartbeat", "0.5"])
@@ -150,7 +142,7 @@ fn json_file(p: &Path) -> Value {
 }
 
 fn status_json(root: &Path) -> Value {
-    let o = Command::new(knitvox_bin())
+    let o = Command::new(common::knitvox_bin())
         .args(["watch", "--status", "--json"])
         .arg(root)
         .output()

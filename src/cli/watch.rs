@@ -77,7 +77,7 @@ fn secs(s: f64) -> Duration {
 }
 
 /// `max_memory`: the global `--max-memory`, the budget of the whole
-/// daemon (default: a quarter of the physical memory), shared by the workers.
+/// daemon (default: an eighth of the physical memory, at most 2 GiB), shared by the workers.
 pub fn watch(a: &WatchArgs, max_memory: Option<u64>) -> anyhow::Result<ExitCode> {
     let heartbeat = secs(a.heartbeat);
     let stale_after = a.stale_after.map_or(heartbeat * 3, secs);
