@@ -198,7 +198,7 @@ fn embed_bad_input_exit_codes() {
         (
             vec!["--voxel-size", "1e-7", "--max-voxels", "100000"],
             "too many voxels",
-            65,
+            2,
         ),
     ] {
         let mut args = vec!["embed", p(&yarns), "-o", p(&asset)];

@@ -5,6 +5,7 @@ mod args;
 mod asset;
 mod bake;
 mod bench;
+mod budget;
 mod command_line;
 mod commands;
 mod console;

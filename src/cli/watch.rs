@@ -125,7 +125,7 @@ pub fn watch(a: &WatchArgs, max_memory: Option<u64>) -> anyhow::Result<ExitCode>
         grace: secs(a.grace),
         inotify: !a.no_inotify && !daemon::scan::network_filesystem(&a.root),
         allow_roots,
-        max_memory: Some(max_memory.unwrap_or_else(super::guard::default_max_memory)),
+        max_memory: Some(max_memory.unwrap_or_else(super::budget::default_max_memory)),
         ..Config::new(a.root.clone(), exe)
     };
     let log = |e: &Event| {
