@@ -12,9 +12,25 @@ use proptest::prelude::*;
 const MAX_MESSAGE: usize = 4096;
 
 const HOSTILE: &[&str] = &[
-    "nan", "inf", "-inf", "0", "-1", "1e300", "-1e300", "1e-300", "18446744073709551615",
-    "-9223372036854775808", "\"\"", "\"/etc/passwd\"", "\"../../outside.bcc\"", "\"a\\nb\"",
-    "\"$(touch PWNED)\"", "\"`touch PWNED`\"", "[]", "{}", "true",
+    "nan",
+    "inf",
+    "-inf",
+    "0",
+    "-1",
+    "1e300",
+    "-1e300",
+    "1e-300",
+    "18446744073709551615",
+    "-9223372036854775808",
+    "\"\"",
+    "\"/etc/passwd\"",
+    "\"../../outside.bcc\"",
+    "\"a\\nb\"",
+    "\"$(touch PWNED)\"",
+    "\"`touch PWNED`\"",
+    "[]",
+    "{}",
+    "true",
 ];
 
 /// A folder holding the example job and everything it names.
@@ -147,7 +163,9 @@ fn a_newline_in_the_output_key_is_refused_when_the_plan_is_built() {
     let path: PathBuf = d.path().join("m.toml");
     std::fs::write(&path, format!("output = \"o\\ntouch PWNED\\n#\"\n{text}")).unwrap();
     let job = Job::load(&path).unwrap();
-    let e = plan(&job, Path::new("/usr/bin/knitvox")).unwrap_err().to_string();
+    let e = plan(&job, Path::new("/usr/bin/knitvox"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("output"), "{e}");
     assert!(e.len() < 1000, "{e}");
 }

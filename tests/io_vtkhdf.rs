@@ -594,7 +594,10 @@ fn empty_truncated_and_foreign_files_are_errors() {
     assert!(msg.contains("no /knitvox group"), "{msg}");
 
     // A directory and a missing file.
-    assert!(matches!(read_asset(dir.path()), Err(IoError::NotRegular { .. })));
+    assert!(matches!(
+        read_asset(dir.path()),
+        Err(IoError::NotRegular { .. })
+    ));
     let e = read_asset(&dir.path().join("missing.vtkhdf")).unwrap_err();
     assert_eq!(e.class(), ErrorClass::MissingInput);
 }
