@@ -5,135 +5,34 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Write};
+use common::daemon::{names, swatch_bytes, Daemon};
+
+use std::io::Write;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
-use knitvox::io::{self, WriteOptions};
-use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+use knitvox::io;
 use serde_json::Value;
 
-/// A small knit swatch (courses x 4 wales) in the format of `ext`.
-fn swatch_bytes(courses: usize, ext: &str) -> Vec<u8> {
-    let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join(format!("s.{ext}"));
-    let yarns = knit_swatch(&SwatchParams {
-        courses,
-        wales: 4,
-        with_ring: false,
-        points_per_loop: 12,
-        ..SwatchParams::default()
-    });
-    io::write_path(&p, &yarns, None, &WriteOptions::default()).unwrap();
-    std::fs::read(p).unwrap()
+/// A daemon with fast heartbeats, `--poll 0.2` unless `extra` sets it.
+fn start(root: &Path, extra: &[&str]) -> Daemon {
+    let mut args = vec!["--heartbeat", "0.5"];
+    if !extra.contains(&"--poll") {
+        args.extend(["--poll", "0.2"]);
+    }
+    args.extend(extra);
+    Daemon::spawn(root, &args)
 }
 
-/// A daemon whose JSON log lines are collected.
-struct Daemon {
-    child: Child,
-    log: Arc<Mutex<Vec<Value>>>,
-}
-
-impl Daemon {
-    fn start(root: &Path, extra: &[&str]) -> Daemon {
-        let mut child = Command::new(common::knitvox_bin())
-            .arg("watch")
-            .arg(root)
-            .args(["--heartbeat", "0.5"])
-            .args(if extra.contains(&"--poll") {
-                &[][..]
-            } else {
-                &["--poll", "0.2"][..]
-            })
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let out = child.stdout.take().unwrap();
-        let log = Arc::new(Mutex::new(Vec::new()));
-        let sink = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines() {
-                let Ok(line) = line else { break };
-                let v: Value = serde_json::from_str(&line)
-                    .unwrap_or_else(|e| panic!("log line is not JSON ({e}): {line}"));
-                sink.lock().unwrap().push(v);
-            }
-        });
-        Daemon { child, log }
-    }
-
-    /// `--once` with a short settle; waits for it to exit 0.
-    fn once(root: &Path, extra: &[&str]) -> Daemon {
-        let mut args = vec!["--once", "--settle", "0.2"];
-        args.extend(extra);
-        let mut d = Daemon::start(root, &args);
-        let code = d.wait_exit(Duration::from_secs(120));
-        assert_eq!(code, Some(0), "--once did not exit 0:\n{}", d.dump());
-        d
-    }
-
-    fn events(&self, kind: &str) -> Vec<Value> {
-        let log = self.log.lock().unwrap();
-        log.iter().filter(|v| v["event"] == kind).cloned().collect()
-    }
-
-    fn jobs(&self, kind: &str) -> Vec<String> {
-        let mut v: Vec<String> = self
-            .events(kind)
-            .iter()
-            .map(|e| e["job"].as_str().unwrap().to_string())
-            .collect();
-        v.sort();
-        v
-    }
-
-    fn wait_for(&self, timeout: Duration, done: impl Fn(&Daemon) -> bool) -> bool {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if done(self) {
-                return true;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        false
-    }
-
-    fn dump(&self) -> String {
-        let log = self.log.lock().unwrap();
-        log.iter().map(|v| format!("{v}\n")).collect()
-    }
-
-    fn wait_exit(&mut self, timeout: Duration) -> Option<i32> {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if let Some(s) = self.child.try_wait().unwrap() {
-                std::thread::sleep(Duration::from_millis(100));
-                return s.code();
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
+/// `--once` with a short settle; waits for it to exit 0.
+fn once(root: &Path, extra: &[&str]) -> Daemon {
+    let mut args = vec!["--once", "--settle", "0.2"];
+    args.extend(extra);
+    let mut d = start(root, &args);
+    let code = d.wait_exit(Duration::from_secs(120));
+    assert_eq!(code, Some(0), "--once did not exit 0:\n{}", d.dump());
+    d
 }
 
 fn json_file(p: &Path) -> Value {
@@ -192,7 +91,7 @@ fn drops_naming_files_outside_root_are_refused_without_reading_them() {
     std::fs::write(ok.join("swatch.bcc"), &bytes).unwrap();
     std::os::unix::fs::symlink("swatch.bcc", ok.join("alias.bcc")).unwrap();
 
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("done"), ["ok"], "{}", d.dump());
     assert_eq!(
         d.jobs("failed"),
@@ -245,7 +144,7 @@ fn a_name_taken_in_failed_gets_a_suffix_and_never_loops() {
     // Now a folder drop `coll/` that fails too (its yarns are missing).
     job_folder(&inbox, "coll", "[garment]\nyarns = \"nothere.bcc\"\n");
     let start = Instant::now();
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert!(start.elapsed() < Duration::from_secs(60));
     assert_eq!(d.jobs("failed"), ["coll"], "{}", d.dump());
     assert!(d.events("takeover").is_empty(), "{}", d.dump());
@@ -275,7 +174,7 @@ fn a_job_that_cannot_be_filed_is_parked_once_not_retaken() {
     // failure fails, every time.
     let long = "l".repeat(250);
     job_folder(&inbox, &long, "[garment]\nyarns = \"nothere.bcc\"\n");
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("parked"), [long.clone()], "{}", d.dump());
     assert!(d.events("takeover").is_empty(), "{}", d.dump());
     assert_eq!(d.events("job_started").len(), 0, "{}", d.dump());
@@ -290,7 +189,7 @@ fn a_job_that_cannot_be_filed_is_parked_once_not_retaken() {
         "{st}"
     );
     // A second daemon leaves it parked.
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert!(d.events("takeover").is_empty(), "{}", d.dump());
     assert!(d.events("parked").is_empty(), "{}", d.dump());
 }
@@ -311,7 +210,7 @@ fn same_stem_drops_run_as_distinct_jobs_and_a_redrop_is_cached() {
         .map(|q| q["job"].as_str().unwrap())
         .collect();
     assert_eq!(queued, ["dup", "dup.obj"], "{st}");
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("done"), ["dup", "dup.obj"], "{}", d.dump());
     assert_eq!(names(&root.join("out")), ["dup", "dup.obj"]);
     assert_eq!(names(&root.join("done")), ["dup.bcc", "dup.obj"]);
@@ -329,7 +228,7 @@ fn same_stem_drops_run_as_distinct_jobs_and_a_redrop_is_cached() {
     assert_ne!(a.yarns.num_points(), b.yarns.num_points());
     // The same content again: the same job, cached, filed beside the first.
     std::fs::copy(root.join("done/dup.bcc"), inbox.join("dup.bcc")).unwrap();
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("done"), ["dup"], "{}", d.dump());
     let stages = d.events("stage");
     assert!(
@@ -387,7 +286,7 @@ fn a_ply_copied_in_six_chunks_a_second_apart_is_done_not_failed() {
         6,
         Duration::from_secs(1),
     );
-    let mut d = Daemon::start(&root, &["--once", "--poll", "1"]);
+    let mut d = start(&root, &["--once", "--poll", "1"]);
     assert_eq!(
         d.wait_exit(Duration::from_secs(120)),
         Some(0),
@@ -428,7 +327,7 @@ fn a_ply_copied_in_six_chunks_past_a_short_settle_is_done_not_failed() {
         6,
         Duration::from_secs(1),
     );
-    let mut d = Daemon::start(&root, &["--once", "--poll", "1", "--settle", "0.5"]);
+    let mut d = start(&root, &["--once", "--poll", "1", "--settle", "0.5"]);
     assert_eq!(
         d.wait_exit(Duration::from_secs(120)),
         Some(0),
@@ -459,7 +358,7 @@ fn a_bad_input_failure_of_a_drop_still_changing_is_retried_not_filed() {
         .unwrap()
         .set_modified(future)
         .unwrap();
-    let mut d = Daemon::start(&root, &["--once", "--settle", "0.3"]);
+    let mut d = start(&root, &["--once", "--settle", "0.3"]);
     assert!(
         d.wait_for(Duration::from_secs(60), |d| !d
             .events("not_ready")
@@ -496,7 +395,7 @@ fn a_truncated_file_that_holds_still_is_filed_as_bad_input() {
         .unwrap()
         .set_modified(past)
         .unwrap();
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("failed"), ["cut"], "{}", d.dump());
     assert!(d.events("not_ready").is_empty(), "{}", d.dump());
     assert_eq!(
@@ -524,7 +423,7 @@ fn a_jobs_warnings_are_kept_beside_its_drop_and_logged() {
     let root = dir.path().join("root");
     std::fs::create_dir_all(root.join("inbox")).unwrap();
     std::fs::write(root.join("inbox/wide.obj"), wide_obj()).unwrap();
-    let d = Daemon::once(&root, &[]);
+    let d = once(&root, &[]);
     assert_eq!(d.jobs("done"), ["wide"], "{}", d.dump());
     let logged: Vec<Value> = d
         .events("warning")
@@ -584,7 +483,7 @@ fn status_shows_the_running_stage_and_frame_and_children_share_the_memory_budget
     std::fs::write(shot.join("sphere.toml"), SPHERE).unwrap();
     std::fs::rename(&shot, root.join("inbox/shot")).unwrap();
     // 2 GiB for the daemon, two workers: 1 GiB each.
-    let mut d = Daemon::start(
+    let mut d = start(
         &root,
         &[
             "--once",

@@ -3,123 +3,24 @@
 
 mod common;
 
+use common::daemon::{names, swatch_bytes, Daemon};
+
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
-use knitvox::io::{self, WriteOptions};
-use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+use knitvox::io;
 use serde_json::Value;
-
-/// A small knit swatch (courses x 4 wales) as BCC bytes.
-fn swatch_bytes(courses: usize) -> Vec<u8> {
-    let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join("s.bcc");
-    let yarns = knit_swatch(&SwatchParams {
-        courses,
-        wales: 4,
-        with_ring: false,
-        points_per_loop: 12,
-        ..SwatchParams::default()
-    });
-    io::write_path(&p, &yarns, None, &WriteOptions::default()).unwrap();
-    std::fs::read(p).unwrap()
-}
-
-/// A running daemon whose JSON log lines are collected.
-struct Daemon {
-    child: Child,
-    log: Arc<Mutex<Vec<Value>>>,
-}
 
 /// Fast timings for tests: scans every 0.5 s, heartbeats every 0.5 s.
 const FAST: [&str; 4] = ["--poll", "0.5", "--heartbeat", "0.5"];
 
-impl Daemon {
-    fn start(root: &Path, extra: &[&str]) -> Daemon {
-        let mut child = Command::new(common::knitvox_bin())
-            .arg("watch")
-            .arg(root)
-            .args(FAST)
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let out = child.stdout.take().unwrap();
-        let log = Arc::new(Mutex::new(Vec::new()));
-        let sink = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines() {
-                let Ok(line) = line else { break };
-                let v: Value = serde_json::from_str(&line)
-                    .unwrap_or_else(|e| panic!("log line is not JSON ({e}): {line}"));
-                sink.lock().unwrap().push(v);
-            }
-        });
-        Daemon { child, log }
-    }
-
-    fn events(&self, kind: &str) -> Vec<Value> {
-        let log = self.log.lock().unwrap();
-        log.iter().filter(|v| v["event"] == kind).cloned().collect()
-    }
-
-    /// Waits until `done` holds (checked every 20 ms); false on timeout.
-    fn wait_for(&self, timeout: Duration, done: impl Fn(&Daemon) -> bool) -> bool {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if done(self) {
-                return true;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        false
-    }
-
-    fn dump(&self) -> String {
-        let log = self.log.lock().unwrap();
-        log.iter().map(|v| format!("{v}\n")).collect()
-    }
-
-    fn signal(&self, sig: libc::c_int) {
-        // SAFETY: signalling our own child process.
-        unsafe { libc::kill(self.child.id() as libc::pid_t, sig) };
-    }
-
-    /// Waits for the process to exit; its exit code.
-    fn wait_exit(&mut self, timeout: Duration) -> Option<i32> {
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if let Some(s) = self.child.try_wait().unwrap() {
-                // Let the reader thread drain the pipe.
-                std::thread::sleep(Duration::from_millis(100));
-                return s.code();
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// Names of a folder's entries, sorted.
-fn names(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
+/// A daemon with [`FAST`] timings and `extra` options.
+fn start(root: &Path, extra: &[&str]) -> Daemon {
+    let args: Vec<&str> = FAST.iter().chain(extra).copied().collect();
+    Daemon::spawn(root, &args)
 }
 
 fn per_job(events: &[Value]) -> BTreeMap<String, usize> {
@@ -141,13 +42,13 @@ fn twenty_drops_at_once_are_each_done_once() {
     let root = dir.path().join("root");
     let staging = dir.path().join("staging");
     std::fs::create_dir_all(&staging).unwrap();
-    let mut d = Daemon::start(&root, &["--workers", "2"]);
+    let mut d = start(&root, &["--workers", "2"]);
     assert!(d.wait_for(Duration::from_secs(20), |d| !d.events("started").is_empty()));
     // 17 swatches, one of them again under another name, a corrupt file.
     let mut valid = Vec::new();
     for i in 0..17 {
         let name = format!("s{i:02}.bcc");
-        std::fs::write(staging.join(&name), swatch_bytes(2 + i % 3)).unwrap();
+        std::fs::write(staging.join(&name), swatch_bytes(2 + i % 3, "bcc")).unwrap();
         valid.push(name);
     }
     std::fs::copy(staging.join("s00.bcc"), staging.join("again.bcc")).unwrap();
@@ -158,7 +59,7 @@ fn twenty_drops_at_once_are_each_done_once() {
     )
     .unwrap();
     // The 20th grows for 5 s, as a slow copy would write it.
-    let full = swatch_bytes(4);
+    let full = swatch_bytes(4, "bcc");
     let inbox = root.join("inbox");
     let growing = inbox.join("growing.bcc");
     let writer = {
@@ -247,7 +148,7 @@ thickness = 0.001
 fn shot_folder(parent: &Path, name: &str, frames: &str) {
     let d = parent.join(name);
     std::fs::create_dir_all(&d).unwrap();
-    std::fs::write(d.join("swatch.bcc"), swatch_bytes(6)).unwrap();
+    std::fs::write(d.join("swatch.bcc"), swatch_bytes(6, "bcc")).unwrap();
     std::fs::write(d.join("sphere.toml"), SPHERE).unwrap();
     let job = format!(
         "frames = \"{frames}\"\n[garment]\nyarns = \"swatch.bcc\"\n[shot]\nscene = \"sphere.toml\"\nbackend = \"cpu\"\n[export]\nformat = \"ply\"\n"
@@ -258,7 +159,7 @@ fn shot_folder(parent: &Path, name: &str, frames: &str) {
 use common::files_under as tree;
 
 fn run_once(root: &Path) -> Daemon {
-    let mut d = Daemon::start(root, &["--once"]);
+    let mut d = start(root, &["--once"]);
     assert_eq!(
         d.wait_exit(Duration::from_secs(300)),
         Some(0),
@@ -291,7 +192,7 @@ fn kill_9_mid_shot_then_restart_completes_once_bit_for_bit() {
     // The same job, its daemon killed once the shot stage has begun.
     let root = dir.path().join("root");
     shot_folder(&staging, "shot", FRAMES);
-    let d = Daemon::start(&root, &[]);
+    let d = start(&root, &[]);
     assert!(d.wait_for(Duration::from_secs(20), |d| !d.events("started").is_empty()));
     drop_in(&staging, &root, "shot");
     let out = root.join("out/shot");
@@ -413,8 +314,8 @@ fn once_processes_the_inbox_and_exits_and_status_prints_the_queue() {
     // A bare yarn file, a yarn file with a sidecar asking for tiny voxels
     // under a cap (so its embed fails: the sidecar was applied), a manifest with an
     // unknown key, a lone sidecar (waits for its yarn file), a hidden file.
-    std::fs::write(inbox.join("plain.bcc"), swatch_bytes(2)).unwrap();
-    std::fs::write(inbox.join("capped.bcc"), swatch_bytes(2)).unwrap();
+    std::fs::write(inbox.join("plain.bcc"), swatch_bytes(2, "bcc")).unwrap();
+    std::fs::write(inbox.join("capped.bcc"), swatch_bytes(2, "bcc")).unwrap();
     std::fs::write(
         inbox.join("capped.job.toml"),
         "[embed]\nvoxel_size = 0.00001\nmax_voxels = 1000\n",
@@ -530,7 +431,7 @@ fn sigterm_stops_a_running_job_and_the_next_start_takes_it_at_once() {
     let (root, staging) = (dir.path().join("root"), dir.path().join("staging"));
     shot_folder(&staging, "shot", "1-24");
     // No grace: the running child gets SIGTERM at once.
-    let mut d = Daemon::start(&root, &["--grace", "0", "--stale-after", "3600"]);
+    let mut d = start(&root, &["--grace", "0", "--stale-after", "3600"]);
     assert!(d.wait_for(Duration::from_secs(20), |d| !d.events("started").is_empty()));
     drop_in(&staging, &root, "shot");
     let out = root.join("out/shot");
@@ -568,7 +469,7 @@ fn sigterm_stops_a_running_job_and_the_next_start_takes_it_at_once() {
         .unwrap();
     let st: Value = serde_json::from_slice(&st.stdout).unwrap();
     assert_eq!(st["work"][0]["state"], "released", "{st}");
-    let mut d = Daemon::start(&root, &["--once", "--stale-after", "3600"]);
+    let mut d = start(&root, &["--once", "--stale-after", "3600"]);
     assert_eq!(
         d.wait_exit(Duration::from_secs(300)),
         Some(0),
@@ -593,13 +494,17 @@ fn two_daemons_share_one_folder_and_run_each_drop_once() {
     let dir = tempfile::tempdir().unwrap();
     let (root, staging) = (dir.path().join("root"), dir.path().join("staging"));
     std::fs::create_dir_all(&staging).unwrap();
-    let a = Daemon::start(&root, &[]);
-    let b = Daemon::start(&root, &[]);
+    let a = start(&root, &[]);
+    let b = start(&root, &[]);
     let up = |d: &Daemon| !d.events("started").is_empty();
     assert!(a.wait_for(Duration::from_secs(20), up) && b.wait_for(Duration::from_secs(20), up));
     let jobs: Vec<String> = (0..8).map(|i| format!("j{i}")).collect();
     for (i, j) in jobs.iter().enumerate() {
-        std::fs::write(staging.join(format!("{j}.bcc")), swatch_bytes(2 + i % 2)).unwrap();
+        std::fs::write(
+            staging.join(format!("{j}.bcc")),
+            swatch_bytes(2 + i % 2, "bcc"),
+        )
+        .unwrap();
         drop_in(&staging, &root, &format!("{j}.bcc"));
     }
     let total = |a: &Daemon, b: &Daemon| a.events("done").len() + b.events("done").len();

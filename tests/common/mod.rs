@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+pub mod daemon;
 pub mod job;
 
 /// The external test data folder (`$KNITVOX_EXTERNAL_DATA`, else `../shared/data`
