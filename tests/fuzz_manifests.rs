@@ -9,6 +9,9 @@ use knitvox::pipeline::job::Job;
 use knitvox::pipeline::submit::{plan, slurm_script, SlurmOptions};
 use proptest::prelude::*;
 
+mod common;
+use common::mutate::{replace_value, value_lines};
+
 const MAX_MESSAGE: usize = 4096;
 
 const HOSTILE: &[&str] = &[
@@ -41,31 +44,6 @@ fn job_folder() -> tempfile::TempDir {
         std::fs::copy(ex.join(f), d.path().join(f)).unwrap();
     }
     d
-}
-
-fn value_lines(text: &str) -> Vec<usize> {
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| {
-            let t = l.trim_start();
-            !t.starts_with('#') && !t.starts_with('[') && t.contains('=')
-        })
-        .map(|(i, _)| i)
-        .collect()
-}
-
-fn replace_value(text: &str, line: usize, value: &str) -> String {
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| {
-            if i == line {
-                format!("{}= {value}", l.split('=').next().unwrap())
-            } else {
-                l.to_string()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 /// Loads `text` as `name` in `dir`: `Ok(true)` refused with a short

@@ -10,6 +10,9 @@ use knitvox::pipeline::sim_scene::Scene;
 use knitvox::pipeline::yls_scene::{YlsScene, MAX_SCENE_FRAMES};
 use proptest::prelude::*;
 
+mod common;
+use common::mutate::{replace_value, value_lines};
+
 /// The longest error message a scene may produce (bytes).
 const MAX_MESSAGE: usize = 4096;
 
@@ -65,36 +68,6 @@ fn yls_scenes() -> Vec<(PathBuf, String)> {
         .collect();
     v.sort();
     v
-}
-
-/// The lines of `text` that set a value (`key = value`), by index.
-fn value_lines(text: &str) -> Vec<usize> {
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| {
-            let t = l.trim_start();
-            !t.starts_with('#') && !t.starts_with('[') && t.contains('=')
-        })
-        .map(|(i, _)| i)
-        .collect()
-}
-
-/// `text` with the value on its `nth` value line replaced by `value`.
-fn replace_value(text: &str, nth: usize, value: &str) -> String {
-    let lines = value_lines(text);
-    let target = lines[nth % lines.len()];
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| {
-            if i == target {
-                let key = l.split('=').next().unwrap();
-                format!("{key}= {value}")
-            } else {
-                l.to_string()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 fn finite(what: &str, x: f64) -> Result<(), String> {
@@ -187,25 +160,25 @@ fn every_value_of_every_shipped_scene_replaced_by_a_hostile_literal_is_refused_o
     let mut cases = 0;
     let mut refused = 0;
     for (path, text) in sim_scenes() {
-        for nth in 0..value_lines(&text).len() {
+        for line in value_lines(&text) {
             for v in HOSTILE {
                 cases += 1;
-                let t = replace_value(&text, nth, v);
+                let t = replace_value(&text, line, v);
                 match run_sim(&t, &path) {
                     Ok(r) => refused += r as usize,
-                    Err(e) => failures.push(format!("{}: line {nth} = {v}: {e}", path.display())),
+                    Err(e) => failures.push(format!("{}: line {line} = {v}: {e}", path.display())),
                 }
             }
         }
     }
     for (path, text) in yls_scenes() {
-        for nth in 0..value_lines(&text).len() {
+        for line in value_lines(&text) {
             for v in HOSTILE {
                 cases += 1;
-                let t = replace_value(&text, nth, v);
+                let t = replace_value(&text, line, v);
                 match run_yls(&t, &path) {
                     Ok(r) => refused += r as usize,
-                    Err(e) => failures.push(format!("{}: line {nth} = {v}: {e}", path.display())),
+                    Err(e) => failures.push(format!("{}: line {line} = {v}: {e}", path.display())),
                 }
             }
         }

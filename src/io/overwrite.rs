@@ -27,7 +27,7 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 
 /// The canonical folder of `p` joined with its file name (the file itself
 /// need not exist).
-fn canonical_place(p: &Path) -> Option<PathBuf> {
+pub fn canonical_place(p: &Path) -> Option<PathBuf> {
     let dir = p
         .parent()
         .filter(|d| !d.as_os_str().is_empty())

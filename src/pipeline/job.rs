@@ -306,16 +306,6 @@ pub enum JobPathError {
     },
 }
 
-/// The canonical folder of `p` joined with its file name (as `io::overwrite`
-/// compares a path that need not exist).
-fn canonical_place(p: &Path) -> Option<PathBuf> {
-    let dir = p
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    Some(std::fs::canonicalize(dir).ok()?.join(p.file_name()?))
-}
-
 fn excerpt_path(p: &Path) -> String {
     crate::geom::excerpt(&p.display().to_string())
 }
@@ -553,10 +543,13 @@ impl Job {
         for i in inputs {
             // Where the input is named and where it resolves to: writing
             // over either changes what the job reads.
-            let places: Vec<PathBuf> = [canonical_place(&i.path), Some(i.resolved.clone())]
-                .into_iter()
-                .flatten()
-                .collect();
+            let places: Vec<PathBuf> = [
+                io::overwrite::canonical_place(&i.path),
+                Some(i.resolved.clone()),
+            ]
+            .into_iter()
+            .flatten()
+            .collect();
             for (stage, f) in &files {
                 if io::overwrite::overlaps(&i.path, f) || io::overwrite::overlaps(&i.resolved, f) {
                     return Err(refuse(stage, f, i).into());

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 pub mod daemon;
 pub mod job;
+pub mod mutate;
 
 /// The external test data folder (`$KNITVOX_EXTERNAL_DATA`, else `../shared/data`
 /// beside the checkout) joined with `sub`. Under CI (`CI` set) a missing folder
