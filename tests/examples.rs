@@ -525,9 +525,10 @@ fn every_held_out_example_scene_reads_with_the_assets_yarns() {
 }
 
 /// Each held-out scene runs through `knitvox validate` as its comment says
-/// (a `knitvox pattern` swatch embedded with `--up-axis z`, so it lies in
-/// the XZ plane), cut to one frame: both levels run and the report
-/// compares that frame with finite errors.
+/// (a `knitvox pattern` swatch embedded with the defaults lies in the XZ
+/// plane), cut to one frame: both levels run and the report compares that
+/// frame with finite errors. The same swatch stood up (`--up-axis z`) is
+/// refused before either run, naming the plane and the fix.
 #[test]
 fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
     let tmp = tempfile::tempdir().unwrap();
@@ -546,7 +547,10 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let asset = d.join("swatch.vtkhdf");
-    let o = knitvox(&["embed", s(&yarns), "--up-axis", "z", "-o", s(&asset)]);
+    let o = knitvox(&["embed", s(&yarns), "-o", s(&asset)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let standing = d.join("standing.vtkhdf");
+    let o = knitvox(&["embed", s(&yarns), "--up-axis", "z", "-o", s(&standing)]);
     assert!(o.status.success(), "{}", stderr(&o));
     for file in [
         "biaxial.toml",
@@ -576,6 +580,13 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
             r["colliders"],
             if file == "drape.toml" { 1 } else { 0 },
             "{file}"
+        );
+        let o = knitvox(&["validate", s(&standing), "--scene", s(&scene), "--no-progress"]);
+        assert_eq!(o.status.code(), Some(65), "{file}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains("XY plane") && e.contains("--up-axis z") && !e.contains("yarn diameters"),
+            "{file}: {e}"
         );
     }
 }

@@ -103,7 +103,8 @@ fn stretch_courses_moves_the_band_pulls_back_harder_each_step_and_records_its_me
     assert_eq!(r["frames"], steps);
     assert_eq!(r["pose"], "stretch_courses");
     assert_eq!(r["rest_shape"], "stored", "{r}");
-    assert_eq!(r["fabric_plane"], "xy", "{r}");
+    // `pattern` writes the swatch lying in the fabric frame: nothing to turn.
+    assert_eq!(r["fabric_plane"], "xz", "{r}");
     // The material `pattern` relaxed the yarns under came through `embed`.
     assert_eq!(r["material"]["source"], "yarn file", "{r}");
     assert_eq!(r["material"]["material"]["young_modulus"], 5e5, "{r}");
@@ -498,4 +499,71 @@ fn rest_yarns_off_their_rest_shape_are_refused_at_once() {
         err.contains("moved.h5") && err.contains("not a state of the stored rest shape"),
         "{err}"
     );
+}
+
+/// `--amount 0.05,0.1` loads through both amplitudes, `--steps` steps to
+/// each: the frames' amounts, the record's stops, and `fit` fitting the
+/// frame at each amplitude with its own training error.
+#[test]
+fn a_list_of_amounts_trains_each_amplitude_and_fit_reports_each() {
+    let (dir, _, asset_path) = asset();
+    let out = dir.path().join("stretch_list.h5");
+    let r = train(
+        &out,
+        &["--pose", "stretch_courses", "--amount", "0.05,0.1", "--steps", "2"],
+    );
+    assert_eq!(r["frames"], 4, "{r}");
+    assert_eq!(r["amounts"], serde_json::json!([0.05, 0.1]), "{r}");
+    assert_eq!(r["stop_frames"], serde_json::json!([1, 3]), "{r}");
+    let (_, times) = dataset(&out, "frames/times");
+    let want = [0.025, 0.05, 0.075, 0.1];
+    for (t, w) in times.iter().zip(want) {
+        assert!((t - w).abs() < 1e-12, "{times:?}");
+    }
+    let record: serde_json::Value =
+        serde_json::from_str(&h5::read_text(&out, "pose_json").unwrap().unwrap()).unwrap();
+    assert_eq!(record["stop_frames"], serde_json::json!([1, 3]), "{record}");
+    assert_eq!(record["frame_amounts"].as_array().unwrap().len(), 4);
+    // A NaN amplitude is a usage error naming it.
+    let (code, _, err) = run(&[
+        "train",
+        path_str(asset_path),
+        "--pose",
+        "shear",
+        "--amount",
+        "0.1,nan",
+        "-o",
+        path_str(&dir.path().join("bad.h5")),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("amount"), "{err}");
+
+    let fitted = dir.path().join("listed.fit.vtkhdf");
+    let (code, stdout, err) = run(&[
+        "fit",
+        path_str(asset_path),
+        "--train",
+        path_str(&out),
+        "--harmonic",
+        "0",
+        "--gd-iterations",
+        "2",
+        "--gn-iterations",
+        "2",
+        "-o",
+        path_str(&fitted),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(stdout.trim_end().lines().last().unwrap()).unwrap();
+    let pose = &report["poses"][0];
+    assert_eq!(pose["frames"], serde_json::json!([1, 3]), "{pose}");
+    assert_eq!(pose["amounts"], serde_json::json!([0.05, 0.1]), "{pose}");
+    let per = pose["training_per_frame"].as_array().unwrap();
+    assert_eq!(per.len(), 2, "{pose}");
+    for t in per {
+        let f = t["fitted_rms_yarn_diameters"].as_f64().unwrap();
+        assert!(f.is_finite() && f >= 0.0, "{t}");
+    }
 }

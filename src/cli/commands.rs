@@ -362,6 +362,7 @@ fn print_demo_fit(f: &demo::FitDemo) {
         f.held_out.display(),
         v.summary()
     );
+    println!("  {}", v.verdict);
     println!("  fit and validation took {:.1} s", f.wall_s);
 }
 

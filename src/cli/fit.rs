@@ -210,6 +210,18 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             t.before_rms_yarn_diameters,
             t.y2v_floor_rms_yarn_diameters
         );
+        for p in &r.poses {
+            for ((f, a), t) in p.frames.iter().zip(&p.amounts).zip(&p.training_per_frame) {
+                println!(
+                    "  {} frame {f}{}: fitted {:.3}, uniform {:.3} (Y2V floor {:.3})",
+                    p.path.display(),
+                    a.map_or(String::new(), |a| format!(" (amount {})", crate::geom::num(a))),
+                    t.fitted_rms_yarn_diameters,
+                    t.uniform_rms_yarn_diameters,
+                    t.y2v_floor_rms_yarn_diameters
+                );
+            }
+        }
     }
     Ok(ExitCode::Success)
 }
@@ -254,6 +266,11 @@ pub struct ValidateArgs {
     /// `yarn_level_s` (and the speedup) then come from the time it records.
     #[arg(long, value_name = "FRAMES.h5")]
     pub truth: Option<std::path::PathBuf>,
+    /// Also run the material of this asset (the same embedded mesh with a
+    /// VH Eq. 7 field fitted on the same poses: the reference to beat) and
+    /// report its distance beside the asset's (`vh_rms_yarn_diameters`).
+    #[arg(long, value_name = "VH_ASSET.vtkhdf")]
+    pub compare_vh: Option<PathBuf>,
     /// Print the full report as JSON (per-frame errors included).
     #[arg(long)]
     pub json: bool,
@@ -289,6 +306,7 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
             global: a.pd_solver,
         },
         truth: a.truth.clone(),
+        compare_vh: a.compare_vh.clone(),
     };
     let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
     let mut console = super::console::Console::with_mode(mode, 0, "validate: yarn level");
@@ -299,6 +317,7 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
         println!("{}", r.summary());
+        println!("{}", r.verdict);
     }
     Ok(ExitCode::Success)
 }

@@ -23,9 +23,11 @@ pub struct TrainArgs {
     pub pose: PoseKind,
     /// Magnitude: strain for stretches, biaxial, shear and fan; angle (rad)
     /// for bends and twist; fold height / fold length (< 0.5) for
-    /// multi_fold [default: 0.2 strain (biaxial 0.1), 0.8 rad, 0.3].
-    #[arg(long, value_name = "A", allow_negative_numbers = true)]
-    pub amount: Option<f64>,
+    /// multi_fold [default: 0.2 strain (biaxial 0.1), 0.8 rad, 0.3]. A list
+    /// (`0.02,0.1,0.2,0.3`) loads through each amplitude in order, --steps
+    /// load steps to each, and `fit` fits the frame at each.
+    #[arg(long, value_name = "A[,A..]", allow_negative_numbers = true, value_delimiter = ',', num_args = 1)]
+    pub amount: Vec<f64>,
     /// The mirrored counterpart of the pose (VH Fig. 19).
     #[arg(long)]
     pub mirror: bool,
@@ -67,7 +69,15 @@ pub struct TrainArgs {
 
 pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
     let mut pose = PoseRunParams::new(a.pose);
-    pose.pose.amount = a.amount.or(default_amount(a.pose)).unwrap_or(0.0);
+    pose.pose.amount = a
+        .amount
+        .last()
+        .copied()
+        .or(default_amount(a.pose))
+        .unwrap_or(0.0);
+    if a.amount.len() > 1 {
+        pose.amounts = a.amount.clone();
+    }
     pose.pose.mirror = a.mirror;
     if let Some(b) = a.band {
         pose.pose.band = b;
@@ -84,7 +94,8 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
         material: a.material.overrides(),
     };
     let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
-    let mut console = super::console::Console::with_mode(mode, a.steps as usize, "train");
+    let frames = job.pose.steps * job.pose.stops().len();
+    let mut console = super::console::Console::with_mode(mode, frames, "train");
     let result = job.run(&mut console);
     drop(console);
     let r = result?;
@@ -98,7 +109,11 @@ pub fn train(a: &TrainArgs) -> anyhow::Result<ExitCode> {
             r.output.display(),
             r.pose,
             if r.mirror { " mirrored" } else { "" },
-            r.amount,
+            r.amounts
+                .iter()
+                .map(|a| crate::geom::num(*a).to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
             r.asset.display(),
             r.vertices,
             r.clamped_vertices,

@@ -32,12 +32,12 @@ enum DriveSource {
     /// A yls run (its scene stored in the file): one driver, each frame at
     /// its time.
     Scene { driver: PoseDriver, times: Vec<f64> },
-    /// A `knitvox train` pose: frame `f` is load step `f + 1` of `steps`,
-    /// whose bands sit at the full progress of `(f + 1) / steps` of the
-    /// pose's amount (`yarn::fabric::pose::run_pose`), in the pose frame.
+    /// A `knitvox train` pose: frame `f` is load step `f + 1`, whose bands
+    /// sit at the full progress of the pose at `frame_amounts[f]`
+    /// (`yarn::fabric::pose::run_pose`), in the pose frame.
     Record {
         params: PoseParams,
-        steps: usize,
+        frame_amounts: Vec<f64>,
         posed_rest: Vec<Vec3>,
     },
 }
@@ -60,12 +60,12 @@ impl ClampDrive {
     }
 
     /// The bands of a `knitvox train` pose record (`params` at the pose's
-    /// full amount, `steps` load steps) on the asset's rest yarns, turned
-    /// into the pose frame as the run turned them.
+    /// full amount, the amount of each frame) on the asset's rest yarns,
+    /// turned into the pose frame as the run turned them.
     pub fn from_record(
         asset: &Asset,
         params: PoseParams,
-        steps: usize,
+        frame_amounts: Vec<f64>,
     ) -> Result<ClampDrive, PoseError> {
         let rest = &asset.rest_yarns.points;
         let plane = FabricPlane::of(rest);
@@ -76,7 +76,7 @@ impl ClampDrive {
             group: node_groups(asset, &driver),
             source: DriveSource::Record {
                 params,
-                steps: steps.max(1),
+                frame_amounts,
                 posed_rest,
             },
         })
@@ -87,7 +87,7 @@ impl ClampDrive {
     pub fn covers(&self, num_frames: usize) -> bool {
         match &self.source {
             DriveSource::Scene { times, .. } => times.len() == num_frames,
-            DriveSource::Record { steps, .. } => *steps == num_frames,
+            DriveSource::Record { frame_amounts, .. } => frame_amounts.len() == num_frames,
         }
     }
 
@@ -115,11 +115,11 @@ impl ClampDrive {
             DriveSource::Scene { driver, times } => Ok(place(driver, times[f])),
             DriveSource::Record {
                 params,
-                steps,
+                frame_amounts,
                 posed_rest,
             } => {
                 let mut p = *params;
-                p.amount = params.amount * (f + 1) as f64 / *steps as f64;
+                p.amount = frame_amounts[f];
                 let driver = PoseDriver::new(posed_rest, p)?;
                 // `run_pose` holds each step's bands at `targets(1.0)`; the
                 // default ramp is 1 s, so t = 1 is full progress.
@@ -154,15 +154,17 @@ mod tests {
     use crate::yarn::analytic::{knit_swatch, SwatchParams};
     use crate::yarn::poses::PoseKind;
 
-    /// A 4 x 5 knit swatch embedded in 2.5 mm voxels.
+    /// A 4 x 5 knit swatch laid flat in the fabric frame (XZ), embedded in
+    /// 2.5 mm voxels.
     fn asset() -> Asset {
-        let y = knit_swatch(&SwatchParams {
+        let mut y = knit_swatch(&SwatchParams {
             courses: 4,
             wales: 5,
             points_per_loop: 12,
             with_ring: false,
             ..SwatchParams::default()
         });
+        y.map_points(|p| FabricPlane::Xy.to_pose(p));
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sw.ply");
         crate::io::write_path(&path, &y, None, &WriteOptions::default()).unwrap();
@@ -182,8 +184,9 @@ mod tests {
     fn a_recorded_stretch_moves_its_band_nodes_step_by_step() {
         let a = asset();
         let steps = 4;
+        let amounts = (1..=steps).map(|f| 0.1 * f as f64 / steps as f64).collect();
         let drive =
-            ClampDrive::from_record(&a, PoseParams::new(PoseKind::StretchCourses, 0.1), steps)
+            ClampDrive::from_record(&a, PoseParams::new(PoseKind::StretchCourses, 0.1), amounts)
                 .unwrap();
         assert!(drive.covers(steps) && !drive.covers(steps + 1));
         let pinned: Vec<usize> = (0..a.mesh.num_nodes())

@@ -297,6 +297,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         report: Some(dir.join("validate")),
         homogenized: Default::default(),
         truth: None,
+        compare_vh: None,
     }
     .run(&mut super::Quiet)?;
     Ok(FitDemo {

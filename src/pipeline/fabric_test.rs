@@ -5,16 +5,24 @@
 //! elastic energy, clamp reactions, external forces) as knitvox HDF5.
 //! A bias swatch of a pattern is laid out larger and cut to the test
 //! piece at 45 degrees to the courses before relaxation.
+//!
+//! Frames: the rigs work in the pattern generator's frame (fabric in x-y,
+//! courses along X, a hang hanging it under -Y). A yarn file is turned into
+//! it from whatever coordinate plane it lies in (`knitvox pattern` writes
+//! the fabric frame, XZ), and the written frames are turned back into the
+//! file's coordinates; a generated swatch's frames are written in the
+//! fabric frame, as `knitvox pattern` would write that swatch.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::geom::{MaterialOverrides, Yarns};
+use crate::geom::{MaterialOverrides, Vec3, Yarns};
 use crate::io::plot::{self, Figure, Panel, Series, PALETTE};
 use crate::io::{self, h5::FrameWriter, IoError};
 use crate::pipeline::pattern::{load_pattern, PatternSource, PatternStageError};
 use crate::yarn::fabric::bend::{bend_test, BendParams, BendResult};
+use crate::yarn::fabric::pose::FabricPlane;
 use crate::yarn::fabric::rig::{cut_rectangle, held_together};
 use crate::yarn::fabric::{
     hang_test, relax_into_contact, stretch_test, Direction, FabricError, FabricParams, HangParams,
@@ -210,9 +218,37 @@ const MIN_PIECE: usize = 8;
 /// of their radii (relaxed contacts sit at 0.98-1.02).
 const TOUCH: f64 = 1.1;
 
+/// The turn between a swatch's own frame and the rigs' frame (module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RigTurn {
+    /// The plane the swatch lies in, in its own frame.
+    pub plane: FabricPlane,
+}
+
+impl RigTurn {
+    /// From the swatch's frame into the rigs'.
+    pub fn to_rig(&self, p: Vec3) -> Vec3 {
+        FabricPlane::Xy.from_pose(self.plane.to_pose(p))
+    }
+    /// From the rigs' frame back into the swatch's (the inverse of
+    /// [`Self::to_rig`]; both are proper rotations, so vectors turn alike).
+    pub fn from_rig(&self, p: Vec3) -> Vec3 {
+        self.plane.from_pose(FabricPlane::Xy.to_pose(p))
+    }
+    fn turn_yarns(y: &mut Yarns, f: impl Fn(Vec3) -> Vec3 + Copy) {
+        y.map_points(f);
+        if let Some(rest) = y.rest.as_mut() {
+            rest.transform(1.0, f);
+        }
+    }
+}
+
 /// A loaded or generated swatch, ready for its test.
 pub struct Swatch {
+    /// In the rigs' frame.
     pub yarns: Yarns,
+    /// How the written frames turn back into the swatch's own frame.
+    pub turn: RigTurn,
     pub name: String,
     /// The relaxation into contact (none when the yarns carried a rest shape).
     pub relaxation: Option<RelaxIntoContactStats>,
@@ -227,9 +263,14 @@ pub struct Swatch {
 /// bias-cut piece then loses the offcuts no contact holds to it.
 pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
     let mut cut = false;
+    let mut turn = RigTurn {
+        plane: FabricPlane::Xz,
+    };
     let (yarns, name) = match &job.swatch {
         SwatchSource::Yarns(path) => {
-            let d = io::read_path(path, &Default::default())?;
+            let mut d = io::read_path(path, &Default::default())?;
+            turn.plane = FabricPlane::of(&d.yarns.points);
+            RigTurn::turn_yarns(&mut d.yarns, |p| turn.to_rig(p));
             (d.yarns, path.display().to_string())
         }
         SwatchSource::Pattern { source, size } => {
@@ -263,6 +304,7 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
     if yarns.rest.is_some() {
         return Ok(Swatch {
             yarns,
+            turn,
             name,
             relaxation: None,
             offcuts: 0,
@@ -282,6 +324,7 @@ pub fn swatch(job: &FabricTestJob) -> Result<Swatch, FabricTestError> {
     }
     Ok(Swatch {
         yarns: relaxed,
+        turn,
         name,
         relaxation: Some(stats),
         offcuts,
@@ -312,6 +355,7 @@ pub fn run_observed(
     refuse_input_overwrite(job)?;
     let Swatch {
         yarns,
+        turn,
         name,
         relaxation,
         offcuts,
@@ -328,7 +372,9 @@ pub fn run_observed(
                 message: e.to_string(),
             })?;
             let target = dir.join(format!("{}.h5", job.test.name()));
-            let mut w = FrameWriter::create(&target, &yarns)?;
+            let mut own = yarns.clone();
+            RigTurn::turn_yarns(&mut own, |p| turn.from_rig(p));
+            let mut w = FrameWriter::create(&target, &own)?;
             w.add_text(
                 "fabric_parameters_json",
                 &serde_json::to_string(&fabric).unwrap_or_default(),
@@ -353,9 +399,10 @@ pub fn run_observed(
             &mut last_frame,
         ));
         if let Some(w) = writer.as_mut() {
-            let r = w
-                .push(f.parameter, f.points)
-                .and_then(|_| w.push_mechanics(f.energy, &f.reactions, &f.external));
+            let back = |v: &[Vec3]| v.iter().map(|p| turn.from_rig(*p)).collect::<Vec<_>>();
+            let r = w.push(f.parameter, &back(f.points)).and_then(|_| {
+                w.push_mechanics(f.energy, &back(&f.reactions), &back(&f.external))
+            });
             if let Err(e) = r {
                 let msg = e.to_string();
                 io_error = Some(e);

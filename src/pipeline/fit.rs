@@ -151,6 +151,12 @@ pub struct PoseSummary {
     pub frames_in_file: usize,
     /// 0-based frames fitted.
     pub frames: Vec<usize>,
+    /// The pose's amount at each fitted frame (a `knitvox train` record;
+    /// null for other frames).
+    pub amounts: Vec<Option<f64>>,
+    /// [`TrainingFidelity`] of each fitted frame, in the order of
+    /// `frames` (filled in after the fit): the error per amplitude.
+    pub training_per_frame: Vec<TrainingFidelity>,
     /// Held yarn vertices and Dirichlet tet nodes (largest over its frames).
     pub held_vertices: usize,
     pub held_nodes: usize,
@@ -213,12 +219,7 @@ fn training_fidelity_of_poses(
             ]
         })
         .collect();
-    let fidelity = |d: [&[f64]; 4]| TrainingFidelity {
-        y2v_floor_rms_yarn_diameters: rms_max(d[0]).0,
-        before_rms_yarn_diameters: rms_max(d[1]).0,
-        uniform_rms_yarn_diameters: rms_max(d[2]).0,
-        fitted_rms_yarn_diameters: rms_max(d[3]).0,
-    };
+    let fidelity = |d: [&[f64]; 4]| fidelity_of(d);
     let pooled: [Vec<f64>; 4] =
         std::array::from_fn(|m| per_pose.iter().flat_map(|p| p[m].iter().copied()).collect());
     (
@@ -228,6 +229,39 @@ fn training_fidelity_of_poses(
             .collect(),
         fidelity(std::array::from_fn(|m| pooled[m].as_slice())),
     )
+}
+
+fn fidelity_of(d: [&[f64]; 4]) -> TrainingFidelity {
+    TrainingFidelity {
+        y2v_floor_rms_yarn_diameters: rms_max(d[0]).0,
+        before_rms_yarn_diameters: rms_max(d[1]).0,
+        uniform_rms_yarn_diameters: rms_max(d[2]).0,
+        fitted_rms_yarn_diameters: rms_max(d[3]).0,
+    }
+}
+
+/// [`TrainingFidelity`] of each fitted frame of each pose (arguments as
+/// [`training_fidelity_of_poses`]).
+fn training_fidelity_per_frame(
+    asset: &Asset,
+    yarns: &[Vec<Vec<Vec3>>],
+    samples: &[Sample],
+    equilibria: &[[Vec<Vec<Vec3>>; 3]],
+) -> Vec<Vec<TrainingFidelity>> {
+    (0..samples.len())
+        .map(|k| {
+            (0..samples[k].frames.len())
+                .map(|j| {
+                    let y = &yarns[k][j];
+                    let d0 = yarn_distances(asset, &samples[k].frames[j].start, y);
+                    let d: [Vec<f64>; 3] = std::array::from_fn(|m| {
+                        yarn_distances(asset, &equilibria[k][m][j], y)
+                    });
+                    fidelity_of([&d0, &d[0], &d[1], &d[2]])
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// What `fit` did.
@@ -455,7 +489,14 @@ fn read_pose(
         return Err(invalid(path, "holds no frames".into()));
     }
     check_times(path, &frames.times)?;
-    let chosen = choose_frames(nf, cx.samples);
+    let pose_record = recorded_pose(path)?;
+    // A pose trained at a list of amplitudes is fitted at each of them.
+    let chosen = match &pose_record {
+        Some(r) if !r.stop_frames.is_empty() && r.frame_amounts.len() == nf => {
+            r.stop_frames.clone()
+        }
+        _ => choose_frames(nf, cx.samples),
+    };
     let up = data.up_axis.0;
     let reactions = mechanics(path, "reaction_forces", nf, n, up)?;
     let external = mechanics(path, "external_forces", nf, n, up)?;
@@ -474,7 +515,17 @@ fn read_pose(
                 || PoseParams::new(PoseKind::StretchCourses, 0.0),
                 |s| s.pose_params(),
             );
-            let driver = PoseDriver::new(&rest.points, params)
+            // An assumed pose clamps the bands of the swatch turned into the
+            // pose frame (as `train` turns it); a yls scene's run in the
+            // frame the swatch has.
+            let points: Vec<Vec3> = match scene {
+                Some(_) => rest.points.clone(),
+                None => {
+                    let plane = FabricPlane::of(&rest.points);
+                    rest.points.iter().map(|p| plane.to_pose(*p)).collect()
+                }
+            };
+            let driver = PoseDriver::new(&points, params)
                 .map_err(|e| invalid(path, format!("its clamped bands: {e}")))?;
             let mut h = vec![false; n];
             for &v in driver.pinned() {
@@ -494,12 +545,12 @@ fn read_pose(
     // zero reaction (its band moves rigidly): the pose record's bands
     // (`knitvox train`) count as held with the non-zero rows.
     let record = if reactions.is_some() || !cx.shape_fit_pins {
-        recorded_pose(path)?
+        pose_record.clone()
     } else {
         None
     };
-    let recorded = match (&reactions, record) {
-        (Some(_), Some((params, _))) => Some(recorded_bands(path, params, &rest.points)?),
+    let recorded = match (&reactions, &record) {
+        (Some(_), Some(r)) => Some(recorded_bands(path, r.params, &rest.points)?),
         _ => None,
     };
     let held_at = |f: usize| -> Vec<bool> {
@@ -536,7 +587,7 @@ fn read_pose(
         Some(s) if !cx.quasi_static => Some(super::yls::scene_params(s, path)?.global_damping),
         _ => None,
     };
-    let drive = clamp_drive(cx, path, scene.as_ref(), record, &frames, observer)?;
+    let drive = clamp_drive(cx, path, scene.as_ref(), record.as_ref(), &frames, observer)?;
     let mut pin_offset = 0.0f64;
     let mut out = Vec::with_capacity(chosen.len());
     let mut node_reactions = Vec::with_capacity(chosen.len());
@@ -649,11 +700,22 @@ fn read_pose(
             "its chosen frames {used:?} store no elastic energy ({energy:e} J): is the pose deformed?"
         )));
     }
+    let amounts = used
+        .iter()
+        .map(|&f| {
+            pose_record
+                .as_ref()
+                .filter(|r| r.frame_amounts.len() == nf)
+                .map(|r| r.frame_amounts[f])
+        })
+        .collect();
     let summary = PoseSummary {
         path: path.to_path_buf(),
         sha256: sha256_file(path)?,
         frames_in_file: nf,
         frames: used,
+        amounts,
+        training_per_frame: Vec::new(),
         held_vertices: held_v,
         held_nodes: held_n,
         held_source,
@@ -740,7 +802,7 @@ fn clamp_drive(
     cx: &Context<'_>,
     path: &Path,
     scene: Option<&YlsScene>,
-    record: Option<(PoseParams, usize)>,
+    record: Option<&RecordedPose>,
     frames: &crate::geom::YarnFrames,
     observer: &mut dyn Observer,
 ) -> Result<Option<ClampDrive>, Error> {
@@ -752,9 +814,9 @@ fn clamp_drive(
         (Some(s), _) => Some(
             ClampDrive::from_scene(cx.asset, s.pose_params(), frames.times.clone()).map_err(bad)?,
         ),
-        (None, Some((params, steps))) => {
-            Some(ClampDrive::from_record(cx.asset, params, steps).map_err(bad)?)
-        }
+        (None, Some(r)) => Some(
+            ClampDrive::from_record(cx.asset, r.params, r.frame_amounts.clone()).map_err(bad)?,
+        ),
         (None, None) => None,
     };
     match &drive {
@@ -772,10 +834,23 @@ fn clamp_drive(
     }
 }
 
+/// A `knitvox train` file's pose record.
+#[derive(Debug, Clone)]
+struct RecordedPose {
+    /// The pose at its full (last) amount.
+    params: PoseParams,
+    /// The amount at each frame (`frame_amounts`; records without it: load
+    /// step `f + 1` of `steps` at `(f + 1) / steps` of the amount).
+    frame_amounts: Vec<f64>,
+    /// The frames of the listed amplitudes when the record lists more than
+    /// one (`stop_frames`); empty otherwise.
+    stop_frames: Vec<usize>,
+}
+
 /// The pose a `knitvox train` file records (`/metadata/pose_json`: kind,
-/// amount, mirror, folds, band) and its load steps (`steps`, else 1); None
-/// without a record.
-fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
+/// amount, mirror, folds, band, steps, and for a list of amplitudes the
+/// amount of each frame); None without a record.
+fn recorded_pose(path: &Path) -> Result<Option<RecordedPose>, Error> {
     if io::format_of(path)? != io::Format::Hdf5 {
         return Ok(None);
     }
@@ -797,7 +872,46 @@ fn recorded_pose(path: &Path) -> Result<Option<(PoseParams, usize)>, Error> {
         params.band = b;
     }
     let steps = v["steps"].as_u64().map_or(1, |s| s.max(1) as usize);
-    Ok(Some((params, steps)))
+    let numbers = |key: &str| -> Result<Option<Vec<f64>>, Error> {
+        match v.get(key) {
+            None => Ok(None),
+            Some(a) => a
+                .as_array()
+                .and_then(|a| a.iter().map(|x| x.as_f64().filter(|x| x.is_finite())).collect())
+                .map(Some)
+                .ok_or_else(|| bad(format!("{key} is not a list of finite numbers"))),
+        }
+    };
+    let frame_amounts = match numbers("frame_amounts")? {
+        Some(a) if a.len() <= crate::yarn::fabric::pose::MAX_LOAD_STEPS => a,
+        Some(a) => return Err(bad(format!("frame_amounts lists {} frames", a.len()))),
+        None => {
+            let steps = steps.min(crate::yarn::fabric::pose::MAX_LOAD_STEPS);
+            (1..=steps)
+                .map(|f| params.amount * f as f64 / steps as f64)
+                .collect()
+        }
+    };
+    let stop_frames: Vec<usize> = match numbers("stop_frames")? {
+        Some(f) => f
+            .iter()
+            .map(|x| {
+                (x.fract() == 0.0 && *x >= 0.0 && (*x as usize) < frame_amounts.len())
+                    .then_some(*x as usize)
+                    .ok_or_else(|| bad(format!("stop frame {x} is not one of its frames")))
+            })
+            .collect::<Result<_, _>>()?,
+        None => Vec::new(),
+    };
+    Ok(Some(RecordedPose {
+        params,
+        frame_amounts,
+        stop_frames: if stop_frames.len() > 1 {
+            stop_frames
+        } else {
+            Vec::new()
+        },
+    }))
 }
 
 /// The yls scene a pose file stores (`/metadata/scene_toml`), if any.
@@ -1486,8 +1600,11 @@ impl Stage for FitJob {
         .map_err(|e| fit_error(&self.train, e))?;
         let (per_pose, training) =
             training_fidelity_of_poses(&asset, &pose_yarns, &samples, &fitted.equilibria);
-        for (p, t) in poses.iter_mut().zip(per_pose) {
+        let per_frame =
+            training_fidelity_per_frame(&asset, &pose_yarns, &samples, &fitted.equilibria);
+        for ((p, t), f) in poses.iter_mut().zip(per_pose).zip(per_frame) {
             p.training = Some(t);
+            p.training_per_frame = f;
         }
         let loaded = samples
             .iter()
@@ -2060,8 +2177,11 @@ mod tests {
         .unwrap();
         w.push(0.1, &points).unwrap();
         w.finish().unwrap();
-        let (params, _) = recorded_pose(&path).unwrap().unwrap();
-        let held = recorded_bands(&path, params, &points).unwrap();
+        let r = recorded_pose(&path).unwrap().unwrap();
+        // An old record (no frame amounts, no steps): one load step.
+        assert_eq!(r.frame_amounts, [0.1]);
+        assert!(r.stop_frames.is_empty());
+        let held = recorded_bands(&path, r.params, &points).unwrap();
         let lx = 0.001 * (n - 1) as f64;
         for (v, p) in points.iter().enumerate() {
             let edge = p[0] <= 0.1 * lx + 1e-12 || p[0] >= 0.9 * lx - 1e-12;
@@ -2078,6 +2198,28 @@ mod tests {
         w.finish().unwrap();
         let e = recorded_pose(&broken).unwrap_err().to_string();
         assert!(e.contains("broken.h5") && e.contains("pose_json"), "{e}");
+        // A list of amplitudes: the amount of every frame and the stops;
+        // a stop that is not one of its frames is refused.
+        let listed = dir.path().join("listed.h5");
+        let record = |stops: &str| {
+            format!(
+                r#"{{"kind":"stretch_courses","amount":0.2,"steps":2,"amounts":[0.1,0.2],
+                "frame_amounts":[0.05,0.1,0.15,0.2],"stop_frames":{stops}}}"#
+            )
+        };
+        let mut w = io::h5::FrameWriter::create(&listed, &yarns).unwrap();
+        w.add_text("pose_json", &record("[1,3]")).unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let r = recorded_pose(&listed).unwrap().unwrap();
+        assert_eq!(r.frame_amounts, [0.05, 0.1, 0.15, 0.2]);
+        assert_eq!(r.stop_frames, [1, 3]);
+        let mut w = io::h5::FrameWriter::create(&listed, &yarns).unwrap();
+        w.add_text("pose_json", &record("[1,7]")).unwrap();
+        w.push(0.1, &points).unwrap();
+        w.finish().unwrap();
+        let e = recorded_pose(&listed).unwrap_err().to_string();
+        assert!(e.contains("stop frame 7"), "{e}");
     }
 
     #[test]

@@ -56,14 +56,33 @@ pub struct Manifest {
     pub export: Option<ExportSection>,
 }
 
+/// `[[train]] amount`: one amplitude or a list of them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Amounts {
+    One(f64),
+    Many(Vec<f64>),
+}
+
+impl Amounts {
+    /// The listed amplitudes (one for `One`).
+    pub fn values(&self) -> Vec<f64> {
+        match self {
+            Amounts::One(a) => vec![*a],
+            Amounts::Many(v) => v.clone(),
+        }
+    }
+}
+
 /// `[[train]]`: one VH §8.6 training pose at yarn level (`knitvox train`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainSection {
     /// Pose kind (`stretch_courses`, `bend_central`, ...; schemas/yls-scene.md).
     pub kind: String,
-    /// Strain, or rad for bends and twist [default: `train`'s per kind].
-    pub amount: Option<f64>,
+    /// Strain, or rad for bends and twist [default: `train`'s per kind]; a
+    /// list (`[0.02, 0.1, 0.2]`) loads through each amplitude in order.
+    pub amount: Option<Amounts>,
     /// The mirrored counterpart [default false].
     pub mirror: Option<bool>,
     /// Load steps [default 10].
@@ -777,7 +796,13 @@ impl Job {
         let mut pose = PoseRunParams::new(kind);
         let p = &self.path;
         let k = |name: &str| format!("train[{i}].{name}");
-        number(p, &k("amount"), t.amount, |_| true, "finite")?;
+        for (j, a) in t.amount.iter().flat_map(Amounts::values).enumerate() {
+            let name = match &t.amount {
+                Some(Amounts::Many(_)) => k(&format!("amount[{j}]")),
+                _ => k("amount"),
+            };
+            number(p, &name, Some(a), |_| true, "finite")?;
+        }
         number(p, &k("friction"), t.friction, |x| x >= 0.0, ">= 0")?;
         number(
             p,
@@ -793,8 +818,19 @@ impl Job {
             |x| x > 0.0 && x < 0.95,
             "in (0, 0.95)",
         )?;
-        if let Some(a) = t.amount {
-            pose.pose.amount = a;
+        match &t.amount {
+            Some(Amounts::One(a)) => pose.pose.amount = *a,
+            Some(Amounts::Many(v)) => {
+                let Some(last) = v.last() else {
+                    return Err(bad(
+                        &self.path,
+                        format!("{}: the list is empty", key("amount")),
+                    ));
+                };
+                pose.pose.amount = *last;
+                pose.amounts = v.clone();
+            }
+            None => {}
         }
         pose.pose.mirror = t.mirror.unwrap_or(false);
         if let Some(n) = t.steps {

@@ -2,6 +2,12 @@
 //! flat swatch or tube -> relaxation into contact (quasi-static, rest
 //! lengths scaled, `yarn::fabric::relax_into_contact`) -> clearance check
 //! and report. The relaxed yarns carry the rest shape the simulators use.
+//!
+//! Frame: a flat swatch comes out in the **fabric frame** every pose, scene
+//! and test uses (`yarn::poses`): lying in the XZ plane, front face +Y,
+//! courses along +X, wales along -Z. The generator itself lays loops out
+//! in the x-y plane (front +Z); [`generate`] turns them with
+//! [`to_fabric_frame`]. A tube stays as generated (axis along Y).
 
 use std::path::{Path, PathBuf};
 
@@ -190,7 +196,15 @@ fn grid_error(path: &Path, e: PatternError) -> PatternStageError {
     }
 }
 
-/// Runs the stage: pattern -> tile -> relaxation -> layout -> report.
+/// The generator's frame (fabric in x-y, front +Z) into the fabric frame
+/// (fabric in XZ, front +Y): `(x, y, z) -> (x, z, -y)`, a proper rotation,
+/// the same map as reading a Z-up file.
+pub fn to_fabric_frame(p: crate::geom::Vec3) -> crate::geom::Vec3 {
+    crate::yarn::fabric::pose::FabricPlane::Xy.to_pose(p)
+}
+
+/// Runs the stage: pattern -> tile -> relaxation -> layout -> report. A flat
+/// swatch is returned in the fabric frame ([`to_fabric_frame`]).
 pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStageError> {
     let pat = load_pattern(&job.source)?;
     let tile = build_tile(&pat, &job.params).map_err(PatternStageError::Pattern)?;
@@ -215,6 +229,12 @@ pub fn generate(job: &PatternJob) -> Result<(Yarns, PatternReport), PatternStage
         }
         None => None,
     };
+    if job.layout.tube_radius.is_none() {
+        yarns.map_points(to_fabric_frame);
+        if let Some(rest) = yarns.rest.as_mut() {
+            rest.transform(1.0, to_fabric_frame);
+        }
+    }
     let md = min_segment_distance(&yarns, std::f64::consts::PI * r, 4.0 * r);
     let stitches = (tile.repeat[0] * tile.repeat[1]).max(1) as f64;
     // Woven: a crossing holds one weft and one warp interval.

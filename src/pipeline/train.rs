@@ -47,6 +47,10 @@ pub struct TrainReport {
     /// The pose's schema name (`stretch_courses`, ...).
     pub pose: String,
     pub amount: f64,
+    /// The amplitudes the load path stopped at (`[amount]` without a list)
+    /// and their frames (from 0).
+    pub amounts: Vec<f64>,
+    pub stop_frames: Vec<usize>,
     pub mirror: bool,
     /// Gravity along the fabric's normal (m/s²; 0: none).
     pub gravity_m_s2: f64,
@@ -116,6 +120,9 @@ fn pose_record(job: &TrainJob, sha: &str, plane: FabricPlane, rest_shape: &str) 
         "folds": p.folds,
         "band": p.band,
         "steps": job.pose.steps,
+        "amounts": job.pose.stops(),
+        "frame_amounts": job.pose.load_path(),
+        "stop_frames": job.pose.stop_frames(),
         "gravity_m_s2": job.pose.gravity,
         "quasi_static": true,
         "fabric_plane": plane,
@@ -159,7 +166,7 @@ impl Stage for TrainJob {
             "settle": self.pose.settle,
         });
         writer.add_text("parameters_json", &parameters.to_string())?;
-        let total = self.pose.steps;
+        let total = self.pose.load_path().len();
         let mut last_frame = Instant::now();
         let mut on_frame = |f: &RigFrame| -> Result<(), IoError> {
             let r = writer
@@ -198,6 +205,8 @@ impl Stage for TrainJob {
             output,
             pose: kind_name(self.pose.pose.kind),
             amount: self.pose.pose.amount,
+            amounts: self.pose.stops(),
+            stop_frames: self.pose.stop_frames(),
             mirror: self.pose.pose.mirror,
             gravity_m_s2: self.pose.gravity,
             frames: run.steps.len(),

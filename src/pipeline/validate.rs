@@ -75,6 +75,10 @@ pub struct ValidateJob {
     /// and frame times must match; its recorded wall time is reported as
     /// the yarn level's.
     pub truth: Option<PathBuf>,
+    /// A second asset of the same mesh and rest yarns whose material is the
+    /// reference to beat (VH Eq. 7 fitted on the same poses): run on the
+    /// same scene, its distance is reported beside the asset's.
+    pub compare_vh: Option<PathBuf>,
 }
 
 /// Error of one frame (yarn diameters).
@@ -97,6 +101,11 @@ pub struct ValidateReport {
     pub max_yarn_diameters: f64,
     pub uniform_rms_yarn_diameters: Option<f64>,
     pub uniform_max_yarn_diameters: Option<f64>,
+    /// The same for the reference asset of `--compare-vh` (VH Eq. 7 fitted
+    /// on the same poses), and that asset.
+    pub vh_rms_yarn_diameters: Option<f64>,
+    pub vh_max_yarn_diameters: Option<f64>,
+    pub vh_asset: Option<PathBuf>,
     /// The same for the placeholder material every asset starts with
     /// (`DEFAULT_GAMMA_S`, `DEFAULT_GAMMA_V`), when the asset's differs.
     pub placeholder_rms_yarn_diameters: Option<f64>,
@@ -157,6 +166,53 @@ pub struct ValidateReport {
     /// the wall time that file records, measured when it was made.
     pub truth_file: Option<PathBuf>,
     pub report_files: Vec<PathBuf>,
+    /// One line in words: the held-out distance, against the uniform
+    /// material, and whether the fitted material is better, the same or
+    /// worse ([`verdict`]).
+    pub verdict: String,
+}
+
+/// Ratios within this factor of 1 read as "the same".
+pub const SAME_WITHIN: f64 = 1.05;
+
+/// `ours` against `theirs` (both distances): "better", "the same" or
+/// "worse", with the ratio `theirs / ours` in words.
+fn compare(ours: f64, theirs: f64, whose: &str) -> String {
+    if !(ours > 0.0 && theirs > 0.0) {
+        return format!("{whose} moves {}", crate::geom::num(theirs));
+    }
+    let r = theirs / ours;
+    let word = if r > SAME_WITHIN {
+        format!("the asset's is {r:.2}x closer: better")
+    } else if r < 1.0 / SAME_WITHIN {
+        format!("the asset's is {:.2}x farther: worse", 1.0 / r)
+    } else {
+        format!("within {:.0}%: the same", 100.0 * (SAME_WITHIN - 1.0))
+    };
+    format!("{whose} moves {theirs:.3}, so {word}")
+}
+
+/// The verdict line of a report: the fitted material's RMS and largest
+/// distance from the yarn level in yarn diameters, the mesh's floor, and
+/// the comparison with the uniform material when there is one.
+pub fn verdict(r: &ValidateReport) -> String {
+    let mut line = format!(
+        "verdict: the asset's material moves {:.3} yarn diameters RMS (largest {:.2}) from the \
+         yarn level over {} frames (the mesh alone could reach {:.3})",
+        r.rms_yarn_diameters, r.max_yarn_diameters, r.frames, r.y2v_floor_rms_yarn_diameters
+    );
+    match r.uniform_rms_yarn_diameters {
+        Some(u) => {
+            line.push_str("; ");
+            line.push_str(&compare(r.rms_yarn_diameters, u, "the best uniform material"));
+        }
+        None => line.push_str("; no fit record, so no uniform material to compare with"),
+    }
+    if let Some(v) = r.vh_rms_yarn_diameters {
+        line.push_str("; ");
+        line.push_str(&compare(r.rms_yarn_diameters, v, "the VH Eq. 7 reference"));
+    }
+    line
 }
 
 impl ValidateReport {
@@ -167,11 +223,13 @@ impl ValidateReport {
             "rms_yarn_diameters": self.rms_yarn_diameters,
             "max_yarn_diameters": self.max_yarn_diameters,
             "uniform_rms_yarn_diameters": self.uniform_rms_yarn_diameters,
+            "vh_rms_yarn_diameters": self.vh_rms_yarn_diameters,
             "yarn_level_s": self.yarn_level_s,
             "homogenized_s": self.homogenized_s,
             "speedup": self.speedup,
             "y2v_floor_rms_yarn_diameters": self.y2v_floor_rms_yarn_diameters,
             "placeholder_rms_yarn_diameters": self.placeholder_rms_yarn_diameters,
+            "verdict": self.verdict,
         })
     }
 }
@@ -550,6 +608,15 @@ impl Stage for ValidateJob {
             io::overwrite::refuse_inputs(&[r], &[&self.asset, &self.scene])?;
         }
         let asset = io::vtkhdf::read_asset(&self.asset)?;
+        let vh = match &self.compare_vh {
+            Some(p) => {
+                check_asset_ext(p)?;
+                let other = io::vtkhdf::read_asset(p)?;
+                same_body(&asset, &self.asset, &other, p)?;
+                Some(other)
+            }
+            None => None,
+        };
         let record =
             asset
                 .fit_record()
@@ -714,6 +781,10 @@ impl Stage for ValidateJob {
             Some(u) => Some(run_uniform(&uniform_material(&asset, &u), "uniform")?.frames),
             None => None,
         };
+        let xv = match &vh {
+            Some(v) => Some(run_uniform(&asset_materials(v), "--compare-vh")?.frames),
+            None => None,
+        };
         // The Y2V floor (VH Eq. 5-6) of every yarn frame.
         let e = re_embed(&asset, &self.asset)?;
         let fitter =
@@ -767,6 +838,12 @@ impl Stage for ValidateJob {
         let (rms, max) = rms_max(&all);
         let (urms, umax) = rms_max(&all_u);
         let (frms, fmax) = rms_max(&floor);
+        let vh_rms_max = xv.as_ref().map(|xv| {
+            let d: Vec<f64> = (1..nf)
+                .flat_map(|k| yarn_distances(&asset, &xv[k], frames.frame(k)))
+                .collect();
+            rms_max(&d)
+        });
         let placeholder_rms = placeholder.map(|p| {
             let d: Vec<f64> = (1..nf)
                 .flat_map(|k| yarn_distances(&asset, &p.frames[k], frames.frame(k)))
@@ -779,6 +856,9 @@ impl Stage for ValidateJob {
             max_yarn_diameters: max,
             uniform_rms_yarn_diameters: xu.as_ref().map(|_| urms),
             uniform_max_yarn_diameters: xu.as_ref().map(|_| umax),
+            vh_rms_yarn_diameters: vh_rms_max.map(|v| v.0),
+            vh_max_yarn_diameters: vh_rms_max.map(|v| v.1),
+            vh_asset: self.compare_vh.clone(),
             placeholder_rms_yarn_diameters: placeholder_rms,
             yarn_level_s,
             homogenized_s,
@@ -815,7 +895,9 @@ impl Stage for ValidateJob {
             per_frame,
             truth_file: self.truth.clone(),
             report_files: Vec::new(),
+            verdict: String::new(),
         };
+        report.verdict = verdict(&report);
         if let Some(dir) = &self.report {
             let fresh = self.truth.is_none().then_some(yarn_out.as_path());
             report.report_files = io::atomic::all_or_nothing(|| {
@@ -823,6 +905,39 @@ impl Stage for ValidateJob {
             })?;
         }
         Ok(report)
+    }
+}
+
+/// Refuses a `--compare-vh` asset that is not the same body: the same tet
+/// mesh (nodes to 1e-9 m) and the same rest yarns (to 1e-9 m).
+fn same_body(
+    a: &Asset,
+    a_path: &Path,
+    b: &Asset,
+    b_path: &Path,
+) -> Result<(), Error> {
+    let close = |p: &[Vec3], q: &[Vec3]| {
+        p.len() == q.len() && p.iter().zip(q).all(|(x, y)| crate::geom::dist(*x, *y) <= 1e-9)
+    };
+    let what = if a.mesh.tets != b.mesh.tets || !close(&a.mesh.nodes, &b.mesh.nodes) {
+        Some("tet mesh")
+    } else if a.rest_yarns.offsets != b.rest_yarns.offsets
+        || !close(&a.rest_yarns.points, &b.rest_yarns.points)
+    {
+        Some("rest yarns")
+    } else {
+        None
+    };
+    match what {
+        None => Ok(()),
+        Some(w) => Err(crate::pipeline::asset::StageError::Invalid {
+            path: b_path.to_path_buf(),
+            message: format!(
+                "--compare-vh: its {w} differs from {}'s: compare fits of the same embedded asset",
+                a_path.display()
+            ),
+        }
+        .into()),
     }
 }
 
@@ -920,6 +1035,22 @@ fn write_report(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_verdict_says_better_the_same_or_worse_with_the_ratio() {
+        let better = compare(0.5, 1.0, "the best uniform material");
+        assert_eq!(
+            better,
+            "the best uniform material moves 1.000, so the asset's is 2.00x closer: better"
+        );
+        let worse = compare(1.0, 0.5, "the VH Eq. 7 reference");
+        assert!(worse.ends_with("2.00x farther: worse"), "{worse}");
+        for theirs in [0.96, 1.0, 1.04] {
+            let same = compare(1.0, theirs, "u");
+            assert!(same.ends_with("within 5%: the same"), "{same}");
+        }
+        assert!(!compare(0.0, 1.0, "u").contains("closer"));
+    }
 
     /// The held-out scenes shipped for `validate` (examples/validate) have no
     /// `[swatch]` and parse once the asset's rest yarns are named.

@@ -223,14 +223,9 @@ pub fn rods_params(
     (fabric, dynamics)
 }
 
-/// Rotation taking the pattern generator's frame (fabric in XY, front +Z)
-/// to the scene frame (fabric in XZ, front +Y up): `(x, y, z) -> (x, z, -y)`.
-fn lay_flat(p: Vec3) -> Vec3 {
-    [p[0], p[2], -p[1]]
-}
-
 /// The rest yarns of a scene: a generated (and by default relaxed)
-/// pattern laid flat, or a yarn file as it is.
+/// pattern, lying in the fabric frame as `knitvox pattern` writes it, or a
+/// yarn file as it is.
 pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsError> {
     let s = &scene.swatch;
     if let Some(path) = &s.file {
@@ -270,17 +265,11 @@ pub fn scene_swatch(scene: &YlsScene, file: &Path) -> Result<(Yarns, f64), YlsEr
         material: crate::yarn::fabric::FabricParams::default().material(),
     };
     let t = Instant::now();
-    let (mut yarns, _) = generate(&job).map_err(|source| YlsError::Pattern {
+    let (yarns, _) = generate(&job).map_err(|source| YlsError::Pattern {
         file: file.into(),
         source,
     })?;
     let relax_ms = t.elapsed().as_secs_f64() * 1e3;
-    if s.tube_radius.is_none() {
-        yarns.map_points(lay_flat);
-        if let Some(rest) = yarns.rest.as_mut() {
-            rest.transform(1.0, lay_flat);
-        }
-    }
     Ok((yarns, relax_ms))
 }
 

@@ -150,6 +150,62 @@ pub enum PoseError {
     Parameter(String),
     #[error("the rest state is degenerate: {0}")]
     Degenerate(String),
+    /// A flat swatch that does not lie in the fabric frame's XZ plane.
+    #[error("{0}")]
+    Plane(String),
+    /// A clamped band that holds too few vertices.
+    #[error("{0}")]
+    Band(String),
+}
+
+/// Fewest yarn vertices a clamped band must hold: fewer cannot grip a loop
+/// (a stitch of the built-in knits has about 32), and a band that selects
+/// only a few points is a band across the wrong extent.
+pub const MIN_BAND_VERTICES: usize = 4;
+
+/// A swatch is flat when its thinnest bounding-box extent is under this
+/// fraction of the middle one; a flat swatch must then lie in XZ.
+pub const FLAT_RATIO: f64 = 0.5;
+
+/// The kind's schema name (`stretch_courses`, ...).
+fn kind_label(kind: PoseKind) -> String {
+    serde_json::to_value(kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| format!("{kind:?}"))
+}
+
+/// Refuses a flat swatch whose normal is not Y: its bands would select a
+/// thin face instead of an edge, and gravity and the scenes' colliders
+/// (a sphere under the swatch) would act along the fabric, also in a scene
+/// that clamps nothing. Solid or curved bodies (a tube, a garment) are not
+/// checked.
+fn check_plane(b: &FabricBox, kind: PoseKind) -> Result<(), PoseError> {
+    let e = [b.len(0), b.len(1), b.len(2)];
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&i, &j| e[i].total_cmp(&e[j]));
+    let (thin, mid) = (order[0], order[1]);
+    if thin == 1 || !(e[thin] < FLAT_RATIO * e[mid]) {
+        return Ok(());
+    }
+    let axis = ["X", "Y", "Z"][thin];
+    let plane = if thin == 2 { "XY" } else { "YZ" };
+    let fix = if thin == 2 {
+        "read the yarns with `--up-axis z` (embed, yls, train, or `[garment] up_axis = \"z\"`), \
+         which lays an XY swatch flat"
+    } else {
+        "turn the yarns into the XZ plane before embedding"
+    };
+    Err(PoseError::Plane(format!(
+        "the {} pose needs a flat swatch lying in the XZ plane (normal +Y, the fabric frame \
+         `knitvox pattern` writes), but this one lies in the {plane} plane: it is {:.4} m thin \
+         along {axis} against {:.4} x {:.4} m, so bands would clamp a face and gravity \
+         would act along the fabric; {fix}",
+        kind_label(kind),
+        e[thin],
+        e[order[1]],
+        e[order[2]]
+    )))
 }
 
 /// The swatch's frame: centre and extents along X (courses) and Z (wales).
@@ -281,6 +337,7 @@ impl PoseDriver {
                 fabric.max[k] = fabric.max[k].max(q[k]);
             }
         }
+        check_plane(&fabric, p.kind)?;
         let (lx, lz) = (fabric.len(0), fabric.len(2));
         if !(lx > 0.0 && lz > 0.0) {
             return Err(PoseError::Degenerate(format!(
@@ -295,11 +352,16 @@ impl PoseDriver {
         let back = |q: &Vec3| q[2] <= fabric.min[2] + bz;
         let front = |q: &Vec3| q[2] >= fabric.max[2] - bz;
 
-        // Selection rules: (predicate, role), first match wins per vertex.
+        // Selection rules: (predicate, role), first match wins per vertex;
+        // each rule is one named band.
         type Pred<'a> = Box<dyn Fn(&Vec3) -> bool + 'a>;
         let mut rules: Vec<(Pred, Role)> = Vec::new();
+        let mut names: Vec<String> = Vec::new();
+        let x_band = |side: &str| format!("{side} band (the {:.3} m of X at the {side} edge)", bx);
+        let z_band = |side: &str| format!("{side} band (the {:.3} m of Z at the {side} edge)", bz);
         match p.kind {
             PoseKind::StretchCourses => {
+                names.extend([x_band("left"), x_band("right")]);
                 let d = [p.amount * lx, 0.0, 0.0];
                 if p.mirror {
                     rules.push((Box::new(left), Role::Translate(d.map(|v| -v))));
@@ -310,6 +372,7 @@ impl PoseDriver {
                 }
             }
             PoseKind::StretchWales => {
+                names.extend([z_band("back"), z_band("front")]);
                 let d = [0.0, 0.0, p.amount * lz];
                 if p.mirror {
                     rules.push((Box::new(back), Role::Translate(d.map(|v| -v))));
@@ -320,11 +383,13 @@ impl PoseDriver {
                 }
             }
             PoseKind::Biaxial => {
+                names.push(format!("edge bands ({:.3} m of X, {:.3} m of Z at the four edges)", bx, bz));
                 let f = 1.0 + p.amount;
                 let any = move |q: &Vec3| left(q) || right(q) || back(q) || front(q);
                 rules.push((Box::new(any), Role::Scale { fx: f, fz: f }));
             }
             PoseKind::Shear => {
+                names.extend([z_band("back"), z_band("front")]);
                 rules.push((Box::new(back), Role::Hold));
                 rules.push((
                     Box::new(front),
@@ -332,6 +397,7 @@ impl PoseDriver {
                 ));
             }
             PoseKind::BendCentral => {
+                names.push(format!("left and right bands ({:.3} m of X at each edge)", bx));
                 let role = Role::Bend { sign, diag: false };
                 rules.push((Box::new(move |q: &Vec3| left(q) || right(q)), role));
             }
@@ -352,6 +418,7 @@ impl PoseDriver {
                         (lo.min(d2_of(q)), hi.max(d2_of(q)))
                     });
                 let role = Role::Bend { sign, diag: true };
+                names.push(format!("corner bands ({band:.3} m along the diagonal at each end)"));
                 rules.push((
                     Box::new(move |q: &Vec3| {
                         let d2 = d2_of(q);
@@ -361,6 +428,11 @@ impl PoseDriver {
                 ));
             }
             PoseKind::Fan => {
+                if p.mirror {
+                    names.extend([z_band("front"), z_band("back")]);
+                } else {
+                    names.extend([z_band("back"), z_band("front")]);
+                }
                 let f = Role::Scale {
                     fx: 1.0 + p.amount,
                     fz: 1.0,
@@ -374,6 +446,7 @@ impl PoseDriver {
                 }
             }
             PoseKind::Twist => {
+                names.extend([x_band("left"), x_band("right")]);
                 rules.push((Box::new(left), Role::Hold));
                 rules.push((Box::new(right), Role::Turn(sign * p.amount)));
             }
@@ -383,6 +456,7 @@ impl PoseDriver {
                 for j in 0..=k {
                     let x = fabric.min[0] + j as f64 * spacing;
                     let half_band = 0.5 * bx;
+                    names.push(format!("fold line {j} band (the {bx:.3} m of X about x = {x:.4} m)"));
                     rules.push((
                         Box::new(move |q: &Vec3| (q[0] - x).abs() <= half_band.max(0.0)),
                         Role::Fold { j, sign },
@@ -403,8 +477,12 @@ impl PoseDriver {
                     Box::new(move |q: &Vec3| front(q) && (q[0] <= lo + bx || q[0] >= hi - bx)),
                     Role::Hold,
                 ));
+                names.push(format!("top corner bands ({bx:.3} m of X, {bz:.3} m of Z)"));
             }
-            PoseKind::Cantilever => rules.push((Box::new(left), Role::Hold)),
+            PoseKind::Cantilever => {
+                names.push(x_band("held"));
+                rules.push((Box::new(left), Role::Hold));
+            }
             PoseKind::Free => {}
         }
 
@@ -412,7 +490,8 @@ impl PoseDriver {
         let mut rest_pinned = Vec::new();
         let mut groups = Vec::new();
         let mut taken = vec![false; rest.len()];
-        for (pred, role) in &rules {
+        debug_assert_eq!(names.len(), rules.len());
+        for ((pred, role), name) in rules.iter().zip(&names) {
             let start = pinned.len();
             for (i, q) in rest.iter().enumerate() {
                 if !taken[i] && pred(q) {
@@ -422,13 +501,20 @@ impl PoseDriver {
                 }
             }
             let count = pinned.len() - start;
-            if count > 0 {
-                groups.push(Group {
-                    start,
-                    count,
-                    role: *role,
-                });
+            if count < MIN_BAND_VERTICES {
+                return Err(PoseError::Band(format!(
+                    "the {name} of {} holds {count} yarn vertices (a band needs at least \
+                     {MIN_BAND_VERTICES} to grip a loop): widen the band (--band, `[pose] band`; \
+                     now {}) or use a larger swatch",
+                    kind_label(p.kind),
+                    p.band
+                )));
             }
+            groups.push(Group {
+                start,
+                count,
+                role: *role,
+            });
         }
         if p.kind != PoseKind::Free && pinned.is_empty() {
             return Err(PoseError::Degenerate(format!(
@@ -719,6 +805,58 @@ mod tests {
         let mut p = PoseParams::new(PoseKind::Shear, 0.1);
         p.band = 0.7;
         assert!(PoseDriver::new(&rest, p).is_err());
+    }
+
+    #[test]
+    fn a_flat_swatch_outside_the_xz_plane_is_refused_with_the_fix() {
+        // The grid stood up in XY (as a pattern swatch read +Y up), a thin
+        // depth along Z: every kind refuses it, clamped or not.
+        let standing: Vec<Vec3> = grid()
+            .iter()
+            .enumerate()
+            .map(|(i, q)| [q[0], q[2], 0.002 * (i % 2) as f64])
+            .collect();
+        for kind in [PoseKind::Fan, PoseKind::StretchCourses, PoseKind::Free] {
+            let e = PoseDriver::new(&standing, PoseParams::new(kind, 0.2)).unwrap_err();
+            let m = e.to_string();
+            assert!(matches!(e, PoseError::Plane(_)), "{kind:?}: {m}");
+            assert!(
+                m.contains("XY plane") && m.contains("--up-axis z") && m.contains("along Z"),
+                "{kind:?}: {m}"
+            );
+        }
+        // Lying in YZ: the fix is to turn it.
+        let side: Vec<Vec3> = grid().iter().map(|q| [0.0, q[0], q[2]]).collect();
+        let m = PoseDriver::new(&side, PoseParams::new(PoseKind::Shear, 0.1))
+            .unwrap_err()
+            .to_string();
+        assert!(m.contains("YZ plane") && m.contains("turn"), "{m}");
+        // A solid body (as thick as it is wide) is not a flat swatch.
+        let cube: Vec<Vec3> = grid().iter().map(|q| [q[0], q[2], q[2]]).collect();
+        assert!(PoseDriver::new(&cube, PoseParams::new(PoseKind::Shear, 0.1)).is_ok());
+    }
+
+    #[test]
+    fn a_band_holding_too_few_vertices_is_named() {
+        // The left column holds only two points; a narrow band selects just
+        // them.
+        let sparse: Vec<Vec3> = grid()
+            .into_iter()
+            .filter(|q| q[0] > 0.0 || q[2] < 0.06)
+            .collect();
+        let mut p = PoseParams::new(PoseKind::StretchCourses, 0.1);
+        p.band = 0.02;
+        let e = PoseDriver::new(&sparse, p).unwrap_err();
+        let m = e.to_string();
+        assert!(matches!(e, PoseError::Band(_)), "{m}");
+        assert!(
+            m.contains("left band") && m.contains("holds 2 yarn vertices") && m.contains("--band"),
+            "{m}"
+        );
+        // Wider, it grips the next column too.
+        p.band = 0.06;
+        let d = PoseDriver::new(&sparse, p).unwrap();
+        assert!(d.group_vertices(0).len() >= MIN_BAND_VERTICES);
     }
 
     #[test]

@@ -34,8 +34,15 @@ pub struct PoseRunParams {
     /// [`default_amount`]), mirror, folds, band width. `ramp` is unused:
     /// the progress is the step index over `steps`.
     pub pose: PoseParams,
-    /// Load steps from rest to the full amount (1 to 1000). Default 10.
+    /// Load steps from rest to the full amount (1 to 1000), or with
+    /// [`Self::amounts`] from rest to the first listed amount and from each
+    /// to the next. Default 10.
     pub steps: usize,
+    /// Amplitudes the load path passes through in order, one frame family
+    /// at several amplitudes (e.g. strains 0.02, 0.1, 0.2, 0.3); empty (the
+    /// default): only `pose.amount`. When given, `pose.amount` is the last
+    /// of them. At most [`MAX_AMOUNTS`].
+    pub amounts: Vec<f64>,
     /// Equilibrium controls per step (force tolerance 1e-5 N).
     pub settle: Settle,
     /// Gravity (m/s², >= 0) along the fabric's normal, pulling toward
@@ -49,9 +56,44 @@ impl PoseRunParams {
         PoseRunParams {
             pose: PoseParams::new(kind, default_amount(kind).unwrap_or(0.0)),
             steps: 10,
+            amounts: Vec::new(),
             settle: Settle::default(),
             gravity: 0.0,
         }
+    }
+
+    /// The amplitudes the load path stops at: [`Self::amounts`], else
+    /// `[pose.amount]`.
+    pub fn stops(&self) -> Vec<f64> {
+        if self.amounts.is_empty() {
+            vec![self.pose.amount]
+        } else {
+            self.amounts.clone()
+        }
+    }
+
+    /// The pose's amount at every load step (one frame each): `steps` equal
+    /// increments from rest to the first stop, then from each stop to the
+    /// next.
+    pub fn load_path(&self) -> Vec<f64> {
+        let mut path = Vec::with_capacity(self.steps * self.stops().len());
+        let mut prev = 0.0;
+        for a in self.stops() {
+            for j in 1..=self.steps {
+                path.push(if j == self.steps {
+                    a
+                } else {
+                    prev + (a - prev) * (j as f64 / self.steps as f64)
+                });
+            }
+            prev = a;
+        }
+        path
+    }
+
+    /// The frames (from 0) at each stop, in the order of [`Self::stops`].
+    pub fn stop_frames(&self) -> Vec<usize> {
+        (1..=self.stops().len()).map(|i| i * self.steps - 1).collect()
     }
 
     /// Checks the values that [`PoseDriver::new`] does not.
@@ -67,6 +109,36 @@ impl PoseRunParams {
             return Err(PoseRunError::Parameter(format!(
                 "steps is {} (must be 1 to 1000)",
                 self.steps
+            )));
+        }
+        if self.amounts.len() > MAX_AMOUNTS {
+            return Err(PoseRunError::Parameter(format!(
+                "{} amounts listed (at most {MAX_AMOUNTS})",
+                self.amounts.len()
+            )));
+        }
+        if let Some(a) = self.amounts.iter().find(|a| !a.is_finite()) {
+            return Err(PoseRunError::Parameter(format!("an amount is {a}")));
+        }
+        if let Some(last) = self.amounts.last() {
+            if *last != self.pose.amount {
+                return Err(PoseRunError::Parameter(format!(
+                    "the pose's amount {} is not the last listed amount {last}",
+                    self.pose.amount
+                )));
+            }
+            if self.pose.kind == PoseKind::Cantilever && self.amounts.len() > 1 {
+                return Err(PoseRunError::Parameter(
+                    "cantilever is loaded by gravity alone: it takes no list of amounts".into(),
+                ));
+            }
+        }
+        if self.steps * self.stops().len() > MAX_LOAD_STEPS {
+            return Err(PoseRunError::Parameter(format!(
+                "{} load steps ({} per amount x {} amounts; at most {MAX_LOAD_STEPS})",
+                self.steps * self.stops().len(),
+                self.steps,
+                self.stops().len()
             )));
         }
         if !(self.gravity.is_finite() && (0.0..=1000.0).contains(&self.gravity)) {
@@ -86,6 +158,12 @@ impl PoseRunParams {
         Ok(())
     }
 }
+
+/// Most amplitudes one pose run lists ([`PoseRunParams::amounts`]).
+pub const MAX_AMOUNTS: usize = 100;
+
+/// Most load steps (frames) of one pose run, over all its amplitudes.
+pub const MAX_LOAD_STEPS: usize = 10_000;
 
 /// The poses a training set is made of (VH §8.6 Fig. 19 and the uniaxial,
 /// biaxial and shear deformations of the yarn-level literature), in
@@ -204,7 +282,9 @@ impl<E> PoseRunError<E> {
     pub fn is_usage(&self) -> bool {
         matches!(
             self,
-            PoseRunError::Parameter(_) | PoseRunError::Pose(PoseError::Parameter(_))
+            PoseRunError::Parameter(_)
+                | PoseRunError::Pose(PoseError::Parameter(_))
+                | PoseRunError::Pose(PoseError::Band(_))
         )
     }
 }
@@ -317,13 +397,15 @@ pub fn run_pose<E>(
         rest.transform(1.0, |d| plane.to_pose(d));
     }
     let rest = posed.points.clone();
-    let driver_at = |k: usize| {
+    let path = params.load_path();
+    let total = path.len();
+    let driver_at = |amount: f64| {
         let mut p = params.pose;
-        p.amount = params.pose.amount * (k as f64 / params.steps as f64);
+        p.amount = amount;
         p.ramp = 0.0;
         PoseDriver::new(&rest, p)
     };
-    let full = driver_at(params.steps)?;
+    let full = driver_at(params.pose.amount)?;
     let predictor = Predictor::new(&full, &rest);
     let mut fabric = Fabric::new(&posed, fabric_params).map_err(PoseRunError::Model)?;
     // Yarns that pass through each other at rest (a point moved across
@@ -348,26 +430,25 @@ pub fn run_pose<E>(
     // step.
     let gravity_at = |k: usize| {
         if params.pose.kind == PoseKind::Cantilever {
-            params.gravity * k as f64 / params.steps as f64
+            params.gravity * k as f64 / total as f64
         } else {
             params.gravity
         }
     };
     let settle = fabric.resolve_weights(&params.settle, params.gravity);
 
-    let mut steps = Vec::with_capacity(params.steps);
+    let mut steps = Vec::with_capacity(total);
     let mut min_ratio = f64::INFINITY;
     let mut prev_field = rest.clone();
-    for k in 1..=params.steps {
+    for (k, &amount) in (1..=total).zip(&path) {
         let ts = Instant::now();
-        let amount = params.pose.amount * (k as f64 / params.steps as f64);
         let fail = |source| PoseRunError::Step {
             step: k,
-            steps: params.steps,
+            steps: total,
             amount,
             source,
         };
-        let driver = driver_at(k)?;
+        let driver = driver_at(amount)?;
         if driver.pinned() != full.pinned() {
             return Err(PoseRunError::Parameter(format!(
                 "the clamped bands change with the amount at step {k} (internal)"
@@ -710,6 +791,65 @@ mod tests {
         })
         .unwrap_err();
         assert!(e.is_usage(), "{e}");
+    }
+
+    #[test]
+    fn a_list_of_amounts_loads_through_each_in_order() {
+        let mut p = PoseRunParams::new(PoseKind::StretchCourses);
+        p.steps = 2;
+        p.amounts = vec![0.02, 0.1, 0.2];
+        p.pose.amount = 0.2;
+        let path = p.load_path();
+        let want = [0.01, 0.02, 0.06, 0.1, 0.15, 0.2];
+        assert_eq!(path.len(), want.len());
+        for (a, w) in path.iter().zip(want) {
+            assert!((a - w).abs() < 1e-15, "{path:?}");
+        }
+        assert_eq!(p.stop_frames(), [1, 3, 5]);
+        for (f, a) in p.stop_frames().into_iter().zip(p.stops()) {
+            assert_eq!(path[f], a, "a stop is reached exactly");
+        }
+        assert!(p.check().is_ok());
+        // One amount: `steps` increments to it, as without a list.
+        let mut one = PoseRunParams::new(PoseKind::Shear);
+        one.steps = 4;
+        one.pose.amount = 0.1;
+        assert_eq!(one.load_path().len(), 4);
+        assert_eq!(one.load_path()[3], 0.1);
+        assert_eq!(one.stop_frames(), [3]);
+        // Refused: a last amount other than the pose's, a NaN, a list for
+        // the cantilever, too many frames.
+        let mut bad = p.clone();
+        bad.pose.amount = 0.3;
+        assert!(bad.check().unwrap_err().to_string().contains("last listed amount"));
+        let mut bad = p.clone();
+        bad.amounts[0] = f64::NAN;
+        assert!(bad.check().is_err());
+        let mut bad = PoseRunParams::new(PoseKind::Cantilever);
+        bad.gravity = 9.81;
+        bad.amounts = vec![0.0, 0.0];
+        bad.pose.amount = 0.0;
+        assert!(bad.check().unwrap_err().to_string().contains("cantilever"));
+        let mut bad = p.clone();
+        bad.steps = 1000;
+        bad.amounts = vec![0.1; 11];
+        bad.pose.amount = 0.1;
+        assert!(bad.check().unwrap_err().to_string().contains("load steps"));
+        // A run hands on one frame per load step, at the path's amounts.
+        let y = rib(2, 2);
+        let mut run = PoseRunParams::new(PoseKind::StretchCourses);
+        run.steps = 1;
+        run.amounts = vec![0.05, 0.1];
+        run.pose.amount = 0.1;
+        let mut seen = Vec::new();
+        let r = run_pose(&y, &frictionless(), &run, &mut |f| {
+            seen.push(f.parameter);
+            Ok::<(), Infallible>(())
+        })
+        .unwrap();
+        assert_eq!(seen, [0.05, 0.1]);
+        assert_eq!(r.steps.len(), 2);
+        assert!(r.steps[1].force_n > r.steps[0].force_n, "{:?}", r.steps);
     }
 
     /// A stretch along the courses: the right band moves by the amount
