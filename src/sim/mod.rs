@@ -37,6 +37,7 @@ pub mod fibre;
 pub mod gpu;
 pub mod hessian;
 pub mod jacobi;
+pub mod knit;
 pub mod local;
 pub mod partition;
 pub mod pd;
