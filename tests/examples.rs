@@ -581,7 +581,13 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
             if file == "drape.toml" { 1 } else { 0 },
             "{file}"
         );
-        let o = knitvox(&["validate", s(&standing), "--scene", s(&scene), "--no-progress"]);
+        let o = knitvox(&[
+            "validate",
+            s(&standing),
+            "--scene",
+            s(&scene),
+            "--no-progress",
+        ]);
         assert_eq!(o.status.code(), Some(65), "{file}: {}", stderr(&o));
         let e = stderr(&o);
         assert!(

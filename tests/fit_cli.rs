@@ -744,7 +744,17 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("no fit record"), "{err}");
-    let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // The summary as JSON, then the verdict in words.
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    let line: serde_json::Value = serde_json::from_str(lines[0]).unwrap();
+    assert!(
+        lines[1].starts_with("verdict: the asset's material moves ")
+            && lines[1].contains("no uniform material to compare with"),
+        "{stdout}"
+    );
+    assert_eq!(line["verdict"], lines[1], "{line}");
     eprintln!("{line}");
     for key in [
         "frames",

@@ -416,8 +416,39 @@ fn fibred_asset(steps: usize) -> Asset {
         gamma_wale: (0..t)
             .map(|i| if i == 0 { 0.0 } else { 5e3 / i as f64 })
             .collect(),
+        beta_course: Vec::new(),
+        beta_wale: Vec::new(),
     });
     a
+}
+
+/// The knit material's stiffenings travel with the fibres; one without the
+/// other, or a negative one, is refused naming the dataset.
+#[test]
+fn stiffening_fibres_round_trip_and_half_of_them_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut a = fibred_asset(2);
+    let t = a.mesh.num_tets();
+    if let Some(f) = a.fibres.as_mut() {
+        f.beta_course = (0..t).map(|i| 80.0 + i as f64).collect();
+        f.beta_wale = vec![40.0; t];
+    }
+    let p = dir.path().join("knit.vtkhdf");
+    write_asset(&p, &a).unwrap();
+    assert_eq!(read_asset(&p).unwrap(), a);
+    let mut half = a.clone();
+    if let Some(f) = half.fibres.as_mut() {
+        f.beta_wale.clear();
+    }
+    assert!(write_asset(&dir.path().join("half.vtkhdf"), &half).is_err());
+    let mut neg = a.clone();
+    if let Some(f) = neg.fibres.as_mut() {
+        f.beta_course[1] = -1.0;
+    }
+    let e = write_asset(&dir.path().join("neg.vtkhdf"), &neg)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("beta_course"), "{e}");
 }
 
 #[test]

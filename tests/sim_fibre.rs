@@ -19,6 +19,7 @@ use knitvox::sim::statics::{StaticParams, StaticSolver};
 fn family(nt: usize, d: [f64; 3], gamma: impl Fn(usize) -> f64) -> FibreFamily {
     FibreFamily {
         directions: vec![d; nt],
+        beta: Vec::new(),
         gamma: (0..nt).map(gamma).collect(),
     }
 }
@@ -226,4 +227,168 @@ fn fibres_along_a_cantilever_hold_it_up_and_pd_settles_at_newtons_equilibrium() 
     let speed = v.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
     eprintln!("PD rest vs Newton: largest gap {gap:.2e} m, speed left {speed:.2e} m/s");
     assert!(gap <= 1e-5 * sag_along, "gap {gap} against sag {sag_along}");
+}
+
+/// The stiffening fibres of the knit material (`sim::knit`) in the model:
+/// gradient and element Hessians against finite differences, and the PD
+/// right-hand side as the quasi-Newton step `K_el x - ∇E`, with the
+/// fibres' weights in `K_el` (their tangent at the reference strain).
+#[test]
+fn stiffening_fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
+    let (quadratic, x) = stretched_block(3);
+    let mut fams = quadratic.fibres().to_vec();
+    let nt = quadratic.rest().len();
+    fams[0].beta = (0..nt).map(|e| 40.0 + 5.0 * (e % 7) as f64).collect();
+    fams[1].beta = vec![80.0; nt];
+    let model = quadratic.clone().with_fibres(fams).unwrap();
+    let e0 = model.energy(&x).unwrap();
+    assert!(
+        e0 > 1.05 * quadratic.energy(&x).unwrap(),
+        "the stiffening adds energy at 25% stretch"
+    );
+    let g = model.gradient(&x).unwrap();
+    let eps = 1e-7;
+    let gmax = g.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..x.len() {
+        for c in 0..3 {
+            let (mut p, mut q) = (x.clone(), x.clone());
+            p[i][c] += eps;
+            q[i][c] -= eps;
+            let fd = (model.energy(&p).unwrap() - model.energy(&q).unwrap()) / (2.0 * eps);
+            assert!(
+                (fd - g[i][c]).abs() <= 1e-5 * gmax,
+                "node {i} coord {c}: {fd} vs {}",
+                g[i][c]
+            );
+        }
+    }
+    let fs = model.deformation_gradients(&x).unwrap();
+    for e in (0..nt).step_by(5) {
+        let h = model.tet_hessian(e, &fs[e], false);
+        let eig = h.symmetric_eigen().eigenvalues;
+        let r = &model.rest()[e];
+        for col in 0..12 {
+            let (a, c) = (col / 3, col % 3);
+            let mut df = nalgebra::Matrix3::zeros();
+            let dsum: nalgebra::RowVector3<f64> = if a == 0 {
+                -(r.dm_inv.row(0) + r.dm_inv.row(1) + r.dm_inv.row(2))
+            } else {
+                r.dm_inv.row(a - 1).into_owned()
+            };
+            df.set_row(c, &dsum);
+            let step = 1e-7;
+            let gp = node_gradients(&model.tet_stress(e, &(fs[e] + step * df)), &r.dm_inv);
+            let gm = node_gradients(&model.tet_stress(e, &(fs[e] - step * df)), &r.dm_inv);
+            for b in 0..4 {
+                for k in 0..3 {
+                    let fd = (gp[b][k] - gm[b][k]) / (2.0 * step);
+                    assert!(
+                        (fd - h[(3 * b + k, col)]).abs() <= 1e-5 * h.norm(),
+                        "tet {e} ({b},{k})/({a},{c}) eig {eig}"
+                    );
+                }
+            }
+        }
+    }
+    let mut rhs = CpuElasticRhs::new(&model);
+    let mut out = vec![[0.0; 3]; x.len()];
+    let ev = rhs.evaluate(&x, &mut out).unwrap();
+    assert!((ev.elastic_energy - e0).abs() <= 1e-12 * e0);
+    let mut from_rhs = vec![[0.0; 3]; x.len()];
+    for (e, r) in model.rest().iter().enumerate() {
+        let f = fs[e];
+        let mut p = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]) * f;
+        for fam in model.fibres() {
+            let d = nalgebra::Vector3::from(fam.directions[e]);
+            p += fam.pd_weight(e, r.volume) * (f * d) * d.transpose();
+        }
+        for (a, gr) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
+            for k in 0..3 {
+                from_rhs[r.nodes[a]][k] += gr[k];
+            }
+        }
+    }
+    for (i, (fr, o)) in from_rhs.iter().zip(&out).enumerate() {
+        for k in 0..3 {
+            let v = fr[k] - o[k];
+            assert!(
+                (v - g[i][k]).abs() <= 1e-9 * gmax,
+                "node {i}: {v} vs {}",
+                g[i][k]
+            );
+        }
+    }
+}
+
+/// A bar hanging from its top face under gravity, its fibres along its
+/// length over a soft Eq. 7: stretched well past the PD weight's reference
+/// strain at the top, the stiffening bar hangs shorter than the quadratic
+/// one, and the damped PD time loop comes to rest at Newton's equilibrium.
+#[test]
+fn a_stiffening_bar_hangs_shorter_and_pd_settles_at_newtons_equilibrium() {
+    let (mesh, mass) = box_mesh([2, 8, 2], 0.005, 120.0);
+    let nt = mesh.num_tets();
+    let top = mesh.nodes.iter().map(|p| p[1]).fold(f64::MIN, f64::max);
+    let pinned: Vec<usize> = (0..mesh.num_nodes())
+        .filter(|&i| mesh.nodes[i][1] > top - 1e-9)
+        .collect();
+    let f_ext: Vec<Vec3> = mass.iter().map(|m| [0.0, -9.81 * m, 0.0]).collect();
+    let hang = |beta: f64| {
+        let mut fam = family(nt, [0.0, 1.0, 0.0], |_| 12.0);
+        fam.beta = vec![beta; nt];
+        let model = ElasticModel::new(&mesh, &vec![1.0; nt], &vec![2.0; nt])
+            .unwrap()
+            .with_fibres(vec![fam])
+            .unwrap();
+        let mut s = StaticSolver::new(model.clone(), &mass, &pinned).unwrap();
+        let (xs, st) = s
+            .solve(&mesh.nodes, &f_ext, None, &StaticParams::default())
+            .unwrap();
+        assert!(*st.residuals.last().unwrap() <= 1e-6, "{st:?}");
+        let drop = mesh
+            .nodes
+            .iter()
+            .zip(&xs)
+            .map(|(p, q)| p[1] - q[1])
+            .fold(0.0f64, f64::max);
+        (drop, model, xs)
+    };
+    let (drop_quadratic, ..) = hang(0.0);
+    let (drop, model, x_newton) = hang(80.0);
+    let length = 8.0 * 0.005;
+    eprintln!("bar of {length} m: drop {drop_quadratic:.4} m quadratic, {drop:.4} m stiffening");
+    // Mean strain over the bar; the top carries twice the mean.
+    assert!(drop / length > 0.12, "mean strain {}", drop / length);
+    assert!(drop < 0.8 * drop_quadratic, "{drop} vs {drop_quadratic}");
+
+    let params = PdParams {
+        mass_damping: 40.0,
+        max_iterations: 30,
+        tolerance: 0.0,
+        ..PdParams::default()
+    };
+    let mut pd = PdSolver::new(
+        &mesh,
+        &mass,
+        model.gamma_s(),
+        model.gamma_v(),
+        &pinned,
+        params,
+    )
+    .unwrap();
+    pd.set_fibres(model.fibres().to_vec()).unwrap();
+    let held: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
+    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+    for _ in 0..800 {
+        pd.step(&mut x, &mut v, &held).unwrap();
+    }
+    let gap = x
+        .iter()
+        .zip(&x_newton)
+        .map(|(a, b)| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        })
+        .fold(0.0f64, f64::max);
+    eprintln!("PD rest vs Newton: largest gap {gap:.2e} m of a {drop:.4} m drop");
+    assert!(gap <= 1e-4 * drop, "gap {gap} against drop {drop}");
 }

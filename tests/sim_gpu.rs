@@ -858,6 +858,7 @@ fn gpu_elastic_rhs_with_fibres_matches_cpu_backend() {
     let s = 0.5f64.sqrt();
     let fam = |d: [f64; 3], rng: &mut Rng| FibreFamily {
         directions: vec![d; nt],
+        beta: Vec::new(),
         gamma: (0..nt).map(|_| 5e3 * rng.next()).collect(),
     };
     let fibred = plain
@@ -904,6 +905,23 @@ fn gpu_elastic_rhs_with_fibres_matches_cpu_backend() {
     assert!(gpu_rhs.update_materials(&fibred).unwrap());
     gpu_rhs.evaluate(&x, &mut out).unwrap();
     assert!(rel_diff(&out, &cpu_fibred) <= 1e-4);
+    // The knit material's stiffening fibres: the quasi-Newton target with
+    // their PD weights, on the same stretch.
+    let mut fams = fibred.fibres().to_vec();
+    fams[0].beta = (0..nt).map(|e| 40.0 + (e % 5) as f64 * 10.0).collect();
+    fams[1].beta = vec![80.0; nt];
+    let knit = plain.clone().with_fibres(fams).unwrap();
+    let (cpu_knit, e_knit) = cpu(&knit);
+    assert!(
+        rel_diff(&cpu_knit, &cpu_fibred) > 0.01,
+        "the stiffening matters"
+    );
+    assert!(gpu_rhs.update_materials(&knit).unwrap());
+    let ev = gpu_rhs.evaluate(&x, &mut out).unwrap();
+    let err = rel_diff(&out, &cpu_knit);
+    let e_err = (ev.elastic_energy - e_knit).abs() / e_knit;
+    eprintln!("stiffening fibres: rhs rel err {err:.2e}, energy rel err {e_err:.2e}");
+    assert!(err <= 1e-4 && e_err <= 1e-4, "rhs {err}, energy {e_err}");
 }
 
 /// Friction lives in the time loop shared by both backends (`sim::pd`

@@ -510,7 +510,14 @@ fn a_list_of_amounts_trains_each_amplitude_and_fit_reports_each() {
     let out = dir.path().join("stretch_list.h5");
     let r = train(
         &out,
-        &["--pose", "stretch_courses", "--amount", "0.05,0.1", "--steps", "2"],
+        &[
+            "--pose",
+            "stretch_courses",
+            "--amount",
+            "0.05,0.1",
+            "--steps",
+            "2",
+        ],
     );
     assert_eq!(r["frames"], 4, "{r}");
     assert_eq!(r["amounts"], serde_json::json!([0.05, 0.1]), "{r}");

@@ -219,6 +219,7 @@ fn fibres_hold_up_a_hang_alike_in_pd_and_newton() {
         .into_iter()
         .map(|directions| FibreFamily {
             directions,
+            beta: Vec::new(),
             gamma: vec![3e4; ne],
         })
         .collect();

@@ -82,6 +82,12 @@ pub struct FitArgs {
     /// knit is far stiffer along its yarn lines than in shear.
     #[arg(long)]
     pub fibres: bool,
+    /// Material model: `vh` (VH Eq. 7 per element, the reference) or `knit`
+    /// (Eq. 7 under course and wale fibres whose stiffness grows with
+    /// stretch: per element gamma_s, gamma_v and per fibre a stiffness and
+    /// a stiffening).
+    #[arg(long, value_enum, default_value = "vh")]
+    pub model: crate::pipeline::fit::FitModel,
     /// Hold the pinned tet nodes at each frame's shape fit instead of where the pose's bands put them, where
     /// `validate` and the shots drive them.
     #[arg(long)]
@@ -162,6 +168,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
         joint: a.joint,
         quasi_static: a.quasi_static,
         fibres: a.fibres,
+        model: a.model,
         shape_fit_pins: a.shape_fit_pins,
         command: command_line(),
     };
@@ -191,6 +198,17 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             r.gamma_v_range[1],
             r.wall_s
         );
+        if let (Some(c), Some(w)) = (r.beta_course_range, r.beta_wale_range) {
+            println!(
+                "knit stiffening: uniform course {:.3}, wale {:.3}; course {:.3}..{:.3}, wale {:.3}..{:.3}",
+                r.uniform.beta_course.unwrap_or(f64::NAN),
+                r.uniform.beta_wale.unwrap_or(f64::NAN),
+                c[0],
+                c[1],
+                w[0],
+                w[1]
+            );
+        }
         if let (Some(c), Some(w)) = (r.gamma_course_range, r.gamma_wale_range) {
             println!(
                 "fibres: uniform course {:.4e}, wale {:.4e} Pa; course {:.3e}..{:.3e}, wale {:.3e}..{:.3e} Pa",
@@ -215,7 +233,10 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
                 println!(
                     "  {} frame {f}{}: fitted {:.3}, uniform {:.3} (Y2V floor {:.3})",
                     p.path.display(),
-                    a.map_or(String::new(), |a| format!(" (amount {})", crate::geom::num(a))),
+                    a.map_or(String::new(), |a| format!(
+                        " (amount {})",
+                        crate::geom::num(a)
+                    )),
                     t.fitted_rms_yarn_diameters,
                     t.uniform_rms_yarn_diameters,
                     t.y2v_floor_rms_yarn_diameters

@@ -26,7 +26,13 @@ pub struct TrainArgs {
     /// multi_fold [default: 0.2 strain (biaxial 0.1), 0.8 rad, 0.3]. A list
     /// (`0.02,0.1,0.2,0.3`) loads through each amplitude in order, --steps
     /// load steps to each, and `fit` fits the frame at each.
-    #[arg(long, value_name = "A[,A..]", allow_negative_numbers = true, value_delimiter = ',', num_args = 1)]
+    #[arg(
+        long,
+        value_name = "A[,A..]",
+        allow_negative_numbers = true,
+        value_delimiter = ',',
+        num_args = 1
+    )]
     pub amount: Vec<f64>,
     /// The mirrored counterpart of the pose (VH Fig. 19).
     #[arg(long)]

@@ -79,13 +79,18 @@ pub struct Asset {
 
 /// Fibre families of an asset ([`crate::sim::fibre`]): per tet the unit
 /// rest directions of the course and the wale and their stiffnesses (Pa,
-/// finite, `>= 0`).
+/// finite, `>= 0`), and for the knit material their stiffenings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AssetFibres {
     pub course: Vec<Vec3>,
     pub wale: Vec<Vec3>,
     pub gamma_course: Vec<f64>,
     pub gamma_wale: Vec<f64>,
+    /// Stiffening `β` per tet along the course and the wale
+    /// (dimensionless, finite, `>= 0`; [`crate::sim::knit`]); both empty
+    /// for quadratic fibres.
+    pub beta_course: Vec<f64>,
+    pub beta_wale: Vec<f64>,
 }
 
 /// The elasticity fit an asset records (`knitvox fit`, VH §6): stored as
@@ -137,6 +142,12 @@ pub struct UniformMaterial {
     pub gamma_course: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gamma_wale: Option<f64>,
+    /// Their stiffenings (dimensionless) of a knit-material fit; absent
+    /// otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta_course: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta_wale: Option<f64>,
 }
 
 /// In-sample fidelity: the RMS distance (yarn diameters, over every yarn

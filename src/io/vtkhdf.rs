@@ -390,6 +390,10 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
         write_2d(&cd, "wale_direction", f.wale.as_flattened(), 3, None)?;
         h5::write_1d(&cd, "gamma_course", &f.gamma_course, Some("Pa"))?;
         h5::write_1d(&cd, "gamma_wale", &f.gamma_wale, Some("Pa"))?;
+        if !f.beta_course.is_empty() {
+            h5::write_1d(&cd, "beta_course", &f.beta_course, None)?;
+            h5::write_1d(&cd, "beta_wale", &f.beta_wale, None)?;
+        }
     }
     let pd = h5::new_group(&g, "PointData")?;
     h5::write_1d(&pd, "mass", &a.node_mass, Some("kg"))?;
@@ -408,10 +412,10 @@ fn write_vtk(file: &hdf5::File, a: &Asset) -> hdf5::Result<()> {
         write_2d(&st, "CellOffsets", &zeros, 1, None)?;
         write_2d(&st, "ConnectivityIdOffsets", &zeros, 1, None)?;
         let cdo = h5::new_group(&st, "CellDataOffsets")?;
-        let fibre_names: &[&str] = if a.fibres.is_some() {
-            &FIBRE_CELL_DATA
-        } else {
-            &[]
+        let fibre_names: &[&str] = match &a.fibres {
+            Some(f) if !f.beta_course.is_empty() => &FIBRE_CELL_DATA_STIFFENING,
+            Some(_) => &FIBRE_CELL_DATA,
+            None => &[],
         };
         for name in ["gamma_s", "gamma_v", "domain"].iter().chain(fibre_names) {
             h5::write_1d(&cdo, name, &zeros, None)?;
@@ -587,8 +591,34 @@ const FIBRE_CELL_DATA: [&str; 4] = [
     "gamma_wale",
 ];
 
+/// [`FIBRE_CELL_DATA`] with the knit material's stiffenings (both or none).
+const FIBRE_CELL_DATA_STIFFENING: [&str; 6] = [
+    "course_direction",
+    "wale_direction",
+    "gamma_course",
+    "gamma_wale",
+    "beta_course",
+    "beta_wale",
+];
+
 /// Unit directions (to 1e-6) and finite stiffnesses `>= 0`, one per tet.
 fn check_fibres(f: &AssetFibres, t: usize) -> Result<(), AssetCheckError> {
+    if !(f.beta_course.is_empty() && f.beta_wale.is_empty()) {
+        for (name, n) in [
+            ("beta_course", f.beta_course.len()),
+            ("beta_wale", f.beta_wale.len()),
+        ] {
+            if n != t {
+                return Err(AssetCheckError::FibreLength {
+                    name,
+                    got: n,
+                    tets: t,
+                });
+            }
+        }
+        check_stiffness("beta_course", &f.beta_course)?;
+        check_stiffness("beta_wale", &f.beta_wale)?;
+    }
     for (name, n) in [
         ("course_direction", f.course.len()),
         ("wale_direction", f.wale.len()),
@@ -662,11 +692,26 @@ fn read_fibres(cd: &Group, cdp: &str, t: usize) -> Result<Option<AssetFibres>, F
         Ok(d)
     };
     let gammas = |name: &str| read_stiffness(&required(cd, cdp, name)?, t, &per_tet);
+    // The knit material's stiffenings: both or neither.
+    let (beta_course, beta_wale) =
+        match (cd.link_exists("beta_course"), cd.link_exists("beta_wale")) {
+            (false, false) => (Vec::new(), Vec::new()),
+            (true, true) => (gammas("beta_course")?, gammas("beta_wale")?),
+            (c, _) => {
+                let missing = if c { "beta_wale" } else { "beta_course" };
+                return Err(FormatError::at_path(
+                    format!("{cdp}/{missing}"),
+                    "missing: stiffening fibres need both beta_course and beta_wale",
+                ));
+            }
+        };
     Ok(Some(AssetFibres {
         course: dirs("course_direction")?,
         wale: dirs("wale_direction")?,
         gamma_course: gammas("gamma_course")?,
         gamma_wale: gammas("gamma_wale")?,
+        beta_course,
+        beta_wale,
     }))
 }
 

@@ -576,7 +576,11 @@ pub fn uniform_material(
     let ne = asset.mesh.num_tets();
     let mut m = crate::fit::elastic::MaterialFields::uniform(ne, u.gamma_s, u.gamma_v);
     if let (Some(f), Some(gc), Some(gw)) = (&asset.fibres, u.gamma_course, u.gamma_wale) {
-        m.fibres = fibre_families(f, vec![gc; ne], vec![gw; ne]);
+        let beta = match (u.beta_course, u.beta_wale) {
+            (Some(bc), Some(bw)) => (vec![bc; ne], vec![bw; ne]),
+            _ => (Vec::new(), Vec::new()),
+        };
+        m.fibres = fibre_families(f, vec![gc; ne], vec![gw; ne], beta);
     }
     m
 }
@@ -586,15 +590,18 @@ fn fibre_families(
     f: &crate::geom::AssetFibres,
     gamma_course: Vec<f64>,
     gamma_wale: Vec<f64>,
+    (beta_course, beta_wale): (Vec<f64>, Vec<f64>),
 ) -> Vec<crate::sim::fibre::FibreFamily> {
     use crate::sim::fibre::FibreFamily;
     vec![
         FibreFamily {
             directions: f.course.clone(),
+            beta: beta_course,
             gamma: gamma_course,
         },
         FibreFamily {
             directions: f.wale.clone(),
+            beta: beta_wale,
             gamma: gamma_wale,
         },
     ]
@@ -609,7 +616,14 @@ pub fn asset_materials(asset: &Asset) -> crate::fit::elastic::MaterialFields {
         fibres: asset
             .fibres
             .as_ref()
-            .map(|f| fibre_families(f, f.gamma_course.clone(), f.gamma_wale.clone()))
+            .map(|f| {
+                fibre_families(
+                    f,
+                    f.gamma_course.clone(),
+                    f.gamma_wale.clone(),
+                    (f.beta_course.clone(), f.beta_wale.clone()),
+                )
+            })
             .unwrap_or_default(),
     }
 }
@@ -638,6 +652,8 @@ pub fn set_asset_materials(
             wale: w.directions.clone(),
             gamma_course: c.gamma.clone(),
             gamma_wale: w.gamma.clone(),
+            beta_course: c.beta.clone(),
+            beta_wale: w.beta.clone(),
         }),
         f => return Err(FibreFamilyCount { families: f.len() }),
     };

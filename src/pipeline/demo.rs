@@ -284,6 +284,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         joint: true,
         quasi_static: false,
         fibres: false,
+        model: Default::default(),
         shape_fit_pins: false,
         command: command.into(),
     }

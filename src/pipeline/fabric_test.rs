@@ -400,9 +400,9 @@ pub fn run_observed(
         ));
         if let Some(w) = writer.as_mut() {
             let back = |v: &[Vec3]| v.iter().map(|p| turn.from_rig(*p)).collect::<Vec<_>>();
-            let r = w.push(f.parameter, &back(f.points)).and_then(|_| {
-                w.push_mechanics(f.energy, &back(&f.reactions), &back(&f.external))
-            });
+            let r = w
+                .push(f.parameter, &back(f.points))
+                .and_then(|_| w.push_mechanics(f.energy, &back(&f.reactions), &back(&f.external)));
             if let Err(e) = r {
                 let msg = e.to_string();
                 io_error = Some(e);

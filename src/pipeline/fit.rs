@@ -106,6 +106,10 @@ pub struct FitJob {
     /// them, their stiffnesses starting at the asset's `γs`. An asset with
     /// fibres refits them either way. Default false.
     pub fibres: bool,
+    /// The material model fitted: VH Eq. 7 (with `fibres`, plus quadratic
+    /// fibres), or the knit material (Eq. 7 under stiffening course and
+    /// wale fibres, [`crate::sim::knit`]). Default [`FitModel::Vh`].
+    pub model: FitModel,
     /// Hold the pinned tet nodes of every frame at its shape fit (Y2V)
     /// instead of where the pose's bands put them, as the homogenized runs
     /// drive them ([`super::clamp_drive`]). Default false.
@@ -130,6 +134,24 @@ impl FitJob {
             .unwrap_or_else(|| default_output(&self.asset))
     }
 }
+
+/// The material model `fit` fits (`fit --model`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum FitModel {
+    /// VH Eq. 7 per element (isotropic `γs`, `γv`), the reference.
+    #[default]
+    Vh,
+    /// The knit material: Eq. 7 (the soft shear and bending) under course
+    /// and wale fibres that stiffen with stretch, `γ V (ε² + β ε⁴ / 2)` in
+    /// tension ([`crate::sim::knit`]): per element `γs`, `γv`, and per
+    /// family a stiffness and a stiffening.
+    Knit,
+}
+
+/// The stiffening `β` a knit fit starts from where the asset has none: a
+/// secant stiffness 1.4x its small-strain value at 20% strain.
+pub const KNIT_BETA_START: f64 = 10.0;
 
 /// Where a pose's boundary conditions and weight came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -254,9 +276,8 @@ fn training_fidelity_per_frame(
                 .map(|j| {
                     let y = &yarns[k][j];
                     let d0 = yarn_distances(asset, &samples[k].frames[j].start, y);
-                    let d: [Vec<f64>; 3] = std::array::from_fn(|m| {
-                        yarn_distances(asset, &equilibria[k][m][j], y)
-                    });
+                    let d: [Vec<f64>; 3] =
+                        std::array::from_fn(|m| yarn_distances(asset, &equilibria[k][m][j], y));
                     fidelity_of([&d0, &d[0], &d[1], &d[2]])
                 })
                 .collect()
@@ -291,6 +312,11 @@ pub struct FitJobReport {
     /// fibres.
     pub gamma_course_range: Option<[f64; 2]>,
     pub gamma_wale_range: Option<[f64; 2]>,
+    /// The model fitted, and the fitted stiffenings along the course and
+    /// the wale (dimensionless; `--model knit`).
+    pub model: FitModel,
+    pub beta_course_range: Option<[f64; 2]>,
+    pub beta_wale_range: Option<[f64; 2]>,
     /// Mean chord anisotropy of the fibre directions found for this fit
     /// ([`crate::embed::orientation::CourseWale::mean_anisotropy`]); null
     /// when the asset brought its own or the fit has none.
@@ -877,7 +903,11 @@ fn recorded_pose(path: &Path) -> Result<Option<RecordedPose>, Error> {
             None => Ok(None),
             Some(a) => a
                 .as_array()
-                .and_then(|a| a.iter().map(|x| x.as_f64().filter(|x| x.is_finite())).collect())
+                .and_then(|a| {
+                    a.iter()
+                        .map(|x| x.as_f64().filter(|x| x.is_finite()))
+                        .collect()
+                })
                 .map(Some)
                 .ok_or_else(|| bad(format!("{key} is not a list of finite numbers"))),
         }
@@ -1422,6 +1452,16 @@ pub fn fit_samples(
         gamma_v: mean(&u.gamma_v),
         gamma_course: u.fibres.first().map(|f| mean(&f.gamma)),
         gamma_wale: u.fibres.get(1).map(|f| mean(&f.gamma)),
+        beta_course: u
+            .fibres
+            .first()
+            .filter(|f| f.stiffening())
+            .map(|f| mean(&f.beta)),
+        beta_wale: u
+            .fibres
+            .get(1)
+            .filter(|f| f.stiffening())
+            .map(|f| mean(&f.beta)),
     };
     let (before, x_before) = sample_equilibria(mesh, mass, samples, earlier, &[], params)?;
     let (at_u, x_u) = sample_equilibria(mesh, mass, samples, &u, &at_uniform, params)?;
@@ -1455,9 +1495,19 @@ fn fit_start(
     asset: &Asset,
     earlier: &MaterialFields,
     fibres: bool,
+    model: FitModel,
 ) -> Result<(MaterialFields, Option<f64>), crate::embed::EmbedError> {
-    if !fibres || !earlier.fibres.is_empty() {
-        return Ok((earlier.clone(), None));
+    let knit = model == FitModel::Knit;
+    let stiffen = |mut m: MaterialFields| {
+        if knit {
+            for f in m.fibres.iter_mut().filter(|f| !f.stiffening()) {
+                f.beta = vec![KNIT_BETA_START; f.gamma.len()];
+            }
+        }
+        m
+    };
+    if !(fibres || knit) || !earlier.fibres.is_empty() {
+        return Ok((stiffen(earlier.clone()), None));
     }
     let cw = crate::embed::orientation::course_and_wale(
         &asset.rest_yarns,
@@ -1467,11 +1517,12 @@ fn fit_start(
     )?;
     let family = |directions: Vec<Vec3>| crate::sim::fibre::FibreFamily {
         directions,
+        beta: Vec::new(),
         gamma: earlier.gamma_s.clone(),
     };
     let mut init = earlier.clone();
     init.fibres = vec![family(cw.course), family(cw.wale)];
-    Ok((init, Some(cw.mean_anisotropy)))
+    Ok((stiffen(init), Some(cw.mean_anisotropy)))
 }
 
 /// Where the material a fit starts from lies below the fit's floor, as a
@@ -1485,6 +1536,11 @@ fn below_floor(m: &MaterialFields, floor: f64) -> Option<String> {
     ]
     .into_iter()
     .chain(fibres.into_iter().zip(m.fibres.iter().map(|f| &f.gamma)))
+    .chain(
+        ["CellData/beta_course", "CellData/beta_wale"]
+            .into_iter()
+            .zip(m.fibres.iter().map(|f| &f.beta)),
+    )
     .find_map(|(name, g)| {
         let i = g.iter().position(|v| *v < floor)?;
         Some(format!(
@@ -1577,7 +1633,7 @@ impl Stage for FitJob {
             pose_yarns.push(pose.yarns);
         }
         let earlier = asset_materials(&asset);
-        let (init, fibre_anisotropy) = fit_start(&asset, &earlier, self.fibres)
+        let (init, fibre_anisotropy) = fit_start(&asset, &earlier, self.fibres, self.model)
             .map_err(|e| invalid(&self.asset, format!("fibre directions: {e}")))?;
         if let Some(m) = below_floor(&init, self.params.gamma_floor) {
             return Err(invalid(&self.asset, m));
@@ -1692,6 +1748,19 @@ impl Stage for FitJob {
             gamma_v_range: range(&fitted.gamma.gamma_v),
             gamma_course_range: fitted.gamma.fibres.first().map(|f| range(&f.gamma)),
             gamma_wale_range: fitted.gamma.fibres.get(1).map(|f| range(&f.gamma)),
+            model: self.model,
+            beta_course_range: fitted
+                .gamma
+                .fibres
+                .first()
+                .filter(|f| f.stiffening())
+                .map(|f| range(&f.beta)),
+            beta_wale_range: fitted
+                .gamma
+                .fibres
+                .get(1)
+                .filter(|f| f.stiffening())
+                .map(|f| range(&f.beta)),
             fibre_anisotropy,
             uniform_fit: fitted.uniform_fit,
             fit: fitted.fit,

@@ -1396,6 +1396,7 @@ impl Job {
             joint: f.joint.unwrap_or(false),
             quasi_static: false,
             fibres: f.fibres.unwrap_or(false),
+            model: Default::default(),
             shape_fit_pins: false,
             command: command.into(),
         };

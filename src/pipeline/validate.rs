@@ -204,7 +204,11 @@ pub fn verdict(r: &ValidateReport) -> String {
     match r.uniform_rms_yarn_diameters {
         Some(u) => {
             line.push_str("; ");
-            line.push_str(&compare(r.rms_yarn_diameters, u, "the best uniform material"));
+            line.push_str(&compare(
+                r.rms_yarn_diameters,
+                u,
+                "the best uniform material",
+            ));
         }
         None => line.push_str("; no fit record, so no uniform material to compare with"),
     }
@@ -910,14 +914,12 @@ impl Stage for ValidateJob {
 
 /// Refuses a `--compare-vh` asset that is not the same body: the same tet
 /// mesh (nodes to 1e-9 m) and the same rest yarns (to 1e-9 m).
-fn same_body(
-    a: &Asset,
-    a_path: &Path,
-    b: &Asset,
-    b_path: &Path,
-) -> Result<(), Error> {
+fn same_body(a: &Asset, a_path: &Path, b: &Asset, b_path: &Path) -> Result<(), Error> {
     let close = |p: &[Vec3], q: &[Vec3]| {
-        p.len() == q.len() && p.iter().zip(q).all(|(x, y)| crate::geom::dist(*x, *y) <= 1e-9)
+        p.len() == q.len()
+            && p.iter()
+                .zip(q)
+                .all(|(x, y)| crate::geom::dist(*x, *y) <= 1e-9)
     };
     let what = if a.mesh.tets != b.mesh.tets || !close(&a.mesh.nodes, &b.mesh.nodes) {
         Some("tet mesh")

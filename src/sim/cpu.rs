@@ -11,7 +11,6 @@ use rayon::prelude::*;
 use super::backend::{ElasticRhs, LocalEval};
 use super::element::node_gradients;
 use super::energy::ElasticModel;
-use super::fibre::fibre_target;
 use super::projection::{
     project_diag_sl3, project_volume_detailed, signed_svd_warm, signed_svd_warm_x4, SignedSvd,
     SVD_LANES,
@@ -200,7 +199,7 @@ impl ElasticRhs for CpuElasticRhs {
                         }
                     };
                     for fam in fibres {
-                        let (t, en) = fibre_target(f, &fam.directions[e], r.volume, fam.gamma[e]);
+                        let (t, en) = fam.target(e, f, r.volume);
                         target += t;
                         energy += en;
                     }

@@ -23,7 +23,7 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::element::{node_gradients, TetRest};
-use super::fibre::{fibre_energy, fibre_stress, FibreFamily, MAX_FIBRE_FAMILIES};
+use super::fibre::{FibreFamily, MAX_FIBRE_FAMILIES};
 use super::projection::{project_rotation, project_volume};
 use super::SimError;
 use crate::geom::{TetMesh, Vec3};
@@ -149,7 +149,7 @@ impl ElasticModel {
         let v = self.rest[e].volume;
         let mut en = element_energy(f, v, self.gamma_s[e], self.gamma_v[e]);
         for fam in &self.fibres {
-            en += fibre_energy(f, &fam.directions[e], v, fam.gamma[e]);
+            en += fam.energy(e, f, v);
         }
         en
     }
@@ -159,7 +159,7 @@ impl ElasticModel {
         let v = self.rest[e].volume;
         let mut p = element_stress(f, v, self.gamma_s[e], self.gamma_v[e]);
         for fam in &self.fibres {
-            p += fibre_stress(f, &fam.directions[e], v, fam.gamma[e]);
+            p += fam.stress(e, f, v);
         }
         p
     }

@@ -38,20 +38,144 @@ use super::SimError;
 /// Most fibre families per model (the GPU backend packs two per tet).
 pub const MAX_FIBRE_FAMILIES: usize = 2;
 
-/// One family of tension-only fibres: per tet a unit rest direction and a
-/// stiffness.
+/// One family of tension-only fibres: per tet a unit rest direction, a
+/// stiffness and, for the knit material, a stiffening.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FibreFamily {
     /// Unit rest direction per tet (dimensionless, rest configuration).
     pub directions: Vec<[f64; 3]>,
-    /// Stiffness per tet (Pa, finite, `>= 0`; 0: no fibre in that tet).
+    /// Stiffness per tet (Pa, finite, `>= 0`; 0: no fibre in that tet): the
+    /// small-strain stiffness `k` of a stiffening family.
     pub gamma: Vec<f64>,
+    /// Stiffening `β` per tet (dimensionless, finite, `>= 0`;
+    /// [`super::knit`]: energy `γ V (ε² + β ε⁴ / 2)` in tension). Empty
+    /// (the default): `β = 0` everywhere, the quadratic fibre above, and
+    /// `β` is not a fitted field.
+    pub beta: Vec<f64>,
+}
+
+/// The strain at which a stiffening family's PD weight is its tangent
+/// stiffness ([`super::knit::knit_fibre_pd_weight`]): up to it the PD matrix
+/// bounds the fibre's Hessian, so the iteration does not overshoot; above
+/// it the accelerated iteration's safeguard carries it. 0.2: the middle of
+/// the 10-30% strains knits are tested and worn at.
+pub const STIFFENING_STRAIN_REF: f64 = 0.2;
+
+impl FibreFamily {
+    /// A quadratic family (no stiffening).
+    pub fn quadratic(directions: Vec<[f64; 3]>, gamma: Vec<f64>) -> FibreFamily {
+        FibreFamily {
+            directions,
+            gamma,
+            beta: Vec::new(),
+        }
+    }
+
+    /// Whether the family carries a stiffening field (`beta` non-empty).
+    pub fn stiffening(&self) -> bool {
+        !self.beta.is_empty()
+    }
+
+    /// `β` of tet `e` (0 without a stiffening field).
+    pub fn beta_at(&self, e: usize) -> f64 {
+        self.beta.get(e).copied().unwrap_or(0.0)
+    }
+
+    /// Energy (J) of tet `e`'s fibre at `f` (rest volume `volume`).
+    pub fn energy(&self, e: usize, f: &Matrix3<f64>, volume: f64) -> f64 {
+        match self.beta_at(e) {
+            b if b == 0.0 => fibre_energy(f, &self.directions[e], volume, self.gamma[e]),
+            b => super::knit::knit_fibre_energy(f, &self.directions[e], volume, self.gamma[e], b),
+        }
+    }
+
+    /// `∂E/∂F` (J) of tet `e`'s fibre at `f`.
+    pub fn stress(&self, e: usize, f: &Matrix3<f64>, volume: f64) -> Matrix3<f64> {
+        match self.beta_at(e) {
+            b if b == 0.0 => fibre_stress(f, &self.directions[e], volume, self.gamma[e]),
+            b => super::knit::knit_fibre_stress(f, &self.directions[e], volume, self.gamma[e], b),
+        }
+    }
+
+    /// The 12x12 Hessian (N/m) of tet `e`'s fibre (PSD).
+    pub fn element_hessian(&self, e: usize, f: &Matrix3<f64>, rest: &TetRest) -> Mat12 {
+        match self.beta_at(e) {
+            b if b == 0.0 => fibre_element_hessian(f, rest, &self.directions[e], self.gamma[e]),
+            b => super::knit::knit_fibre_element_hessian(
+                f,
+                rest,
+                &self.directions[e],
+                self.gamma[e],
+                b,
+            ),
+        }
+    }
+
+    /// The weight (J) of tet `e`'s fibre in the PD matrix: `2 γ V` (the
+    /// exact local-global form), or for a stiffening fibre its tangent
+    /// stiffness at [`STIFFENING_STRAIN_REF`].
+    pub fn pd_weight(&self, e: usize, volume: f64) -> f64 {
+        match self.beta_at(e) {
+            b if b == 0.0 => 2.0 * self.gamma[e] * volume,
+            b => super::knit::knit_fibre_pd_weight(volume, self.gamma[e], b, STIFFENING_STRAIN_REF),
+        }
+    }
+
+    /// The PD target in F-space (J) of tet `e`'s fibre and its energy (J),
+    /// for the weight [`Self::pd_weight`]: the projection for a quadratic
+    /// fibre, the quasi-Newton target of Liu, Bouaziz and Kavan 2017 for a
+    /// stiffening one ([`super::knit::knit_fibre_target`]).
+    pub fn target(&self, e: usize, f: &Matrix3<f64>, volume: f64) -> (Matrix3<f64>, f64) {
+        match self.beta_at(e) {
+            b if b == 0.0 => fibre_target(f, &self.directions[e], volume, self.gamma[e]),
+            b => super::knit::knit_fibre_target(
+                f,
+                &self.directions[e],
+                volume,
+                self.gamma[e],
+                b,
+                self.pd_weight(e, volume),
+            ),
+        }
+    }
+
+    /// Derivatives (N per Pa, N) of tet `e`'s fibre node gradients with
+    /// respect to its `γ` and its `β`: the energy is linear in each at a
+    /// fixed deformation, so both are gradients at unit values.
+    pub fn param_derivatives(&self, e: usize, f: &Matrix3<f64>, rest: &TetRest) -> (Vec12, Vec12) {
+        let d = &self.directions[e];
+        let to12 = |m: Matrix3<f64>| {
+            let g = node_gradients(&m, &rest.dm_inv);
+            Vec12::from_fn(|i, _| g[i / 3][i % 3])
+        };
+        let b = self.beta_at(e);
+        let dk = to12(super::knit::knit_fibre_stress(f, d, rest.volume, 1.0, b));
+        let quartic = super::knit::knit_fibre_stress(f, d, rest.volume, self.gamma[e], 1.0)
+            - super::knit::knit_fibre_stress(f, d, rest.volume, self.gamma[e], 0.0);
+        (dk, to12(quartic))
+    }
 }
 
 impl FibreFamily {
-    /// Checks lengths against `num_tets`, unit directions (to 1e-6) and
-    /// stiffnesses; `which` names the family in errors.
+    /// Checks lengths against `num_tets`, unit directions (to 1e-6),
+    /// stiffnesses and stiffenings; `which` names the family in errors.
     pub fn check(&self, num_tets: usize, which: usize) -> Result<(), SimError> {
+        if !self.beta.is_empty() && self.beta.len() != num_tets {
+            return Err(SimError::Inconsistent(format!(
+                "fibre family {which}: {num_tets} tets but {} stiffenings",
+                self.beta.len()
+            )));
+        }
+        if let Some((t, b)) = self
+            .beta
+            .iter()
+            .enumerate()
+            .find(|(_, b)| !(b.is_finite() && **b >= 0.0))
+        {
+            return Err(SimError::Inconsistent(format!(
+                "fibre family {which}: stiffening of tet {t} is {b}; it must be finite and >= 0"
+            )));
+        }
         if self.directions.len() != num_tets || self.gamma.len() != num_tets {
             return Err(SimError::Inconsistent(format!(
                 "fibre family {which}: {num_tets} tets but {} directions and {} stiffnesses",
@@ -324,10 +448,7 @@ mod tests {
 
     #[test]
     fn families_are_checked() {
-        let ok = FibreFamily {
-            directions: vec![[1.0, 0.0, 0.0]; 2],
-            gamma: vec![1.0, 0.0],
-        };
+        let ok = FibreFamily::quadratic(vec![[1.0, 0.0, 0.0]; 2], vec![1.0, 0.0]);
         assert!(ok.check(2, 0).is_ok());
         assert!(ok.check(3, 0).is_err());
         let mut bad = ok.clone();
@@ -336,8 +457,56 @@ mod tests {
         let mut bad = ok.clone();
         bad.gamma[0] = -1.0;
         assert!(bad.check(2, 0).is_err());
-        let mut bad = ok;
+        let mut bad = ok.clone();
         bad.gamma[0] = f64::NAN;
         assert!(bad.check(2, 0).is_err());
+        let mut stiff = ok;
+        stiff.beta = vec![80.0, 0.0];
+        assert!(stiff.check(2, 0).is_ok());
+        stiff.beta[1] = -1.0;
+        assert!(format!("{}", stiff.check(2, 0).unwrap_err()).contains("stiffening of tet 1"));
+        stiff.beta = vec![1.0];
+        assert!(stiff.check(2, 0).is_err());
+    }
+
+    /// The family's dispatch: a stiffening tet follows `sim::knit`, a
+    /// quadratic one this module, and the parameter derivatives are the
+    /// force's finite differences in `γ` and `β`.
+    #[test]
+    fn stiffening_tets_follow_the_knit_energy_and_their_derivatives() {
+        let mut rng = Rng(41);
+        let rest = rest_of(0.01, &mut rng);
+        let d = [1.0, 0.0, 0.0];
+        let fam = FibreFamily {
+            directions: vec![d; 2],
+            gamma: vec![3e3, 3e3],
+            beta: vec![80.0, 0.0],
+        };
+        let f = Matrix3::from_diagonal(&Vector3::new(1.25, 0.97, 1.01));
+        let v = rest.volume;
+        assert_eq!(
+            fam.energy(0, &f, v),
+            super::super::knit::knit_fibre_energy(&f, &d, v, 3e3, 80.0)
+        );
+        assert_eq!(fam.energy(1, &f, v), fibre_energy(&f, &d, v, 3e3));
+        assert!(fam.energy(0, &f, v) > fam.energy(1, &f, v));
+        assert_eq!(fam.pd_weight(1, v), 2.0 * 3e3 * v);
+        assert!(fam.pd_weight(0, v) > fam.pd_weight(1, v));
+        // Derivatives in γ and β against central differences of the force.
+        let (dk, db) = fam.param_derivatives(0, &f, &rest);
+        let force = |g: f64, b: f64| {
+            let fam = FibreFamily {
+                gamma: vec![g; 2],
+                beta: vec![b; 2],
+                ..fam.clone()
+            };
+            let gr = node_gradients(&fam.stress(0, &f, v), &rest.dm_inv);
+            Vec12::from_fn(|i, _| gr[i / 3][i % 3])
+        };
+        let fd_k = (force(3e3 + 1.0, 80.0) - force(3e3 - 1.0, 80.0)) / 2.0;
+        let fd_b = (force(3e3, 80.5) - force(3e3, 79.5)) / 1.0;
+        assert!((dk - fd_k).norm() <= 1e-7 * dk.norm(), "{dk} {fd_k}");
+        assert!((db - fd_b).norm() <= 1e-7 * db.norm(), "{db} {fd_b}");
+        assert!(db.norm() > 0.0);
     }
 }

@@ -242,7 +242,7 @@ impl super::energy::ElasticModel {
         let rest = &self.rest()[e];
         let mut h = element_hessian(f, rest, self.gamma_s()[e], self.gamma_v()[e], project);
         for fam in self.fibres() {
-            h += super::fibre::fibre_element_hessian(f, rest, &fam.directions[e], fam.gamma[e]);
+            h += fam.element_hessian(e, f, rest);
         }
         h
     }

@@ -583,14 +583,15 @@ fn assemble(
     for (e, r) in model.rest().iter().enumerate() {
         let w = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]);
         let g = shape_gradients(&r.dm_inv);
-        // Fibre selections F d = Σ c_a x_a, weight 2 γ V (super::fibre).
+        // Fibre selections F d = Σ c_a x_a, weight 2 γ V (super::fibre;
+        // a stiffening fibre's tangent at the reference strain).
         let fibres: Vec<(f64, [f64; 4])> = model
             .fibres()
             .iter()
             .filter(|fam| fam.gamma[e] > 0.0)
             .map(|fam| {
                 let c = super::fibre::node_coefficients(r, &fam.directions[e]);
-                (2.0 * r.volume * fam.gamma[e], c)
+                (fam.pd_weight(e, r.volume), c)
             })
             .collect();
         for a in 0..4 {

@@ -158,10 +158,11 @@ pub enum PoseError {
     Band(String),
 }
 
-/// Fewest yarn vertices a clamped band must hold: fewer cannot grip a loop
-/// (a stitch of the built-in knits has about 32), and a band that selects
-/// only a few points is a band across the wrong extent.
-pub const MIN_BAND_VERTICES: usize = 4;
+/// Fewest yarn vertices a clamped band must hold: a grip needs three points
+/// off one line (a knit stitch has about 32 vertices; a coarse woven's band
+/// holds one end per yarn), and a band that selects fewer is a band across
+/// the wrong extent or too narrow for the swatch.
+pub const MIN_BAND_VERTICES: usize = 3;
 
 /// A swatch is flat when its thinnest bounding-box extent is under this
 /// fraction of the middle one; a flat swatch must then lie in XZ.
@@ -383,7 +384,10 @@ impl PoseDriver {
                 }
             }
             PoseKind::Biaxial => {
-                names.push(format!("edge bands ({:.3} m of X, {:.3} m of Z at the four edges)", bx, bz));
+                names.push(format!(
+                    "edge bands ({:.3} m of X, {:.3} m of Z at the four edges)",
+                    bx, bz
+                ));
                 let f = 1.0 + p.amount;
                 let any = move |q: &Vec3| left(q) || right(q) || back(q) || front(q);
                 rules.push((Box::new(any), Role::Scale { fx: f, fz: f }));
@@ -397,7 +401,10 @@ impl PoseDriver {
                 ));
             }
             PoseKind::BendCentral => {
-                names.push(format!("left and right bands ({:.3} m of X at each edge)", bx));
+                names.push(format!(
+                    "left and right bands ({:.3} m of X at each edge)",
+                    bx
+                ));
                 let role = Role::Bend { sign, diag: false };
                 rules.push((Box::new(move |q: &Vec3| left(q) || right(q)), role));
             }
@@ -418,7 +425,9 @@ impl PoseDriver {
                         (lo.min(d2_of(q)), hi.max(d2_of(q)))
                     });
                 let role = Role::Bend { sign, diag: true };
-                names.push(format!("corner bands ({band:.3} m along the diagonal at each end)"));
+                names.push(format!(
+                    "corner bands ({band:.3} m along the diagonal at each end)"
+                ));
                 rules.push((
                     Box::new(move |q: &Vec3| {
                         let d2 = d2_of(q);
@@ -456,7 +465,9 @@ impl PoseDriver {
                 for j in 0..=k {
                     let x = fabric.min[0] + j as f64 * spacing;
                     let half_band = 0.5 * bx;
-                    names.push(format!("fold line {j} band (the {bx:.3} m of X about x = {x:.4} m)"));
+                    names.push(format!(
+                        "fold line {j} band (the {bx:.3} m of X about x = {x:.4} m)"
+                    ));
                     rules.push((
                         Box::new(move |q: &Vec3| (q[0] - x).abs() <= half_band.max(0.0)),
                         Role::Fold { j, sign },
@@ -504,7 +515,7 @@ impl PoseDriver {
             if count < MIN_BAND_VERTICES {
                 return Err(PoseError::Band(format!(
                     "the {name} of {} holds {count} yarn vertices (a band needs at least \
-                     {MIN_BAND_VERTICES} to grip a loop): widen the band (--band, `[pose] band`; \
+                     {MIN_BAND_VERTICES} to grip the swatch): widen the band (--band, `[pose] band`; \
                      now {}) or use a larger swatch",
                     kind_label(p.kind),
                     p.band

@@ -378,14 +378,24 @@ pub fn linearize(
     let rest = model.rest();
     let ne = rest.len();
     let (k, symmetric) = assemble_k_checked(model, x, &free)?;
-    let nf = 2 + model.fibres().len();
+    // Fields: γs, γv, each family's γ, then each stiffening family's β
+    // ([`super::types::MaterialFields::stacked`]).
+    let fams = model.fibres();
+    let stiff: Vec<usize> = (0..fams.len()).filter(|&k| fams[k].stiffening()).collect();
+    let nf = 2 + fams.len() + stiff.len();
     let mut c = Vec::with_capacity(ne * 12 * nf);
     for (e, r) in rest.iter().enumerate() {
         let (ds, dv) = element_gamma_derivatives(&f[e], r);
-        let fibre: Vec<_> = model
-            .fibres()
+        let fibre: Vec<_> = fams
             .iter()
-            .map(|fam| fibre_gamma_derivative(&f[e], r, &fam.directions[e]))
+            .map(|fam| {
+                if fam.stiffening() {
+                    fam.param_derivatives(e, &f[e], r)
+                } else {
+                    let dk = fibre_gamma_derivative(&f[e], r, &fam.directions[e]);
+                    (dk, dk * 0.0)
+                }
+            })
             .collect();
         for b in 0..4 {
             let Some(ib) = free.index[r.nodes[b]] else {
@@ -394,8 +404,12 @@ pub fn linearize(
             for kk in 0..3 {
                 c.push((ib + kk, e, ds[3 * b + kk]));
                 c.push((ib + kk, ne + e, dv[3 * b + kk]));
-                for (k, df) in fibre.iter().enumerate() {
-                    c.push((ib + kk, (2 + k) * ne + e, df[3 * b + kk]));
+                for (k, (dk, _)) in fibre.iter().enumerate() {
+                    c.push((ib + kk, (2 + k) * ne + e, dk[3 * b + kk]));
+                }
+                for (j, &k) in stiff.iter().enumerate() {
+                    let db = fibre[k].1[3 * b + kk];
+                    c.push((ib + kk, (2 + fams.len() + j) * ne + e, db));
                 }
             }
         }

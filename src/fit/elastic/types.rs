@@ -49,17 +49,22 @@ impl MaterialFields {
             fibres: Vec::new(),
         }
     }
-    /// Number of fitted fields: `γs`, `γv` and one per fibre family.
+    /// Number of fitted fields: `γs`, `γv`, one per fibre family and one
+    /// more per stiffening family (its `β`).
     pub fn num_fields(&self) -> usize {
-        2 + self.fibres.len()
+        2 + self.fibres.len() + self.fibres.iter().filter(|f| f.stiffening()).count()
     }
-    /// `[γs; γv; γ_1; ...]` stacked (the `γ` of VH Eq. 23, fibre families
-    /// appended).
+    /// `[γs; γv; γ_1; ...; β_1; ...]` stacked (the `γ` of VH Eq. 23, fibre
+    /// families' stiffnesses appended, then the stiffening families' `β`).
+    /// Every field is positive, so the fit works in its logarithm.
     pub fn stacked(&self) -> Vec<f64> {
         let mut g = self.gamma_s.clone();
         g.extend_from_slice(&self.gamma_v);
         for f in &self.fibres {
             g.extend_from_slice(&f.gamma);
+        }
+        for f in self.fibres.iter().filter(|f| f.stiffening()) {
+            g.extend_from_slice(&f.beta);
         }
         g
     }
@@ -68,6 +73,8 @@ impl MaterialFields {
     pub fn with_stacked(&self, g: &[f64]) -> Self {
         let n = self.gamma_s.len();
         debug_assert_eq!(g.len(), n * self.num_fields());
+        let nfib = self.fibres.len();
+        let mut next_beta = 2 + nfib;
         MaterialFields {
             gamma_s: g[..n].to_vec(),
             gamma_v: g[n..2 * n].to_vec(),
@@ -78,6 +85,12 @@ impl MaterialFields {
                 .map(|(k, f)| FibreFamily {
                     directions: f.directions.clone(),
                     gamma: g[(2 + k) * n..(3 + k) * n].to_vec(),
+                    beta: if f.stiffening() {
+                        next_beta += 1;
+                        g[(next_beta - 1) * n..next_beta * n].to_vec()
+                    } else {
+                        Vec::new()
+                    },
                 })
                 .collect(),
         }

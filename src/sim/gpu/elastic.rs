@@ -66,8 +66,9 @@ fn f32_checked(v: f64, what: &str, tet: usize) -> Result<f32, GpuError> {
 
 /// Per tet: the three columns of `Dm⁻¹`, each followed by one of rest
 /// volume, `γs`, `γv`, then two fibre families, each its unit direction
-/// followed by its `γ` (zeros for a family the model lacks): 20 `f32`, the
-/// `rest` buffer's layout.
+/// followed by its `γ` (zeros for a family the model lacks), then each
+/// family's stiffening `β` and PD weight: 24 `f32`, the `rest` buffer's
+/// layout.
 fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
     let rest = model.rest();
     if model.fibres().len() > 2 {
@@ -100,6 +101,19 @@ fn rest_data(model: &ElasticModel) -> Result<Vec<f32>, GpuError> {
                 None => data.extend_from_slice(&[0.0; 4]),
             }
         }
+        for k in 0..2 {
+            match model.fibres().get(k) {
+                Some(fam) => {
+                    data.push(f32_checked(fam.beta_at(e), "fibre stiffening", e)?);
+                    data.push(f32_checked(
+                        fam.pd_weight(e, r.volume),
+                        "fibre PD weight",
+                        e,
+                    )?);
+                }
+                None => data.extend_from_slice(&[0.0; 2]),
+            }
+        }
     }
     Ok(data)
 }
@@ -111,7 +125,7 @@ fn params_of(nt: usize, nn: usize, model: &ElasticModel) -> [u32; 4] {
 }
 
 /// `f32` per tet in the `rest` buffer (see [`rest_data`]).
-const REST_F32_PER_TET: usize = 20;
+const REST_F32_PER_TET: usize = 24;
 
 impl GpuElasticRhs {
     /// Uploads the rest data of `model` (node indices, `Dm⁻¹`, rest volumes,

@@ -22,9 +22,10 @@ struct Params {
 @group(0) @binding(0) var<uniform> params: Params;
 // Node indices of every tet.
 @group(0) @binding(1) var<storage, read> tets: array<vec4<u32>>;
-// Per tet five vec4: the columns of Dm^-1 in .xyz, .w = rest volume, γs, γv;
+// Per tet six vec4: the columns of Dm^-1 in .xyz, .w = rest volume, γs, γv;
 // then two fibre families (src/sim/fibre.rs), unit rest direction in .xyz and
-// γ in .w (0 for none).
+// γ in .w (0 for none); then per family its stiffening β and PD weight w (J):
+// (β0, w0, β1, w1).
 @group(0) @binding(2) var<storage, read> rest: array<vec4<f32>>;
 // Node positions, n x 3 row-major.
 @group(0) @binding(3) var<storage, read> x: array<f32>;
@@ -452,9 +453,9 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
         return;
     }
     let ids = tets[e];
-    let r0 = rest[5u * e];
-    let r1 = rest[5u * e + 1u];
-    let r2 = rest[5u * e + 2u];
+    let r0 = rest[6u * e];
+    let r1 = rest[6u * e + 1u];
+    let r2 = rest[6u * e + 2u];
     let dm_inv = mat3x3<f32>(r0.xyz, r1.xyz, r2.xyz);
     let vol = r0.w;
     let gs = r1.w;
@@ -487,19 +488,26 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
         clamped = p.floored;
     }
     var pm = 2.0 * vol * (gs * rot + gv * vol_target);
-    // Tension-only fibres: target 2 γ V π(F d) dᵀ, energy γ V dist²(F d, B).
+    // Tension-only fibres (src/sim/knit.rs): strain ε = |F d| - 1, energy
+    // γ V (ε² + β ε⁴ / 2) in tension; target (w y - ∂E/∂y) dᵀ for the PD
+    // weight w, which for β = 0 and w = 2 γ V is 2 γ V π(F d) dᵀ.
+    let sw = rest[6u * e + 5u];
     for (var k = 0u; k < params.num_fibres; k++) {
-        let fib = rest[5u * e + 3u + k];
+        let fib = rest[6u * e + 3u + k];
+        let beta = select(sw.x, sw.z, k == 1u);
+        let w = select(sw.y, sw.w, k == 1u);
         if (fib.w > 0.0 && finite) {
             let y = f * fib.xyz;
             let len = length(y);
-            var p = y;
-            if (len > 1.0) {
-                p = y / len;
-                energy += vol * fib.w * (len - 1.0) * (len - 1.0);
+            let eps = len - 1.0;
+            var t = w * y;
+            if (eps > 0.0) {
+                let e2 = eps * eps;
+                energy += vol * fib.w * (e2 + 0.5 * beta * e2 * e2);
+                let dpsi = 2.0 * fib.w * eps * (1.0 + beta * e2);
+                t -= (vol * dpsi / len) * y;
             }
-            let w = 2.0 * vol * fib.w;
-            pm += mat3x3<f32>(w * fib.x * p, w * fib.y * p, w * fib.z * p);
+            pm += mat3x3<f32>(fib.x * t, fib.y * t, fib.z * t);
         }
     }
     let h = pm * transpose(dm_inv);

@@ -93,7 +93,9 @@ impl PoseRunParams {
 
     /// The frames (from 0) at each stop, in the order of [`Self::stops`].
     pub fn stop_frames(&self) -> Vec<usize> {
-        (1..=self.stops().len()).map(|i| i * self.steps - 1).collect()
+        (1..=self.stops().len())
+            .map(|i| i * self.steps - 1)
+            .collect()
     }
 
     /// Checks the values that [`PoseDriver::new`] does not.
@@ -821,7 +823,11 @@ mod tests {
         // the cantilever, too many frames.
         let mut bad = p.clone();
         bad.pose.amount = 0.3;
-        assert!(bad.check().unwrap_err().to_string().contains("last listed amount"));
+        assert!(bad
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("last listed amount"));
         let mut bad = p.clone();
         bad.amounts[0] = f64::NAN;
         assert!(bad.check().is_err());
