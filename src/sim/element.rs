@@ -31,3 +31,9 @@ pub fn node_gradients(de_df: &Matrix3<f64>, dm_inv: &Matrix3<f64>) -> [Vector3<f
     );
     [-(c1 + c2 + c3), c1, c2, c3]
 }
+
+/// `c_a = ∇N_a · d` of a fibre direction `d`: `F d = Σ_a c_a x_a` (1/m).
+pub fn node_coefficients(rest: &TetRest, d: &[f64; 3]) -> [f64; 4] {
+    let c = rest.dm_inv * Vector3::new(d[0], d[1], d[2]);
+    [-(c[0] + c[1] + c[2]), c[0], c[1], c[2]]
+}

@@ -32,6 +32,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+pub use super::element::node_coefficients;
 use super::element::{node_gradients, Mat12, TetRest, Vec12};
 use super::SimError;
 
@@ -292,12 +293,6 @@ pub fn fibre_element_hessian(f: &Matrix3<f64>, rest: &TetRest, d: &[f64; 3], gam
         }
     }
     h
-}
-
-/// `c_a = ∇N_a · d`: `F d = Σ_a c_a x_a` (1/m).
-pub fn node_coefficients(rest: &TetRest, d: &[f64; 3]) -> [f64; 4] {
-    let c = rest.dm_inv * v3(d);
-    [-(c[0] + c[1] + c[2]), c[0], c[1], c[2]]
 }
 
 /// Derivative (N/Pa) of one tet's fibre node gradients with respect to its

@@ -61,8 +61,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::element::{node_gradients, Mat12, TetRest, Vec12};
-use super::fibre::node_coefficients;
+use super::element::{node_coefficients, node_gradients, Mat12, TetRest, Vec12};
 use super::SimError;
 use crate::geom::Vec3;
 
