@@ -56,23 +56,21 @@ fn stretched_block(seed: u64) -> (ElasticModel, Vec<Vec3>) {
     (model, x)
 }
 
-#[test]
-fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
-    let (model, x) = stretched_block(1);
-    let e0 = model.energy(&x).unwrap();
-    let no_fibres = model.clone().with_fibres(Vec::new()).unwrap();
-    let fibre_part = e0 - no_fibres.energy(&x).unwrap();
-    assert!(fibre_part > 0.2 * e0, "fibres carry {fibre_part} of {e0} J");
-
-    // Gradient against central differences of the energy, every coordinate.
-    let g = model.gradient(&x).unwrap();
+/// The model's gradient against central differences of its energy (every
+/// coordinate), the element Hessians of every `stride`-th tet against
+/// differences of the element stresses, and the PD right-hand side: its
+/// energy is the model's, and the model's gradient is `K_el x - rhs` with
+/// `K_el`'s F-space form `2 V (γs + γv) F + Σ w_k (F d_k) d_kᵀ` (`w_k` the
+/// family's PD weight: `2 γ V`, or a stiffening fibre's tangent).
+fn check_model_against_its_energy(model: &ElasticModel, x: &[Vec3], stride: usize) {
+    let e0 = model.energy(x).unwrap();
+    let g = model.gradient(x).unwrap();
     let eps = 1e-7;
     let gmax = g.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
     for i in 0..x.len() {
         for c in 0..3 {
-            let mut p = x.clone();
+            let (mut p, mut q) = (x.to_vec(), x.to_vec());
             p[i][c] += eps;
-            let mut q = x.clone();
             q[i][c] -= eps;
             let fd = (model.energy(&p).unwrap() - model.energy(&q).unwrap()) / (2.0 * eps);
             assert!(
@@ -82,10 +80,8 @@ fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
             );
         }
     }
-
-    // Element Hessians against differences of the element stresses.
-    let fs = model.deformation_gradients(&x).unwrap();
-    for e in (0..model.rest().len()).step_by(7) {
+    let fs = model.deformation_gradients(x).unwrap();
+    for e in (0..model.rest().len()).step_by(stride) {
         let h = model.tet_hessian(e, &fs[e], false);
         let r = &model.rest()[e];
         for col in 0..12 {
@@ -113,13 +109,9 @@ fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
             }
         }
     }
-
-    // The PD right-hand side: its energy is the model's, and the model's
-    // gradient is K_el x - rhs with K_el's F-space form
-    // 2 V ((γs + γv) F + Σ γ_k (F d_k) d_kᵀ).
-    let mut rhs = CpuElasticRhs::new(&model);
+    let mut rhs = CpuElasticRhs::new(model);
     let mut out = vec![[0.0; 3]; x.len()];
-    let ev = rhs.evaluate(&x, &mut out).unwrap();
+    let ev = rhs.evaluate(x, &mut out).unwrap();
     assert!(
         (ev.elastic_energy - e0).abs() <= 1e-12 * e0,
         "{} vs {e0}",
@@ -131,7 +123,7 @@ fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
         let mut p = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]) * f;
         for fam in model.fibres() {
             let d = nalgebra::Vector3::from(fam.directions[e]);
-            p += 2.0 * r.volume * fam.gamma[e] * (f * d) * d.transpose();
+            p += fam.pd_weight(e, r.volume) * (f * d) * d.transpose();
         }
         for (a, gr) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
             for k in 0..3 {
@@ -149,6 +141,22 @@ fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
             );
         }
     }
+}
+
+#[test]
+fn fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
+    let (model, x) = stretched_block(1);
+    let e0 = model.energy(&x).unwrap();
+    let no_fibres = model.clone().with_fibres(Vec::new()).unwrap();
+    let fibre_part = e0 - no_fibres.energy(&x).unwrap();
+    assert!(fibre_part > 0.2 * e0, "fibres carry {fibre_part} of {e0} J");
+    // The quadratic fibre's PD weight is 2 γ V (its exact local-global form).
+    for fam in model.fibres() {
+        for (e, r) in model.rest().iter().enumerate() {
+            assert_eq!(fam.pd_weight(e, r.volume), 2.0 * r.volume * fam.gamma[e]);
+        }
+    }
+    check_model_against_its_energy(&model, &x, 7);
 }
 
 /// A 10x2x3-voxel cantilever (x along its length, y up), clamped at x = 0,
@@ -241,83 +249,11 @@ fn stiffening_fibre_model_gradient_hessian_and_pd_rhs_agree_with_its_energy() {
     fams[0].beta = (0..nt).map(|e| 40.0 + 5.0 * (e % 7) as f64).collect();
     fams[1].beta = vec![80.0; nt];
     let model = quadratic.clone().with_fibres(fams).unwrap();
-    let e0 = model.energy(&x).unwrap();
     assert!(
-        e0 > 1.05 * quadratic.energy(&x).unwrap(),
+        model.energy(&x).unwrap() > 1.05 * quadratic.energy(&x).unwrap(),
         "the stiffening adds energy at 25% stretch"
     );
-    let g = model.gradient(&x).unwrap();
-    let eps = 1e-7;
-    let gmax = g.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    for i in 0..x.len() {
-        for c in 0..3 {
-            let (mut p, mut q) = (x.clone(), x.clone());
-            p[i][c] += eps;
-            q[i][c] -= eps;
-            let fd = (model.energy(&p).unwrap() - model.energy(&q).unwrap()) / (2.0 * eps);
-            assert!(
-                (fd - g[i][c]).abs() <= 1e-5 * gmax,
-                "node {i} coord {c}: {fd} vs {}",
-                g[i][c]
-            );
-        }
-    }
-    let fs = model.deformation_gradients(&x).unwrap();
-    for e in (0..nt).step_by(5) {
-        let h = model.tet_hessian(e, &fs[e], false);
-        let eig = h.symmetric_eigen().eigenvalues;
-        let r = &model.rest()[e];
-        for col in 0..12 {
-            let (a, c) = (col / 3, col % 3);
-            let mut df = nalgebra::Matrix3::zeros();
-            let dsum: nalgebra::RowVector3<f64> = if a == 0 {
-                -(r.dm_inv.row(0) + r.dm_inv.row(1) + r.dm_inv.row(2))
-            } else {
-                r.dm_inv.row(a - 1).into_owned()
-            };
-            df.set_row(c, &dsum);
-            let step = 1e-7;
-            let gp = node_gradients(&model.tet_stress(e, &(fs[e] + step * df)), &r.dm_inv);
-            let gm = node_gradients(&model.tet_stress(e, &(fs[e] - step * df)), &r.dm_inv);
-            for b in 0..4 {
-                for k in 0..3 {
-                    let fd = (gp[b][k] - gm[b][k]) / (2.0 * step);
-                    assert!(
-                        (fd - h[(3 * b + k, col)]).abs() <= 1e-5 * h.norm(),
-                        "tet {e} ({b},{k})/({a},{c}) eig {eig}"
-                    );
-                }
-            }
-        }
-    }
-    let mut rhs = CpuElasticRhs::new(&model);
-    let mut out = vec![[0.0; 3]; x.len()];
-    let ev = rhs.evaluate(&x, &mut out).unwrap();
-    assert!((ev.elastic_energy - e0).abs() <= 1e-12 * e0);
-    let mut from_rhs = vec![[0.0; 3]; x.len()];
-    for (e, r) in model.rest().iter().enumerate() {
-        let f = fs[e];
-        let mut p = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]) * f;
-        for fam in model.fibres() {
-            let d = nalgebra::Vector3::from(fam.directions[e]);
-            p += fam.pd_weight(e, r.volume) * (f * d) * d.transpose();
-        }
-        for (a, gr) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
-            for k in 0..3 {
-                from_rhs[r.nodes[a]][k] += gr[k];
-            }
-        }
-    }
-    for (i, (fr, o)) in from_rhs.iter().zip(&out).enumerate() {
-        for k in 0..3 {
-            let v = fr[k] - o[k];
-            assert!(
-                (v - g[i][k]).abs() <= 1e-9 * gmax,
-                "node {i}: {v} vs {}",
-                g[i][k]
-            );
-        }
-    }
+    check_model_against_its_energy(&model, &x, 5);
 }
 
 /// A bar hanging from its top face under gravity, its fibres along its

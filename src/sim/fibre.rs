@@ -460,8 +460,11 @@ mod tests {
         assert!(stiff.check(2, 0).is_ok());
         stiff.beta[1] = -1.0;
         assert!(format!("{}", stiff.check(2, 0).unwrap_err()).contains("stiffening of tet 1"));
+        stiff.beta = vec![f64::NAN, 1.0];
+        let m = format!("{}", stiff.check(2, 1).unwrap_err());
+        assert!(m.contains("family 1") && m.contains("tet 0"), "{m}");
         stiff.beta = vec![1.0];
-        assert!(stiff.check(2, 0).is_err());
+        assert!(format!("{}", stiff.check(2, 0).unwrap_err()).contains("1 stiffenings"));
     }
 
     /// The family's dispatch: a stiffening tet follows `sim::knit`, a

@@ -62,66 +62,6 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::element::{node_coefficients, node_gradients, Mat12, TetRest, Vec12};
-use super::SimError;
-use crate::geom::Vec3;
-
-/// One family of stiffening tension-only fibres: per tet a unit rest
-/// direction, a small-strain stiffness and a stiffening.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct StiffeningFibre {
-    /// Unit rest direction per tet (dimensionless, rest configuration).
-    pub directions: Vec<[f64; 3]>,
-    /// Small-strain stiffness `k` per tet (Pa, finite, `>= 0`; 0: no fibre
-    /// in that tet).
-    pub k: Vec<f64>,
-    /// Stiffening `β` per tet (dimensionless, finite, `>= 0`; 0: the
-    /// quadratic fibre of [`super::fibre`]).
-    pub beta: Vec<f64>,
-}
-
-impl StiffeningFibre {
-    /// Checks lengths against `num_tets`, unit directions (to 1e-6),
-    /// stiffnesses and stiffenings; `which` names the family in errors.
-    pub fn check(&self, num_tets: usize, which: usize) -> Result<(), SimError> {
-        if self.directions.len() != num_tets
-            || self.k.len() != num_tets
-            || self.beta.len() != num_tets
-        {
-            return Err(SimError::Inconsistent(format!(
-                "stiffening fibre family {which}: {num_tets} tets but {} directions, {} \
-                 stiffnesses and {} stiffenings",
-                self.directions.len(),
-                self.k.len(),
-                self.beta.len()
-            )));
-        }
-        if let Some((t, d)) = self
-            .directions
-            .iter()
-            .enumerate()
-            .find(|(_, d)| !crate::geom::is_unit_vector(d))
-        {
-            return Err(SimError::Inconsistent(format!(
-                "stiffening fibre family {which}: direction of tet {t} is {d:?}; it must be a \
-                 unit vector"
-            )));
-        }
-        let bad = |v: &f64| !(v.is_finite() && *v >= 0.0);
-        if let Some((t, k)) = self.k.iter().enumerate().find(|(_, k)| bad(k)) {
-            return Err(SimError::Inconsistent(format!(
-                "stiffening fibre family {which}: stiffness k of tet {t} is {k}; it must be \
-                 finite and >= 0"
-            )));
-        }
-        if let Some((t, b)) = self.beta.iter().enumerate().find(|(_, b)| bad(b)) {
-            return Err(SimError::Inconsistent(format!(
-                "stiffening fibre family {which}: stiffening beta of tet {t} is {b}; it must be \
-                 finite and >= 0"
-            )));
-        }
-        Ok(())
-    }
-}
 
 fn v3(d: &[f64; 3]) -> Vector3<f64> {
     Vector3::new(d[0], d[1], d[2])
@@ -335,58 +275,10 @@ pub fn knit_fibre_energy_param_derivatives(
 }
 
 /// `F = Ds Dm⁻¹` of the tet `rest` at positions `x`.
-fn deformation_gradient(x: &[Vec3], rest: &TetRest) -> Matrix3<f64> {
-    let p = |i: usize| v3(&x[rest.nodes[i]]);
-    let x0 = p(0);
-    Matrix3::from_columns(&[p(1) - x0, p(2) - x0, p(3) - x0]) * rest.dm_inv
-}
-
-/// Total energy (J) of one family over a mesh at node positions `x` (m); a
-/// sequential CPU reference. Panics if `fam` does not have one entry per tet
-/// or a node index is out of range (call [`StiffeningFibre::check`] first).
-pub fn knit_fibre_energy_total(x: &[Vec3], rest: &[TetRest], fam: &StiffeningFibre) -> f64 {
-    assert!(fam.directions.len() == rest.len() && fam.k.len() == rest.len());
-    assert_eq!(fam.beta.len(), rest.len());
-    rest.iter()
-        .enumerate()
-        .map(|(e, r)| {
-            knit_fibre_energy(
-                &deformation_gradient(x, r),
-                &fam.directions[e],
-                r.volume,
-                fam.k[e],
-                fam.beta[e],
-            )
-        })
-        .sum()
-}
-
-/// Node gradients (N) of [`knit_fibre_energy_total`], one per node of `x`;
-/// a sequential CPU reference with the same preconditions.
-pub fn knit_fibre_gradient(x: &[Vec3], rest: &[TetRest], fam: &StiffeningFibre) -> Vec<Vec3> {
-    assert!(fam.directions.len() == rest.len() && fam.k.len() == rest.len());
-    assert_eq!(fam.beta.len(), rest.len());
-    let mut g = vec![[0.0; 3]; x.len()];
-    for (e, r) in rest.iter().enumerate() {
-        let p = knit_fibre_stress(
-            &deformation_gradient(x, r),
-            &fam.directions[e],
-            r.volume,
-            fam.k[e],
-            fam.beta[e],
-        );
-        for (a, ga) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
-            for c in 0..3 {
-                g[r.nodes[a]][c] += ga[c];
-            }
-        }
-    }
-    g
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::Vec3;
     use crate::sim::fibre::{
         fibre_element_hessian, fibre_energy, fibre_stress, fibre_stress_differential, fibre_target,
     };
@@ -833,12 +725,35 @@ mod tests {
                 }
             })
             .collect();
-        let fam = StiffeningFibre {
-            directions: (0..3).map(|_| rng.unit()).collect(),
-            k: vec![K, 2.0 * K, 0.5 * K],
-            beta: vec![BETA, 0.0, 20.0],
+        // One family: per tet a direction, k and β.
+        let fam: Vec<([f64; 3], f64, f64)> = vec![
+            (rng.unit(), K, BETA),
+            (rng.unit(), 2.0 * K, 0.0),
+            (rng.unit(), 0.5 * K, 20.0),
+        ];
+        let def_grad = |x: &[Vec3], r: &TetRest| {
+            let p = |i: usize| v3(&x[r.nodes[i]]);
+            Matrix3::from_columns(&[p(1) - p(0), p(2) - p(0), p(3) - p(0)]) * r.dm_inv
         };
-        fam.check(3, 0).unwrap();
+        type Family = [([f64; 3], f64, f64)];
+        let knit_fibre_energy_total = |x: &[Vec3], rest: &[TetRest], fam: &Family| -> f64 {
+            rest.iter()
+                .zip(fam)
+                .map(|(r, (d, k, b))| knit_fibre_energy(&def_grad(x, r), d, r.volume, *k, *b))
+                .sum()
+        };
+        let knit_fibre_gradient = |x: &[Vec3], rest: &[TetRest], fam: &Family| {
+            let mut g = vec![[0.0; 3]; x.len()];
+            for (r, (d, k, b)) in rest.iter().zip(fam) {
+                let p = knit_fibre_stress(&def_grad(x, r), d, r.volume, *k, *b);
+                for (a, ga) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
+                    for c in 0..3 {
+                        g[r.nodes[a]][c] += ga[c];
+                    }
+                }
+            }
+            g
+        };
         // Deformed: stretched by 30% plus noise.
         let y: Vec<Vec3> = x
             .iter()
@@ -874,47 +789,6 @@ mod tests {
             assert!(s.abs() <= 1e-12 * gmax);
         }
     }
-
-    #[test]
-    fn families_are_checked() {
-        let ok = StiffeningFibre {
-            directions: vec![[1.0, 0.0, 0.0]; 2],
-            k: vec![1.0, 0.0],
-            beta: vec![80.0, 0.0],
-        };
-        assert!(ok.check(2, 0).is_ok());
-        let msg = |f: &StiffeningFibre, which: usize| format!("{}", f.check(2, which).unwrap_err());
-        let m = format!("{}", ok.check(3, 4).unwrap_err());
-        assert!(m.contains("family 4") && m.contains("3 tets"), "{m}");
-        let mut bad = ok.clone();
-        bad.beta.pop();
-        assert!(msg(&bad, 0).contains("1 stiffenings"), "{}", msg(&bad, 0));
-        let mut bad = ok.clone();
-        bad.directions[1] = [0.5, 0.0, 0.0];
-        let m = msg(&bad, 1);
-        assert!(
-            m.contains("family 1") && m.contains("tet 1") && m.contains("unit"),
-            "{m}"
-        );
-        let mut bad = ok.clone();
-        bad.k[1] = -1.0;
-        let m = msg(&bad, 0);
-        assert!(
-            m.contains("family 0") && m.contains("tet 1") && m.contains("k"),
-            "{m}"
-        );
-        let mut bad = ok.clone();
-        bad.k[0] = f64::INFINITY;
-        assert!(msg(&bad, 0).contains("tet 0"));
-        let mut bad = ok;
-        bad.beta[0] = f64::NAN;
-        let m = msg(&bad, 1);
-        assert!(
-            m.contains("family 1") && m.contains("tet 0") && m.contains("beta"),
-            "{m}"
-        );
-    }
-
     mod props {
         use super::*;
         use nalgebra::Rotation3;

@@ -168,8 +168,8 @@ pub const MIN_BAND_VERTICES: usize = 3;
 /// fraction of the middle one; a flat swatch must then lie in XZ.
 pub const FLAT_RATIO: f64 = 0.5;
 
-/// The kind's schema name (`stretch_courses`, ...).
-fn kind_label(kind: PoseKind) -> String {
+/// The schema name of a kind (`stretch_courses`, ...).
+pub fn kind_name(kind: PoseKind) -> String {
     serde_json::to_value(kind)
         .ok()
         .and_then(|v| v.as_str().map(str::to_string))
@@ -202,7 +202,7 @@ fn check_plane(b: &FabricBox, kind: PoseKind) -> Result<(), PoseError> {
          `knitvox pattern` writes), but this one lies in the {plane} plane: it is {:.4} m thin \
          along {axis} against {:.4} x {:.4} m, so bands would clamp a face and gravity \
          would act along the fabric; {fix}",
-        kind_label(kind),
+        kind_name(kind),
         e[thin],
         e[order[1]],
         e[order[2]]
@@ -517,7 +517,7 @@ impl PoseDriver {
                     "the {name} of {} holds {count} yarn vertices (a band needs at least \
                      {MIN_BAND_VERTICES} to grip the swatch): widen the band (--band, `[pose] band`; \
                      now {}) or use a larger swatch",
-                    kind_label(p.kind),
+                    kind_name(p.kind),
                     p.band
                 )));
             }

@@ -183,13 +183,7 @@ pub const TRAINING_KINDS: [PoseKind; 10] = [
     PoseKind::Cantilever,
 ];
 
-/// The schema name of a kind (`stretch_courses`, ...).
-pub fn kind_name(kind: PoseKind) -> String {
-    serde_json::to_value(kind)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{kind:?}"))
-}
+pub use crate::yarn::poses::kind_name;
 
 /// The default amount of a training pose, `None` for the kinds that are not
 /// training poses (`hang`, `free`): strains of 0.2 (stretches, shear, fan;
