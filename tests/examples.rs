@@ -493,10 +493,13 @@ fn every_yarn_level_example_scene_runs_through_knitvox_yls() {
 fn every_held_out_example_scene_reads_with_the_assets_yarns() {
     let dir = examples().join("validate");
     let want = [
-        ("biaxial.toml", PoseKind::Biaxial, 0.1, 0),
+        ("biaxial.toml", PoseKind::Biaxial, 0.15, 0),
         ("drape.toml", PoseKind::Free, 0.0, 1),
+        ("fan.toml", PoseKind::Fan, 0.25, 0),
+        ("hang.toml", PoseKind::Hang, 0.0, 0),
         ("multi_fold.toml", PoseKind::MultiFold, 0.3, 0),
         ("shear.toml", PoseKind::Shear, 0.1, 0),
+        ("stretch_wales.toml", PoseKind::StretchWales, 0.3, 0),
     ];
     let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
         .unwrap()
@@ -555,8 +558,11 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
     for file in [
         "biaxial.toml",
         "drape.toml",
+        "fan.toml",
+        "hang.toml",
         "multi_fold.toml",
         "shear.toml",
+        "stretch_wales.toml",
     ] {
         let text = std::fs::read_to_string(examples().join("validate").join(file)).unwrap();
         let scene = d.join(file);

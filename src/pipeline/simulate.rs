@@ -535,6 +535,11 @@ pub fn simulate_chunk(
                     warm_start: solver.warm_start(),
                 };
                 let path = save_checkpoint(&ctx, start, &schedule, &state)?;
+                // The stop's checkpoint supersedes the run's periodic one
+                // (a stop between two periodic saves would leave both).
+                if let Some(old) = periodic.take().filter(|old| *old != path) {
+                    let _ = std::fs::remove_file(old);
+                }
                 if let Some(w) = writer.take() {
                     // A per-frame sequence keeps its finished frames; one
                     // HDF5 file comes back whole from the checkpoint.
