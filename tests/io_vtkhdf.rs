@@ -436,6 +436,9 @@ fn stiffening_fibres_round_trip_and_half_of_them_are_refused() {
     let p = dir.path().join("knit.vtkhdf");
     write_asset(&p, &a).unwrap();
     assert_eq!(read_asset(&p).unwrap(), a);
+    let sm = knitvox::io::vtkhdf::summary(&p).unwrap();
+    assert_eq!(sm.beta_course_range, Some([80.0, 80.0 + (t - 1) as f64]));
+    assert_eq!(sm.beta_wale_range, Some([40.0, 40.0]));
     let mut half = a.clone();
     if let Some(f) = half.fibres.as_mut() {
         f.beta_wale.clear();

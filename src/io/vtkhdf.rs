@@ -523,6 +523,10 @@ pub struct AssetSummary {
     /// (Pa); `None` for an asset without fibres.
     pub gamma_course_range: Option<[f64; 2]>,
     pub gamma_wale_range: Option<[f64; 2]>,
+    /// Smallest and largest knit-material stiffening along the course and
+    /// the wale (dimensionless); `None` for quadratic fibres or none.
+    pub beta_course_range: Option<[f64; 2]>,
+    pub beta_wale_range: Option<[f64; 2]>,
     /// Number of distinct domain ids.
     pub domains: usize,
     pub provenance: Provenance,
@@ -577,6 +581,8 @@ pub fn summary(path: &Path) -> Result<AssetSummary, IoError> {
         gamma_v_range: range(&a.gamma_v),
         gamma_course_range: a.fibres.as_ref().and_then(|f| range(&f.gamma_course)),
         gamma_wale_range: a.fibres.as_ref().and_then(|f| range(&f.gamma_wale)),
+        beta_course_range: a.fibres.as_ref().and_then(|f| range(&f.beta_course)),
+        beta_wale_range: a.fibres.as_ref().and_then(|f| range(&f.beta_wale)),
         domains: domains.len(),
         provenance: a.provenance,
         parameters: a.parameters,

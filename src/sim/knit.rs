@@ -274,7 +274,6 @@ pub fn knit_fibre_energy_param_derivatives(
     )
 }
 
-/// `F = Ds Dm⁻¹` of the tet `rest` at positions `x`.
 #[cfg(test)]
 mod tests {
     use super::*;

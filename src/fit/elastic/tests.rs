@@ -1604,3 +1604,50 @@ fn stiffening_fibres_are_fitted_where_quadratic_ones_cannot_follow() {
         "knit {sk:?} quadratic {sq:?}"
     );
 }
+
+/// The uniform stage of a knit material (the r = 1 harmonic stage alone)
+/// recovers a uniform stiffening truth although gradient descent cannot
+/// take a single step (its first trial step made absurdly long, as a step
+/// scaled by the RMS of Pa-sized fields is for a dimensionless stiffening):
+/// Gauss-Newton takes over instead of the stage ending at its start.
+#[test]
+fn a_knit_uniform_stage_hands_a_failed_descent_to_gauss_newton() {
+    use crate::sim::fibre::FibreFamily;
+    let (mesh, mass) = bar([8, 2, 2]);
+    let ne = mesh.num_tets();
+    let family = |k: f64, beta: f64| FibreFamily {
+        directions: vec![[1.0, 0.0, 0.0]; ne],
+        gamma: vec![k; ne],
+        beta: vec![beta; ne],
+    };
+    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
+    truth.fibres = vec![family(2e4, 80.0)];
+    let loads = [Load::Stretch(1.0), Load::Stretch(6.0)];
+    let sample = sample_of(&mesh, &mass, &truth, "stiffening", &loads);
+    let mut init = MaterialFields::uniform(ne, 1e4, 1e4);
+    init.fibres = vec![family(1e4, 10.0)];
+    let inputs = FitInputs {
+        mesh: &mesh,
+        mass: &mass,
+        samples: std::slice::from_ref(&sample),
+        init: &init,
+        progress: None,
+    };
+    let params = ElasticFitParams {
+        harmonic_ranks: vec![1],
+        full_stage: false,
+        gd_step: 1e6,
+        ..ElasticFitParams::default()
+    };
+    let (fitted, rep) = fit_materials(&inputs, &params).unwrap();
+    let s = &rep.samples[0];
+    let stage = s.stages.iter().find(|st| st.name == "harmonic r=1").unwrap();
+    eprintln!(
+        "knit uniform stage: loss {:.3e} -> {:.3e}, k {:.4e} Pa, beta {:.2}, methods {:?}, stop {:?}",
+        s.initial_loss, s.final_loss, fitted.fibres[0].gamma[0], fitted.fibres[0].beta[0], stage.methods, stage.stop
+    );
+    assert!(!stage.methods.iter().any(|m| m == "gd"), "{stage:?}");
+    assert!(stage.methods.iter().any(|m| m == "gn"), "{stage:?}");
+    assert!(s.final_loss <= 1e-6 * s.initial_loss, "{s:?}");
+    assert!((fitted.fibres[0].beta[0] / 80.0 - 1.0).abs() < 0.05, "{fitted:?}");
+}
