@@ -118,12 +118,25 @@ fn check_model_against_its_energy(model: &ElasticModel, x: &[Vec3], stride: usiz
         ev.elastic_energy
     );
     let mut from_rhs = vec![[0.0; 3]; x.len()];
+    let mut capped = 0;
     for (e, r) in model.rest().iter().enumerate() {
         let f = fs[e];
         let mut p = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]) * f;
         for fam in model.fibres() {
             let d = nalgebra::Vector3::from(fam.directions[e]);
-            p += fam.pd_weight(e, r.volume) * (f * d) * d.transpose();
+            let w = fam.pd_weight(e, r.volume);
+            p += w * (f * d) * d.transpose();
+            // A stiffening fibre's pull is capped at w ε (the target never
+            // passes rest): the right-hand side then lacks the excess
+            // (V ψ'(ε) - w ε) ŷ dᵀ of the gradient, ψ' = 2 γ ε (1 + β ε²).
+            let beta = fam.beta.get(e).copied().unwrap_or(0.0);
+            let y = f * d;
+            let eps = y.norm() - 1.0;
+            let pull = r.volume * 2.0 * fam.gamma[e] * eps * (1.0 + beta * eps * eps);
+            if beta > 0.0 && eps > 0.0 && pull > w * eps {
+                p += (pull - w * eps) * y.normalize() * d.transpose();
+                capped += 1;
+            }
         }
         for (a, gr) in node_gradients(&p, &r.dm_inv).iter().enumerate() {
             for k in 0..3 {
@@ -131,6 +144,7 @@ fn check_model_against_its_energy(model: &ElasticModel, x: &[Vec3], stride: usiz
             }
         }
     }
+    eprintln!("fibre terms with a capped pull: {capped}");
     for (i, (fr, o)) in from_rhs.iter().zip(&out).enumerate() {
         for k in 0..3 {
             let v = fr[k] - o[k];

@@ -505,7 +505,8 @@ fn tet_kernel(@builtin(global_invocation_id) gid: vec3<u32>,
                 let e2 = eps * eps;
                 energy += vol * fib.w * (e2 + 0.5 * beta * e2 * e2);
                 let dpsi = 2.0 * fib.w * eps * (1.0 + beta * e2);
-                t -= (vol * dpsi / len) * y;
+                // Capped at w ε: the target never passes rest (knit.rs).
+                t -= (min(vol * dpsi, w * eps) / len) * y;
             }
             pm += mat3x3<f32>(fib.x * t, fib.y * t, fib.z * t);
         }
