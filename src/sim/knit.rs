@@ -706,7 +706,11 @@ mod tests {
                 // Uncapped: w p = w y - V ψ'(ε) ŷ.
                 assert!((w * p - (w * y - force)).norm() <= 1e-10 * w * y.norm());
             } else {
-                assert!((p.norm() - 1.0).abs() <= 1e-12, "eps {eps}: |p| {}", p.norm());
+                assert!(
+                    (p.norm() - 1.0).abs() <= 1e-12,
+                    "eps {eps}: |p| {}",
+                    p.norm()
+                );
                 assert!((p - y.normalize()).norm() <= 1e-12);
             }
             assert!(p.norm() >= 1.0 - 1e-12, "eps {eps}: |p| {}", p.norm());

@@ -1551,20 +1551,34 @@ fn a_stalled_stage_stops_early_and_the_rule_only_cuts_the_creep() {
 /// stiff at the large load and soft at the small one. Measured: knit loss
 /// 2.0e-6 -> 1.1e-16 with mean k 2.0000e4 Pa and mean β 80.00 recovered;
 /// quadratic 5.2e-6 -> 7.2e-8 (guarded: 1e4x down, 1e-3 of the quadratic).
-#[test]
-fn stiffening_fibres_are_fitted_where_quadratic_ones_cannot_follow() {
-    use crate::sim::fibre::FibreFamily;
-    let (mesh, mass) = bar([8, 2, 2]);
-    let ne = mesh.num_tets();
-    let family = |k: f64, beta: Vec<f64>| FibreFamily {
+/// One fibre family along the bar (X) with stiffness `k` (Pa) and
+/// stiffening `beta` in every one of `ne` tets (empty: quadratic).
+fn bar_fibres(ne: usize, k: f64, beta: Vec<f64>) -> crate::sim::fibre::FibreFamily {
+    crate::sim::fibre::FibreFamily {
         directions: vec![[1.0, 0.0, 0.0]; ne],
         gamma: vec![k; ne],
         beta,
-    };
+    }
+}
+
+/// A bar of stiffening fibres (k 2e4 Pa, β 80 under Eq. 7 γs 2e3, γv 6e3
+/// Pa) stretched by two loads, and the start of a knit fit (1e4 Pa
+/// everywhere, β 10).
+fn stiffening_bar() -> (TetMesh, Vec<f64>, Sample, MaterialFields) {
+    let (mesh, mass) = bar([8, 2, 2]);
+    let ne = mesh.num_tets();
     let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
-    truth.fibres = vec![family(2e4, vec![80.0; ne])];
+    truth.fibres = vec![bar_fibres(ne, 2e4, vec![80.0; ne])];
     let loads = [Load::Stretch(1.0), Load::Stretch(6.0)];
     let sample = sample_of(&mesh, &mass, &truth, "stiffening", &loads);
+    let mut knit = MaterialFields::uniform(ne, 1e4, 1e4);
+    knit.fibres = vec![bar_fibres(ne, 1e4, vec![10.0; ne])];
+    (mesh, mass, sample, knit)
+}
+
+#[test]
+fn stiffening_fibres_are_fitted_where_quadratic_ones_cannot_follow() {
+    let (mesh, mass, sample, knit) = stiffening_bar();
     let fit_with = |init: &MaterialFields| {
         let inputs = FitInputs {
             mesh: &mesh,
@@ -1575,8 +1589,6 @@ fn stiffening_fibres_are_fitted_where_quadratic_ones_cannot_follow() {
         };
         fit_materials(&inputs, &ElasticFitParams::default()).unwrap()
     };
-    let mut knit = MaterialFields::uniform(ne, 1e4, 1e4);
-    knit.fibres = vec![family(1e4, vec![10.0; ne])];
     let mut quadratic = knit.clone();
     quadratic.fibres[0].beta = Vec::new();
     assert_eq!(knit.num_fields(), 4);
@@ -1612,20 +1624,7 @@ fn stiffening_fibres_are_fitted_where_quadratic_ones_cannot_follow() {
 /// Gauss-Newton takes over instead of the stage ending at its start.
 #[test]
 fn a_knit_uniform_stage_hands_a_failed_descent_to_gauss_newton() {
-    use crate::sim::fibre::FibreFamily;
-    let (mesh, mass) = bar([8, 2, 2]);
-    let ne = mesh.num_tets();
-    let family = |k: f64, beta: f64| FibreFamily {
-        directions: vec![[1.0, 0.0, 0.0]; ne],
-        gamma: vec![k; ne],
-        beta: vec![beta; ne],
-    };
-    let mut truth = MaterialFields::uniform(ne, 2e3, 6e3);
-    truth.fibres = vec![family(2e4, 80.0)];
-    let loads = [Load::Stretch(1.0), Load::Stretch(6.0)];
-    let sample = sample_of(&mesh, &mass, &truth, "stiffening", &loads);
-    let mut init = MaterialFields::uniform(ne, 1e4, 1e4);
-    init.fibres = vec![family(1e4, 10.0)];
+    let (mesh, mass, sample, init) = stiffening_bar();
     let inputs = FitInputs {
         mesh: &mesh,
         mass: &mass,
@@ -1641,7 +1640,11 @@ fn a_knit_uniform_stage_hands_a_failed_descent_to_gauss_newton() {
     };
     let (fitted, rep) = fit_materials(&inputs, &params).unwrap();
     let s = &rep.samples[0];
-    let stage = s.stages.iter().find(|st| st.name == "harmonic r=1").unwrap();
+    let stage = s
+        .stages
+        .iter()
+        .find(|st| st.name == "harmonic r=1")
+        .unwrap();
     eprintln!(
         "knit uniform stage: loss {:.3e} -> {:.3e}, k {:.4e} Pa, beta {:.2}, methods {:?}, stop {:?}",
         s.initial_loss, s.final_loss, fitted.fibres[0].gamma[0], fitted.fibres[0].beta[0], stage.methods, stage.stop
@@ -1649,5 +1652,8 @@ fn a_knit_uniform_stage_hands_a_failed_descent_to_gauss_newton() {
     assert!(!stage.methods.iter().any(|m| m == "gd"), "{stage:?}");
     assert!(stage.methods.iter().any(|m| m == "gn"), "{stage:?}");
     assert!(s.final_loss <= 1e-6 * s.initial_loss, "{s:?}");
-    assert!((fitted.fibres[0].beta[0] / 80.0 - 1.0).abs() < 0.05, "{fitted:?}");
+    assert!(
+        (fitted.fibres[0].beta[0] / 80.0 - 1.0).abs() < 0.05,
+        "{fitted:?}"
+    );
 }
