@@ -56,6 +56,44 @@ fn stretched_block(seed: u64) -> (ElasticModel, Vec<Vec3>) {
     (model, x)
 }
 
+/// `steps` heavily damped PD steps of `model` from rest (the PD solver
+/// built from the model's fields and fibres, which it must reproduce),
+/// holding `pinned` in place: the positions and velocities reached.
+fn damped_pd_rest(
+    mesh: &knitvox::geom::TetMesh,
+    mass: &[f64],
+    model: &ElasticModel,
+    pinned: &[usize],
+    steps: usize,
+) -> (Vec<Vec3>, Vec<Vec3>) {
+    let params = PdParams {
+        mass_damping: 40.0,
+        max_iterations: 30,
+        tolerance: 0.0,
+        ..PdParams::default()
+    };
+    let mut pd =
+        PdSolver::new(mesh, mass, model.gamma_s(), model.gamma_v(), pinned, params).unwrap();
+    pd.set_fibres(model.fibres().to_vec()).unwrap();
+    assert_eq!(pd.model(), model);
+    let held: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
+    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
+    for _ in 0..steps {
+        pd.step(&mut x, &mut v, &held).unwrap();
+    }
+    (x, v)
+}
+
+/// The largest distance (m) between corresponding points.
+fn largest_gap(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| {
+            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+        })
+        .fold(0.0f64, f64::max)
+}
+
 /// The model's gradient against central differences of its energy (every
 /// coordinate), the element Hessians of every `stride`-th tet against
 /// differences of the element stresses, and the PD right-hand side: its
@@ -217,35 +255,8 @@ fn fibres_along_a_cantilever_hold_it_up_and_pd_settles_at_newtons_equilibrium() 
         nodes: box_mesh([10, 2, 3], 0.005, 120.0).0.nodes,
         tets: box_mesh([10, 2, 3], 0.005, 120.0).0.tets,
     };
-    let params = PdParams {
-        mass_damping: 40.0,
-        max_iterations: 30,
-        tolerance: 0.0,
-        ..PdParams::default()
-    };
-    let mut pd = PdSolver::new(
-        &mesh,
-        &mass,
-        model.gamma_s(),
-        model.gamma_v(),
-        &pinned,
-        params,
-    )
-    .unwrap();
-    pd.set_fibres(model.fibres().to_vec()).unwrap();
-    assert_eq!(pd.model(), &model);
-    let held: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
-    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
-    for _ in 0..600 {
-        pd.step(&mut x, &mut v, &held).unwrap();
-    }
-    let gap = x
-        .iter()
-        .zip(&x_newton)
-        .map(|(a, b)| {
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-        })
-        .fold(0.0f64, f64::max);
+    let (x, v) = damped_pd_rest(&mesh, &mass, &model, &pinned, 600);
+    let gap = largest_gap(&x, &x_newton);
     let speed = v.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
     eprintln!("PD rest vs Newton: largest gap {gap:.2e} m, speed left {speed:.2e} m/s");
     assert!(gap <= 1e-5 * sag_along, "gap {gap} against sag {sag_along}");
@@ -311,34 +322,8 @@ fn a_stiffening_bar_hangs_shorter_and_pd_settles_at_newtons_equilibrium() {
     assert!(drop / length > 0.12, "mean strain {}", drop / length);
     assert!(drop < 0.8 * drop_quadratic, "{drop} vs {drop_quadratic}");
 
-    let params = PdParams {
-        mass_damping: 40.0,
-        max_iterations: 30,
-        tolerance: 0.0,
-        ..PdParams::default()
-    };
-    let mut pd = PdSolver::new(
-        &mesh,
-        &mass,
-        model.gamma_s(),
-        model.gamma_v(),
-        &pinned,
-        params,
-    )
-    .unwrap();
-    pd.set_fibres(model.fibres().to_vec()).unwrap();
-    let held: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
-    let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; mesh.num_nodes()]);
-    for _ in 0..800 {
-        pd.step(&mut x, &mut v, &held).unwrap();
-    }
-    let gap = x
-        .iter()
-        .zip(&x_newton)
-        .map(|(a, b)| {
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-        })
-        .fold(0.0f64, f64::max);
+    let (x, _) = damped_pd_rest(&mesh, &mass, &model, &pinned, 800);
+    let gap = largest_gap(&x, &x_newton);
     eprintln!("PD rest vs Newton: largest gap {gap:.2e} m of a {drop:.4} m drop");
     assert!(gap <= 1e-4 * drop, "gap {gap} against drop {drop}");
 }

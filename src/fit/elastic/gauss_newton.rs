@@ -741,7 +741,7 @@ impl SampleFit<'_> {
         // the stacked fields, which mixes Pa with the knit material's
         // dimensionless stiffenings (measured: a knit uniform stage ended
         // after 6 descent steps at a loss 12% above VH's uniform one).
-        let mut gd_over = p.gd_iterations == 0;
+        let mut gd_over = false;
         let mut gn_done = 0;
         for it in 0..p.gd_iterations + p.gn_iterations {
             if ev.loss <= loss_goal {
