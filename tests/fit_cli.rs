@@ -769,6 +769,9 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     }
     assert_eq!(line["frames"], 5);
     assert!(line["uniform_rms_yarn_diameters"].is_null());
+    // The explicit yarn model keeps no clamp forces: said, not compared.
+    assert!(line["clamp_force_n"].is_null(), "{line}");
+    assert!(err.contains("records no clamp forces"), "{err}");
     let (rms, max) = (
         line["rms_yarn_diameters"].as_f64().unwrap(),
         line["max_yarn_diameters"].as_f64().unwrap(),

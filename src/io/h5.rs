@@ -399,6 +399,73 @@ pub(crate) fn check_bomb(ds: &Dataset, loc: &str, needed: u64) -> Result<(), For
     Ok(())
 }
 
+thread_local! {
+    /// The budget of the whole-file read running on this thread
+    /// ([`whole_file_budget`]), and the bytes each dataset it guarded
+    /// declared.
+    static FILE_LEDGER: std::cell::RefCell<Option<FileLedger>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+struct FileLedger {
+    budget: u64,
+    charged: std::collections::BTreeMap<String, u64>,
+}
+
+/// While alive, every dataset guarded on this thread ([`Ds::guard_declared`])
+/// counts against one budget together: a file read whole (yarns, an asset,
+/// a character cache) may not hold more than the budget in all its datasets,
+/// each within it but together far beyond (measured: a 3.6 MB yarn file
+/// whose points and radii each declared just under 2 GiB held 3.37 GiB).
+/// A dataset guarded twice counts once, at its largest.
+pub(crate) struct LedgerScope {
+    previous: Option<FileLedger>,
+}
+
+impl Drop for LedgerScope {
+    fn drop(&mut self) {
+        let previous = self.previous.take();
+        FILE_LEDGER.with(|l| *l.borrow_mut() = previous);
+    }
+}
+
+/// Starts a whole-file read under `budget` bytes ([`LedgerScope`]).
+pub(crate) fn whole_file_budget(budget: u64) -> LedgerScope {
+    let previous = FILE_LEDGER.with(|l| {
+        l.borrow_mut().replace(FileLedger {
+            budget,
+            charged: Default::default(),
+        })
+    });
+    LedgerScope { previous }
+}
+
+/// Charges `bytes` for the dataset at `loc` to the running whole-file read,
+/// if any; the error says how much the file's datasets declare together.
+fn charge(loc: &str, bytes: u64) -> Result<(), String> {
+    FILE_LEDGER.with(|l| {
+        let mut l = l.borrow_mut();
+        let Some(ledger) = l.as_mut() else {
+            return Ok(());
+        };
+        let before = ledger.charged.get(loc).copied().unwrap_or(0);
+        let total: u64 = ledger
+            .charged
+            .values()
+            .fold(0u64, |a, b| a.saturating_add(*b))
+            .saturating_sub(before)
+            .saturating_add(bytes.max(before));
+        if total > ledger.budget {
+            return Err(format!(
+                "with the datasets read before it the file declares {total} bytes, more than the memory budget of {} bytes (--max-memory)",
+                ledger.budget
+            ));
+        }
+        ledger.charged.insert(loc.to_string(), bytes.max(before));
+        Ok(())
+    })
+}
+
 /// A dataset's shape, type, and read helpers with its path for errors.
 pub(crate) struct Ds {
     pub(crate) ds: Dataset,
@@ -527,7 +594,7 @@ impl Ds {
                 self.budget
             )));
         }
-        Ok(())
+        charge(&self.loc, needed).map_err(|m| self.err(m))
     }
 
     pub(crate) fn read_f64_into(&self, buf: &mut [f64]) -> Result<(), FormatError> {
@@ -720,6 +787,7 @@ pub fn decode(data: &[u8], opts: &ReadOptions) -> Result<Decoded, FormatError> {
 /// [`IoError::Format`] naming the dataset.
 pub fn read_file(path: &Path, opts: &ReadOptions) -> Result<Decoded, IoError> {
     let file = open_path_within(path, "yarn file", Some(opts.max_memory))?;
+    let _budget = whole_file_budget(opts.max_memory);
     decode_file(&file, opts).map_err(|e| format_err(path, e))
 }
 
@@ -1704,6 +1772,50 @@ impl FrameWriter {
             .map_err(|e| write_err(&path, e))
     }
 
+    /// Stores the clamp force on each clamped band per frame (N, the
+    /// resultant the band holds the yarns with, its own weight and inertia
+    /// aside) as `/frames/clamp_forces` (`F x B x 3`, attribute `units =
+    /// "N"`; schemas/yarns-hdf5.md), once every frame is pushed: `forces[f]`
+    /// for frame `f`, the same number of bands in each.
+    pub fn add_clamp_forces(&mut self, forces: &[Vec<Vec3>]) -> Result<(), IoError> {
+        let path = self.path.clone();
+        let (Some(out), Some(file)) = (self.frames.as_ref(), self.file.as_ref()) else {
+            return Err(write_err(
+                &path,
+                std::io::Error::other("writer already finished"),
+            ));
+        };
+        let bands = forces.first().map_or(0, Vec::len);
+        if forces.len() != out.count
+            || bands == 0
+            || bands > MAX_CLAMP_BANDS
+            || forces.iter().any(|f| f.len() != bands)
+            || forces.iter().flatten().flatten().any(|v| !v.is_finite())
+        {
+            return Err(write_err(
+                &path,
+                invalid_input(format!(
+                    "clamp forces: {} frames of up to {} bands (finite) for {} frames written (1 to {MAX_CLAMP_BANDS} bands)",
+                    forces.len(),
+                    forces.iter().map(Vec::len).max().unwrap_or(0),
+                    out.count
+                )),
+            ));
+        }
+        let write = || -> hdf5::Result<()> {
+            let flat: Vec<f64> = forces.iter().flatten().flatten().copied().collect();
+            let view = ndarray::ArrayView3::from_shape((forces.len(), bands, 3), &flat)?;
+            let ds = file
+                .group("frames")?
+                .new_dataset::<f64>()
+                .shape([forces.len(), bands, 3])
+                .create("clamp_forces")?;
+            ds.write(view)?;
+            write_str_attr(&ds, "units", "N")
+        };
+        write().map_err(|e| write_err(&path, e))
+    }
+
     /// Stores `text` (UTF-8: a scene file, a JSON parameter record) as the
     /// byte dataset `/metadata/<name>` (uint8 `[len]`, attribute
     /// `encoding = "utf-8"`), so a frame file carries what produced it.
@@ -1859,6 +1971,16 @@ fn read_dataset_f64_of(
     file: &hdf5::File,
     name: &str,
 ) -> Result<(Vec<usize>, Vec<f64>), FormatError> {
+    read_dataset_f64_checked(file, name, &|_| Ok(()))
+}
+
+/// [`read_dataset_f64_of`], its declared shape first passed to `check`
+/// (an error message), before anything is read.
+fn read_dataset_f64_checked(
+    file: &hdf5::File,
+    name: &str,
+    check: &dyn Fn(&[usize]) -> Result<(), String>,
+) -> Result<(Vec<usize>, Vec<f64>), FormatError> {
     let loc = if name.starts_with('/') {
         name.to_string()
     } else {
@@ -1879,6 +2001,7 @@ fn read_dataset_f64_of(
     if !ds.ty.is_numeric() {
         return Err(ds.err(format!("type {} is not numeric", ds.ty.describe())));
     }
+    check(&ds.shape).map_err(|m| ds.err(m))?;
     let elems = ds
         .shape
         .iter()
@@ -1896,6 +2019,44 @@ fn read_dataset_f64_of(
     ds.guard_storage(elems)?;
     let v: Vec<f64> = ds.ds.read_raw().map_err(|e| loc_err(&loc, &e))?;
     Ok((ds.shape.clone(), v))
+}
+
+/// Most clamped bands `/frames/clamp_forces` may hold.
+pub const MAX_CLAMP_BANDS: usize = 1024;
+
+/// `/frames/clamp_forces` of a knitvox HDF5 frame file
+/// ([`FrameWriter::add_clamp_forces`]): per frame, the clamp force (N) on
+/// each band. None when the file has none; its shape must be `frames x B x
+/// 3` (1 <= B <= [`MAX_CLAMP_BANDS`]), checked before it is read, and every
+/// value finite.
+pub fn read_clamp_forces(path: &Path, frames: usize) -> Result<Option<Vec<Vec<Vec3>>>, IoError> {
+    const LOC: &str = "/frames/clamp_forces";
+    let file = open_path(path)?;
+    if !file.link_exists("frames") || !file.link_exists("frames/clamp_forces") {
+        return Ok(None);
+    }
+    let check = |shape: &[usize]| -> Result<(), String> {
+        match shape {
+            [f, b, 3] if *f == frames && (1..=MAX_CLAMP_BANDS).contains(b) => Ok(()),
+            _ => Err(format!(
+                "shape {shape:?}: expected {frames} frames x 1 to {MAX_CLAMP_BANDS} bands x 3"
+            )),
+        }
+    };
+    let (shape, v) =
+        read_dataset_f64_checked(&file, LOC, &check).map_err(|e| format_err(path, e))?;
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(format_err(
+            path,
+            FormatError::at_path(LOC, format!("value {i} is not finite")),
+        ));
+    }
+    let b = shape[1];
+    Ok(Some(
+        v.chunks_exact(3 * b)
+            .map(|fr| fr.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+            .collect(),
+    ))
 }
 
 #[cfg(test)]

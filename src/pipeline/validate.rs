@@ -34,6 +34,7 @@ use crate::pipeline::frames::{FrameSink, YarnFrameWriter};
 use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::util::held_nodes;
 use crate::pipeline::util::rms_max;
+use crate::pipeline::validate_forces::{self, ForceMatch};
 use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
@@ -91,6 +92,11 @@ pub struct FrameError {
     pub uniform_rms: Option<f64>,
     /// RMS distance of `V2Y(Y2V(y))` from this yarn frame.
     pub y2v_floor_rms: f64,
+    /// The clamp force on the band where the yarn level's force peaks,
+    /// along the peak's direction (N): yarn level, the asset's material
+    /// (None without yarn-level clamp forces; `validate_forces`).
+    pub clamp_force_n: Option<f64>,
+    pub asset_clamp_force_n: Option<f64>,
 }
 
 /// What `validate` measured.
@@ -161,6 +167,15 @@ pub struct ValidateReport {
     /// frames (yarn diameters); no material gets closer on average.
     pub y2v_floor_rms_yarn_diameters: f64,
     pub y2v_floor_max_yarn_diameters: f64,
+    /// The clamp forces (module `validate_forces`): the yarn level's
+    /// largest force on one band (N), and how the asset's, the uniform
+    /// material's and the `--compare-vh` reference's match it. None when
+    /// the yarn level recorded none (the explicit model, or a `--truth`
+    /// file made before clamp forces were recorded).
+    pub clamp_force_n: Option<f64>,
+    pub clamp_force: Option<ForceMatch>,
+    pub uniform_clamp_force: Option<ForceMatch>,
+    pub vh_clamp_force: Option<ForceMatch>,
     pub per_frame: Vec<FrameError>,
     /// The yarn-level frames reused (`--truth`); `yarn_level_s` is then
     /// the wall time that file records, measured when it was made.
@@ -216,7 +231,36 @@ pub fn verdict(r: &ValidateReport) -> String {
         line.push_str("; ");
         line.push_str(&compare(r.rms_yarn_diameters, v, "the VH Eq. 7 reference"));
     }
+    if let (Some(n), Some(m)) = (r.clamp_force_n, r.clamp_force) {
+        line.push_str(&format!(
+            "; at the clamps' peak of {} the asset's material holds {:.2}x the yarn level's force",
+            force_words(n),
+            m.peak_ratio
+        ));
+        let others: Vec<String> = [
+            ("the uniform one", r.uniform_clamp_force),
+            ("VH Eq. 7's", r.vh_clamp_force),
+        ]
+        .iter()
+        .filter_map(|(who, f)| f.map(|f| format!("{who} {:.2}x", f.peak_ratio)))
+        .collect();
+        if !others.is_empty() {
+            line.push_str(&format!(" ({})", others.join(", ")));
+        }
+    }
     line
+}
+
+/// A force in words at a readable scale (`12.3 mN`).
+fn force_words(n: f64) -> String {
+    let a = n.abs();
+    if a >= 1.0 {
+        format!("{n:.3} N")
+    } else if a >= 1e-3 {
+        format!("{:.3} mN", n * 1e3)
+    } else {
+        format!("{:.3} µN", n * 1e6)
+    }
 }
 
 impl ValidateReport {
@@ -233,6 +277,12 @@ impl ValidateReport {
             "speedup": self.speedup,
             "y2v_floor_rms_yarn_diameters": self.y2v_floor_rms_yarn_diameters,
             "placeholder_rms_yarn_diameters": self.placeholder_rms_yarn_diameters,
+            "clamp_force_n": self.clamp_force_n,
+            "clamp_force_ratio": self.clamp_force.map(|m| m.peak_ratio),
+            "clamp_force_error": self.clamp_force.map(|m| m.relative_error),
+            "uniform_clamp_force_ratio": self.uniform_clamp_force.map(|m| m.peak_ratio),
+            "vh_clamp_force_ratio": self.vh_clamp_force.map(|m| m.peak_ratio),
+            "vh_clamp_force_error": self.vh_clamp_force.map(|m| m.relative_error),
             "verdict": self.verdict,
         })
     }
@@ -758,6 +808,19 @@ impl Stage for ValidateJob {
         }
         let driver = PoseDriver::new(&rest.points, scene.pose_params())
             .map_err(|e| setup(&self.scene, format!("pose: {e}")))?;
+        let yarn_forces = io::h5::read_clamp_forces(&yarn_file, frames.num_frames())?
+            .filter(|f| f.first().is_some_and(|b| b.len() == driver.num_groups()));
+        if yarn_forces.is_none() && driver.num_groups() > 0 {
+            observer.warning(&format!(
+                "{}: the yarn-level run records no clamp forces ({}): forces are not compared",
+                yarn_file.display(),
+                if self.truth.is_some() {
+                    "a --truth file made without them; run again without --truth"
+                } else {
+                    "the explicit yarn model keeps none; `model = \"rods\"` does"
+                }
+            ));
+        }
         // Homogenized, with the asset's material, then the uniform one.
         let t = Instant::now();
         let run_with = |gamma: &MaterialFields| {
@@ -781,12 +844,14 @@ impl Stage for ValidateJob {
         let run_uniform = |m: &MaterialFields, what: &str| {
             run_with(m).map_err(|e| setup(&self.scene, format!("{what} run: {e}")))
         };
-        let xu = match uniform {
-            Some(u) => Some(run_uniform(&uniform_material(&asset, &u), "uniform")?.frames),
+        let gu = uniform.map(|u| uniform_material(&asset, &u));
+        let xu = match &gu {
+            Some(g) => Some(run_uniform(g, "uniform")?.frames),
             None => None,
         };
-        let xv = match &vh {
-            Some(v) => Some(run_uniform(&asset_materials(v), "--compare-vh")?.frames),
+        let gv = vh.as_ref().map(asset_materials);
+        let xv = match &gv {
+            Some(g) => Some(run_uniform(g, "--compare-vh")?.frames),
             None => None,
         };
         // The Y2V floor (VH Eq. 5-6) of every yarn frame.
@@ -837,6 +902,8 @@ impl Stage for ValidateJob {
                 max,
                 uniform_rms,
                 y2v_floor_rms: floor_rms[k - 1],
+                clamp_force_n: None,
+                asset_clamp_force_n: None,
             });
         }
         let (rms, max) = rms_max(&all);
@@ -854,6 +921,32 @@ impl Stage for ValidateJob {
                 .collect();
             rms_max(&d).0
         });
+        // Clamp forces of every homogenized run against the yarn level's.
+        let node_group = super::clamp_drive::node_groups(&asset, &driver);
+        let forces_of = |g: &MaterialFields, x: &[Vec<Vec3>]| {
+            validate_forces::mesh_band_forces(&asset.mesh, g, &node_group, driver.num_groups(), x)
+                .map_err(|e| setup(&self.scene, format!("clamp forces: {e}")))
+        };
+        let force_peak = yarn_forces.as_deref().and_then(validate_forces::peak);
+        let (mut clamp_force, mut uniform_clamp_force, mut vh_clamp_force) = (None, None, None);
+        if let (Some(yf), Some(at)) = (&yarn_forces, force_peak) {
+            let fa = forces_of(&asset_materials(&asset), xs)?;
+            clamp_force = validate_forces::compare(yf, &fa, at);
+            let (ya, ma) = (
+                validate_forces::along_peak(yf, at),
+                validate_forces::along_peak(&fa, at),
+            );
+            for e in per_frame.iter_mut() {
+                e.clamp_force_n = ya.get(e.frame).copied();
+                e.asset_clamp_force_n = ma.get(e.frame).copied();
+            }
+            if let (Some(g), Some(x)) = (&gu, &xu) {
+                uniform_clamp_force = validate_forces::compare(yf, &forces_of(g, x)?, at);
+            }
+            if let (Some(g), Some(x)) = (&gv, &xv) {
+                vh_clamp_force = validate_forces::compare(yf, &forces_of(g, x)?, at);
+            }
+        }
         let mut report = ValidateReport {
             frames: per_frame.len(),
             rms_yarn_diameters: rms,
@@ -896,6 +989,10 @@ impl Stage for ValidateJob {
             yarn_mass_kg,
             y2v_floor_rms_yarn_diameters: frms,
             y2v_floor_max_yarn_diameters: fmax,
+            clamp_force_n: force_peak.map(|p| crate::geom::vec3::norm(p.2)),
+            clamp_force,
+            uniform_clamp_force,
+            vh_clamp_force,
             per_frame,
             truth_file: self.truth.clone(),
             report_files: Vec::new(),

@@ -190,6 +190,16 @@ impl Runner {
             Runner::Rods(d) => d.points(),
         }
     }
+
+    /// `rods`: the clamp force on each band ([`RodDynamics::band_forces`]);
+    /// None for the explicit simulator, which keeps no internal-force
+    /// split of its handles.
+    fn band_forces(&mut self) -> Option<Vec<Vec3>> {
+        match self {
+            Runner::Explicit(_) => None,
+            Runner::Rods(d) => Some(d.band_forces()),
+        }
+    }
 }
 
 /// The rods model's parameters for `scene`: `knitvox train`'s yarn model
@@ -421,6 +431,14 @@ pub fn run_observed(
         .chain(characters)
         .collect();
     io::overwrite::refuse_inputs(&[out], &inputs)?;
+    // The pose's counts are refused before a swatch is built or relaxed.
+    scene
+        .pose_params()
+        .check()
+        .map_err(|source| YlsError::Pose {
+            file: file.into(),
+            source,
+        })?;
     let (rest, relax_ms) = scene_swatch(scene, file)?;
     let params = scene_params(scene, file)?;
     let sim_err = |source| YlsError::Sim {
@@ -483,6 +501,8 @@ pub fn run_observed(
     });
     writer.add_text("parameters_json", &record.to_string())?;
     writer.push(0.0, &rest.points)?;
+    // Clamp forces per frame and band, from the rest frame on.
+    let mut band_forces: Option<Vec<Vec<Vec3>>> = runner.band_forces().map(|f| vec![f]);
     let frames = scene.num_frames();
     let frame_dt = 1.0 / scene.frame_rate;
     let mut total = FrameStats {
@@ -503,6 +523,9 @@ pub fn run_observed(
         total.contacts_per_vertex = st.contacts_per_vertex;
         total.penetration = total.penetration.max(st.penetration);
         writer.push(runner.time(), &runner.positions())?;
+        if let (Some(all), Some(f)) = (band_forces.as_mut(), runner.band_forces()) {
+            all.push(f);
+        }
         on_frame(&FrameProgress {
             frame: f as i64,
             done: f,
@@ -515,6 +538,12 @@ pub fn run_observed(
     // The run's wall time travels with the frames: `validate --truth`
     // reuses them and reports this time as the yarn level's.
     let wall_s = t0.elapsed().as_secs_f64();
+    if let Some(all) = band_forces
+        .as_ref()
+        .filter(|a| a.iter().all(|f| !f.is_empty()))
+    {
+        writer.add_clamp_forces(all)?;
+    }
     writer.add_text(
         "run_json",
         &serde_json::json!({ "wall_s": wall_s, "steps": total.steps }).to_string(),

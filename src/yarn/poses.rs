@@ -130,6 +130,45 @@ impl PoseParams {
             .then(|| format!("band is {} (must be in (0, {max_band}))", self.band))
     }
 
+    /// Checks the parameters alone (amount, band, ramp, folds), before
+    /// any swatch is built: a scene's count is refused at once.
+    pub fn check(&self) -> Result<(), PoseError> {
+        let p = self;
+        let bad = |what: String| Err(PoseError::Parameter(what));
+        if !p.amount.is_finite() {
+            return bad(format!("amount is {}", p.amount));
+        }
+        if let Some(e) = p.band_error() {
+            return bad(e);
+        }
+        if !(p.ramp.is_finite() && p.ramp >= 0.0) {
+            return bad(format!("ramp is {} s (must be >= 0)", p.ramp));
+        }
+        match p.kind {
+            PoseKind::MultiFold => {
+                if p.folds == 0 || p.folds > MAX_FOLDS {
+                    return bad(format!("folds is {} (must be 1 to {MAX_FOLDS})", p.folds));
+                }
+                if !(p.amount.abs() < 0.5) {
+                    return bad(format!(
+                        "amount is {} for multi_fold (fold height / fold length, must be < 0.5)",
+                        p.amount
+                    ));
+                }
+            }
+            PoseKind::StretchCourses
+            | PoseKind::StretchWales
+            | PoseKind::Biaxial
+            | PoseKind::Fan
+                if p.amount <= -1.0 =>
+            {
+                return bad(format!("amount is {} (a strain must be > -1)", p.amount));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
     /// A pose of `kind` with `amount` and the other fields at their defaults.
     pub fn new(kind: PoseKind, amount: f64) -> PoseParams {
         PoseParams {
@@ -289,39 +328,8 @@ impl PoseDriver {
     /// `params`. Errors for out-of-range parameters and flat or empty rest
     /// states.
     pub fn new(rest: &[Vec3], params: PoseParams) -> Result<PoseDriver, PoseError> {
+        params.check()?;
         let p = params;
-        let bad = |what: String| Err(PoseError::Parameter(what));
-        if !p.amount.is_finite() {
-            return bad(format!("amount is {}", p.amount));
-        }
-        if let Some(e) = p.band_error() {
-            return bad(e);
-        }
-        if !(p.ramp.is_finite() && p.ramp >= 0.0) {
-            return bad(format!("ramp is {} s (must be >= 0)", p.ramp));
-        }
-        match p.kind {
-            PoseKind::MultiFold => {
-                if p.folds == 0 || p.folds > MAX_FOLDS {
-                    return bad(format!("folds is {} (must be 1 to {MAX_FOLDS})", p.folds));
-                }
-                if !(p.amount.abs() < 0.5) {
-                    return bad(format!(
-                        "amount is {} for multi_fold (fold height / fold length, must be < 0.5)",
-                        p.amount
-                    ));
-                }
-            }
-            PoseKind::StretchCourses
-            | PoseKind::StretchWales
-            | PoseKind::Biaxial
-            | PoseKind::Fan
-                if p.amount <= -1.0 =>
-            {
-                return bad(format!("amount is {} (a strain must be > -1)", p.amount));
-            }
-            _ => {}
-        }
         let Some(first) = rest.first() else {
             return Err(PoseError::Degenerate("no vertices".into()));
         };

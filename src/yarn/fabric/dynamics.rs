@@ -208,6 +208,32 @@ impl RodDynamics {
         self.fabric.points()
     }
 
+    /// Per clamped band of the driver (its groups, in order): the resultant
+    /// force (N) the clamp holds the yarns with, the sum over the band's
+    /// vertices of the yarns' internal force gradient (rods, yarn-yarn
+    /// contact and friction) at the current state. The band's own weight
+    /// and inertia are left out, so that a homogenized mesh held by the
+    /// same band can be compared force for force: within the band the pair
+    /// forces cancel, and what remains is what the free fabric transmits.
+    /// Empty without a driver.
+    pub fn band_forces(&mut self) -> Vec<Vec3> {
+        let Some(d) = self.driver.clone() else {
+            return Vec::new();
+        };
+        let (_, g) = self.fabric.gradient(&mut []);
+        (0..d.num_groups())
+            .map(|k| {
+                let mut f = [0.0; 3];
+                for &v in d.group_vertices(k) {
+                    for c in 0..3 {
+                        f[c] += g[3 * v + c];
+                    }
+                }
+                f
+            })
+            .collect()
+    }
+
     /// Steps over `duration` (s) in equal steps of at most `max_dt`.
     pub fn advance(&mut self, duration: f64) -> Result<RodAdvanceStats, FabricError> {
         let t0 = Instant::now();
