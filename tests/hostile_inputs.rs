@@ -162,6 +162,45 @@ fn a_sparse_file_over_the_budget_is_refused_before_it_is_read() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A file within the budget but without its format's signature is refused
+/// from its first bytes, not read whole first.
+#[test]
+fn a_binary_file_without_its_signature_is_refused_before_it_is_read() {
+    let dir = scratch("signature");
+    let size: u64 = 600 << 20;
+    let time_v = Path::new("/usr/bin/time").exists();
+    let wrapper: &[&str] = if time_v {
+        &["/usr/bin/time", "-v"]
+    } else {
+        &[]
+    };
+    for (name, words) in [
+        ("zeros.bcc", "not a BCC file"),
+        ("zeros.ply", "not a PLY file"),
+        ("zeros.glb", "glb"),
+    ] {
+        std::fs::File::create(dir.join(name))
+            .unwrap()
+            .set_len(size)
+            .unwrap();
+        let (o, t) = run_in(
+            &dir,
+            wrapper,
+            &["inspect", name, "--max-memory", "1G"],
+            DEADLINE,
+        );
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(65), "{name}: {e}");
+        assert!(e.contains(name) && e.contains(words), "{name}: {e}");
+        if let Some(rss) = max_rss(&e) {
+            eprintln!("{name} ({size} bytes of zeros): refused in {t:?}, peak RSS {rss} bytes");
+            assert!(rss < 128 << 20, "{name}: read whole (peak RSS {rss} bytes)");
+        }
+        std::fs::remove_file(dir.join(name)).unwrap();
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A small knitvox yarns file `base.h5` in `dir` (one yarn of two points).
 fn yarns_h5(dir: &Path) -> PathBuf {
     std::fs::write(dir.join("a.obj"), "v 0 0 0\nv 0.01 0 0\nl 1 2\n").unwrap();
@@ -356,5 +395,72 @@ fn a_gltf_with_more_nodes_than_the_limit_is_refused() {
         "{e}"
     );
     eprintln!("{n} nodes refused in {t:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_yarn_file_whose_datasets_together_pass_the_budget_is_refused() {
+    let dir = scratch("h5ledger");
+    let base = yarns_h5(&dir);
+    let path = dir.join("two.h5");
+    std::fs::copy(&base, &path).unwrap();
+    // 400,000 points (9.6 MB) and as many vertex radii (3.2 MB): each under
+    // a 10 MiB budget, together over it.
+    const N: usize = 400_000;
+    {
+        let f = common::h5_edit(&path);
+        let g = f.group("yarns").unwrap();
+        for k in ["points", "offsets"] {
+            g.unlink(k).unwrap();
+        }
+        let pts = ndarray::Array2::<f64>::from_shape_fn((N, 3), |(i, c)| {
+            if c == 0 {
+                i as f64 * 1e-4
+            } else {
+                0.0
+            }
+        });
+        // Compressed, so that the file itself is far under the budget.
+        g.new_dataset_builder()
+            .with_data(&pts)
+            .chunk((N / 8, 3))
+            .deflate(6)
+            .create("points")
+            .unwrap();
+        g.new_dataset_builder()
+            .with_data(&[0i64, N as i64])
+            .create("offsets")
+            .unwrap();
+        g.new_dataset_builder()
+            .with_data(&vec![1e-3f64; N])
+            .chunk(N / 8)
+            .deflate(6)
+            .create("vertex_radius")
+            .unwrap();
+        f.close().unwrap();
+    }
+    let size = std::fs::metadata(&path).unwrap().len();
+    assert!(size < 4 << 20, "two.h5 is {size} bytes");
+    let (o, _) = knitvox_in(
+        &dir,
+        &["inspect", "two.h5", "--max-memory", "10M"],
+        DEADLINE,
+    );
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(65), "{e}");
+    assert!(
+        e.contains("two.h5")
+            && e.contains("/yarns/vertex_radius")
+            && e.contains("with the datasets read before it")
+            && e.contains("--max-memory"),
+        "{e}"
+    );
+    // Under a budget that holds both it reads.
+    let (o, _) = knitvox_in(
+        &dir,
+        &["inspect", "two.h5", "--max-memory", "20M"],
+        DEADLINE,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }

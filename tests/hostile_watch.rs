@@ -340,6 +340,36 @@ fn a_ply_copied_in_six_chunks_past_a_short_settle_is_done_not_failed() {
     assert_eq!(std::fs::read(root.join("done/slow.ply")).unwrap(), full);
 }
 
+/// A long copy in many bursts (14 pieces a second apart, past a short
+/// settle): run again as often as it fails while the copy goes on, not
+/// filed as failed after a fixed number of runs.
+#[test]
+fn a_long_copy_in_many_bursts_is_retried_until_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("root");
+    std::fs::create_dir_all(root.join("inbox")).unwrap();
+    let full = swatch_bytes(6, "ply");
+    let copy = slow_copy(
+        &root.join("inbox/long.ply"),
+        &full,
+        14,
+        Duration::from_secs(1),
+    );
+    let mut d = start(&root, &["--once", "--poll", "1", "--settle", "0.5"]);
+    assert_eq!(
+        d.wait_exit(Duration::from_secs(120)),
+        Some(0),
+        "{}",
+        d.dump()
+    );
+    copy.join().unwrap();
+    let retries = d.events("not_ready").len();
+    eprintln!("{retries} runs before the copy was whole");
+    assert_eq!(d.jobs("done"), ["long"], "{}", d.dump());
+    assert!(d.events("failed").is_empty(), "{}", d.dump());
+    assert_eq!(std::fs::read(root.join("done/long.ply")).unwrap(), full);
+}
+
 /// A drop taken while its file still changes (here: an mtime in the
 /// future, as a skewed NFS server gives) fails to parse, and is run again
 /// once its file held still, not filed as failed.

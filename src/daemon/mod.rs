@@ -671,9 +671,14 @@ fn process(sh: &Shared, task: Task) -> JobEnd {
     end
 }
 
-/// Runs of a job whose drop was still changing when it failed as bad
-/// input, before a failure is filed as it is.
-const NOT_READY_RUNS: u32 = 10;
+/// A job whose drop was still changing when it failed as bad input is run
+/// again once the drop holds still, for as long as this after its claim
+/// (a long copy over a slow share comes in bursts: measured, a PLY copied
+/// in 14 pieces 3 s apart outlasted a count of 10 runs and was filed as
+/// failed mid-copy), and at most [`NOT_READY_RUNS`] times; then a failure
+/// is filed as it is.
+const NOT_READY_WINDOW: Duration = Duration::from_secs(30 * 60);
+const NOT_READY_RUNS: u32 = 1000;
 
 fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failure> {
     let name = &task.name;
@@ -721,6 +726,7 @@ fn run_job(sh: &Shared, task: &Task, dir: &Path) -> Result<JobEnd, worker::Failu
     let mut still_changing = |f: &worker::Failure, attempt: u32| -> Option<bool> {
         if f.class != ErrorClass::BadInput
             || not_ready >= NOT_READY_RUNS
+            || t.elapsed() > NOT_READY_WINDOW
             || !worker::still_changing(dir, &drop, claimed.as_ref(), sh.cfg.settle, stopped)
         {
             return None;

@@ -53,6 +53,7 @@ pub fn is_character_cache(path: &Path) -> bool {
 /// knitvox allocate (bytes).
 pub fn read_character_cache(path: &Path, max_memory: u64) -> Result<CharacterCache, IoError> {
     let file = open_path_within(path, "character cache", Some(max_memory))?;
+    let _budget = super::h5::whole_file_budget(max_memory);
     decode(&file, max_memory).map_err(|e| format_err(path, e))
 }
 

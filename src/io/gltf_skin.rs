@@ -37,8 +37,22 @@ fn at(path: impl Into<String>, message: impl Into<String>) -> FormatError {
 /// Reads a character from a `.gltf` / `.glb` file; external buffers are
 /// loaded relative to the file's directory.
 pub fn read_character(path: &Path) -> Result<Character, IoError> {
-    let data = super::input::read_input(path, "character", super::max_memory())?;
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    // A `.glb` without its signature is refused from its first bytes, not
+    // read whole first (as the yarn readers do).
+    if Format::from_path(path) == Some(Format::Glb) {
+        let head = super::input::read_prefix(path, "character", super::max_memory(), 64)?;
+        if head.len() >= 4 && !head.starts_with(b"glTF") {
+            if let Err(source) = decode_character(&head, &DirResources(dir.clone())) {
+                return Err(IoError::Format {
+                    path: path.to_path_buf(),
+                    format: Format::Glb,
+                    source,
+                });
+            }
+        }
+    }
+    let data = super::input::read_input(path, "character", super::max_memory())?;
     let format = if data.starts_with(b"glTF") {
         Format::Glb
     } else {

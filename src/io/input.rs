@@ -92,6 +92,24 @@ pub fn read_input(path: &Path, what: &'static str, max_bytes: u64) -> Result<Vec
     Ok(data)
 }
 
+/// The first `n` bytes of `path` (fewer when it is shorter), opened as
+/// [`read_input`] opens it (a regular file, within `max_bytes`), so that a
+/// format's signature is checked before a file of up to the budget is
+/// read whole.
+pub fn read_prefix(
+    path: &Path,
+    what: &'static str,
+    max_bytes: u64,
+    n: usize,
+) -> Result<Vec<u8>, IoError> {
+    let (file, _) = open_regular(path, what, Some(max_bytes))?;
+    let mut data = Vec::with_capacity(n);
+    file.take(n as u64)
+        .read_to_end(&mut data)
+        .map_err(|e| read_err(path, e))?;
+    Ok(data)
+}
+
 /// [`read_input`] for text files (scenes, manifests, grids): the bytes
 /// must be UTF-8 (an error naming the byte otherwise).
 pub fn read_input_text(path: &Path, what: &'static str, max_bytes: u64) -> Result<String, IoError> {

@@ -476,6 +476,7 @@ fn write_knitvox(
 /// Reads an asset written by [`write_asset`], every value bit for bit.
 pub fn read_asset(path: &Path) -> Result<Asset, IoError> {
     let file = h5::open_path(path)?;
+    let _budget = h5::whole_file_budget(super::max_memory());
     let layout = Layout::open(&file).map_err(|e| h5::format_err(path, e))?;
     read_contents(&layout, true).map_err(|e| h5::format_err(path, e))
 }
