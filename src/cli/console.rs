@@ -144,6 +144,11 @@ impl crate::pipeline::Observer for Console {
         match self.mode {
             ProgressMode::Off | ProgressMode::Bar => {}
             ProgressMode::Json => print_event("iteration", p),
+            // The stiffening stage's loss is the relative clamp-force misfit.
+            ProgressMode::Lines if p.stage == "stiffening" => eprintln!(
+                "{}: {} {} evaluation {} ({}) force misfit {:.4}, {:.0} ms",
+                self.label, p.sample, p.stage, p.iteration, p.method, p.loss, p.ms
+            ),
             ProgressMode::Lines => eprintln!(
                 "{}: {} {} iteration {} ({}) loss {:.4e} m^3, {:.0} ms",
                 self.label, p.sample, p.stage, p.iteration, p.method, p.loss, p.ms

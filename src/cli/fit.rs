@@ -95,6 +95,10 @@ pub struct FitArgs {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Never show progress (without it: a plain line per fit stage on
+    /// stderr, or a JSON line per stage on stdout with --json).
+    #[arg(long)]
+    pub no_progress: bool,
     #[command(flatten)]
     pub read: super::args::ReadArgs,
 }
@@ -174,6 +178,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
     };
     // A bar has no length to show here: plain lines without --json.
     let mode = match super::console::ProgressMode::of(a.json) {
+        _ if a.no_progress => super::console::ProgressMode::Off,
         super::console::ProgressMode::Bar => super::console::ProgressMode::Lines,
         m => m,
     };

@@ -306,6 +306,11 @@ pub struct FitJobReport {
     /// the fitted field ([`force_scale`]; null where not applied).
     pub uniform_force_scale: Option<ForceScale>,
     pub field_force_scale: Option<ForceScale>,
+    /// `--model knit`: the stiffening set from the clamp forces on the
+    /// fitted field and on the uniform material
+    /// ([`stiffening_from_forces`]; null where not run).
+    pub field_stiffening: Option<StiffeningFit>,
+    pub uniform_stiffening: Option<StiffeningFit>,
     pub gamma_s_range: [f64; 2],
     pub gamma_v_range: [f64; 2],
     /// Fitted fibre stiffnesses along the course and the wale (Pa), with
@@ -1224,6 +1229,202 @@ pub fn force_scale(
     }))
 }
 
+/// What [`stiffening_from_forces`] found.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StiffeningFit {
+    /// The stiffening set on every tet, along the course and the wale
+    /// (dimensionless, [`crate::sim::knit`]).
+    pub beta_course: f64,
+    pub beta_wale: f64,
+    /// The relative clamp-force misfit ([`force_misfit`]) before and after.
+    pub force_misfit_before: f64,
+    pub force_misfit_after: f64,
+    /// Frames and clamped bands compared, misfit evaluations, wall time (s).
+    pub frames: usize,
+    pub bands: usize,
+    pub evaluations: usize,
+    pub seconds: f64,
+}
+
+/// Largest stiffening [`stiffening_from_forces`] searches (dimensionless):
+/// at 30% strain `β = 1e4` multiplies the fibre's secant stiffness by 900.
+pub const MAX_SEARCHED_BETA: f64 = 1e4;
+
+/// Golden-section evaluations per family and sweep of
+/// [`stiffening_from_forces`]: the bracket `ln(1 + β)` in `[0, 9.2]`
+/// narrows to about 0.02 (2% in `β`).
+const STIFFENING_EVALUATIONS: usize = 14;
+
+/// The relative misfit of the homogenized clamp forces against the
+/// yarn-level reactions over every frame that has them (loaded frames
+/// too: each is brought to equilibrium under `gamma`):
+/// `sqrt(Σ |C_b - R_b|² / Σ |R_b|²)` over the held bands' wrenches
+/// (resultant force and moment about the band's centroid over the mesh's
+/// size, as [`force_scale`]), with `C = ∂E/∂x - f_ext` on the held nodes.
+/// Returns the misfit and the frames and bands compared; None when no
+/// frame has reactions or a frame finds no equilibrium.
+pub fn force_misfit(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
+    gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
+    params: &ElasticFitParams,
+) -> Result<Option<(f64, usize, usize)>, ElasticFitError> {
+    let model = gamma
+        .model(mesh)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
+    });
+    let (mut num, mut den, mut frames, mut bands) = (0.0, 0.0, 0usize, 0usize);
+    for (k, (s, rs)) in samples.iter().zip(reactions).enumerate() {
+        for (i, (f, r)) in s.frames.iter().zip(rs).enumerate() {
+            let Some(r) = r else { continue };
+            let anchor = anchors.get(k).and_then(|a| a.get(i));
+            let Ok(x) = settle(mesh, &model, gamma, mass, f, anchor, params) else {
+                return Ok(None);
+            };
+            let g = model
+                .gradient(&x)
+                .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+            let clamp: Vec<Vec3> = g
+                .iter()
+                .zip(&f.f_ext)
+                .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
+                .collect();
+            frames += 1;
+            for band in bands_of(mesh, &f.pinned) {
+                let c = wrench(&band, &x, &clamp, length);
+                let y = wrench(&band, &x, r, length);
+                num += c.iter().zip(&y).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
+                den += y.iter().map(|v| v * v).sum::<f64>();
+                bands += 1;
+            }
+        }
+    }
+    Ok((den > 0.0).then(|| ((num / den).sqrt(), frames, bands)))
+}
+
+/// `gamma` with the stiffening of every tet set to `beta[0]` along the
+/// course and `beta[1]` along the wale (stiffening families only).
+fn with_stiffening(gamma: &MaterialFields, beta: [f64; 2]) -> MaterialFields {
+    let mut g = gamma.clone();
+    for (f, b) in g.fibres.iter_mut().zip(beta) {
+        if f.stiffening() {
+            f.beta.iter_mut().for_each(|v| *v = b);
+        }
+    }
+    g
+}
+
+/// The knit material's stiffening from the clamp forces. A pose driven by
+/// clamps has nearly the same shape under a material that stiffens and one
+/// that does not, so the position loss leaves `β` where it starts
+/// (measured on a 6 x 6 rib trained at 2/10/20% wale stretch: `β_wale`
+/// 0.001, while the yarn level's clamp force grows 2.8 / 28.8 / 112.6 mN);
+/// the clamp forces see it. One `β` per family, uniform over the mesh (the
+/// positions identify no field of it), by golden-section search on
+/// `ln(1 + β)` in `[0, ln(1 + MAX_SEARCHED_BETA)]`, course then wale, two
+/// sweeps, each evaluation the equilibria of every frame with reactions
+/// ([`force_misfit`]). Kept only where it lowers the misfit. None when
+/// `gamma` has no stiffening family or no frame has reactions.
+#[allow(clippy::too_many_arguments)]
+pub fn stiffening_from_forces(
+    mesh: &TetMesh,
+    mass: &[f64],
+    samples: &[Sample],
+    reactions: &[Vec<Option<Vec<Vec3>>>],
+    gamma: &MaterialFields,
+    anchors: &[Vec<Anchor>],
+    params: &ElasticFitParams,
+    progress: Option<&dyn Fn(&crate::fit::elastic::FitProgress)>,
+) -> Result<Option<StiffeningFit>, ElasticFitError> {
+    let families: Vec<usize> = (0..gamma.fibres.len().min(2))
+        .filter(|&f| gamma.fibres[f].stiffening())
+        .collect();
+    if families.is_empty() || !reactions.iter().flatten().any(Option::is_some) {
+        return Ok(None);
+    }
+    let t0 = Instant::now();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let mut beta = [0.0f64; 2];
+    for (f, b) in gamma.fibres.iter().take(2).zip(beta.iter_mut()) {
+        *b = mean(&f.beta);
+    }
+    let mut evaluations = 0usize;
+    let mut misfit = |b: [f64; 2]| -> Result<f64, ElasticFitError> {
+        evaluations += 1;
+        let g = with_stiffening(gamma, b);
+        let m = force_misfit(mesh, mass, samples, reactions, &g, anchors, params)?
+            .map_or(f64::INFINITY, |m| m.0);
+        if let Some(p) = progress {
+            p(&crate::fit::elastic::FitProgress {
+                sample: "clamp forces".into(),
+                stage: "stiffening".into(),
+                iteration: evaluations as u32,
+                method: format!("beta {:.4e} / {:.4e}", b[0], b[1]),
+                loss: m,
+                ms: t0.elapsed().as_secs_f64() * 1e3,
+                direction_ms: 0.0,
+                halvings: 0,
+            });
+        }
+        Ok(m)
+    };
+    let Some((before, frames, bands)) =
+        force_misfit(mesh, mass, samples, reactions, gamma, anchors, params)?
+    else {
+        return Ok(None);
+    };
+    let (mut best_b, mut best) = (beta, misfit(beta)?);
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    for _sweep in 0..2 {
+        for &fam in &families {
+            let at = |t: f64| {
+                let mut b = best_b;
+                b[fam] = t.exp_m1();
+                b
+            };
+            let (mut lo, mut hi) = (0.0, MAX_SEARCHED_BETA.ln_1p());
+            let mut c = hi - phi * (hi - lo);
+            let mut d = lo + phi * (hi - lo);
+            let (mut fc, mut fd) = (misfit(at(c))?, misfit(at(d))?);
+            for _ in 2..STIFFENING_EVALUATIONS {
+                if fc <= fd {
+                    hi = d;
+                    (d, fd) = (c, fc);
+                    c = hi - phi * (hi - lo);
+                    fc = misfit(at(c))?;
+                } else {
+                    lo = c;
+                    (c, fc) = (d, fd);
+                    d = lo + phi * (hi - lo);
+                    fd = misfit(at(d))?;
+                }
+            }
+            let (t, ft) = if fc <= fd { (c, fc) } else { (d, fd) };
+            if ft < best {
+                best = ft;
+                best_b = at(t);
+            }
+        }
+    }
+    let keep = best < before;
+    let b = if keep { best_b } else { beta };
+    Ok(Some(StiffeningFit {
+        beta_course: b[0],
+        beta_wale: b[1],
+        force_misfit_before: before,
+        force_misfit_after: if keep { best } else { before },
+        frames,
+        bands,
+        evaluations,
+        seconds: t0.elapsed().as_secs_f64(),
+    }))
+}
+
 fn range(v: &[f64]) -> [f64; 2] {
     v.iter()
         .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], x| {
@@ -1331,6 +1532,11 @@ pub struct Fitted {
     /// the fitted field (None: no reactions, or not applied).
     pub uniform_force_scale: Option<ForceScale>,
     pub field_force_scale: Option<ForceScale>,
+    /// The knit material's stiffening set from the clamp forces, for the
+    /// field and the uniform material ([`stiffening_from_forces`]; None
+    /// without stiffening families or reactions).
+    pub field_stiffening: Option<StiffeningFit>,
+    pub uniform_stiffening: Option<StiffeningFit>,
 }
 
 /// All samples as one (the loss of VH Eq. 9 summed over every frame),
@@ -1446,6 +1652,28 @@ pub fn fit_samples(
     if let Some(fs) = field_force_scale {
         gamma = scaled_above(&gamma, fs.scale, params.gamma_floor);
     }
+    // The knit material's stiffening, which the positions do not see, from
+    // the clamp forces; the uniform material gets its own, so that the two
+    // stay comparable.
+    let field_stiffening = stiffening_from_forces(
+        mesh, mass, samples, reactions, &gamma, &at_field, params, progress,
+    )?;
+    if let Some(s) = field_stiffening {
+        gamma = with_stiffening(&gamma, [s.beta_course, s.beta_wale]);
+    }
+    let uniform_stiffening = stiffening_from_forces(
+        mesh,
+        mass,
+        samples,
+        reactions,
+        &u,
+        &at_uniform,
+        params,
+        progress,
+    )?;
+    if let Some(s) = uniform_stiffening {
+        u = with_stiffening(&u, [s.beta_course, s.beta_wale]);
+    }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let uniform = UniformMaterial {
         gamma_s: mean(&u.gamma_s),
@@ -1484,6 +1712,8 @@ pub fn fit_samples(
         equilibria,
         uniform_force_scale,
         field_force_scale,
+        field_stiffening,
+        uniform_stiffening,
     })
 }
 
@@ -1744,6 +1974,8 @@ impl Stage for FitJob {
             uniform: fitted.uniform,
             uniform_force_scale: fitted.uniform_force_scale,
             field_force_scale: fitted.field_force_scale,
+            field_stiffening: fitted.field_stiffening,
+            uniform_stiffening: fitted.uniform_stiffening,
             gamma_s_range: range(&fitted.gamma.gamma_s),
             gamma_v_range: range(&fitted.gamma.gamma_v),
             gamma_course_range: fitted.gamma.fibres.first().map(|f| range(&f.gamma)),
@@ -2092,6 +2324,100 @@ mod tests {
         let none =
             force_scale(&mesh, &mass, &samples, &[vec![None]], &truth, &[], &params).unwrap();
         assert!(none.is_none());
+    }
+
+    #[test]
+    fn the_stiffening_is_found_from_the_clamp_forces() {
+        let h = 0.01;
+        let (mesh, mass) = crate::embed::box_mesh([6, 2, 2], h, 120.0);
+        let nt = mesh.num_tets();
+        let with_beta = |beta: f64| MaterialFields {
+            gamma_s: vec![2e3; nt],
+            gamma_v: vec![6e3; nt],
+            fibres: vec![crate::sim::fibre::FibreFamily {
+                directions: vec![[1.0, 0.0, 0.0]; nt],
+                gamma: vec![2e4; nt],
+                beta: vec![beta; nt],
+            }],
+        };
+        let truth = with_beta(60.0);
+        let model = truth.model(&mesh).unwrap();
+        let params = ElasticFitParams::default();
+        let lx = 6.0 * h;
+        // Stretches of 5% and 20% between clamped ends, reactions from the
+        // truth's equilibria.
+        let (mut frames, mut reactions) = (Vec::new(), Vec::new());
+        for strain in [0.05, 0.2] {
+            let mut pinned = Vec::new();
+            let mut start = mesh.nodes.clone();
+            for (i, p) in mesh.nodes.iter().enumerate() {
+                if p[0] < 1e-9 || p[0] > lx - 1e-9 {
+                    pinned.push(i);
+                    start[i][0] *= 1.0 + strain;
+                }
+            }
+            let frame = Frame {
+                target: FrameTarget::from_nodes(&model, &start, &mass, LOSS_ALPHA, h).unwrap(),
+                pinned: pinned.clone(),
+                start: start.clone(),
+                f_ext: vec![[0.0; 3]; mesh.num_nodes()],
+            };
+            let (x, _) = equilibrium(&model, &mass, &frame, &start, &params.statics()).unwrap();
+            let g = model.gradient(&x).unwrap();
+            let mut r = vec![[0.0; 3]; g.len()];
+            for &i in &pinned {
+                r[i] = g[i];
+            }
+            frames.push(frame);
+            reactions.push(Some(r));
+        }
+        let samples = [Sample {
+            name: "stretch".into(),
+            frames,
+            energy: 1.0,
+        }];
+        let reactions = vec![reactions];
+        let found = stiffening_from_forces(
+            &mesh,
+            &mass,
+            &samples,
+            &reactions,
+            &with_beta(1.0),
+            &[],
+            &params,
+            None,
+        )
+        .unwrap()
+        .unwrap();
+        eprintln!("{found:?}");
+        assert_eq!((found.frames, found.bands), (2, 4));
+        assert!((found.beta_course - 60.0).abs() < 0.05 * 60.0, "{found:?}");
+        assert!(
+            found.force_misfit_after < 0.02 * found.force_misfit_before,
+            "{found:?}"
+        );
+        // The truth itself is kept: no search lowers its misfit of 0.
+        let kept = stiffening_from_forces(
+            &mesh,
+            &mass,
+            &samples,
+            &reactions,
+            &truth,
+            &[],
+            &params,
+            None,
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(kept.beta_course, 60.0, "{kept:?}");
+        // A material without stiffening, or frames without reactions: no search.
+        let mut quadratic = with_beta(1.0);
+        quadratic.fibres[0].beta.clear();
+        let none = |g: &MaterialFields, r: &[Vec<Option<Vec<Vec3>>>]| {
+            stiffening_from_forces(&mesh, &mass, &samples, r, g, &[], &params, None).unwrap()
+        };
+        assert!(none(&quadratic, &reactions).is_none());
+        assert!(none(&with_beta(1.0), &[vec![None, None]]).is_none());
     }
 
     /// A slab held at its x = 0 end under its weight, with a uniform

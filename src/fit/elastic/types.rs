@@ -389,7 +389,9 @@ pub struct FitProgress {
     /// Iterations of this stage so far (1-based) and the step taken (`gd`, `gn`).
     pub iteration: u32,
     pub method: String,
-    /// Loss (m³) after the iteration.
+    /// Loss (m³) after the iteration; for the knit material's stage
+    /// `stiffening` (one line per evaluation), the relative clamp-force
+    /// misfit (dimensionless).
     pub loss: f64,
     /// Wall time (ms) of the iteration, and of it the search direction
     /// (linearization and Gauss-Newton solve); the rest is the line search.
