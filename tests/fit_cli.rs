@@ -698,24 +698,7 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     let d = tmp.path();
     // A swatch relaxed into contact (with its rod rest shape), so that the
     // yarn-level run starts at rest.
-    let sw = d.join("sw.h5");
-    let asset_path = d.join("a.vtkhdf");
-    for args in [
-        vec![
-            "pattern",
-            "stockinette",
-            "--courses",
-            "4",
-            "--wales",
-            "4",
-            "-o",
-            s(&sw),
-        ],
-        vec!["embed", s(&sw), "-o", s(&asset_path)],
-    ] {
-        let o = knitvox(&args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
+    let asset_path = common::embedded_pattern(d, "a", "stockinette", 4, 4);
     let asset = io::vtkhdf::read_asset(&asset_path).unwrap();
     let scene = d.join("stretch.toml");
     std::fs::write(&scene, STRETCH_SCENE).unwrap();

@@ -43,24 +43,7 @@ fn validate(args: &[&str]) -> (serde_json::Value, String) {
 fn clamp_forces_pull_equal_and_opposite_and_follow_the_material_stiffness() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
-    let sw = d.join("sw.h5");
-    let a1 = d.join("a.vtkhdf");
-    for args in [
-        vec![
-            "pattern",
-            "stockinette",
-            "--courses",
-            "4",
-            "--wales",
-            "4",
-            "-o",
-            s(&sw),
-        ],
-        vec!["embed", s(&sw), "-o", s(&a1)],
-    ] {
-        let o = knitvox(&args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
+    let a1 = common::embedded_pattern(d, "a", "stockinette", 4, 4);
     let scene = d.join("stretch.toml");
     std::fs::write(&scene, SCENE).unwrap();
     let report = d.join("rep");

@@ -1147,6 +1147,52 @@ fn wrench(band: &[usize], x: &[Vec3], f: &[Vec3], length: f64) -> [f64; 6] {
     w
 }
 
+/// The mesh's size (m), the length that makes a wrench's moment a force.
+fn wrench_length(mesh: &TetMesh) -> f64 {
+    crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
+        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
+    })
+}
+
+/// Per held band of `frame`, the homogenized clamp wrench at its
+/// equilibrium under `model` (clamp force on a held node: `∂E/∂x - f_ext`;
+/// the free nodes are at rest) and the wrench of the yarn-level reactions
+/// `r`. The inner error: no equilibrium was found.
+#[allow(clippy::too_many_arguments)]
+fn band_wrenches(
+    mesh: &TetMesh,
+    model: &ElasticModel,
+    gamma: &MaterialFields,
+    mass: &[f64],
+    frame: &Frame,
+    anchor: Option<&Anchor>,
+    r: &[Vec3],
+    params: &ElasticFitParams,
+) -> Result<Result<Vec<([f64; 6], [f64; 6])>, SettleError>, ElasticFitError> {
+    let x = match settle(mesh, model, gamma, mass, frame, anchor, params) {
+        Ok(x) => x,
+        Err(e) => return Ok(Err(e)),
+    };
+    let g = model
+        .gradient(&x)
+        .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
+    let clamp: Vec<Vec3> = g
+        .iter()
+        .zip(&frame.f_ext)
+        .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
+        .collect();
+    let length = wrench_length(mesh);
+    Ok(Ok(bands_of(mesh, &frame.pinned)
+        .iter()
+        .map(|band| {
+            (
+                wrench(band, &x, &clamp, length),
+                wrench(band, &x, r, length),
+            )
+        })
+        .collect()))
+}
+
 /// The least-squares γ scale matching the homogenized clamp forces to the
 /// yarn-level reactions (module documentation). `reactions[s][f]` are the
 /// node reactions `Nᵀ r` of frame `f` of sample `s` (None without them);
@@ -1165,9 +1211,6 @@ pub fn force_scale(
     let model = gamma
         .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
-        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
-    });
     let (mut cc, mut cr, mut rr, mut bands) = (0.0, 0.0, 0.0, 0usize);
     let mut pairs = Vec::new();
     for (k, (s, rs)) in samples.iter().zip(reactions).enumerate() {
@@ -1184,25 +1227,13 @@ pub fn force_scale(
                 continue;
             }
             let anchor = anchors.get(k).and_then(|a| a.get(i));
-            let x = settle(mesh, &model, gamma, mass, f, anchor, params).map_err(|e| {
-                ElasticFitError::Sample {
+            let frame_pairs = band_wrenches(mesh, &model, gamma, mass, f, anchor, r, params)?
+                .map_err(|e| ElasticFitError::Sample {
                     sample: s.name.clone(),
                     frame: i,
                     message: e.to_string(),
-                }
-            })?;
-            let g = model
-                .gradient(&x)
-                .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-            // Clamp force on a held node: ∇E - f_ext (the free nodes are at rest).
-            let clamp: Vec<Vec3> = g
-                .iter()
-                .zip(&f.f_ext)
-                .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
-                .collect();
-            for band in bands_of(mesh, &f.pinned) {
-                let c = wrench(&band, &x, &clamp, length);
-                let y = wrench(&band, &x, r, length);
+                })?;
+            for (c, y) in frame_pairs {
                 cc += c.iter().map(|v| v * v).sum::<f64>();
                 cr += c.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>();
                 rr += y.iter().map(|v| v * v).sum::<f64>();
@@ -1280,29 +1311,17 @@ pub fn force_misfit(
     let model = gamma
         .model(mesh)
         .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-    let length = crate::geom::bounds_of(&mesh.nodes).map_or(1.0, |b| {
-        crate::geom::dist(b.min, b.max).max(f64::MIN_POSITIVE)
-    });
     let (mut num, mut den, mut frames, mut bands) = (0.0, 0.0, 0usize, 0usize);
     for (k, (s, rs)) in samples.iter().zip(reactions).enumerate() {
         for (i, (f, r)) in s.frames.iter().zip(rs).enumerate() {
             let Some(r) = r else { continue };
             let anchor = anchors.get(k).and_then(|a| a.get(i));
-            let Ok(x) = settle(mesh, &model, gamma, mass, f, anchor, params) else {
+            let Ok(frame_pairs) = band_wrenches(mesh, &model, gamma, mass, f, anchor, r, params)?
+            else {
                 return Ok(None);
             };
-            let g = model
-                .gradient(&x)
-                .map_err(|e| ElasticFitError::Inconsistent(e.to_string()))?;
-            let clamp: Vec<Vec3> = g
-                .iter()
-                .zip(&f.f_ext)
-                .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
-                .collect();
             frames += 1;
-            for band in bands_of(mesh, &f.pinned) {
-                let c = wrench(&band, &x, &clamp, length);
-                let y = wrench(&band, &x, r, length);
+            for (c, y) in frame_pairs {
                 num += c.iter().zip(&y).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
                 den += y.iter().map(|v| v * v).sum::<f64>();
                 bands += 1;

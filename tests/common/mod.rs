@@ -225,3 +225,42 @@ pub fn h5_edit(path: &Path) -> hdf5::File {
         .open_rw(path)
         .unwrap()
 }
+
+/// `knitvox pattern PATTERN --courses N --wales N` (relaxed into contact,
+/// with its rod rest shape, lying flat in XZ) embedded with the defaults:
+/// the asset `dir/NAME.vtkhdf` (its yarns beside it as `NAME.h5`).
+pub fn embedded_pattern(
+    dir: &Path,
+    name: &str,
+    pattern: &str,
+    courses: usize,
+    wales: usize,
+) -> PathBuf {
+    let sw = dir.join(format!("{name}.h5"));
+    let asset = dir.join(format!("{name}.vtkhdf"));
+    let (c, w) = (courses.to_string(), wales.to_string());
+    for args in [
+        vec![
+            "pattern",
+            pattern,
+            "--courses",
+            &c,
+            "--wales",
+            &w,
+            "-o",
+            sw.to_str().unwrap(),
+        ],
+        vec!["embed", sw.to_str().unwrap(), "-o", asset.to_str().unwrap()],
+    ] {
+        let o = std::process::Command::new(knitvox_bin())
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    asset
+}
