@@ -1154,6 +1154,9 @@ fn wrench_length(mesh: &TetMesh) -> f64 {
     })
 }
 
+/// Per held band: the homogenized clamp wrench and the yarn level's.
+type BandWrenches = Vec<([f64; 6], [f64; 6])>;
+
 /// Per held band of `frame`, the homogenized clamp wrench at its
 /// equilibrium under `model` (clamp force on a held node: `∂E/∂x - f_ext`;
 /// the free nodes are at rest) and the wrench of the yarn-level reactions
@@ -1168,7 +1171,7 @@ fn band_wrenches(
     anchor: Option<&Anchor>,
     r: &[Vec3],
     params: &ElasticFitParams,
-) -> Result<Result<Vec<([f64; 6], [f64; 6])>, SettleError>, ElasticFitError> {
+) -> Result<Result<BandWrenches, SettleError>, ElasticFitError> {
     let x = match settle(mesh, model, gamma, mass, frame, anchor, params) {
         Ok(x) => x,
         Err(e) => return Ok(Err(e)),
