@@ -54,14 +54,14 @@
 //! # Parameters of a fit
 //! At a fixed deformation the energy is linear in `k` and in `k β` (the
 //! equilibrium the fit matches is nonlinear in both, and the stiffening
-//! matters only through `β ε²`). An adjoint Gauss-Newton fit works in
-//! `ln k`, `ln β` so that both stay positive without bounds;
-//! [`knit_fibre_param_derivatives`] gives the derivatives of the node
-//! gradients (the force) with respect to those logs.
+//! matters only through `β ε²`). The adjoint's derivatives of the node
+//! gradients with respect to `k` and `β` are
+//! [`super::fibre::FibreFamily::param_derivatives`], tested against finite
+//! differences there.
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::element::{node_coefficients, node_gradients, Mat12, TetRest, Vec12};
+use super::element::{node_coefficients, Mat12, TetRest};
 
 fn v3(d: &[f64; 3]) -> Vector3<f64> {
     Vector3::new(d[0], d[1], d[2])
@@ -241,59 +241,11 @@ pub fn knit_fibre_pd_weight(volume: f64, k: f64, beta: f64, strain_ref: f64) -> 
     volume * ddpsi(strain_ref.max(0.0), k, beta)
 }
 
-/// Derivatives (N) of one tet's fibre node gradients with respect to
-/// `ln k` and `ln β` (node-major, as [`super::element::Vec12`]).
-///
-/// The fit works in logs so the parameters stay positive. `∂/∂ln k = k ∂/∂k`
-/// is the node gradient itself (the energy is linear in `k`);
-/// `∂/∂ln β = β ∂/∂β` is the node gradient of `V 2 k β ε³ ŷ dᵀ`, which is 0
-/// at `β = 0` (a fit must start from `β > 0` to move it).
-pub fn knit_fibre_param_derivatives(
-    f: &Matrix3<f64>,
-    rest: &TetRest,
-    d: &[f64; 3],
-    k: f64,
-    beta: f64,
-) -> (Vec12, Vec12) {
-    let (y, len, eps) = stretch(f, d);
-    let to12 = |m: Matrix3<f64>| {
-        let g = node_gradients(&m, &rest.dm_inv);
-        Vec12::from_fn(|i, _| g[i / 3][i % 3])
-    };
-    if eps <= 0.0 {
-        return (Vec12::zeros(), Vec12::zeros());
-    }
-    let dt = v3(d).transpose();
-    let yh = y / len;
-    let dk = rest.volume * dpsi(eps, k, beta) * yh * dt;
-    let db = rest.volume * (2.0 * k * beta * eps * eps * eps) * yh * dt;
-    (to12(dk), to12(db))
-}
-
-/// Derivatives (J) of one tet's fibre energy with respect to `ln k` and
-/// `ln β`: `E` itself and `V k (β/2) ε⁴` (0 when slack or at `β = 0`).
-pub fn knit_fibre_energy_param_derivatives(
-    f: &Matrix3<f64>,
-    d: &[f64; 3],
-    volume: f64,
-    k: f64,
-    beta: f64,
-) -> (f64, f64) {
-    let (_, _, eps) = stretch(f, d);
-    if eps <= 0.0 {
-        return (0.0, 0.0);
-    }
-    let e4 = eps.powi(4);
-    (
-        knit_fibre_energy(f, d, volume, k, beta),
-        k * volume * 0.5 * beta * e4,
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::geom::Vec3;
+    use crate::sim::element::{node_gradients, Vec12};
     use crate::sim::fibre::{
         fibre_element_hessian, fibre_energy, fibre_stress, fibre_stress_differential, fibre_target,
     };
@@ -472,53 +424,6 @@ mod tests {
     }
 
     #[test]
-    fn parameter_derivatives_match_finite_differences_in_logs() {
-        let mut rng = Rng(23);
-        // Log step 1e-4: the node gradients are linear in k and in β, so the
-        // central difference is exact up to sinh(h)/h - 1 = h²/6 ~ 2e-9. Its
-        // rounding error is ~u |G| / h ~ 1e-12 |G| with G the whole gradient
-        // (energy), which dominates the β part `β ε²/(1 + β ε²)` of it at
-        // small strains: the ln β tolerance carries a 1e-10 |G| term.
-        let h: f64 = 1e-4;
-        for &strain in &[1e-4, 0.02, 0.1, 0.2, 0.3, 0.5] {
-            for _ in 0..5 {
-                let rest = rest_of(0.02, &mut rng);
-                let d = rng.unit();
-                let f0 = rng.rotation() * (Matrix3::identity() + 0.4 * rng.mat());
-                let f = with_strain(&f0, &d, strain);
-                let (dk, db) = knit_fibre_param_derivatives(&f, &rest, &d, K, BETA);
-                let g = |k: f64, b: f64| grad_of(&f, &rest, &d, k, b);
-                let (up, dn) = (h.exp(), (-h).exp());
-                let fd_k = (g(K * up, BETA) - g(K * dn, BETA)) / (2.0 * h);
-                let fd_b = (g(K, BETA * up) - g(K, BETA * dn)) / (2.0 * h);
-                assert!(
-                    (dk - fd_k).norm() <= 1e-7 * dk.norm(),
-                    "ln k at {strain}: {dk} vs {fd_k}"
-                );
-                assert!(
-                    (db - fd_b).norm() <= 1e-7 * db.norm() + 1e-10 * dk.norm(),
-                    "ln beta at {strain}: {db} vs {fd_b}"
-                );
-                assert!(db.norm() > 0.0);
-                let e = |k: f64, b: f64| knit_fibre_energy(&f, &d, rest.volume, k, b);
-                let (ek, eb) = knit_fibre_energy_param_derivatives(&f, &d, rest.volume, K, BETA);
-                let fd_ek = (e(K * up, BETA) - e(K * dn, BETA)) / (2.0 * h);
-                let fd_eb = (e(K, BETA * up) - e(K, BETA * dn)) / (2.0 * h);
-                assert!((ek - fd_ek).abs() <= 1e-7 * ek, "{ek} vs {fd_ek}");
-                assert!(
-                    (eb - fd_eb).abs() <= 1e-7 * eb + 1e-10 * ek,
-                    "{eb} vs {fd_eb}"
-                );
-                // At β = 0 the stiffening has no handle.
-                let (_, db0) = knit_fibre_param_derivatives(&f, &rest, &d, K, 0.0);
-                assert_eq!(db0, Vec12::zeros());
-                let (_, eb0) = knit_fibre_energy_param_derivatives(&f, &d, rest.volume, K, 0.0);
-                assert_eq!(eb0, 0.0);
-            }
-        }
-    }
-
-    #[test]
     fn slack_and_rigid_fibres_cost_nothing() {
         let mut rng = Rng(3);
         for _ in 0..20 {
@@ -543,8 +448,6 @@ mod tests {
                     knit_fibre_element_hessian(&f, &rest, &d, 1e4, BETA),
                     Mat12::zeros()
                 );
-                let (dk, db) = knit_fibre_param_derivatives(&f, &rest, &d, 1e4, BETA);
-                assert_eq!((dk, db), (Vec12::zeros(), Vec12::zeros()));
                 // The target is the current y: no force.
                 let (t, e) = knit_fibre_target(&f, &d, 1e-6, 1e4, BETA, 3.0);
                 assert_eq!(e, 0.0);
