@@ -92,19 +92,10 @@ pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError>
         // that is not one is refused without being read whole (measured: a
         // 2 GiB sparse `.bcc` took 6-8 s and 2 GiB to be told so).
         if let Some(magic) = signature(format) {
-            // 64 bytes: a BCC header, enough of a PLY's first line for its
-            // message.
-            let head = super::input::read_prefix(path, "yarn file", opts.max_memory, 64)?;
-            if head.len() >= magic.len() && &head[..magic.len()] != magic {
-                let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-                if let Err(source) = decode(format, &head, opts, &DirResources(dir)) {
-                    return Err(IoError::Format {
-                        path: path.to_path_buf(),
-                        format,
-                        source,
-                    });
-                }
-            }
+            let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+            refuse_without_signature(path, "yarn file", opts.max_memory, format, magic, |head| {
+                decode(format, head, opts, &DirResources(dir.clone())).map(|_| ())
+            })?;
         }
         let data = super::input::read_input(path, "yarn file", opts.max_memory)?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -115,6 +106,30 @@ pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError>
         })?
     };
     finish(format, decoded, opts).map_err(|source| IoError::Invalid {
+        path: path.to_path_buf(),
+        format,
+        source,
+    })
+}
+
+/// Refuses `path` (a `format` file, the `what` of messages) from its first
+/// 64 bytes when they do not start with `magic`, with the error `decode`
+/// gives for them (the one the whole file would give), before a file of up
+/// to `max_bytes` is read whole. 64 bytes: a BCC header, enough of a PLY's
+/// first line for its message.
+pub(crate) fn refuse_without_signature(
+    path: &Path,
+    what: &'static str,
+    max_bytes: u64,
+    format: Format,
+    magic: &[u8],
+    decode: impl FnOnce(&[u8]) -> Result<(), FormatError>,
+) -> Result<(), IoError> {
+    let head = super::input::read_prefix(path, what, max_bytes, 64)?;
+    if head.len() < magic.len() || head.starts_with(magic) {
+        return Ok(());
+    }
+    decode(&head).map_err(|source| IoError::Format {
         path: path.to_path_buf(),
         format,
         source,

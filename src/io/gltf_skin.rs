@@ -41,16 +41,14 @@ pub fn read_character(path: &Path) -> Result<Character, IoError> {
     // A `.glb` without its signature is refused from its first bytes, not
     // read whole first (as the yarn readers do).
     if Format::from_path(path) == Some(Format::Glb) {
-        let head = super::input::read_prefix(path, "character", super::max_memory(), 64)?;
-        if head.len() >= 4 && !head.starts_with(b"glTF") {
-            if let Err(source) = decode_character(&head, &DirResources(dir.clone())) {
-                return Err(IoError::Format {
-                    path: path.to_path_buf(),
-                    format: Format::Glb,
-                    source,
-                });
-            }
-        }
+        super::codec::refuse_without_signature(
+            path,
+            "character",
+            super::max_memory(),
+            Format::Glb,
+            b"glTF",
+            |head| decode_character(head, &DirResources(dir.clone())).map(|_| ()),
+        )?;
     }
     let data = super::input::read_input(path, "character", super::max_memory())?;
     let format = if data.starts_with(b"glTF") {

@@ -1406,7 +1406,6 @@ pub fn stiffening_from_forces(
         return Ok(None);
     };
     let (mut best_b, mut best) = (beta, misfit(beta)?);
-    let phi = 0.5 * (5f64.sqrt() - 1.0);
     for _sweep in 0..2 {
         for &fam in &families {
             let at = |t: f64| {
@@ -1414,24 +1413,12 @@ pub fn stiffening_from_forces(
                 b[fam] = t.exp_m1();
                 b
             };
-            let (mut lo, mut hi) = (0.0, MAX_SEARCHED_BETA.ln_1p());
-            let mut c = hi - phi * (hi - lo);
-            let mut d = lo + phi * (hi - lo);
-            let (mut fc, mut fd) = (misfit(at(c))?, misfit(at(d))?);
-            for _ in 2..STIFFENING_EVALUATIONS {
-                if fc <= fd {
-                    hi = d;
-                    (d, fd) = (c, fc);
-                    c = hi - phi * (hi - lo);
-                    fc = misfit(at(c))?;
-                } else {
-                    lo = c;
-                    (c, fc) = (d, fd);
-                    d = lo + phi * (hi - lo);
-                    fd = misfit(at(d))?;
-                }
-            }
-            let (t, ft) = if fc <= fd { (c, fc) } else { (d, fd) };
+            let (t, ft) = crate::fit::golden::golden_section(
+                (0.0, MAX_SEARCHED_BETA.ln_1p()),
+                STIFFENING_EVALUATIONS - 2,
+                true,
+                |t| misfit(at(t)),
+            )?;
             if ft < best {
                 best = ft;
                 best_b = at(t);

@@ -835,8 +835,8 @@ impl Stage for ValidateJob {
                 &colliders,
             )
         };
-        let hr = run_with(&asset_materials(&asset))
-            .map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
+        let ga = asset_materials(&asset);
+        let hr = run_with(&ga).map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
         // The same scene with one material everywhere (uniform, placeholder).
@@ -930,7 +930,7 @@ impl Stage for ValidateJob {
         let force_peak = yarn_forces.as_deref().and_then(validate_forces::peak);
         let (mut clamp_force, mut uniform_clamp_force, mut vh_clamp_force) = (None, None, None);
         if let (Some(yf), Some(at)) = (&yarn_forces, force_peak) {
-            let fa = forces_of(&asset_materials(&asset), xs)?;
+            let fa = forces_of(&ga, xs)?;
             clamp_force = validate_forces::compare(yf, &fa, at);
             let (ya, ma) = (
                 validate_forces::along_peak(yf, at),

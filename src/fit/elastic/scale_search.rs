@@ -66,23 +66,13 @@ impl SampleFit<'_> {
                 }
             }
         }
-        // The minimum of ln c lies within one step of the best point.
-        let (mut a, mut b) = (best.0 - step, best.0 + step);
-        let g = 0.5 * (5f64.sqrt() - 1.0);
-        let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-        let mut f1 = self.scale_loss(&base, x1, &mut best, &mut rep);
-        let mut f2 = self.scale_loss(&base, x2, &mut best, &mut rep);
-        for _ in 0..REFINE_ITERATIONS {
-            if f1 < f2 {
-                (b, x2, f2) = (x2, x1, f1);
-                x1 = b - g * (b - a);
-                f1 = self.scale_loss(&base, x1, &mut best, &mut rep);
-            } else {
-                (a, x1, f1) = (x1, x2, f2);
-                x2 = a + g * (b - a);
-                f2 = self.scale_loss(&base, x2, &mut best, &mut rep);
-            }
-        }
+        // The minimum of ln c lies within one step of the best point; the
+        // trials keep the best as they go.
+        let bracket = (best.0 - step, best.0 + step);
+        let refined = crate::fit::golden::golden_section(bracket, REFINE_ITERATIONS, false, |x| {
+            Ok::<_, std::convert::Infallible>(self.scale_loss(&base, x, &mut best, &mut rep))
+        });
+        let Ok(_) = refined;
         rep.final_residual = best.1.residual;
         rep.ms = start.elapsed().as_secs_f64() * 1e3;
         (best.1, rep)
