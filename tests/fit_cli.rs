@@ -114,6 +114,7 @@ fn loaded_equilibrium(
         pinned: held_nodes(&a.mesh, &a.embedding, held),
         start: start.to_vec(),
         f_ext: node_forces(&a.mesh, &a.embedding, f_y),
+        forces: None,
     };
     let tight = StaticParams {
         tolerance: 1e-8,

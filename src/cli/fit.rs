@@ -62,6 +62,12 @@ pub struct FitArgs {
     /// varies smoothly between the places the poses observe.
     #[arg(long, default_value_t = ElasticFitParams::default().smooth_weight, value_name = "SIGMA", value_parser = parse_prior)]
     pub smooth: f64,
+    /// `--model knit`: weight of the clamp forces in the loss, where the
+    /// training runs recorded them (>= 0): a relative force misfit of 1
+    /// costs this fraction of the uniform material's position loss. 0 fits
+    /// the positions alone and sets the stiffening from the forces after.
+    #[arg(long, default_value_t = ElasticFitParams::default().force_weight, value_name = "RHO", value_parser = parse_prior)]
+    pub force_weight: f64,
     /// The fitted asset [default: ASSET with .fit.vtkhdf]; must differ from ASSET.
     #[arg(short, long, value_name = "OUT.vtkhdf")]
     pub output: Option<PathBuf>,
@@ -165,6 +171,7 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
             max_contrast: a.max_contrast,
             prior_weight: a.prior,
             smooth_weight: a.smooth,
+            force_weight: a.force_weight,
             ..ElasticFitParams::default()
         },
         output: a.output.clone(),
@@ -212,6 +219,12 @@ pub fn fit(a: &FitArgs) -> anyhow::Result<ExitCode> {
                 c[1],
                 w[0],
                 w[1]
+            );
+        }
+        if let Some(f) = &r.field_forces {
+            println!(
+                "clamp forces: relative misfit {:.3} under the uniform material, {:.3} fitted ({} frames, {} bands, weight {})",
+                f.force_misfit_start, f.force_misfit_after, f.frames, f.bands, f.weight
             );
         }
         if let (Some(c), Some(w)) = (r.gamma_course_range, r.gamma_wale_range) {

@@ -14,14 +14,17 @@
 
 use faer::linalg::solvers::SolveCore;
 use faer::{Conj, Mat};
+use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 use super::error::SolveError;
+use super::force_loss::{wrench_coefficients, ForceTarget};
 use super::jacobian::{KFactor, KPatternCache, SYMMETRY_TOLERANCE};
 use super::loss::FrameTarget;
 use super::types::{Frame, MaterialFields};
 use crate::geom::{TetMesh, Vec3};
 use crate::linalg::lu::sparse_lu;
+use crate::sim::element::Vec12;
 use crate::sim::energy::ElasticModel;
 use crate::sim::fibre::fibre_gamma_derivative;
 use crate::sim::hessian::element_gamma_derivatives;
@@ -362,6 +365,20 @@ pub struct FrameLinearization {
     /// The factor of `K` (the adjoint's), reused by the Gauss-Newton
     /// solves that need `K⁻¹`.
     pub k_factor: KFactor,
+    /// The clamp-force term's linearization, where the frame has one.
+    pub force: Option<ForceLinearization>,
+}
+
+/// The clamp-force term of a frame linearized at its equilibrium
+/// ([`super::force_loss`]): `ε_F ≈ w |r + J_F dγ|²`.
+pub struct ForceLinearization {
+    /// `J_F = dW/dγ = A (C_h - K_hf K⁻¹ C_f)`: one row per band and wrench
+    /// component (N/Pa, N per unit β), one column per stacked parameter.
+    pub jacobian: DMatrix<f64>,
+    /// The residuals `W - R` (N), stacked like the rows.
+    pub residual: Vec<f64>,
+    /// `2 w` (m³/N²): the term's Gauss-Newton matrix is `2 w J_Fᵀ J_F`.
+    pub weight2: f64,
 }
 
 /// Linearizes `frame` at its equilibrium `x` under `model`: `K`, `C`, `G`,
@@ -384,6 +401,13 @@ pub fn linearize(
     let stiff: Vec<usize> = (0..fams.len()).filter(|&k| fams[k].stiffening()).collect();
     let nf = 2 + fams.len() + stiff.len();
     let mut c = Vec::with_capacity(ne * 12 * nf);
+    // The held band of each node the clamp-force term reads, and the rows
+    // `A C_h` of the wrench's direct dependence on γ.
+    let mut force_rows = frame
+        .forces
+        .as_ref()
+        .filter(|t| t.weight > 0.0 && !t.bands.is_empty())
+        .map(|t| ForceRows::new(t, x, model.num_nodes(), nf * ne));
     for (e, r) in rest.iter().enumerate() {
         let (ds, dv) = element_gamma_derivatives(&f[e], r);
         let fibre: Vec<_> = fams
@@ -397,6 +421,16 @@ pub fn linearize(
                 }
             })
             .collect();
+        if let Some(rows) = force_rows.as_mut() {
+            let mut per_field: Vec<(usize, &Vec12)> = vec![(e, &ds), (ne + e, &dv)];
+            for (k, (dk, _)) in fibre.iter().enumerate() {
+                per_field.push(((2 + k) * ne + e, dk));
+            }
+            for (j, &k) in stiff.iter().enumerate() {
+                per_field.push(((2 + fams.len() + j) * ne + e, &fibre[k].1));
+            }
+            rows.add_parameters(&r.nodes, &per_field);
+        }
         for b in 0..4 {
             let Some(ib) = free.index[r.nodes[b]] else {
                 continue;
@@ -433,6 +467,18 @@ pub fn linearize(
     for &(row, j, v) in &c {
         grad[j] -= lambda[row] * v;
     }
+    let force = match (force_rows, &frame.forces) {
+        (Some(rows), Some(t)) => {
+            let lin = rows.finish(model, &f, x, frame, t, &free, &factor, &c)?;
+            let r = nalgebra::DVector::from_column_slice(&lin.residual);
+            let jr = lin.jacobian.tr_mul(&r);
+            for (gj, v) in grad.iter_mut().zip(jr.iter()) {
+                *gj += lin.weight2 * v;
+            }
+            Some(lin)
+        }
+        _ => None,
+    };
     Ok(FrameLinearization {
         free,
         k,
@@ -442,7 +488,124 @@ pub fn linearize(
         lambda,
         grad,
         k_factor: factor,
+        force,
     })
+}
+
+/// The clamp-force term's rows while [`linearize`] assembles `C`: which
+/// band (and place in it) each held node has, its wrench coefficients, and
+/// `A C_h` (one row per band and wrench component).
+struct ForceRows {
+    /// Per node: (band, index in the band) where the term reads it.
+    place: Vec<Option<(usize, usize)>>,
+    /// Per band, `A_i` of its nodes ([`wrench_coefficients`]).
+    coeffs: Vec<Vec<[[f64; 3]; 6]>>,
+    /// `A C_h`.
+    direct: DMatrix<f64>,
+}
+
+impl ForceRows {
+    fn new(t: &ForceTarget, x: &[Vec3], n: usize, params: usize) -> ForceRows {
+        let mut place = vec![None; n];
+        for (b, band) in t.bands.iter().enumerate() {
+            for (k, &i) in band.nodes.iter().enumerate() {
+                if i < n {
+                    place[i] = Some((b, k));
+                }
+            }
+        }
+        ForceRows {
+            place,
+            coeffs: t
+                .bands
+                .iter()
+                .map(|b| wrench_coefficients(&b.nodes, x, t.length))
+                .collect(),
+            direct: DMatrix::zeros(6 * t.bands.len(), params),
+        }
+    }
+
+    /// Adds one tet's `∂g/∂γ_j` (12 entries per parameter `j`) on the held
+    /// nodes the term reads.
+    fn add_parameters(&mut self, nodes: &[usize; 4], per_field: &[(usize, &Vec12)]) {
+        for (a, &node) in nodes.iter().enumerate() {
+            let Some((b, k)) = self.place[node] else {
+                continue;
+            };
+            let coeff = &self.coeffs[b][k];
+            for &(j, d) in per_field {
+                for (w, cw) in coeff.iter().enumerate() {
+                    let v: f64 = (0..3).map(|kk| cw[kk] * d[3 * a + kk]).sum();
+                    self.direct[(6 * b + w, j)] += v;
+                }
+            }
+        }
+    }
+
+    /// `J_F = A C_h - (A K_hf) K⁻¹ C_f` and the residuals.
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        self,
+        model: &ElasticModel,
+        f: &[nalgebra::Matrix3<f64>],
+        x: &[Vec3],
+        frame: &Frame,
+        t: &ForceTarget,
+        free: &FreeDofs,
+        factor: &KFactor,
+        c: &[(usize, usize, f64)],
+    ) -> Result<ForceLinearization, SolveError> {
+        let rows = self.direct.nrows();
+        // (A K_hf)ᵀ: one column per wrench row, over the free DOFs.
+        let mut lam = Mat::<f64>::zeros(free.ndof, rows);
+        for (e, r) in model.rest().iter().enumerate() {
+            if !r.nodes.iter().any(|&i| self.place[i].is_some()) {
+                continue;
+            }
+            let h = model.tet_hessian(e, &f[e], false);
+            for (a, &na) in r.nodes.iter().enumerate() {
+                let Some((b, k)) = self.place[na] else {
+                    continue;
+                };
+                let coeff = &self.coeffs[b][k];
+                for (bb, &nb) in r.nodes.iter().enumerate() {
+                    let Some(ib) = free.index[nb] else {
+                        continue;
+                    };
+                    for cc in 0..3 {
+                        for w in 0..6 {
+                            let v: f64 = (0..3)
+                                .map(|kk| coeff[w][kk] * h[(3 * a + kk, 3 * bb + cc)])
+                                .sum();
+                            lam[(ib + cc, 6 * b + w)] += v;
+                        }
+                    }
+                }
+            }
+        }
+        // Λ = K⁻ᵀ (A K_hf)ᵀ, so (A K_hf) K⁻¹ C_f = Λᵀ C_f.
+        factor.solve_transpose_in_place(lam.as_mut());
+        let mut jacobian = self.direct;
+        for &(row, j, v) in c {
+            for w in 0..rows {
+                jacobian[(w, j)] -= lam[(row, w)] * v;
+            }
+        }
+        if !jacobian.iter().all(|v| v.is_finite()) {
+            return Err(SolveError::SingularAdjoint);
+        }
+        let grad = model.gradient(x)?;
+        let residual: Vec<f64> = t
+            .residuals(x, &grad, &frame.f_ext)
+            .into_iter()
+            .flatten()
+            .collect();
+        Ok(ForceLinearization {
+            jacobian,
+            residual,
+            weight2: 2.0 * t.weight,
+        })
+    }
 }
 
 /// `G` of the frame's loss on the free DOFs (3 coordinates expanded).

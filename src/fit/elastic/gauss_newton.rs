@@ -202,9 +202,30 @@ pub fn gn_solve_damped(
     if solved_by_cg(lins, m, cg.direct_max_unknowns) {
         return gn_solve_cg(lins, grad, damping, coupling, fixed, cg).map(|(d, _)| d);
     }
-    let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + m;
+    let force_rows: usize = lins
+        .iter()
+        .filter_map(|l| l.force.as_ref())
+        .map(|f| f.jacobian.nrows())
+        .sum();
+    let total: usize = lins.iter().map(|l| 2 * l.free.ndof).sum::<usize>() + force_rows + m;
     let dcol = total - m;
     let mut t = Vec::new();
+    // The clamp-force terms as extra unknowns s = 2w J_F d: rows
+    // [J_F, -I / 2w] and J_Fᵀ in the d rows give (P + 2w J_Fᵀ J_F) d.
+    let mut srow = dcol - force_rows;
+    for fl in lins.iter().filter_map(|l| l.force.as_ref()) {
+        for w in 0..fl.jacobian.nrows() {
+            for (j, &fx) in fixed.iter().enumerate() {
+                let v = fl.jacobian[(w, j)];
+                if v != 0.0 && !fx {
+                    t.push((srow, dcol + j, v));
+                    t.push((dcol + j, srow, v));
+                }
+            }
+            t.push((srow, srow, -1.0 / fl.weight2));
+            srow += 1;
+        }
+    }
     let mut off = 0;
     for l in lins {
         let n = l.free.ndof;
@@ -293,6 +314,20 @@ fn gn_solve_subspace(
     for part in parts {
         p += part;
     }
+    for l in lins {
+        if let Some(fl) = &l.force {
+            // J_F diag(H, H, ...), row by row.
+            let rows = fl.jacobian.nrows();
+            let mut js = DMatrix::<f64>::zeros(rows, m);
+            for w in 0..rows {
+                let row: Vec<f64> = fl.jacobian.row(w).iter().copied().collect();
+                for (k, v) in basis.pull(&row, ne).into_iter().enumerate() {
+                    js[(w, k)] = v;
+                }
+            }
+            p += js.tr_mul(&js) * fl.weight2;
+        }
+    }
     let mut rhs = nalgebra::DVector::<f64>::zeros(m);
     for j in 0..m {
         if fixed[j] {
@@ -376,6 +411,13 @@ pub fn gn_solve_cg(
         let mut out: Vec<f64> = (0..m).map(|j| damping[j] * v[j]).collect();
         for &(a, b, c) in coupling {
             out[a] += c * v[b];
+        }
+        for fl in lins.iter().filter_map(|l| l.force.as_ref()) {
+            let jv = &fl.jacobian * nalgebra::DVector::from_column_slice(v);
+            let back = fl.jacobian.tr_mul(&jv);
+            for (o, b) in out.iter_mut().zip(back.iter()) {
+                *o += fl.weight2 * b;
+            }
         }
         for part in parts {
             for (o, p) in out.iter_mut().zip(part) {
@@ -465,6 +507,11 @@ fn jacobi_estimate(lins: &[FrameLinearization], damping: &[f64], m: usize) -> Ve
         for &(r, j, c) in &l.c {
             if kdiag[r] != 0.0 {
                 d[j] += gdiag[r] * (c / kdiag[r]).powi(2);
+            }
+        }
+        if let Some(fl) = &l.force {
+            for (j, dj) in d.iter_mut().enumerate() {
+                *dj += fl.weight2 * fl.jacobian.column(j).norm_squared();
             }
         }
     }
@@ -606,7 +653,7 @@ impl SampleFit<'_> {
             .map(|(i, fr)| {
                 let (x, st) = equilibrium_with(&model, mass, fr, &starts[i], &statics, &caches[i])
                     .map_err(|e| (i, e))?;
-                let loss = fr.target.loss(&model, &x);
+                let loss = fr.loss(&model, &x);
                 if !loss.is_finite() {
                     return Err((i, SolveError::NonFiniteLoss));
                 }

@@ -5,6 +5,8 @@
 //!   plus the α position term), its gradient and its constant Hessian `G`.
 //! * [`adjoint`]: the equilibrium of Eq. 14 per frame ([`crate::sim::statics`])
 //!   and the adjoint gradient of the loss (Eq. 16-17).
+//! * [`force_loss`]: the clamp-force term a frame's loss may carry (the
+//!   wrench each held band holds against the yarn level's).
 //! * [`error`]: why a frame's solve or a sample's check failed.
 //! * [`jacobian`]: the factor of a frame's force Jacobian `K` that the
 //!   adjoint and the Gauss-Newton products solve with (sparse Cholesky
@@ -26,6 +28,7 @@
 
 pub mod adjoint;
 pub mod error;
+pub mod force_loss;
 pub mod gauss_newton;
 pub mod harmonic;
 pub mod jacobian;

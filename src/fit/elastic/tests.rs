@@ -113,6 +113,7 @@ fn frame_of(mesh: &TetMesh, mass: &[f64], truth: &MaterialFields, load: Load) ->
         pinned: pinned.clone(),
         start: mesh.nodes.clone(),
         f_ext: f_ext.clone(),
+        forces: None,
     };
     let tight = StaticParams {
         tolerance: 1e-6,
@@ -127,6 +128,7 @@ fn frame_of(mesh: &TetMesh, mass: &[f64], truth: &MaterialFields, load: Load) ->
             pinned,
             start: x,
             f_ext,
+            forces: None,
         },
         energy,
     )
@@ -645,7 +647,7 @@ fn loss_at(
         .zip(starts)
         .map(|(f, s)| {
             let (x, _) = equilibrium(&model, mass, f, s, &tight()).unwrap();
-            f.target.loss(&model, &x)
+            f.loss(&model, &x)
         })
         .sum()
 }
@@ -731,13 +733,14 @@ fn dense_gauss_newton_matrix(
     lins: &[FrameLinearization],
     basis: &Basis,
     ne: usize,
+    nf: usize,
 ) -> DMatrix<f64> {
-    let m = basis.dim(ne, NF);
+    let m = basis.dim(ne, nf);
     let mut p = DMatrix::<f64>::zeros(m, m);
     for l in lins {
         let n = l.free.ndof;
         let k = dense(n, n, &l.k);
-        let c = dense(n, m, &gauss_newton_columns(basis, &l.c, n, ne));
+        let c = dense(n, m, &gauss_newton_columns(basis, &l.c, n, ne, nf));
         let j = -k.lu().solve(&c).unwrap();
         p += j.transpose() * dense(n, n, &l.g) * &j;
     }
@@ -752,7 +755,7 @@ fn gauss_newton_direction_equals_dense_eq20_solve() {
     for basis in [Basis::Full, Basis::Harmonic(h)] {
         let m = basis.dim(ne, NF);
         let grad = basis.pull(&grad_gamma, ne);
-        let p = dense_gauss_newton_matrix(&lins, &basis, ne);
+        let p = dense_gauss_newton_matrix(&lins, &basis, ne, NF);
         let kappa = 1e-6 * p.trace() / m as f64;
         let fixed = vec![false; m];
         let d = gn_solve(
@@ -820,11 +823,12 @@ fn gauss_newton_columns(
     c: &[(usize, usize, f64)],
     n: usize,
     ne: usize,
+    nf: usize,
 ) -> Vec<(usize, usize, f64)> {
-    let m = basis.dim(ne, NF);
+    let m = basis.dim(ne, nf);
     let mut out = Vec::new();
     // Column q of C B is C (B e_q).
-    let cg = dense(n, NF * ne, c);
+    let cg = dense(n, nf * ne, c);
     for col in 0..m {
         let mut eq = vec![0.0; m];
         eq[col] = 1.0;
@@ -1155,6 +1159,7 @@ fn equilibrium_polishes_where_the_projected_newton_stalls() {
         pinned,
         start: mesh.nodes.clone(),
         f_ext: weight,
+        forces: None,
     };
     let capped = StaticParams {
         tolerance: 1e-6,
@@ -1272,7 +1277,7 @@ fn coupled_gauss_newton_direction_equals_the_dense_solve() {
     let (mesh, lins, grad) = small_case_linearized();
     let ne = mesh.num_tets();
     let m = NF * ne;
-    let p = dense_gauss_newton_matrix(&lins, &Basis::Full, ne);
+    let p = dense_gauss_newton_matrix(&lins, &Basis::Full, ne, NF);
     // A graph-Laplacian-like coupling of neighbouring parameters, as strong
     // as P's diagonal.
     let w = p.trace() / m as f64;
@@ -1656,4 +1661,241 @@ fn a_knit_uniform_stage_hands_a_failed_descent_to_gauss_newton() {
         (fitted.fibres[0].beta[0] / 80.0 - 1.0).abs() < 0.05,
         "{fitted:?}"
     );
+}
+
+/// The small case with a clamp-force term on every frame: the held face's
+/// wrench under the truth (the material that made the frames), weighted so
+/// that the term is as large as the position loss at the small case's
+/// material.
+fn small_case_with_forces() -> (TetMesh, Vec<f64>, MaterialFields, Sample) {
+    let (mesh, mass, mut g, mut sample) = small_case();
+    // The bar's fibre stiffens (the knit material), so β is a field too.
+    let ne = mesh.num_tets();
+    g.fibres[0].beta = (0..ne)
+        .map(|e| 40.0 * (1.0 + 0.3 * (e as f64 * 1.1).cos()))
+        .collect();
+    let truth = band_truth(&mesh, 5.0);
+    let (tm, gm) = (truth.model(&mesh).unwrap(), g.model(&mesh).unwrap());
+    let length = 0.04;
+    let (mut pos, mut mis) = (0.0, 0.0);
+    for f in sample.frames.iter_mut() {
+        let near = StaticParams {
+            tolerance: 1e-10,
+            max_iterations: 200,
+        };
+        let (xt, _) = equilibrium(&tm, &mass, f, &f.start, &near).unwrap();
+        let gt = tm.gradient(&xt).unwrap();
+        let clamp: Vec<Vec3> = gt
+            .iter()
+            .zip(&f.f_ext)
+            .map(|(a, b)| std::array::from_fn(|d| a[d] - b[d]))
+            .collect();
+        let target = force_loss::wrench(&f.pinned, &xt, &clamp, length);
+        f.forces = Some(force_loss::ForceTarget {
+            bands: vec![force_loss::BandForce {
+                nodes: f.pinned.clone(),
+                target,
+            }],
+            length,
+            weight: 1.0,
+        });
+        let (x, _) = equilibrium(&gm, &mass, f, &f.start, &tight()).unwrap();
+        pos += f.target.loss(&gm, &x);
+        mis += f.loss(&gm, &x) - f.target.loss(&gm, &x);
+    }
+    assert!(mis > 0.0, "the truth's forces equal the material's");
+    for f in sample.frames.iter_mut() {
+        f.forces.as_mut().unwrap().weight = pos / mis;
+    }
+    (mesh, mass, g, sample)
+}
+
+#[test]
+fn the_clamp_force_jacobian_matches_central_differences() {
+    let (mesh, mass, g, sample) = small_case_with_forces();
+    let ne = mesh.num_tets();
+    let model = g.model(&mesh).unwrap();
+    let residuals = |g: &MaterialFields, f: &Frame, start: &[Vec3]| -> Vec<f64> {
+        let m = g.model(&mesh).unwrap();
+        let (x, _) = equilibrium(&m, &mass, f, start, &tight()).unwrap();
+        let grad = m.gradient(&x).unwrap();
+        let t = f.forces.as_ref().unwrap();
+        t.residuals(&x, &grad, &f.f_ext)
+            .into_iter()
+            .flatten()
+            .collect()
+    };
+    let mut checked = vec![0usize; g.num_fields()];
+    for f in &sample.frames {
+        let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
+        let lin = linearize(&model, f, &x, &Default::default()).unwrap();
+        let fl = lin.force.as_ref().expect("a force linearization");
+        assert_eq!(fl.jacobian.nrows(), 6);
+        let r0 = residuals(&g, f, &x);
+        for (a, b) in r0.iter().zip(&fl.residual) {
+            assert!((a - b).abs() <= 1e-9 * (1.0 + a.abs()), "{a} against {b}");
+        }
+        let scale = fl.jacobian.amax();
+        assert!(scale > 0.0);
+        let t = f.forces.as_ref().unwrap();
+        let wmax = t.bands[0]
+            .target
+            .iter()
+            .zip(&r0)
+            .fold(0.0f64, |m, (a, b)| m.max((a + b).abs()));
+        for &e in &[0usize, 3, 7, 31, 50, ne - 1] {
+            for field in 0..g.num_fields() {
+                let j = field * ne + e;
+                let base = g.stacked();
+                let h = 1e-4 * base[j];
+                let mut plus = base.clone();
+                plus[j] += h;
+                let mut minus = base;
+                minus[j] -= h;
+                let rp = residuals(&g.with_stacked(&plus), f, &x);
+                let rm = residuals(&g.with_stacked(&minus), f, &x);
+                // The equilibria are converged to 1e-12 of the forces:
+                // central differences carry about that much noise.
+                let noise = 1e-10 * wmax / h;
+                for w in 0..6 {
+                    let fd = (rp[w] - rm[w]) / (2.0 * h);
+                    let an = fl.jacobian[(w, j)];
+                    assert!(
+                        (fd - an).abs() <= 1e-4 * an.abs() + 1e-6 * scale + noise,
+                        "tet {e} field {field} row {w}: J_F {an:e}, central difference {fd:e}"
+                    );
+                    if an.abs() > 1e-3 * scale {
+                        checked[field] += 1;
+                    }
+                }
+            }
+        }
+    }
+    // Tets at the held face see the direct term A C_h, the others only
+    // the equilibrium's response; every field has sizeable entries.
+    assert!(
+        checked.iter().all(|&c| c >= 2),
+        "sizeable entries per field: {checked:?}"
+    );
+}
+
+#[test]
+fn loss_gradient_with_the_clamp_force_term_matches_central_differences() {
+    let (mesh, mass, g, sample) = small_case_with_forces();
+    let ne = mesh.num_tets();
+    let model = g.model(&mesh).unwrap();
+    let mut grad = vec![0.0; g.num_fields() * ne];
+    let mut force_part = vec![0.0; g.num_fields() * ne];
+    let mut xs = Vec::new();
+    for f in &sample.frames {
+        let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
+        let lin = linearize(&model, f, &x, &Default::default()).unwrap();
+        let fl = lin.force.as_ref().unwrap();
+        let jr = fl
+            .jacobian
+            .tr_mul(&DVector::from_column_slice(&fl.residual));
+        for (a, b) in force_part.iter_mut().zip(jr.iter()) {
+            *a += fl.weight2 * b;
+        }
+        for (a, b) in grad.iter_mut().zip(&lin.grad) {
+            *a += b;
+        }
+        xs.push(x);
+    }
+    let scale = grad.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let force_scale = force_part.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        force_scale > 1e-2 * scale,
+        "the force term is negligible: {force_scale:e} of {scale:e}"
+    );
+    for &e in &[0usize, 7, 31, 50, ne - 1] {
+        for field in 0..g.num_fields() {
+            let j = field * ne + e;
+            let base = g.stacked();
+            let h = 1e-4 * base[j];
+            let mut plus = base.clone();
+            plus[j] += h;
+            let mut minus = base;
+            minus[j] -= h;
+            let lp = loss_at(&mesh, &mass, &g.with_stacked(&plus), &sample, &xs);
+            let lm = loss_at(&mesh, &mass, &g.with_stacked(&minus), &sample, &xs);
+            let fd = (lp - lm) / (2.0 * h);
+            assert!(
+                (fd - grad[j]).abs() <= 1e-4 * grad[j].abs() + 1e-6 * scale,
+                "tet {e} field {field}: adjoint {:e}, central difference {fd:e}",
+                grad[j]
+            );
+        }
+    }
+}
+
+#[test]
+fn gauss_newton_direction_with_the_clamp_force_term_equals_the_dense_solve() {
+    let (mesh, mass, g, sample) = small_case_with_forces();
+    let ne = mesh.num_tets();
+    let model = g.model(&mesh).unwrap();
+    let lins: Vec<_> = sample
+        .frames
+        .iter()
+        .map(|f| {
+            let (x, _) = equilibrium(&model, &mass, f, &f.start, &tight()).unwrap();
+            linearize(&model, f, &x, &Default::default()).unwrap()
+        })
+        .collect();
+    let nf = g.num_fields();
+    assert_eq!(nf, NF + 1, "γs, γv, two fibre γ and one β");
+    let grad_gamma: Vec<f64> = (0..nf * ne)
+        .map(|j| lins.iter().map(|l| l.grad[j]).sum())
+        .collect();
+    let h = harmonic_basis(&mesh, 6).unwrap();
+    for basis in [Basis::Full, Basis::Harmonic(h)] {
+        let m = basis.dim(ne, nf);
+        let grad = basis.pull(&grad_gamma, ne);
+        let mut p = dense_gauss_newton_matrix(&lins, &basis, ne, nf);
+        let positions_trace = p.trace();
+        // + 2w (J_F B)ᵀ (J_F B), B the basis's columns.
+        let bcols = DMatrix::from_fn(nf * ne, m, |row, col| {
+            let mut eq = vec![0.0; m];
+            eq[col] = 1.0;
+            basis.expand(&eq, ne)[row]
+        });
+        for l in &lins {
+            let fl = l.force.as_ref().unwrap();
+            let jb = &fl.jacobian * &bcols;
+            p += jb.tr_mul(&jb) * fl.weight2;
+        }
+        assert!(
+            p.trace() > 1.01 * positions_trace,
+            "the force term adds nothing"
+        );
+        let kappa = 1e-6 * p.trace() / m as f64;
+        let fixed = vec![false; m];
+        let d = gn_solve(
+            &lins,
+            &basis,
+            ne,
+            &grad,
+            kappa,
+            &fixed,
+            &CgParams::default(),
+        )
+        .unwrap();
+        let a = &p + DMatrix::identity(m, m) * kappa;
+        let want = a.lu().solve(&DVector::from_vec(grad.clone())).unwrap();
+        let err = (DVector::from_vec(d) - &want).norm() / want.norm();
+        assert!(err < 1e-6, "{m} parameters: relative difference {err:e}");
+        if let Basis::Full = basis {
+            let cg = CgParams {
+                tolerance: 1e-12,
+                max_iterations: 200 * m,
+                ..CgParams::default()
+            };
+            let (d, _) = gn_solve_cg(&lins, &grad, &vec![kappa; m], &[], &fixed, &cg).unwrap();
+            let err = (DVector::from_vec(d) - &want).norm() / want.norm();
+            assert!(
+                err < 1e-6,
+                "CG, {m} parameters: relative difference {err:e}"
+            );
+        }
+    }
 }

@@ -3,6 +3,7 @@
 //! progress records every stage reports. A leaf: it names no other file of
 //! the fit.
 
+use super::force_loss::ForceTarget;
 use super::loss::FrameTarget;
 use crate::geom::{TetMesh, Vec3};
 use crate::sim::energy::ElasticModel;
@@ -116,6 +117,26 @@ pub struct Frame {
     /// External node forces (N): reaction forces of the yarn-level pose,
     /// gravity `m_i g`, ...
     pub f_ext: Vec<Vec3>,
+    /// The clamp-force term of the loss ([`super::force_loss`]), where the
+    /// frame's yarn-level run recorded the forces its clamps held; None:
+    /// positions only (VH Eq. 10).
+    pub forces: Option<ForceTarget>,
+}
+
+impl Frame {
+    /// The frame's loss (m³) at equilibrium `x` under `model`: VH Eq. 10
+    /// plus the clamp-force term where the frame has one (non-finite when
+    /// the model cannot be evaluated at `x`).
+    pub fn loss(&self, model: &ElasticModel, x: &[Vec3]) -> f64 {
+        let positions = self.target.loss(model, x);
+        match &self.forces {
+            None => positions,
+            Some(t) => match model.gradient(x) {
+                Ok(g) => positions + t.loss(x, &g, &self.f_ext),
+                Err(_) => f64::NAN,
+            },
+        }
+    }
 }
 
 /// A training sample (VH §6.4): one or more frames fitted together.
@@ -260,6 +281,14 @@ pub struct ElasticFitParams {
     /// motions the poses never showed; docs/fidelity.md, held-out drape). Log-space
     /// full stage only. Default 0.
     pub smooth_weight: f64,
+    /// Weight ρ (dimensionless, >= 0) of the clamp-force term that a knit
+    /// fit adds to every frame whose yarn-level run recorded its clamp
+    /// forces ([`super::force_loss`]): per sample, `w = ρ L0 / Σ |R|²`
+    /// with `L0` the sample's position loss under the uniform material the
+    /// field starts from, so a relative force misfit of 1 costs `ρ L0`.
+    /// 0: positions only, the stiffening then set afterwards from the
+    /// forces alone. Default 1.
+    pub force_weight: f64,
 }
 
 impl Default for ElasticFitParams {
@@ -287,6 +316,7 @@ impl Default for ElasticFitParams {
             max_contrast: 1e3,
             prior_weight: 0.0,
             smooth_weight: 0.0,
+            force_weight: 1.0,
         }
     }
 }
