@@ -2441,6 +2441,20 @@ mod tests {
         assert!(none.is_none());
     }
 
+    /// The nodes of a bar's two ends (x = 0 and x = `lx`), and the nodes
+    /// with those ends pulled apart by `strain`.
+    fn clamped_stretch(mesh: &TetMesh, lx: f64, strain: f64) -> (Vec<usize>, Vec<Vec3>) {
+        let mut pinned = Vec::new();
+        let mut start = mesh.nodes.clone();
+        for (i, p) in mesh.nodes.iter().enumerate() {
+            if p[0] < 1e-9 || p[0] > lx - 1e-9 {
+                pinned.push(i);
+                start[i][0] *= 1.0 + strain;
+            }
+        }
+        (pinned, start)
+    }
+
     #[test]
     fn the_stiffening_is_found_from_the_clamp_forces() {
         let h = 0.01;
@@ -2463,14 +2477,7 @@ mod tests {
         // truth's equilibria.
         let (mut frames, mut reactions) = (Vec::new(), Vec::new());
         for strain in [0.05, 0.2] {
-            let mut pinned = Vec::new();
-            let mut start = mesh.nodes.clone();
-            for (i, p) in mesh.nodes.iter().enumerate() {
-                if p[0] < 1e-9 || p[0] > lx - 1e-9 {
-                    pinned.push(i);
-                    start[i][0] *= 1.0 + strain;
-                }
-            }
+            let (pinned, start) = clamped_stretch(&mesh, lx, strain);
             let frame = Frame {
                 target: FrameTarget::from_nodes(&model, &start, &mass, LOSS_ALPHA, h).unwrap(),
                 pinned: pinned.clone(),
@@ -2578,14 +2585,7 @@ mod tests {
         };
         let (mut frames, mut reactions) = (Vec::new(), Vec::new());
         for strain in [0.05, 0.2] {
-            let mut pinned = Vec::new();
-            let mut start = mesh.nodes.clone();
-            for (i, p) in mesh.nodes.iter().enumerate() {
-                if p[0] < 1e-9 || p[0] > lx - 1e-9 {
-                    pinned.push(i);
-                    start[i][0] *= 1.0 + strain;
-                }
-            }
+            let (pinned, start) = clamped_stretch(&mesh, lx, strain);
             let probe = Frame {
                 target: FrameTarget::from_nodes(&model, &start, &mass, LOSS_ALPHA, h).unwrap(),
                 pinned: pinned.clone(),
