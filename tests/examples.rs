@@ -488,18 +488,22 @@ fn every_yarn_level_example_scene_runs_through_knitvox_yls() {
 /// The held-out scenes of `examples/validate/`: each has no `[swatch]` (it
 /// runs on the asset's rest yarns), reads as a yls scene once a swatch file
 /// is named, as `validate` names it, and is the pose its name says, with
-/// the rods model over 0.4 s at 30 frames/s.
+/// the rods model at 30 frames/s over 0.4 s (the posed scenes and the drape)
+/// or 0.5 s (the free drops and the slide).
 #[test]
 fn every_held_out_example_scene_reads_with_the_assets_yarns() {
     let dir = examples().join("validate");
     let want = [
-        ("biaxial.toml", PoseKind::Biaxial, 0.15, 0),
-        ("drape.toml", PoseKind::Free, 0.0, 1),
-        ("fan.toml", PoseKind::Fan, 0.25, 0),
-        ("hang.toml", PoseKind::Hang, 0.0, 0),
-        ("multi_fold.toml", PoseKind::MultiFold, 0.3, 0),
-        ("shear.toml", PoseKind::Shear, 0.1, 0),
-        ("stretch_wales.toml", PoseKind::StretchWales, 0.3, 0),
+        ("biaxial.toml", PoseKind::Biaxial, 0.15, 0, 0.4),
+        ("drape.toml", PoseKind::Free, 0.0, 1, 0.4),
+        ("drop.toml", PoseKind::Free, 0.0, 1, 0.5),
+        ("drop_off_centre.toml", PoseKind::Free, 0.0, 1, 0.5),
+        ("fan.toml", PoseKind::Fan, 0.25, 0, 0.4),
+        ("hang.toml", PoseKind::Hang, 0.0, 0, 0.4),
+        ("multi_fold.toml", PoseKind::MultiFold, 0.3, 0, 0.4),
+        ("shear.toml", PoseKind::Shear, 0.1, 0, 0.4),
+        ("slide.toml", PoseKind::Free, 0.0, 1, 0.5),
+        ("stretch_wales.toml", PoseKind::StretchWales, 0.3, 0, 0.4),
     ];
     let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
         .unwrap()
@@ -507,7 +511,7 @@ fn every_held_out_example_scene_reads_with_the_assets_yarns() {
         .collect();
     on_disk.sort();
     assert_eq!(on_disk, want.map(|w| w.0));
-    for (file, kind, amount, colliders) in want {
+    for (file, kind, amount, colliders, duration) in want {
         let path = dir.join(file);
         let text = std::fs::read_to_string(&path).unwrap();
         let table: toml::Table = text.parse().unwrap();
@@ -522,8 +526,12 @@ fn every_held_out_example_scene_reads_with_the_assets_yarns() {
             knitvox::pipeline::yls_scene::YarnModel::Rods,
             "{file}"
         );
-        assert_eq!(scene.duration, 0.4, "{file}");
-        assert_eq!(scene.num_frames(), 12, "{file}");
+        assert_eq!(scene.duration, duration, "{file}");
+        assert_eq!(
+            scene.num_frames(),
+            (duration * 30.0).round() as usize,
+            "{file}"
+        );
     }
 }
 
@@ -558,10 +566,13 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
     for file in [
         "biaxial.toml",
         "drape.toml",
+        "drop.toml",
+        "drop_off_centre.toml",
         "fan.toml",
         "hang.toml",
         "multi_fold.toml",
         "shear.toml",
+        "slide.toml",
         "stretch_wales.toml",
     ] {
         let text = std::fs::read_to_string(examples().join("validate").join(file)).unwrap();
@@ -582,11 +593,25 @@ fn every_held_out_example_scene_validates_an_embedded_pattern_swatch() {
             let x = r[k].as_f64().unwrap();
             assert!(x.is_finite() && x >= 0.0, "{file}: {k} {x}");
         }
+        let free = [
+            "drape.toml",
+            "drop.toml",
+            "drop_off_centre.toml",
+            "slide.toml",
+        ];
         assert_eq!(
             r["colliders"],
-            if file == "drape.toml" { 1 } else { 0 },
+            if free.contains(&file) { 1 } else { 0 },
             "{file}"
         );
+        // The motion of both levels over the frame: the yarns fall or are
+        // pulled, so the centre of mass moves on both.
+        for run in ["yarn_level", "homogenized"] {
+            let m = &r["motion"][run];
+            let travel = m["com_travel_m"].as_f64().unwrap();
+            assert!(travel.is_finite() && travel > 0.0, "{file}: {run} {m}");
+            assert_eq!(m["frames"].as_array().unwrap().len(), 2, "{file}: {run}");
+        }
         let o = knitvox(&[
             "validate",
             s(&standing),

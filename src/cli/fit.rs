@@ -356,6 +356,7 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
         println!("{}", r.summary());
+        println!("{}", crate::pipeline::validate_motion::words(&r.motion));
         println!("{}", r.verdict);
     }
     Ok(ExitCode::Success)

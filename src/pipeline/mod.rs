@@ -67,6 +67,7 @@ pub mod train;
 pub mod util;
 pub mod validate;
 pub mod validate_forces;
+pub mod validate_motion;
 pub mod validate_pd;
 pub mod yls;
 pub mod yls_scene;

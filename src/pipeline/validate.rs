@@ -35,6 +35,7 @@ use crate::pipeline::sim_scene::{BackendChoice, SolverChoice};
 use crate::pipeline::util::held_nodes;
 use crate::pipeline::util::rms_max;
 use crate::pipeline::validate_forces::{self, ForceMatch};
+use crate::pipeline::validate_motion::{self, MotionReport, MotionScene};
 use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
 use crate::pipeline::yls::{self, YlsError};
 use crate::pipeline::yls_scene::YlsScene;
@@ -177,6 +178,11 @@ pub struct ValidateReport {
     pub uniform_clamp_force: Option<ForceMatch>,
     pub vh_clamp_force: Option<ForceMatch>,
     pub per_frame: Vec<FrameError>,
+    /// The motion of both levels (module `validate_motion`): kinetic
+    /// energy, centre-of-mass path, support force and slip along the
+    /// colliders, per frame and in total, for the asset's material and the
+    /// uniform one.
+    pub motion: MotionReport,
     /// The yarn-level frames reused (`--truth`); `yarn_level_s` is then
     /// the wall time that file records, measured when it was made.
     pub truth_file: Option<PathBuf>,
@@ -283,6 +289,12 @@ impl ValidateReport {
             "uniform_clamp_force_ratio": self.uniform_clamp_force.map(|m| m.peak_ratio),
             "vh_clamp_force_ratio": self.vh_clamp_force.map(|m| m.peak_ratio),
             "vh_clamp_force_error": self.vh_clamp_force.map(|m| m.relative_error),
+            "com_travel_m": self.motion.yarn_level.com_travel_m,
+            "com_travel_ratio": self.motion.homogenized_match.com_travel_ratio,
+            "com_path_error": self.motion.homogenized_match.com_path_error,
+            "slip_m": self.motion.yarn_level.slip_m,
+            "slip_ratio": self.motion.homogenized_match.slip_ratio,
+            "peak_kinetic_ratio": self.motion.homogenized_match.peak_kinetic_ratio,
             "verdict": self.verdict,
         })
     }
@@ -947,6 +959,37 @@ impl Stage for ValidateJob {
                 vh_clamp_force = validate_forces::compare(yf, &forces_of(g, x)?, at);
             }
         }
+        // The motion of both levels, measured the same way on the yarns.
+        let masses = crate::yarn::fabric::lumped_masses(rest, density);
+        let radii: Vec<f64> = (0..rest.num_points()).map(|v| rest.radius_at(v)).collect();
+        let motion_scene = MotionScene {
+            masses: &masses,
+            radii: &radii,
+            gravity: scene.gravity,
+            mass_damping: yarn_params.global_damping,
+            colliders: &colliders,
+        };
+        let motion_of = |x: &[Vec<Vec3>]| {
+            let y: Vec<Vec<Vec3>> = x
+                .iter()
+                .map(|f| asset.embedding.v2y(&asset.mesh, f))
+                .collect();
+            let refs: Vec<&[Vec3]> = y.iter().map(|f| f.as_slice()).collect();
+            validate_motion::measure(&motion_scene, &frames.times, &refs)
+        };
+        let yarn_refs: Vec<&[Vec3]> = (0..nf).map(|k| frames.frame(k)).collect();
+        let yarn_motion = validate_motion::measure(&motion_scene, &frames.times, &yarn_refs);
+        let homogenized_motion = motion_of(xs);
+        let uniform_motion = xu.as_deref().map(&motion_of);
+        let motion = MotionReport {
+            homogenized_match: validate_motion::compare(&yarn_motion, &homogenized_motion),
+            uniform_match: uniform_motion
+                .as_ref()
+                .map(|u| validate_motion::compare(&yarn_motion, u)),
+            yarn_level: yarn_motion,
+            homogenized: homogenized_motion,
+            uniform: uniform_motion,
+        };
         let mut report = ValidateReport {
             frames: per_frame.len(),
             rms_yarn_diameters: rms,
@@ -994,6 +1037,7 @@ impl Stage for ValidateJob {
             uniform_clamp_force,
             vh_clamp_force,
             per_frame,
+            motion,
             truth_file: self.truth.clone(),
             report_files: Vec::new(),
             verdict: String::new(),
@@ -1107,6 +1151,14 @@ fn write_report(
     };
     let bytes =
         plot::render_png(&fig).map_err(|e| Error::Internal(format!("{}: {e}", png.display())))?;
+    io::atomic::write_bytes(&png, &bytes)?;
+    files.push(png);
+    let csv = dir.join("motion.csv");
+    io::atomic::write_bytes(&csv, validate_motion::csv(&r.motion).as_bytes())?;
+    files.push(csv);
+    let png = dir.join("motion.png");
+    let bytes = plot::render_png(&validate_motion::figure(&r.motion))
+        .map_err(|e| Error::Internal(format!("{}: {e}", png.display())))?;
     io::atomic::write_bytes(&png, &bytes)?;
     files.push(png);
     let rest = &asset.rest_yarns;

@@ -610,6 +610,23 @@ impl Stage for YlsJob {
     }
 }
 
+/// A point of the plane with `normal` that passes under the centre of
+/// `rest`'s bounds one yarn diameter (`2 r_max`) below its lowest yarn point
+/// along the normal.
+fn plane_under(rest: &crate::geom::Yarns, normal: Vec3, r_max: f64) -> Vec3 {
+    let len = crate::geom::vec3::norm(normal);
+    let n = normal.map(|c| c / len);
+    let c = rest.bounds().map_or([0.0; 3], |b| {
+        std::array::from_fn(|i| 0.5 * (b.min[i] + b.max[i]))
+    });
+    let lowest = rest
+        .points
+        .iter()
+        .map(|p| crate::geom::vec3::dot(crate::geom::vec3::sub(*p, c), n))
+        .fold(0.0, f64::min);
+    std::array::from_fn(|i| c[i] + (lowest - 2.0 * r_max) * n[i])
+}
+
 /// The colliders of a yls scene, as both the yarn-level run and `validate`
 /// use them: a sphere without `center` sits under the centre of `rest`,
 /// its top one yarn diameter below the lowest yarn point.
@@ -631,20 +648,24 @@ pub fn scene_colliders(
                 normal,
                 friction,
             } => Box::new(PlaneCollider {
-                point: *point,
+                point: point.unwrap_or_else(|| plane_under(rest, *normal, r_max)),
                 normal: *normal,
                 friction: *friction,
             }),
             ColliderSpec::Sphere {
                 center,
+                offset,
                 radius,
                 friction,
             } => Box::new(SphereCollider {
-                center: center.unwrap_or([
-                    0.5 * (lo[0] + hi[0]),
-                    lo[1] - 2.0 * r_max - radius,
-                    0.5 * (lo[2] + hi[2]),
-                ]),
+                center: center.unwrap_or_else(|| {
+                    let o = offset.unwrap_or([0.0; 3]);
+                    [
+                        0.5 * (lo[0] + hi[0]) + o[0],
+                        lo[1] - 2.0 * r_max - radius + o[1],
+                        0.5 * (lo[2] + hi[2]) + o[2],
+                    ]
+                }),
                 radius: *radius,
                 velocity: [0.0; 3],
                 friction: *friction,
@@ -696,6 +717,42 @@ impl From<YlsError> for crate::pipeline::Error {
 mod tests {
     use super::*;
     use crate::geom::{RestShape, YarnMaterial};
+
+    /// A plane without `point` lies one yarn diameter below the swatch's
+    /// lowest point along its normal, however it is tilted; a sphere's
+    /// `offset` shifts its default placement.
+    #[test]
+    fn default_colliders_sit_a_yarn_diameter_below_the_swatch() {
+        let mut y = Yarns::new();
+        y.push_curve(
+            &[[0.0, 0.0, 0.0], [0.02, 0.003, 0.0], [0.04, 0.0, 0.01]],
+            false,
+            0.001,
+        );
+        let tilt = [0.342_020_143_325_668_7, 0.939_692_620_785_908_4, 0.0];
+        let text = format!(
+            "duration = 0.1\nframe_rate = 30\n[swatch]\npattern = \"rib1x1\"\n[pose]\nkind = \"free\"\namount = 0.0\n\
+             [[colliders]]\ntype = \"plane\"\nnormal = {tilt:?}\n\
+             [[colliders]]\ntype = \"sphere\"\nradius = 0.03\n\
+             [[colliders]]\ntype = \"sphere\"\nradius = 0.03\noffset = [0.01, 0.0, -0.005]\n"
+        );
+        let scene = YlsScene::parse(&text, Path::new("s.toml")).unwrap();
+        let c = scene_colliders(&scene.colliders, &y).unwrap();
+        let lowest = y
+            .points
+            .iter()
+            .map(|p| c[0].signed_distance(*p, 0.0).0)
+            .fold(f64::INFINITY, f64::min);
+        assert!((lowest - 0.002).abs() < 1e-12, "{lowest}");
+        // The sphere's top under the centre (0.02, 0.005): one diameter
+        // below the lowest point (y = 0), then shifted.
+        let top = |k: usize, x: f64, z: f64| c[k].signed_distance([x, 0.0, z], 0.0).0;
+        assert!((top(1, 0.02, 0.005) - 0.002).abs() < 1e-12);
+        assert!((top(2, 0.03, 0.0) - 0.002).abs() < 1e-12);
+        let both = text.replace("offset = [", "center = [0.0, 0.0, 0.0]\noffset = [");
+        let e = YlsScene::parse(&both, Path::new("s.toml")).unwrap_err();
+        assert!(e.to_string().contains("give one"), "{e}");
+    }
 
     #[test]
     fn the_rods_model_runs_under_the_rest_shapes_material() {

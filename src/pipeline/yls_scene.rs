@@ -56,17 +56,22 @@ pub struct PoseSpec {
 pub enum ColliderSpec {
     /// Half space `(x - point) · normal >= 0`; Coulomb coefficient
     /// `friction` (>= 0, default 0) against yarn vertices and tet nodes.
+    /// Without `point` the plane passes under the swatch's centre, one yarn
+    /// diameter below its lowest yarn point along `normal` (a tilted plane
+    /// touches no yarn at the start).
     Plane {
-        point: Vec3,
+        point: Option<Vec3>,
         normal: Vec3,
         #[serde(default)]
         friction: f64,
     },
     /// A ball. Without `center` it sits under the swatch's centre with its
     /// top a yarn diameter below the lowest yarn point. `friction` as for
-    /// the plane.
+    /// the plane. `offset` (m, only without `center`) shifts that
+    /// default placement (an off-centre drop).
     Sphere {
         center: Option<Vec3>,
+        offset: Option<Vec3>,
         radius: f64,
         #[serde(default)]
         friction: f64,
@@ -264,7 +269,9 @@ impl YlsScene {
                     friction,
                 } => {
                     non_negative("friction", *friction)?;
-                    finite("point", point)?;
+                    if let Some(p) = point {
+                        finite("point", p)?;
+                    }
                     finite("normal", normal)?;
                     if normal.iter().map(|c| c * c).sum::<f64>() == 0.0 {
                         return Err(err(format!("key `{}` is the zero vector", key("normal"))));
@@ -272,12 +279,23 @@ impl YlsScene {
                 }
                 ColliderSpec::Sphere {
                     center,
+                    offset,
                     radius,
                     friction,
                 } => {
                     non_negative("friction", *friction)?;
                     if let Some(c) = center {
                         finite("center", c)?;
+                    }
+                    if let Some(o) = offset {
+                        finite("offset", o)?;
+                        if center.is_some() {
+                            return Err(err(format!(
+                                "keys `{}` and `{}` both given: `offset` shifts the default placement, `center` replaces it; give one",
+                                key("center"),
+                                key("offset")
+                            )));
+                        }
                     }
                     positive(&key("radius"), *radius)?;
                 }
