@@ -242,6 +242,8 @@ band = 0.1
 samples = 2
 harmonic = [1, 10]
 joint = true
+fibres = false
+model = "vh"
 [shot]
 scene = "s.toml"
 dt = 0.01

@@ -88,11 +88,13 @@ pub struct FitArgs {
     /// knit is far stiffer along its yarn lines than in shear.
     #[arg(long)]
     pub fibres: bool,
-    /// Material model: `vh` (VH Eq. 7 per element, the reference) or `knit`
-    /// (Eq. 7 under course and wale fibres whose stiffness grows with
-    /// stretch: per element gamma_s, gamma_v and per fibre a stiffness and
-    /// a stiffening).
-    #[arg(long, value_enum, default_value = "vh")]
+    /// Material model: `knit` (Eq. 7 under course and wale fibres whose
+    /// stiffness grows with stretch: per element gamma_s, gamma_v and per
+    /// fibre a stiffness and a stiffening, fitted to the positions and the
+    /// clamp forces) or `vh` (VH Eq. 7 per element, the reference; a few
+    /// times faster to fit, but it holds a fraction of the knit's force
+    /// once stretched).
+    #[arg(long, value_enum, default_value = "knit")]
     pub model: crate::pipeline::fit::FitModel,
     /// Hold the pinned tet nodes at each frame's shape fit instead of where the pose's bands put them, where
     /// `validate` and the shots drive them.

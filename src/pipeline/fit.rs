@@ -109,7 +109,7 @@ pub struct FitJob {
     pub fibres: bool,
     /// The material model fitted: VH Eq. 7 (with `fibres`, plus quadratic
     /// fibres), or the knit material (Eq. 7 under stiffening course and
-    /// wale fibres, [`crate::sim::knit`]). Default [`FitModel::Vh`].
+    /// wale fibres, [`crate::sim::knit`]). Default [`FitModel::Knit`].
     pub model: FitModel,
     /// Hold the pinned tet nodes of every frame at its shape fit (Y2V)
     /// instead of where the pose's bands put them, as the homogenized runs
@@ -137,16 +137,27 @@ impl FitJob {
 }
 
 /// The material model `fit` fits (`fit --model`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum FitModel {
     /// VH Eq. 7 per element (isotropic `γs`, `γv`), the reference.
-    #[default]
     Vh,
-    /// The knit material: Eq. 7 (the soft shear and bending) under course
-    /// and wale fibres that stiffen with stretch, `γ V (ε² + β ε⁴ / 2)` in
-    /// tension ([`crate::sim::knit`]): per element `γs`, `γv`, and per
-    /// family a stiffness and a stiffening.
+    /// The knit material, the default: Eq. 7 (the soft shear and bending)
+    /// under course and wale fibres that stiffen with stretch,
+    /// `γ V (ε² + β ε⁴ / 2)` in tension ([`crate::sim::knit`]): per element
+    /// `γs`, `γv`, and per family a stiffness and a stiffening, fitted to
+    /// the positions and the clamp forces together.
+    #[default]
     Knit,
 }
 

@@ -111,6 +111,10 @@ pub struct FitSection {
     /// Left out of the stage key when unset, so earlier jobs keep theirs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fibres: Option<bool>,
+    /// Material model (`fit --model`) [default knit]. The stage key holds
+    /// the model that runs, so a fit made under another default reruns.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<super::fit::FitModel>,
 }
 
 impl Manifest {
@@ -1377,7 +1381,8 @@ impl Job {
 
     /// The fit's key (its parameters and every pose's key) and job.
     fn plan_fit(&self, upstream: Option<&str>, command: &str) -> Result<(String, StageRun), Error> {
-        let f = self.manifest.fit.clone().unwrap_or_default();
+        let mut f = self.manifest.fit.clone().unwrap_or_default();
+        f.model = Some(f.model.unwrap_or_default());
         let key = stage_key("fit", &f, &[], upstream)?;
         let mut params = ElasticFitParams::default();
         if let Some(h) = &f.harmonic {
@@ -1396,7 +1401,7 @@ impl Job {
             joint: f.joint.unwrap_or(false),
             quasi_static: false,
             fibres: f.fibres.unwrap_or(false),
-            model: Default::default(),
+            model: f.model.unwrap_or_default(),
             shape_fit_pins: false,
             command: command.into(),
         };
