@@ -842,6 +842,34 @@ fn validate_runs_both_levels_and_reports_the_distance() {
         .as_str()
         .unwrap()
         .ends_with("yarn_level.h5"));
+    // One PD iteration per step stops every step at the cap: counted,
+    // with the residual it left, and warned about.
+    let o = knitvox(&[
+        "validate",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "--truth",
+        s(&truth),
+        "--pd-iterations",
+        "1",
+        "--json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let one: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(one["pd_iteration_cap"], 1, "{one}");
+    assert_eq!(one["pd_capped_steps"], one["solver_steps"], "{one}");
+    let residual = one["pd_max_residual_n"].as_f64().unwrap();
+    assert!(residual.is_finite() && residual > 0.0, "{one}");
+    assert!(
+        err.contains("at the 1-iteration cap") && err.contains("--pd-iterations 30"),
+        "{err}"
+    );
+    assert!(
+        again["pd_max_residual_n"].as_f64().unwrap() < residual,
+        "{again}"
+    );
     // Another scene (a larger stretch) is refused, naming what differs.
     let other = d.join("other.toml");
     std::fs::write(&other, STRETCH_SCENE.replace("0.05", "0.06")).unwrap();

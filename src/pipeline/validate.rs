@@ -147,6 +147,15 @@ pub struct ValidateReport {
     /// Anderson iterates rejected by the safeguard.
     pub pd_local_steps: u64,
     pub pd_accelerations_rejected: u64,
+    /// PD only: the iteration cap per step, the steps of the run with the
+    /// asset's material that reached it without meeting the tolerance (a
+    /// warning says so), and its largest end-of-step residual (N: the
+    /// largest `|∇Φ|` over free nodes) and that residual over the mean
+    /// node weight (`m̄ · 9.81 m/s²`; 1: a node's weight left unbalanced).
+    pub pd_iteration_cap: u32,
+    pub pd_capped_steps: u64,
+    pub pd_max_residual_n: f64,
+    pub pd_max_residual_over_weight: f64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd") that ran; "" for Newton.
     pub pd_backend: &'static str,
@@ -851,6 +860,26 @@ impl Stage for ValidateJob {
         let hr = run_with(&ga).map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
+        let pd = self.homogenized.solver == HomogenizedSolver::Pd;
+        let pd_cap = if pd {
+            self.homogenized
+                .pd_iterations
+                .unwrap_or(super::validate_pd::PdRunParams::default().iterations)
+        } else {
+            0
+        };
+        let mean_weight = 9.81 * mesh_mass_kg / asset.mesh.num_nodes().max(1) as f64;
+        let residual_over_weight = hr.max_residual_n / mean_weight.max(f64::MIN_POSITIVE);
+        if pd && hr.capped_steps > 0 {
+            observer.warning(&format!(
+                "{}: the homogenized PD run stopped {} of its {} steps at the {pd_cap}-iteration cap, short of convergence (largest residual {:.3e} N, {:.1}x the mean node weight): free motion, friction and impacts want more (--pd-iterations 30; docs/fidelity.md, free motion)",
+                self.scene.display(),
+                hr.capped_steps,
+                hr.steps,
+                hr.max_residual_n,
+                residual_over_weight
+            ));
+        }
         // The same scene with one material everywhere (uniform, placeholder).
         let ne = asset.mesh.num_tets();
         let run_uniform = |m: &MaterialFields, what: &str| {
@@ -1022,6 +1051,10 @@ impl Stage for ValidateJob {
             pd_contact_refactors: hr.contact_refactors,
             pd_local_steps: hr.local_steps,
             pd_accelerations_rejected: hr.accelerations_rejected,
+            pd_iteration_cap: pd_cap,
+            pd_capped_steps: hr.capped_steps,
+            pd_max_residual_n: hr.max_residual_n,
+            pd_max_residual_over_weight: residual_over_weight,
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,
             colliders: colliders.len(),
