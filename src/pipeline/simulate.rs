@@ -141,6 +141,9 @@ pub struct SimulateReport {
     pub ms_total: f64,
     pub pd_iterations_mean: f64,
     pub pd_iterations_max: u32,
+    /// Steps that stopped at the iteration cap (`max_iterations`) short of
+    /// the tolerance: not converged (a note and a warning say so).
+    pub pd_capped_steps: usize,
     /// Largest implicit-Euler residual over the steps (N).
     pub residual_max: f64,
     /// Largest penetration depth (m) of a free node into any collider over
@@ -625,6 +628,7 @@ pub fn simulate_chunk(
         ms_total: 0.0,
         pd_iterations_mean: stats.iterations_mean(),
         pd_iterations_max: stats.iterations_max,
+        pd_capped_steps: stats.capped_steps,
         residual_max: stats.residual_max,
         max_penetration_m: 0.0,
         max_penetration_body_m: None,
@@ -637,6 +641,15 @@ pub fn simulate_chunk(
         notes: std::mem::take(&mut setup.notes),
     };
     measures.fill(&mut report);
+    if report.pd_capped_steps > 0 {
+        let m = format!(
+            "{} of {} PD steps stopped at the {}-iteration cap short of the tolerance (largest residual {:.3e} N): \
+             the steps are not converged; free motion, friction and impacts want more (`max_iterations = 30` in the scene)",
+            report.pd_capped_steps, report.steps, sim.max_iterations, report.residual_max
+        );
+        observer.warning(&m);
+        report.notes.push(format!("warning: {m}"));
+    }
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
 }

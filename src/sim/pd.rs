@@ -331,6 +331,9 @@ pub struct StepStats {
     pub step: u64,
     /// Global solves done (PD iterations).
     pub iterations: u32,
+    /// The step used all of [`PdParams::max_iterations`] without meeting
+    /// [`PdParams::tolerance`]: its end is not converged to the tolerance.
+    pub capped: bool,
     /// `Φ` (J) at the initial guess (`x* + Δt v* / (1 + c Δt)` with the pins
     /// applied), contact energy included.
     pub objective_initial: f64,
@@ -1323,6 +1326,7 @@ impl PdSolver {
 
         let mut objectives = Vec::with_capacity(p.max_iterations as usize + 1);
         let mut iterations = 0u32;
+        let mut capped = false;
         let mut clamped_tets = 0usize;
         let mut global_iterations = 0u32;
         self.contact_refactors = 0;
@@ -1416,6 +1420,7 @@ impl PdSolver {
                 }
             }
             if iterations >= p.max_iterations || nf == 0 {
+                capped = nf > 0;
                 break eval.elastic_energy;
             }
             rhs.copy_from_slice(&rhs0);
@@ -1552,6 +1557,7 @@ impl PdSolver {
         Ok(StepStats {
             step,
             iterations,
+            capped,
             objective_initial: objectives[0],
             objective_final: *objectives.last().unwrap_or(&0.0),
             objectives,
@@ -1594,6 +1600,40 @@ mod tests {
     use super::*;
     use crate::embed::box_mesh;
     use crate::sim::collide::{Collider, ColliderSet, Shape};
+
+    /// A step that uses every iteration without meeting the tolerance says
+    /// so; one that meets it, or stops on it, does not.
+    #[test]
+    fn a_step_at_the_iteration_cap_is_marked_capped() {
+        let (mesh, mass) = box_mesh([3, 1, 3], 0.01, 120.0);
+        let nt = mesh.num_tets();
+        let (gs, gv) = (vec![1e4; nt], vec![1e4; nt]);
+        let pinned: Vec<usize> = (0..mesh.num_nodes())
+            .filter(|&i| mesh.nodes[i][0] < 1e-9)
+            .collect();
+        let step = |max_iterations: u32, tolerance: f64| {
+            let params = PdParams {
+                max_iterations,
+                tolerance,
+                ..PdParams::default()
+            };
+            let mut pd = PdSolver::new(&mesh, &mass, &gs, &gv, &pinned, params).unwrap();
+            let mut x = mesh.nodes.clone();
+            let mut v = vec![[0.0; 3]; x.len()];
+            let pins: Vec<Vec3> = pinned.iter().map(|&i| mesh.nodes[i]).collect();
+            pd.step_with_contacts(&mut x, &mut v, &pins, &crate::sim::contact::NoContact)
+                .unwrap()
+        };
+        let capped = step(3, 0.0);
+        assert_eq!((capped.iterations, capped.capped), (3, true));
+        // A tolerance no decrease can beat stops after the first iteration.
+        let met = step(50, 1e30);
+        assert!(
+            met.iterations < 50 && !met.capped,
+            "{} iterations",
+            met.iterations
+        );
+    }
 
     #[test]
     fn joining_contacts_by_woodbury_match_refactoring() {

@@ -68,6 +68,9 @@ pub struct LoopStats {
     pub iterations_sum: u64,
     /// Most PD iterations of a step.
     pub iterations_max: u32,
+    /// Steps that stopped at the iteration cap short of the tolerance
+    /// ([`StepStats::capped`]).
+    pub capped_steps: usize,
     /// Largest implicit-Euler residual of a step (N).
     pub residual_max: f64,
     /// Largest end-of-step contact projection (m): how far a free node
@@ -81,6 +84,7 @@ impl LoopStats {
         self.step_ms.push(st.ms);
         self.iterations_sum += st.iterations as u64;
         self.iterations_max = self.iterations_max.max(st.iterations);
+        self.capped_steps += usize::from(st.capped);
         self.residual_max = self.residual_max.max(st.residual);
         self.correction_max = self.correction_max.max(st.max_projection);
     }
