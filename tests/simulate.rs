@@ -126,10 +126,22 @@ thickness = 0.001
     );
     assert!(worst >= -1e-3, "a node is {worst} m inside the sphere");
     assert!(r.max_penetration_m <= 1e-3);
-    // Yarn vertices (V2Y) too, within the stated tolerance and no warning.
+    // Yarn vertices (V2Y) too, within the stated tolerance and no
+    // penetration warning (the unconverged steps are noted apart).
     let yarns = r.max_penetration_yarns_m.unwrap();
     eprintln!("drape: yarn vertices up to {yarns:.3e} m inside");
-    assert!(yarns <= r.penetration_tolerance_m && r.notes.is_empty());
+    assert!(yarns <= r.penetration_tolerance_m);
+    assert!(
+        !r.notes.iter().any(|n| n.contains("inside a collider")),
+        "{:?}",
+        r.notes
+    );
+    assert_eq!(
+        r.notes.iter().any(|n| n.contains("iteration cap")),
+        r.pd_capped_steps > 0,
+        "{:?}",
+        r.notes
+    );
     // It fell and touches the sphere (not a frozen swatch): at least 90% of
     // the gap between its lowest node and the 1 mm thickness band (with the
     // default friction 0.5 the nodes that land stick instead of sliding a
