@@ -818,18 +818,24 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     // The report keeps the yarn-level frames; `--truth` reuses them: the
     // same errors, the recorded yarn-level time, no second yarn-level run.
     let truth = report.join("yarn_level.h5");
-    let o = knitvox(&[
-        "validate",
-        s(&asset_path),
-        "--scene",
-        s(&scene),
-        "--truth",
-        s(&truth),
-        "--json",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
-    let again: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // `validate --truth --json` with `extra` options: the report and stderr.
+    let on_truth = |extra: &[&str]| -> (serde_json::Value, String) {
+        let mut args = vec![
+            "validate",
+            s(&asset_path),
+            "--scene",
+            s(&scene),
+            "--truth",
+            s(&truth),
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = knitvox(&args);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{err}");
+        (serde_json::from_slice(&o.stdout).unwrap(), err)
+    };
+    let (again, _) = on_truth(&[]);
     for key in [
         "rms_yarn_diameters",
         "max_yarn_diameters",
@@ -844,20 +850,7 @@ fn validate_runs_both_levels_and_reports_the_distance() {
         .ends_with("yarn_level.h5"));
     // One PD iteration per step stops every step at the cap: counted,
     // with the residual it left, and warned about.
-    let o = knitvox(&[
-        "validate",
-        s(&asset_path),
-        "--scene",
-        s(&scene),
-        "--truth",
-        s(&truth),
-        "--pd-iterations",
-        "1",
-        "--json",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
-    let one: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let (one, err) = on_truth(&["--pd-iterations", "1"]);
     assert_eq!(one["pd_iteration_cap"], 1, "{one}");
     assert_eq!(one["pd_capped_steps"], one["solver_steps"], "{one}");
     let residual = one["pd_max_residual_n"].as_f64().unwrap();

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::daemon::{names, swatch_bytes, Daemon};
+use common::daemon::{done_jobs, names, swatch_bytes, Daemon};
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -301,16 +301,7 @@ fn kill_9_mid_shot_then_restart_completes_once_bit_for_bit() {
             p.display()
         );
     }
-    // The job, and the record of its warnings (the shot's unconverged PD
-    // steps, when it has any).
-    let done = names(&root.join("done"));
-    assert_eq!(
-        done.iter()
-            .filter(|n| !n.ends_with(".warnings.json"))
-            .collect::<Vec<_>>(),
-        ["shot"],
-        "{done:?}"
-    );
+    assert_eq!(done_jobs(&root.join("done")), ["shot"]);
     assert!(names(&root.join("work")).is_empty());
 }
 
@@ -495,16 +486,7 @@ fn sigterm_stops_a_running_job_and_the_next_start_takes_it_at_once() {
         d.dump()
     );
     assert!(out.join("shot.vtkhdf").is_file());
-    // The job, and the record of its warnings (the shot's unconverged PD
-    // steps, when it has any).
-    let done = names(&root.join("done"));
-    assert_eq!(
-        done.iter()
-            .filter(|n| !n.ends_with(".warnings.json"))
-            .collect::<Vec<_>>(),
-        ["shot"],
-        "{done:?}"
-    );
+    assert_eq!(done_jobs(&root.join("done")), ["shot"]);
 }
 
 #[test]

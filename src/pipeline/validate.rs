@@ -998,18 +998,21 @@ impl Stage for ValidateJob {
             mass_damping: yarn_params.global_damping,
             colliders: &colliders,
         };
-        let motion_of = |x: &[Vec<Vec3>]| {
-            let y: Vec<Vec<Vec3>> = x
-                .iter()
+        let v2y = |x: &[Vec<Vec3>]| -> Vec<Vec<Vec3>> {
+            x.iter()
                 .map(|f| asset.embedding.v2y(&asset.mesh, f))
-                .collect();
+                .collect()
+        };
+        let motion_of = |y: &[Vec<Vec3>]| {
             let refs: Vec<&[Vec3]> = y.iter().map(|f| f.as_slice()).collect();
             validate_motion::measure(&motion_scene, &frames.times, &refs)
         };
         let yarn_refs: Vec<&[Vec3]> = (0..nf).map(|k| frames.frame(k)).collect();
         let yarn_motion = validate_motion::measure(&motion_scene, &frames.times, &yarn_refs);
-        let homogenized_motion = motion_of(xs);
-        let uniform_motion = xu.as_deref().map(&motion_of);
+        // The asset's run as yarns: for its motion and the report's PLY.
+        let ys = v2y(xs);
+        let homogenized_motion = motion_of(&ys);
+        let uniform_motion = xu.as_deref().map(|x| motion_of(&v2y(x)));
         let motion = MotionReport {
             homogenized_match: validate_motion::compare(&yarn_motion, &homogenized_motion),
             uniform_match: uniform_motion
@@ -1079,7 +1082,7 @@ impl Stage for ValidateJob {
         if let Some(dir) = &self.report {
             let fresh = self.truth.is_none().then_some(yarn_out.as_path());
             report.report_files = io::atomic::all_or_nothing(|| {
-                write_report(dir, &asset, &frames, xs, &report, fresh)
+                write_report(dir, &asset, &frames, &ys, &report, fresh)
             })?;
         }
         Ok(report)
@@ -1124,7 +1127,7 @@ fn write_report(
     dir: &Path,
     asset: &Asset,
     frames: &YarnFrames,
-    xs: &[Vec<Vec3>],
+    homogenized: &[Vec<Vec3>],
     r: &ValidateReport,
     fresh: Option<&Path>,
 ) -> Result<Vec<PathBuf>, Error> {
@@ -1205,11 +1208,11 @@ fn write_report(
         let mut w = YarnFrameWriter::per_frame(pattern, rest, &WriteOptions::default());
         for k in 0..frames.num_frames() {
             let p = if name == "yarn_level" {
-                frames.frame(k).to_vec()
+                frames.frame(k)
             } else {
-                asset.embedding.v2y(&asset.mesh, &xs[k])
+                &homogenized[k]
             };
-            w.push(k as i64, frames.times[k], &p)?;
+            w.push(k as i64, frames.times[k], p)?;
         }
         files.extend(w.finish()?);
     }

@@ -111,23 +111,17 @@ pub fn measure(scene: &MotionScene, times: &[f64], y: &[&[Vec3]]) -> Motion {
         let dt = times[k] - times[k - 1];
         sub(coms[k], coms[k - 1]).map(|v| if dt > 0.0 { v / dt } else { 0.0 })
     };
-    let mut frames = Vec::with_capacity(nf);
-    let (mut travel, mut slip) = (0.0, 0.0);
-    let mut contact_prev: Vec<Option<(usize, Vec3)>> = if nf > 0 {
-        (0..y[0].len())
-            .map(|v| touching(scene, y[0][v], scene.radii[v], times[0]))
-            .collect()
-    } else {
-        Vec::new()
-    };
-    for k in 0..nf {
-        let contact_now: Vec<Option<(usize, Vec3)>> = if k == 0 {
-            contact_prev.clone()
-        } else {
+    // The collider each vertex touches, per frame.
+    let contact: Vec<Vec<Option<(usize, Vec3)>>> = (0..nf)
+        .map(|k| {
             (0..y[k].len())
                 .map(|v| touching(scene, y[k][v], scene.radii[v], times[k]))
                 .collect()
-        };
+        })
+        .collect();
+    let mut frames = Vec::with_capacity(nf);
+    let (mut travel, mut slip) = (0.0, 0.0);
+    for k in 0..nf {
         let mut kinetic = 0.0;
         if k > 0 {
             let dt = times[k] - times[k - 1];
@@ -138,7 +132,7 @@ pub fn measure(scene: &MotionScene, times: &[f64], y: &[&[Vec3]]) -> Motion {
                 if dt > 0.0 {
                     kinetic += 0.5 * scene.masses[v] * dot(d, d) / (dt * dt);
                 }
-                if let (Some((a, _)), Some((b, n))) = (contact_prev[v], contact_now[v]) {
+                if let (Some((a, _)), Some((b, n))) = (contact[k - 1][v], contact[k][v]) {
                     if a == b {
                         let tm = 0.5 * (times[k] + times[k - 1]);
                         let w = scene.colliders[a].velocity(y[k - 1][v], tm);
@@ -169,10 +163,9 @@ pub fn measure(scene: &MotionScene, times: &[f64], y: &[&[Vec3]]) -> Motion {
             com: coms[k],
             com_travel_m: travel,
             support_n,
-            contacts: contact_now.iter().filter(|c| c.is_some()).count(),
+            contacts: contact[k].iter().filter(|c| c.is_some()).count(),
             slip_m: slip,
         });
-        contact_prev = contact_now;
     }
     let g = norm(scene.gravity);
     let com_drop_m = match (coms.first(), coms.last()) {

@@ -415,9 +415,7 @@ pub fn pd_frames(
                 })?;
             run.iterations += st.iterations as u64;
             run.steps += 1;
-            if st.iterations >= params.iterations {
-                run.capped_steps += 1;
-            }
+            run.capped_steps += u64::from(st.capped);
             if st.residual.is_finite() {
                 run.max_residual_n = run.max_residual_n.max(st.residual);
             }

@@ -610,15 +610,12 @@ impl Stage for YlsJob {
     }
 }
 
-/// A point of the plane with `normal` that passes under the centre of
-/// `rest`'s bounds one yarn diameter (`2 r_max`) below its lowest yarn point
-/// along the normal.
-fn plane_under(rest: &crate::geom::Yarns, normal: Vec3, r_max: f64) -> Vec3 {
+/// A point of the plane with `normal` that passes under `c` (the centre of
+/// `rest`'s bounds) one yarn diameter (`2 r_max`) below its lowest yarn
+/// point along the normal.
+fn plane_under(rest: &crate::geom::Yarns, c: Vec3, normal: Vec3, r_max: f64) -> Vec3 {
     let len = crate::geom::vec3::norm(normal);
     let n = normal.map(|c| c / len);
-    let c = rest.bounds().map_or([0.0; 3], |b| {
-        std::array::from_fn(|i| 0.5 * (b.min[i] + b.max[i]))
-    });
     let lowest = rest
         .points
         .iter()
@@ -640,6 +637,7 @@ pub fn scene_colliders(
     let r_max = (0..rest.num_points())
         .map(|v| rest.radius_at(v))
         .fold(0.0, f64::max);
+    let centre: Vec3 = std::array::from_fn(|i| 0.5 * (lo[i] + hi[i]));
     let mut out: Vec<Box<dyn PointCollider>> = Vec::with_capacity(specs.len());
     for c in specs {
         out.push(match c {
@@ -648,7 +646,7 @@ pub fn scene_colliders(
                 normal,
                 friction,
             } => Box::new(PlaneCollider {
-                point: point.unwrap_or_else(|| plane_under(rest, *normal, r_max)),
+                point: point.unwrap_or_else(|| plane_under(rest, centre, *normal, r_max)),
                 normal: *normal,
                 friction: *friction,
             }),
@@ -661,9 +659,9 @@ pub fn scene_colliders(
                 center: center.unwrap_or_else(|| {
                     let o = offset.unwrap_or([0.0; 3]);
                     [
-                        0.5 * (lo[0] + hi[0]) + o[0],
+                        centre[0] + o[0],
                         lo[1] - 2.0 * r_max - radius + o[1],
-                        0.5 * (lo[2] + hi[2]) + o[2],
+                        centre[2] + o[2],
                     ]
                 }),
                 radius: *radius,

@@ -35,6 +35,15 @@ pub fn names(dir: &Path) -> Vec<String> {
     v
 }
 
+/// The jobs in a `done/` folder, without the records of their warnings
+/// (`NAME.warnings.json`, e.g. a shot's unconverged PD steps).
+pub fn done_jobs(done: &Path) -> Vec<String> {
+    names(done)
+        .into_iter()
+        .filter(|n| !n.ends_with(".warnings.json"))
+        .collect()
+}
+
 /// A running daemon whose JSON log lines are collected; killed on drop.
 pub struct Daemon {
     pub child: Child,
