@@ -538,3 +538,49 @@ fn gpu_probe_on_a_headless_node_prints_no_driver_errors() {
     assert!(o.status.success(), "bench sim failed: {err}");
     assert!(!err.contains("XDG_RUNTIME_DIR"), "driver noise: {err}");
 }
+
+/// `bench sim` measures its own accuracy: the default tolerance stays
+/// within 1% of the converged reference run of the drape, while a fixed two
+/// iterations per step is flagged as capped, warned about and further off.
+#[test]
+fn bench_sim_reports_the_deviation_from_its_converged_reference() {
+    let bench = |extra: &[&str]| {
+        let o = Command::new(common::knitvox_bin())
+            .args(["bench", "sim", "--tets", "1500", "--steps", "10"])
+            .args(["--backend", "cpu", "--json"])
+            .args(extra)
+            .output()
+            .expect("run knitvox");
+        assert!(o.status.success(), "bench sim failed: {}", stderr(&o));
+        (json_of(&o), stderr(&o))
+    };
+    let num = |v: &serde_json::Value, k: &str| {
+        v[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {v}"))
+    };
+    let (d, err) = bench(&[]);
+    assert!(d["scene"].as_str().unwrap().starts_with("drape"), "{d}");
+    assert_eq!(d["capped_steps"], 0, "{d}");
+    assert_eq!(d["reference_capped_steps"], 0, "{d}");
+    assert!(num(&d, "convergence") <= num(&d, "tolerance"), "{d}");
+    assert!(num(&d, "displacement_m") > 0.02, "{d}");
+    assert!(num(&d, "deviation") <= 0.01, "{d}");
+    assert!(
+        num(&d, "reference_iterations") > num(&d, "pd_iterations"),
+        "{d}"
+    );
+    assert!(!err.contains("warning"), "{err}");
+    let (few, err) = bench(&["--pd-iterations", "2", "--tolerance", "0"]);
+    assert_eq!(few["capped_steps"], 10, "{few}");
+    assert_eq!(few["pd_iterations"], 2.0, "{few}");
+    assert!(
+        num(&few, "deviation") > 2.0 * num(&d, "deviation"),
+        "{few} vs {d}"
+    );
+    assert!(err.contains("warning") && err.contains("cap"), "{err}");
+    let (none, _) = bench(&["--no-reference", "--scene", "stretch"]);
+    assert!(none["deviation"].is_null(), "{none}");
+    assert!(
+        none["scene"].as_str().unwrap().starts_with("stretch"),
+        "{none}"
+    );
+}

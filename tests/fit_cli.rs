@@ -853,10 +853,15 @@ fn validate_runs_both_levels_and_reports_the_distance() {
     let (one, err) = on_truth(&["--pd-iterations", "1"]);
     assert_eq!(one["pd_iteration_cap"], 1, "{one}");
     assert_eq!(one["pd_capped_steps"], one["solver_steps"], "{one}");
+    let (tol, conv) = (
+        one["pd_tolerance"].as_f64().unwrap(),
+        one["pd_convergence_max"].as_f64().unwrap(),
+    );
+    assert!(tol > 0.0 && conv > tol, "{one}");
     let residual = one["pd_max_residual_n"].as_f64().unwrap();
     assert!(residual.is_finite() && residual > 0.0, "{one}");
     assert!(
-        err.contains("at the 1-iteration cap") && err.contains("--pd-iterations 30"),
+        err.contains("at the 1-iteration cap") && err.contains("raise --pd-iterations"),
         "{err}"
     );
     assert!(

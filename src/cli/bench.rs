@@ -22,7 +22,7 @@ pub enum BenchTarget {
     Io(BenchIoArgs),
     /// Embedding and Y2V shape-fit times, mesh size and peak memory.
     Embed(BenchEmbedArgs),
-    /// PD time-step cost of a stretched knit swatch of about --tets tets.
+    /// PD time-step cost and accuracy (deviation from a converged run) on a knit swatch of about --tets tets.
     Sim(BenchSimArgs),
     /// Yarn-level simulator step cost on a generated swatch of about --vertices vertices, 30% stretch.
     Yls(BenchYlsArgs),
@@ -81,15 +81,27 @@ pub struct BenchSimArgs {
     /// Time step (s), a number or a fraction.
     #[arg(long, default_value = "1/150", value_parser = crate::pipeline::sim_scene::parse_seconds)]
     pub dt: f64,
+    /// Scene: drape (one edge pinned, the swatch falls under gravity normal to it) or stretch (both edges pinned, one pulled).
+    #[arg(long, value_enum, default_value = "drape")]
+    pub scene: bench::SimScene,
     /// Backend.
     #[arg(long, value_enum, default_value = "auto")]
     pub backend: crate::pipeline::sim_scene::BackendChoice,
     /// Global solver.
     #[arg(long, value_enum, default_value = "direct")]
     pub solver: crate::pipeline::sim_scene::SolverChoice,
-    /// Most PD iterations per step [default: the simulator's default].
-    #[arg(long)]
+    /// Most PD iterations per step, the cap on --tolerance [default: the simulator's default].
+    #[arg(long, alias = "iterations")]
     pub pd_iterations: Option<u32>,
+    /// PD convergence tolerance (docs/guides/shots.md; 0: run --pd-iterations every step) [default: the simulator's default].
+    #[arg(long, value_parser = super::parse::parse_non_negative)]
+    pub tolerance: Option<f64>,
+    /// Skip the converged reference run (no deviation reported; half the time or less).
+    #[arg(long)]
+    pub no_reference: bool,
+    /// PD tolerance of the converged reference run.
+    #[arg(long, value_parser = super::parse::parse_positive, default_value_t = bench::REFERENCE_TOLERANCE)]
+    pub reference_tolerance: f64,
     /// Relative residual of the domain-decomposed solver's Jacobi iterations [default: its default].
     #[arg(long, value_parser = super::parse::parse_positive)]
     pub dd_tolerance: Option<f64>,
@@ -198,9 +210,13 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         tets: a.tets,
         steps: a.steps,
         dt: a.dt,
+        scene: a.scene,
         backend: a.backend,
         solver: a.solver,
         pd_iterations: a.pd_iterations,
+        tolerance: a.tolerance,
+        reference: !a.no_reference,
+        reference_tolerance: Some(a.reference_tolerance),
         dd_tolerance: a.dd_tolerance,
         // clap admits only "exact" and "modes".
         dd_interiors: a.dd_interiors.as_deref().map(|i| match i {
@@ -213,8 +229,41 @@ pub fn sim(a: &BenchSimArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
         println!(
-            "{} tets, {} nodes ({} pinned): prepare {:.1} ms, {:.2} ms per step (median of {}), {:.1} PD iterations per step, residual <= {:.3e} N ({} / {})",
-            r.tets, r.nodes, r.pinned, r.prepare_ms, r.ms_per_step, r.steps, r.pd_iterations, r.residual, r.solver, r.backend
+            "{} tets, {} nodes ({} pinned): prepare {:.1} ms, {:.2} ms per step (median of {}), {:.1} PD iterations per step (at most {}), residual <= {:.3e} N ({} / {})",
+            r.tets, r.nodes, r.pinned, r.prepare_ms, r.ms_per_step, r.steps, r.pd_iterations, r.pd_iterations_max, r.residual, r.solver, r.backend
+        );
+        match (r.deviation, r.displacement_m) {
+            (Some(d), Some(m)) => {
+                println!(
+                    "deviation from the converged run (tolerance {:e}, {:.1} iterations per step): {:.3}% of the largest displacement ({:.2} mm)",
+                    r.reference_tolerance.unwrap_or(f64::NAN),
+                    r.reference_iterations.unwrap_or(f64::NAN),
+                    100.0 * d,
+                    1e3 * m
+                );
+                println!(
+                    "{}",
+                    if d <= 0.01 {
+                        "verdict: converged steps (within 1% of the motion)"
+                    } else {
+                        "verdict: NOT converged: the steps are more than 1% of the motion off (raise --pd-iterations or lower --tolerance)"
+                    }
+                );
+            }
+            _ => println!("deviation: not measured (--no-reference)"),
+        }
+    }
+    // Warnings reach stderr with --json too.
+    if r.capped_steps > 0 {
+        eprintln!(
+            "warning: {} of {} steps stopped at the cap of {} PD iterations short of the tolerance {:e} (largest convergence measure {:.3e})",
+            r.capped_steps, r.steps, r.max_iterations, r.tolerance, r.convergence
+        );
+    }
+    if r.reference_capped_steps.unwrap_or(0) > 0 {
+        eprintln!(
+            "warning: {} reference steps stopped at the cap short of the reference tolerance: the deviation is measured against an unconverged run",
+            r.reference_capped_steps.unwrap_or(0)
         );
     }
     Ok(ExitCode::Success)

@@ -291,8 +291,9 @@ pub struct ValidateArgs {
     /// [default: 1/150].
     #[arg(long, value_name = "SECONDS", value_parser = crate::pipeline::sim_scene::parse_seconds)]
     pub dt: Option<f64>,
-    /// PD iterations per step (local + global; Anderson-accelerated) of the
-    /// homogenized runs [default: 8, as `simulate`].
+    /// Most PD iterations per step (local + global; Anderson-accelerated) of
+    /// the homogenized runs, the cap on the simulator's tolerance [default:
+    /// 100, as `simulate`].
     #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub pd_iterations: Option<u32>,
     /// Where the PD runs' local step runs [default: auto, as `simulate`].

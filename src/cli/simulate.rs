@@ -263,8 +263,14 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             r.backend
         );
         println!(
-            "  {:.2} ms per step (median), {:.1} PD iterations per step (max {}), residual <= {:.3e} N, total {:.0} ms",
-            r.ms_per_step_median, r.pd_iterations_mean, r.pd_iterations_max, r.residual_max, r.ms_total
+            "  {:.2} ms per step (median), {:.1} PD iterations per step (max {}, tolerance {}, {} capped), residual <= {:.3e} N, total {:.0} ms",
+            r.ms_per_step_median,
+            r.pd_iterations_mean,
+            r.pd_iterations_max,
+            r.pd_tolerance,
+            r.pd_capped_steps,
+            r.residual_max,
+            r.ms_total
         );
         if let (Some(d), Some(from)) = (r.dd_domains, r.dd_partition) {
             println!("  {d} domains ({from})");

@@ -67,22 +67,53 @@ pub struct EmbedRequest {
     pub runs: usize,
 }
 
-/// `bench sim`: `steps` PD steps of `dt` (s) on about `tets` tets.
+/// The scene of `bench sim`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum SimScene {
+    /// The swatch (in the xy plane) pinned along its low-x edge and left to
+    /// fall under gravity along -z, normal to the fabric: a flap draping
+    /// from a rail, the large soft bending motion PD converges slowest on.
+    #[default]
+    Drape,
+    /// Both x edges pinned, one pulled 20% of the width over the run, under
+    /// gravity along -y.
+    Stretch,
+}
+
+/// `bench sim`: `steps` PD steps of `dt` (s) of `scene` on about `tets`
+/// tets, and (unless `reference` is off) the same steps run again to
+/// `reference_tolerance`, untimed, for the deviation.
 #[derive(Debug, Clone)]
 pub struct SimRequest {
     pub tets: usize,
     pub steps: usize,
     pub dt: f64,
+    pub scene: SimScene,
     pub backend: BackendChoice,
     pub solver: SolverChoice,
-    /// PD iterations per step (default: `PdParams`'s).
+    /// Most PD iterations per step (default: `PdParams`'s).
     pub pd_iterations: Option<u32>,
+    /// PD convergence tolerance (`PdParams::tolerance`; 0 runs
+    /// `pd_iterations`; default: `PdParams`'s).
+    pub tolerance: Option<f64>,
+    /// Run the converged reference and report the deviation from it.
+    pub reference: bool,
+    /// Tolerance of the reference run (default [`REFERENCE_TOLERANCE`]).
+    pub reference_tolerance: Option<f64>,
     /// Domain-decomposed solver only: Jacobi tolerance and interior model.
     pub dd_tolerance: Option<f64>,
     pub dd_interiors: Option<crate::sim::dd::Interiors>,
     /// Anderson window (default: `PdParams`'s).
     pub anderson: Option<usize>,
 }
+
+/// Default PD tolerance of `bench sim`'s converged reference run: its
+/// deviation from a run to 1e-7 is below 0.01% of the displacement on the
+/// drape (docs/performance.md "Converged steps").
+pub const REFERENCE_TOLERANCE: f64 = 1e-5;
+
+/// Iteration cap of the reference run.
+pub const REFERENCE_MAX_ITERATIONS: u32 = 3000;
 
 /// `bench yls`: the yarn-level simulator on a built-in `pattern` swatch of
 /// about `vertices` vertices or on `input`.
@@ -310,8 +341,29 @@ pub struct SimBench {
     /// Mean PD iterations (local + global) per step.
     pub pd_iterations: f64,
     pub pd_iterations_max: u32,
+    /// The PD tolerance and iteration cap the timed run used.
+    pub tolerance: f64,
+    pub max_iterations: u32,
+    /// Steps that stopped at the cap short of the tolerance.
+    pub capped_steps: usize,
+    /// Largest convergence measure at the end of a step
+    /// (`StepStats::convergence`; dimensionless).
+    pub convergence: f64,
     /// Largest implicit-Euler residual over the steps (N).
     pub residual: f64,
+    /// Largest node distance from the converged reference run, over all
+    /// steps, divided by the reference's largest node displacement from
+    /// the start (dimensionless); null without a reference.
+    pub deviation: Option<f64>,
+    /// The reference's largest node displacement from the start (m).
+    pub displacement_m: Option<f64>,
+    /// The reference run: its tolerance, mean and largest PD iterations per
+    /// step, capped steps and largest residual (N).
+    pub reference_tolerance: Option<f64>,
+    pub reference_iterations: Option<f64>,
+    pub reference_iterations_max: Option<u32>,
+    pub reference_capped_steps: Option<usize>,
+    pub reference_residual: Option<f64>,
     /// Median time of the step's local steps (ms).
     pub local_ms_per_step: f64,
     /// Median time of the step's global solves (ms).
@@ -327,13 +379,23 @@ pub struct SimBench {
     pub peak_rss_mb: Option<f64>,
 }
 
-/// `bench sim`: an analytic knit swatch of about `--tets` tets, its two x
-/// edges pinned and pulled apart (20% over the run) under gravity.
+/// One run of the bench scene: the positions after every step and the
+/// step statistics.
+struct SimRun {
+    frames: Vec<Vec<Vec3>>,
+    stats: Vec<crate::sim::pd::StepStats>,
+    prepare_ms: f64,
+    backend: &'static str,
+}
+
+/// `bench sim`: an analytic knit swatch of about `--tets` tets in the scene
+/// of [`SimScene`], timed at the asked PD settings and compared with the
+/// same scene converged to the reference tolerance.
 pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
     use crate::embed::{embed as run_embed, EmbedParams};
     use crate::geom::{DEFAULT_GAMMA_S, DEFAULT_GAMMA_V};
     use crate::pipeline::simulate::{attach_backend, global_solver};
-    use crate::sim::pd::{PdParams, PdSolver};
+    use crate::sim::pd::{PdParams, PdSolver, STANDARD_GRAVITY};
     let mut global = global_solver(a.solver);
     if let crate::sim::pd::GlobalSolver::DomainDecomposed(dp) = &mut global {
         if let Some(t) = a.dd_tolerance {
@@ -366,66 +428,116 @@ pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
     let left: Vec<usize> = (0..mesh.num_nodes())
         .filter(|&i| mesh.nodes[i][0] <= lo + 0.5 * h)
         .collect();
-    let right: Vec<usize> = (0..mesh.num_nodes())
-        .filter(|&i| mesh.nodes[i][0] >= hi - 0.5 * h)
-        .collect();
+    let right: Vec<usize> = match a.scene {
+        SimScene::Drape => Vec::new(),
+        SimScene::Stretch => (0..mesh.num_nodes())
+            .filter(|&i| mesh.nodes[i][0] >= hi - 0.5 * h)
+            .collect(),
+    };
     let pinned: Vec<usize> = left.iter().chain(&right).copied().collect();
     let steps = a.steps.max(1);
     let speed = 0.2 * (hi - lo) / (steps as f64 * a.dt);
+    let gravity = match a.scene {
+        SimScene::Drape => [0.0, 0.0, -STANDARD_GRAVITY],
+        SimScene::Stretch => [0.0, -STANDARD_GRAVITY, 0.0],
+    };
+    let defaults = PdParams::default();
     let params = PdParams {
         dt: a.dt,
+        gravity,
         mass_damping: 2.0,
         global,
-        max_iterations: a
-            .pd_iterations
-            .unwrap_or(PdParams::default().max_iterations),
-        anderson_window: a.anderson.unwrap_or(PdParams::default().anderson_window),
-        ..PdParams::default()
+        max_iterations: a.pd_iterations.unwrap_or(defaults.max_iterations),
+        tolerance: a.tolerance.unwrap_or(defaults.tolerance),
+        anderson_window: a.anderson.unwrap_or(defaults.anderson_window),
+        ..defaults
     };
-    let t = Instant::now();
-    let mut solver = PdSolver::new(
-        mesh,
-        &e.node_mass,
-        &vec![DEFAULT_GAMMA_S; nt],
-        &vec![DEFAULT_GAMMA_V; nt],
-        &pinned,
-        params,
-    )?;
-    let backend = attach_backend(&mut solver, a.backend)?;
-    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
-    let mut x = mesh.nodes.clone();
-    let mut v = vec![[0.0; 3]; x.len()];
-    let (mut ms, mut iters, mut iters_max, mut residual) = (Vec::new(), 0u64, 0u32, 0.0f64);
-    let (mut local_ms, mut global_ms, mut gits, mut gres) = (Vec::new(), Vec::new(), 0u64, 0.0f64);
-    let mut local_steps = 0u64;
-    for s in 1..=steps {
-        let dx = speed * a.dt * s as f64;
-        let pins: Vec<[f64; 3]> = left
-            .iter()
-            .map(|&i| mesh.nodes[i])
-            .chain(right.iter().map(|&i| {
-                let p = mesh.nodes[i];
-                [p[0] + dx, p[1], p[2]]
-            }))
-            .collect();
-        let st = solver.step(&mut x, &mut v, &pins)?;
-        ms.push(st.ms);
-        local_ms.push(st.local_ms);
-        global_ms.push(st.global_ms);
-        gits += st.global_iterations as u64;
-        local_steps += u64::from(st.local_steps());
-        gres = gres.max(st.global_residual);
-        iters += st.iterations as u64;
-        iters_max = iters_max.max(st.iterations);
-        residual = residual.max(st.residual);
-    }
+    let run = |params: PdParams, backend: BackendChoice| -> Result<SimRun, BenchError> {
+        let t = Instant::now();
+        let mut solver = PdSolver::new(
+            mesh,
+            &e.node_mass,
+            &vec![DEFAULT_GAMMA_S; nt],
+            &vec![DEFAULT_GAMMA_V; nt],
+            &pinned,
+            params,
+        )?;
+        let backend = attach_backend(&mut solver, backend)?;
+        let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+        let mut x = mesh.nodes.clone();
+        let mut v = vec![[0.0; 3]; x.len()];
+        let (mut frames, mut stats) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
+        for s in 1..=steps {
+            let dx = speed * a.dt * s as f64;
+            let pins: Vec<[f64; 3]> = left
+                .iter()
+                .map(|&i| mesh.nodes[i])
+                .chain(right.iter().map(|&i| {
+                    let p = mesh.nodes[i];
+                    [p[0] + dx, p[1], p[2]]
+                }))
+                .collect();
+            stats.push(solver.step(&mut x, &mut v, &pins)?);
+            frames.push(x.clone());
+        }
+        Ok(SimRun {
+            frames,
+            stats,
+            prepare_ms,
+            backend,
+        })
+    };
+    let timed = run(params, a.backend)?;
+    // The reference: the same scene on the CPU, converged.
+    let reference = if a.reference {
+        let tolerance = a.reference_tolerance.unwrap_or(REFERENCE_TOLERANCE);
+        let r = run(
+            PdParams {
+                tolerance,
+                max_iterations: REFERENCE_MAX_ITERATIONS,
+                ..params
+            },
+            BackendChoice::Cpu,
+        )?;
+        Some((tolerance, r))
+    } else {
+        None
+    };
+    let dist = |p: &Vec3, q: &Vec3| {
+        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+    };
+    let (deviation, displacement) = match &reference {
+        Some((_, r)) => {
+            let mut far = 0.0f64;
+            let mut moved = 0.0f64;
+            for (f, g) in timed.frames.iter().zip(&r.frames) {
+                for i in 0..f.len() {
+                    far = far.max(dist(&f[i], &g[i]));
+                    moved = moved.max(dist(&g[i], &mesh.nodes[i]));
+                }
+            }
+            (Some(far / moved.max(f64::MIN_POSITIVE)), Some(moved))
+        }
+        None => (None, None),
+    };
+    let st = &timed.stats;
+    let sum_iters: u64 = st.iter().map(|s| u64::from(s.iterations)).sum();
+    let max_of =
+        |f: &dyn Fn(&crate::sim::pd::StepStats) -> f64| st.iter().map(f).fold(0.0f64, f64::max);
     let r = SimBench {
         bench: "sim",
         input: format!(
             "built-in analytic knit swatch ({} points)",
             yarns.num_points()
         ),
-        scene: "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity",
+        scene: match a.scene {
+            SimScene::Drape => {
+                "drape: the low-x edge pinned, gravity along -z (normal to the swatch)"
+            }
+            SimScene::Stretch => {
+                "stretch: both x edges pinned, one pulled 20% of the width over the run, gravity"
+            }
+        },
         yarn_points: yarns.num_points(),
         voxel_size: h,
         tets: nt,
@@ -435,17 +547,40 @@ pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
         dt: a.dt,
         threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         solver: solver_name,
-        backend,
-        prepare_ms,
-        ms_per_step: median(ms),
-        pd_iterations: iters as f64 / steps as f64,
-        pd_iterations_max: iters_max,
-        residual,
-        local_ms_per_step: median(local_ms),
-        global_ms_per_step: median(global_ms),
-        global_iterations: gits as f64 / steps as f64,
-        global_residual: gres,
-        local_steps: local_steps as f64 / steps as f64,
+        backend: timed.backend,
+        prepare_ms: timed.prepare_ms,
+        ms_per_step: median(st.iter().map(|s| s.ms).collect()),
+        pd_iterations: sum_iters as f64 / steps as f64,
+        pd_iterations_max: st.iter().map(|s| s.iterations).max().unwrap_or(0),
+        tolerance: params.tolerance,
+        max_iterations: params.max_iterations,
+        capped_steps: st.iter().filter(|s| s.capped).count(),
+        convergence: max_of(&|s| s.convergence),
+        residual: max_of(&|s| s.residual),
+        deviation,
+        displacement_m: displacement,
+        reference_tolerance: reference.as_ref().map(|r| r.0),
+        reference_iterations: reference.as_ref().map(|(_, r)| {
+            r.stats.iter().map(|s| f64::from(s.iterations)).sum::<f64>() / steps as f64
+        }),
+        reference_iterations_max: reference
+            .as_ref()
+            .map(|(_, r)| r.stats.iter().map(|s| s.iterations).max().unwrap_or(0)),
+        reference_capped_steps: reference
+            .as_ref()
+            .map(|(_, r)| r.stats.iter().filter(|s| s.capped).count()),
+        reference_residual: reference
+            .as_ref()
+            .map(|(_, r)| r.stats.iter().map(|s| s.residual).fold(0.0, f64::max)),
+        local_ms_per_step: median(st.iter().map(|s| s.local_ms).collect()),
+        global_ms_per_step: median(st.iter().map(|s| s.global_ms).collect()),
+        global_iterations: st
+            .iter()
+            .map(|s| f64::from(s.global_iterations))
+            .sum::<f64>()
+            / steps as f64,
+        global_residual: max_of(&|s| s.global_residual),
+        local_steps: st.iter().map(|s| f64::from(s.local_steps())).sum::<f64>() / steps as f64,
         peak_rss_mb: peak_rss_mb(),
     };
     Ok(r)

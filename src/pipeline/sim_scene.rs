@@ -190,9 +190,8 @@ pub struct SimulationSection {
     /// settles a drape within a second of shot time without visibly slowing
     /// the motion a character drives through the pins.
     pub damping: f64,
-    /// Most PD iterations per step. Default 8 (sim::pd: with Anderson
-    /// acceleration 8 iterations are closer to the converged step than 20
-    /// plain ones).
+    /// Most PD iterations per step, the cap on `tolerance`. Default 100
+    /// (sim::pd); a step that reaches it is counted and warned about.
     pub max_iterations: u32,
     /// Anderson acceleration window of the PD iterations, 0 for plain PD.
     /// Default 5 (sim::pd).
@@ -202,7 +201,11 @@ pub struct SimulationSection {
     /// (sim::contact). Default 0.5: a swatch dropped on a sphere stays on
     /// it instead of sliding off.
     pub friction: f64,
-    /// Relative PD convergence tolerance (sim::pd). Default 1e-6.
+    /// PD convergence tolerance (dimensionless, sim::pd `PdParams::tolerance`):
+    /// a step stops once a PD iteration moves no node by more than this
+    /// fraction of the step's displacement, nor would any node's residual
+    /// force move its mass by more. Default: `PdParams`'s; 0 runs
+    /// `max_iterations`.
     pub tolerance: f64,
     /// Shot time (s) simulated before the first frame while the character
     /// blends from its bind pose into the first frame's pose [default: 0.2

@@ -144,6 +144,11 @@ pub struct SimulateReport {
     /// Steps that stopped at the iteration cap (`max_iterations`) short of
     /// the tolerance: not converged (a note and a warning say so).
     pub pd_capped_steps: usize,
+    /// The PD tolerance of the shot and the largest convergence measure at
+    /// the end of a step (dimensionless, `PdParams::tolerance`: at most the
+    /// tolerance unless a step was capped).
+    pub pd_tolerance: f64,
+    pub pd_convergence_max: f64,
     /// Largest implicit-Euler residual over the steps (N).
     pub residual_max: f64,
     /// Largest penetration depth (m) of a free node into any collider over
@@ -629,6 +634,8 @@ pub fn simulate_chunk(
         pd_iterations_mean: stats.iterations_mean(),
         pd_iterations_max: stats.iterations_max,
         pd_capped_steps: stats.capped_steps,
+        pd_tolerance: sim.tolerance,
+        pd_convergence_max: stats.convergence_max,
         residual_max: stats.residual_max,
         max_penetration_m: 0.0,
         max_penetration_body_m: None,
@@ -643,9 +650,9 @@ pub fn simulate_chunk(
     measures.fill(&mut report);
     if report.pd_capped_steps > 0 {
         let m = format!(
-            "{} of {} PD steps stopped at the {}-iteration cap short of the tolerance (largest residual {:.3e} N): \
-             the steps are not converged; free motion, friction and impacts want more (`max_iterations = 30` in the scene)",
-            report.pd_capped_steps, report.steps, sim.max_iterations, report.residual_max
+            "{} of {} PD steps stopped at the {}-iteration cap short of the tolerance {:e} (convergence up to {:.2e}, largest residual {:.3e} N): \
+             those steps are not converged to the tolerance (raise `max_iterations` in the scene's [simulation])",
+            report.pd_capped_steps, report.steps, sim.max_iterations, report.pd_tolerance, report.pd_convergence_max, report.residual_max
         );
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));

@@ -156,6 +156,11 @@ pub struct ValidateReport {
     pub pd_capped_steps: u64,
     pub pd_max_residual_n: f64,
     pub pd_max_residual_over_weight: f64,
+    /// PD only (else 0): the tolerance of the steps and the largest
+    /// end-of-step convergence measure (dimensionless, `PdParams::tolerance`:
+    /// at most the tolerance unless a step was capped).
+    pub pd_tolerance: f64,
+    pub pd_convergence_max: f64,
     /// PD only: the local step's backend ("cpu", "gpu") and the global
     /// solver ("direct", "dd") that ran; "" for Newton.
     pub pd_backend: &'static str,
@@ -348,7 +353,7 @@ pub struct HomogenizedRunParams {
     pub solver: HomogenizedSolver,
     /// Largest PD time step (s). None: `PdRunParams::default()` (1/150 s).
     pub max_dt: Option<f64>,
-    /// PD iterations per step. None: `PdRunParams::default()` (8).
+    /// Most PD iterations per step. None: `PdRunParams::default()` (100, the cap on the tolerance).
     pub pd_iterations: Option<u32>,
     /// PD: where the local step runs (default `Auto`, as `simulate`) and the
     /// global solver (default direct).
@@ -872,10 +877,12 @@ impl Stage for ValidateJob {
         let residual_over_weight = hr.max_residual_n / mean_weight.max(f64::MIN_POSITIVE);
         if pd && hr.capped_steps > 0 {
             observer.warning(&format!(
-                "{}: the homogenized PD run stopped {} of its {} steps at the {pd_cap}-iteration cap, short of convergence (largest residual {:.3e} N, {:.1}x the mean node weight): free motion, friction and impacts want more (--pd-iterations 30; docs/fidelity.md, free motion)",
+                "{}: the homogenized PD run stopped {} of its {} steps at the {pd_cap}-iteration cap, short of the tolerance {:e} (convergence up to {:.2e}, largest residual {:.3e} N, {:.1}x the mean node weight): those steps are not converged (raise --pd-iterations)",
                 self.scene.display(),
                 hr.capped_steps,
                 hr.steps,
+                crate::sim::pd::PdParams::default().tolerance,
+                hr.max_convergence,
                 hr.max_residual_n,
                 residual_over_weight
             ));
@@ -1058,6 +1065,12 @@ impl Stage for ValidateJob {
             pd_capped_steps: hr.capped_steps,
             pd_max_residual_n: hr.max_residual_n,
             pd_max_residual_over_weight: residual_over_weight,
+            pd_tolerance: if pd {
+                crate::sim::pd::PdParams::default().tolerance
+            } else {
+                0.0
+            },
+            pd_convergence_max: hr.max_convergence,
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,
             colliders: colliders.len(),

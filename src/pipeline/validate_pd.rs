@@ -95,6 +95,9 @@ pub struct HomogenizedRun {
     /// the run (N, the largest `|∇Φ|` over free nodes, [`crate::sim::pd::StepStats::residual`]).
     pub capped_steps: u64,
     pub max_residual_n: f64,
+    /// PD only (else 0): the largest end-of-step convergence measure
+    /// ([`crate::sim::pd::StepStats::convergence`], against the tolerance).
+    pub max_convergence: f64,
     /// PD only (else 0): wall time of the local steps and of the global
     /// solves summed over the run (s), and the contact CG iterations of the
     /// global solves and the refactorizations of `K + W`.
@@ -124,6 +127,7 @@ impl HomogenizedRun {
             steps: 0,
             capped_steps: 0,
             max_residual_n: 0.0,
+            max_convergence: 0.0,
             local_s: 0.0,
             global_s: 0.0,
             contact_cg_iterations: 0,
@@ -416,6 +420,7 @@ pub fn pd_frames(
             run.iterations += st.iterations as u64;
             run.steps += 1;
             run.capped_steps += u64::from(st.capped);
+            run.max_convergence = run.max_convergence.max(st.convergence);
             if st.residual.is_finite() {
                 run.max_residual_n = run.max_residual_n.max(st.residual);
             }

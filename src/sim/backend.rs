@@ -29,6 +29,14 @@ pub trait ElasticRhs {
     fn evaluate(&mut self, x: &[Vec3], out: &mut [Vec3]) -> Result<LocalEval, SimError>;
     /// A short name for statistics ("cpu", "gpu").
     fn name(&self) -> &'static str;
+    /// Relative precision of [`LocalEval::elastic_energy`] (0: exact to
+    /// f64 rounding). The PD safeguard treats an accelerated iterate whose
+    /// objective rises by less than this times the elastic energy as not
+    /// rising: f32 sums would otherwise reject most accelerated iterates
+    /// near convergence.
+    fn energy_precision(&self) -> f64 {
+        0.0
+    }
     /// Takes the per-tet stiffnesses of `model` (same mesh, new `γs`, `γv`)
     /// in place, so a fitted material keeps its backend. Returns false when
     /// the backend cannot (the caller then falls back to the CPU one).

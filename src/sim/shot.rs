@@ -71,6 +71,9 @@ pub struct LoopStats {
     /// Steps that stopped at the iteration cap short of the tolerance
     /// ([`StepStats::capped`]).
     pub capped_steps: usize,
+    /// Largest convergence measure at the end of a step
+    /// ([`StepStats::convergence`], against `PdParams::tolerance`).
+    pub convergence_max: f64,
     /// Largest implicit-Euler residual of a step (N).
     pub residual_max: f64,
     /// Largest end-of-step contact projection (m): how far a free node
@@ -85,6 +88,7 @@ impl LoopStats {
         self.iterations_sum += st.iterations as u64;
         self.iterations_max = self.iterations_max.max(st.iterations);
         self.capped_steps += usize::from(st.capped);
+        self.convergence_max = self.convergence_max.max(st.convergence);
         self.residual_max = self.residual_max.max(st.residual);
         self.correction_max = self.correction_max.max(st.max_projection);
     }

@@ -355,6 +355,11 @@ impl ElasticRhs for GpuElasticRhs {
         "gpu"
     }
 
+    /// Per-tet energies in f32, summed per workgroup in f32.
+    fn energy_precision(&self) -> f64 {
+        1e-5
+    }
+
     fn update_materials(&mut self, model: &ElasticModel) -> Result<bool, SimError> {
         if model.rest().len() != self.num_tets || model.num_nodes() != self.num_nodes {
             return Ok(false);
