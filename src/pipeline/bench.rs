@@ -503,27 +503,32 @@ pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
     } else {
         None
     };
-    let dist = |p: &Vec3, q: &Vec3| {
-        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
-    };
+    use crate::geom::dist;
     let (deviation, displacement) = match &reference {
         Some((_, r)) => {
             let mut far = 0.0f64;
             let mut moved = 0.0f64;
             for (f, g) in timed.frames.iter().zip(&r.frames) {
                 for i in 0..f.len() {
-                    far = far.max(dist(&f[i], &g[i]));
-                    moved = moved.max(dist(&g[i], &mesh.nodes[i]));
+                    far = far.max(dist(f[i], g[i]));
+                    moved = moved.max(dist(g[i], mesh.nodes[i]));
                 }
             }
             (Some(far / moved.max(f64::MIN_POSITIVE)), Some(moved))
         }
         None => (None, None),
     };
+    let totals = |stats: &[crate::sim::pd::StepStats]| {
+        let mut t = crate::sim::shot::LoopStats::default();
+        stats.iter().for_each(|st| t.add(st));
+        t
+    };
     let st = &timed.stats;
-    let sum_iters: u64 = st.iter().map(|s| u64::from(s.iterations)).sum();
-    let max_of =
-        |f: &dyn Fn(&crate::sim::pd::StepStats) -> f64| st.iter().map(f).fold(0.0f64, f64::max);
+    let timed_totals = totals(st);
+    let reference_totals = reference.as_ref().map(|(_, r)| totals(&r.stats));
+    let mean = |f: &dyn Fn(&crate::sim::pd::StepStats) -> f64| {
+        st.iter().map(f).sum::<f64>() / steps as f64
+    };
     let r = SimBench {
         bench: "sim",
         input: format!(
@@ -549,38 +554,26 @@ pub fn sim(a: &SimRequest) -> Result<SimBench, BenchError> {
         solver: solver_name,
         backend: timed.backend,
         prepare_ms: timed.prepare_ms,
-        ms_per_step: median(st.iter().map(|s| s.ms).collect()),
-        pd_iterations: sum_iters as f64 / steps as f64,
-        pd_iterations_max: st.iter().map(|s| s.iterations).max().unwrap_or(0),
+        ms_per_step: median(timed_totals.step_ms.clone()),
+        pd_iterations: timed_totals.iterations_mean(),
+        pd_iterations_max: timed_totals.iterations_max,
         tolerance: params.tolerance,
         max_iterations: params.max_iterations,
-        capped_steps: st.iter().filter(|s| s.capped).count(),
-        convergence: max_of(&|s| s.convergence),
-        residual: max_of(&|s| s.residual),
+        capped_steps: timed_totals.capped_steps,
+        convergence: timed_totals.convergence_max,
+        residual: timed_totals.residual_max,
         deviation,
         displacement_m: displacement,
         reference_tolerance: reference.as_ref().map(|r| r.0),
-        reference_iterations: reference.as_ref().map(|(_, r)| {
-            r.stats.iter().map(|s| f64::from(s.iterations)).sum::<f64>() / steps as f64
-        }),
-        reference_iterations_max: reference
-            .as_ref()
-            .map(|(_, r)| r.stats.iter().map(|s| s.iterations).max().unwrap_or(0)),
-        reference_capped_steps: reference
-            .as_ref()
-            .map(|(_, r)| r.stats.iter().filter(|s| s.capped).count()),
-        reference_residual: reference
-            .as_ref()
-            .map(|(_, r)| r.stats.iter().map(|s| s.residual).fold(0.0, f64::max)),
+        reference_iterations: reference_totals.as_ref().map(|t| t.iterations_mean()),
+        reference_iterations_max: reference_totals.as_ref().map(|t| t.iterations_max),
+        reference_capped_steps: reference_totals.as_ref().map(|t| t.capped_steps),
+        reference_residual: reference_totals.as_ref().map(|t| t.residual_max),
         local_ms_per_step: median(st.iter().map(|s| s.local_ms).collect()),
         global_ms_per_step: median(st.iter().map(|s| s.global_ms).collect()),
-        global_iterations: st
-            .iter()
-            .map(|s| f64::from(s.global_iterations))
-            .sum::<f64>()
-            / steps as f64,
-        global_residual: max_of(&|s| s.global_residual),
-        local_steps: st.iter().map(|s| f64::from(s.local_steps())).sum::<f64>() / steps as f64,
+        global_iterations: mean(&|s| f64::from(s.global_iterations)),
+        global_residual: st.iter().map(|s| s.global_residual).fold(0.0, f64::max),
+        local_steps: mean(&|s| f64::from(s.local_steps())),
         peak_rss_mb: peak_rss_mb(),
     };
     Ok(r)

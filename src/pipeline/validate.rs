@@ -881,7 +881,7 @@ impl Stage for ValidateJob {
                 self.scene.display(),
                 hr.capped_steps,
                 hr.steps,
-                crate::sim::pd::PdParams::default().tolerance,
+                hr.tolerance,
                 hr.max_convergence,
                 hr.max_residual_n,
                 residual_over_weight
@@ -1065,11 +1065,7 @@ impl Stage for ValidateJob {
             pd_capped_steps: hr.capped_steps,
             pd_max_residual_n: hr.max_residual_n,
             pd_max_residual_over_weight: residual_over_weight,
-            pd_tolerance: if pd {
-                crate::sim::pd::PdParams::default().tolerance
-            } else {
-                0.0
-            },
+            pd_tolerance: hr.tolerance,
             pd_convergence_max: hr.max_convergence,
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,

@@ -98,6 +98,8 @@ pub struct HomogenizedRun {
     /// PD only (else 0): the largest end-of-step convergence measure
     /// ([`crate::sim::pd::StepStats::convergence`], against the tolerance).
     pub max_convergence: f64,
+    /// PD only (else 0): the PD tolerance of the steps.
+    pub tolerance: f64,
     /// PD only (else 0): wall time of the local steps and of the global
     /// solves summed over the run (s), and the contact CG iterations of the
     /// global solves and the refactorizations of `K + W`.
@@ -128,6 +130,7 @@ impl HomogenizedRun {
             capped_steps: 0,
             max_residual_n: 0.0,
             max_convergence: 0.0,
+            tolerance: 0.0,
             local_s: 0.0,
             global_s: 0.0,
             contact_cg_iterations: 0,
@@ -375,6 +378,7 @@ pub fn pd_frames(
         .collect();
     let mut run = HomogenizedRun::at_rest(&mesh.nodes);
     run.backend = solver.backend_names().0;
+    run.tolerance = pd.tolerance;
     run.global_solver = solver.params().global.name();
     let mut x = mesh.nodes.clone();
     let mut v = vec![[0.0; 3]; mesh.num_nodes()];

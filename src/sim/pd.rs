@@ -202,13 +202,12 @@ pub struct PdParams {
     /// [`Self::tolerance`]. Default 100; a step that reaches it is
     /// [`StepStats::capped`] (simulate and validate count and warn).
     ///
-    /// Earlier a fixed count of 8 was the default; measured on a pinned
-    /// gravity drape it left the nodes 17.9% (2.4K-tet swatch) to 24.8%
-    /// (46.6K-tet rib) of the largest displacement off the converged run,
-    /// the extra damping of soft, large motions that slow PD convergence
-    /// gives (`knitvox bench sim --iterations K --tolerance 0` reports the
-    /// `deviation` of any fixed count; docs/performance.md "Converged
-    /// steps").
+    /// Earlier a fixed count of 8 was the default; on the pinned drape of
+    /// `knitvox bench sim` it leaves the nodes 5.4% (5.2K tets) and 5.1%
+    /// (79.5K tets) of the largest displacement off the converged run, the
+    /// extra damping of soft, large motions that slow PD convergence gives
+    /// (`--pd-iterations K --tolerance 0` reports the `deviation` of any
+    /// fixed count; docs/performance.md "Converged steps").
     pub max_iterations: u32,
     /// Convergence tolerance of a step (dimensionless). The PD iterations
     /// stop after the first plain PD iteration (local and global step,

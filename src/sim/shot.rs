@@ -82,7 +82,8 @@ pub struct LoopStats {
 }
 
 impl LoopStats {
-    fn add(&mut self, st: &StepStats) {
+    /// Adds one step.
+    pub fn add(&mut self, st: &StepStats) {
         self.steps += 1;
         self.step_ms.push(st.ms);
         self.iterations_sum += st.iterations as u64;
