@@ -925,3 +925,147 @@ fn validate_runs_both_levels_and_reports_the_distance() {
 
     // Scenes with colliders: tests/validate_gravity.rs.
 }
+
+const SWING_SCENE: &str = r#"name = "damping-swing"
+duration = 0.1
+frame_rate = 30
+model = "rods"
+[pose]
+kind = "cantilever"
+"#;
+
+#[test]
+fn fit_damping_keeps_the_closest_damping_records_it_and_validate_runs_with_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let asset_path = common::embedded_pattern(d, "a", "stockinette", 4, 4);
+    let scene = d.join("swing.toml");
+    std::fs::write(&scene, SWING_SCENE).unwrap();
+    let out = d.join("damped.vtkhdf");
+    let rep = d.join("rep");
+
+    // The output may not be an input; the damping is searched, not given.
+    let o = knitvox(&[
+        "fit-damping",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "-o",
+        s(&asset_path),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let o = knitvox(&[
+        "fit-damping",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "-o",
+        s(&out),
+        "--stiffness-damping",
+        "1e-4",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--stiffness-damping"), "{err}");
+    assert!(!out.exists());
+
+    let o = knitvox(&[
+        "fit-damping",
+        s(&asset_path),
+        "--scene",
+        s(&scene),
+        "-o",
+        s(&out),
+        "--report",
+        s(&rep),
+        "--json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let fit = &r["damping_fit"];
+    let beta = fit["stiffness_damping_s"].as_f64().unwrap();
+    let best = fit["rms_yarn_diameters"].as_f64().unwrap();
+    let undamped = fit["undamped_rms_yarn_diameters"].as_f64().unwrap();
+    let evals = fit["evaluations"].as_array().unwrap();
+    eprintln!(
+        "damping {beta:e} s: RMS {best} (undamped {undamped}) over {} runs",
+        evals.len()
+    );
+    // No damping first, then 14 golden-section points in [1e-6, 1e-2] s.
+    assert_eq!(evals.len(), 15, "{fit}");
+    assert_eq!(evals[0][0].as_f64(), Some(0.0));
+    assert_eq!(evals[0][1].as_f64(), Some(undamped));
+    for e in evals.iter().skip(1) {
+        let b = e[0].as_f64().unwrap();
+        assert!((1e-6..=1e-2).contains(&b), "{e}");
+    }
+    // The damping kept is the closest one tried, and the report is its run.
+    let least = evals
+        .iter()
+        .map(|e| e[1].as_f64().unwrap())
+        .fold(f64::INFINITY, f64::min);
+    assert_eq!(best, least, "{fit}");
+    assert!(evals
+        .iter()
+        .any(|e| e[0].as_f64() == Some(beta) && e[1].as_f64() == Some(best)));
+    assert_eq!(r["pd_stiffness_damping_s"].as_f64(), Some(beta), "{r}");
+    assert_eq!(r["rms_yarn_diameters"].as_f64(), Some(best), "{r}");
+
+    // The written asset records it, and the scene among its inputs.
+    let damped = io::vtkhdf::read_asset(&out).unwrap();
+    let record = damped.damping_record().unwrap().expect("a damping record");
+    assert_eq!(record.stiffness_damping_s, beta);
+    assert_eq!(record.undamped_rms_yarn_diameters, undamped);
+    assert_eq!(record.evaluations.len(), 15);
+    assert!(damped
+        .provenance
+        .inputs
+        .iter()
+        .any(|i| i.path.ends_with("swing.toml") && i.sha256.len() == 64));
+
+    // validate runs the damped asset with its damping (the same RMS as the
+    // search's run), and --stiffness-damping 0 gives the undamped one.
+    let truth = rep.join("yarn_level.h5");
+    let validate = |asset: &Path, extra: &[&str]| -> serde_json::Value {
+        let mut args = vec![
+            "validate",
+            s(asset),
+            "--scene",
+            s(&scene),
+            "--truth",
+            s(&truth),
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = knitvox(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let v = validate(&out, &[]);
+    assert_eq!(v["pd_stiffness_damping_s"].as_f64(), Some(beta), "{v}");
+    assert_eq!(v["rms_yarn_diameters"].as_f64(), Some(best), "{v}");
+    let v = validate(&out, &["--stiffness-damping", "0"]);
+    assert_eq!(v["rms_yarn_diameters"].as_f64(), Some(undamped), "{v}");
+
+    // A record with a negative damping is the asset's fault (65).
+    let mut bad = damped.clone();
+    bad.parameters["damping"]["stiffness_damping_s"] = serde_json::json!(-1.0);
+    let bad_path = d.join("bad.vtkhdf");
+    io::vtkhdf::write_asset(&bad_path, &bad).unwrap();
+    let o = knitvox(&[
+        "validate",
+        s(&bad_path),
+        "--scene",
+        s(&scene),
+        "--truth",
+        s(&truth),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(65), "{err}");
+    assert!(
+        err.contains("bad.vtkhdf") && err.contains("stiffness_damping_s"),
+        "{err}"
+    );
+}

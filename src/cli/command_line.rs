@@ -36,6 +36,8 @@ pub enum Command {
     Fit(fit::FitArgs),
     /// Compare an asset's homogenized motion with the yarn-level run of a yls scene.
     Validate(fit::ValidateArgs),
+    /// Fit the homogenized damping of an asset on a dynamic yls scene (its yarn-level run) and write the asset with it.
+    FitDamping(fit::FitDampingArgs),
     /// Bake a glTF character's animation into an HDF5 character cache (schemas/character-hdf5.md).
     Bake(bake::BakeArgs),
     /// Simulate a shot of an asset (scene file or character) and write frames (asset time series, yarn curves).

@@ -144,6 +144,11 @@ impl crate::pipeline::Observer for Console {
         match self.mode {
             ProgressMode::Off | ProgressMode::Bar => {}
             ProgressMode::Json => print_event("iteration", p),
+            // The damping search's loss is an RMS in yarn diameters.
+            ProgressMode::Lines if p.stage == "damping" => eprintln!(
+                "{}: {} damping evaluation {} ({}) RMS {:.4} yarn diameters, {:.0} ms",
+                self.label, p.sample, p.iteration, p.method, p.loss, p.ms
+            ),
             // The stiffening stage's loss is the relative clamp-force misfit.
             ProgressMode::Lines if p.stage == "stiffening" => eprintln!(
                 "{}: {} {} evaluation {} ({}) force misfit {:.4}, {:.0} ms",

@@ -302,6 +302,19 @@ pub struct ValidateArgs {
     /// Global solver of the PD runs, as `simulate --solver` [default: direct].
     #[arg(long, value_enum, default_value = "direct")]
     pub pd_solver: crate::pipeline::sim_scene::SolverChoice,
+    /// What the colliders of the PD runs act on: `yarns` (each V2Y yarn
+    /// vertex keeps its radius, its contact and friction forces reaching
+    /// the tet nodes through the embedding weights, as the yarn level
+    /// applies them) or `nodes` (each free tet node keeps the thickness of
+    /// the yarns it carries).
+    #[arg(long, value_enum, default_value = "yarns")]
+    pub contact: ContactArg,
+    /// Stiffness-proportional damping of the homogenized PD runs (s, >= 0):
+    /// the implicit force -beta L v on the rates of deformation, the
+    /// homogenized stand-in for the yarns' internal friction [default: the
+    /// asset's, from `knitvox fit-damping`, else 0].
+    #[arg(long, value_name = "SECONDS", value_parser = non_negative_seconds)]
+    pub stiffness_damping: Option<f64>,
     /// Reuse this yarn-level run of the scene instead of running it again:
     /// `yarn_level.h5` of an earlier `--report`, or `knitvox yls` output.
     /// Its scene (`[swatch]` aside), rest yarns and frame times must match;
@@ -324,6 +337,25 @@ pub struct ValidateArgs {
     pub no_progress: bool,
 }
 
+/// A finite, non-negative number of seconds.
+fn non_negative_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|e| format!("{s:?} is not a number: {e}"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{s} must be finite and >= 0"))
+    }
+}
+
+/// `--contact` of `validate`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum ContactArg {
+    Yarns,
+    Nodes,
+}
+
 /// `--solver` of `validate`.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum SolverArg {
@@ -331,7 +363,31 @@ pub enum SolverArg {
     Newton,
 }
 
+#[derive(Debug, Args)]
+pub struct FitDampingArgs {
+    #[command(flatten)]
+    pub validate: ValidateArgs,
+    /// The asset to write: the input asset with the damping found recorded
+    /// (parameters `damping`), which `validate` and `simulate` then use.
+    #[arg(short, long, value_name = "OUT.vtkhdf")]
+    pub output: PathBuf,
+}
+
 pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
+    run_validate(a, None)
+}
+
+pub fn fit_damping(a: &FitDampingArgs) -> anyhow::Result<ExitCode> {
+    if a.validate.stiffness_damping.is_some() {
+        return Err(crate::pipeline::Error::Usage(
+            "fit-damping searches the damping: leave out --stiffness-damping".into(),
+        )
+        .into());
+    }
+    run_validate(&a.validate, Some(a.output.clone()))
+}
+
+fn run_validate(a: &ValidateArgs, fit_damping: Option<PathBuf>) -> anyhow::Result<ExitCode> {
     let job = crate::pipeline::validate::ValidateJob {
         asset: a.asset.clone(),
         scene: a.scene.clone(),
@@ -346,9 +402,15 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
             pd_iterations: a.pd_iterations,
             backend: a.backend,
             global: a.pd_solver,
+            contact: match a.contact {
+                ContactArg::Yarns => crate::pipeline::validate_pd::ContactAt::Yarns,
+                ContactArg::Nodes => crate::pipeline::validate_pd::ContactAt::Nodes,
+            },
+            stiffness_damping: a.stiffness_damping,
         },
         truth: a.truth.clone(),
         compare_vh: a.compare_vh.clone(),
+        fit_damping,
     };
     let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
     let mut console = super::console::Console::with_mode(mode, 0, "validate: yarn level");
@@ -360,6 +422,9 @@ pub fn validate(a: &ValidateArgs) -> anyhow::Result<ExitCode> {
     } else {
         println!("{}", r.summary());
         println!("{}", crate::pipeline::validate_motion::words(&r.motion));
+        if let Some(d) = &r.damping_fit {
+            println!("{}", crate::pipeline::validate::damping_words(d));
+        }
         println!("{}", r.verdict);
     }
     Ok(ExitCode::Success)

@@ -40,6 +40,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Export(a) => asset::export(&a),
         Command::Fit(a) => fit::fit(&a),
         Command::Validate(a) => fit::validate(&a),
+        Command::FitDamping(a) => fit::fit_damping(&a),
         Command::Simulate(a) => simulate::simulate(&a),
         Command::Bake(a) => bake::bake(&a),
         Command::Run(a) => run::run(&a),

@@ -193,7 +193,66 @@ pub const FIT_RECORD_KEY: &str = "fit";
 #[error("parameters.{}: {}", FIT_RECORD_KEY, .0)]
 pub struct FitRecordError(#[source] pub serde_json::Error);
 
+/// Key of the damping record in [`Asset::parameters`].
+pub const DAMPING_RECORD_KEY: &str = "damping";
+
+/// The homogenized damping an asset records (`knitvox fit-damping`): the
+/// stiffness-proportional damping found on a dynamic scene, stored as the
+/// key [`DAMPING_RECORD_KEY`] of the asset's parameters.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DampingRecord {
+    /// knitvox version that fitted.
+    pub knitvox_version: String,
+    /// Stiffness-proportional damping `β` (s, finite, >= 0;
+    /// `crate::sim::pd::PdParams::stiffness_damping`).
+    pub stiffness_damping_s: f64,
+    /// The scene it was fitted on (its file as given, and the SHA-256 of
+    /// its text) and its yarn-level run's name.
+    pub scene: String,
+    pub scene_sha256: String,
+    /// RMS distance (yarn diameters) of the homogenized run from the yarn
+    /// level on that scene, with `β` and without damping.
+    pub rms_yarn_diameters: f64,
+    pub undamped_rms_yarn_diameters: f64,
+    /// Every damping tried and its RMS (yarn diameters), in order.
+    pub evaluations: Vec<[f64; 2]>,
+}
+
+/// A damping record in an asset's parameters that does not parse or holds
+/// a damping that is not finite and >= 0.
+#[derive(Debug, thiserror::Error)]
+#[error("parameters.{}: {}", DAMPING_RECORD_KEY, .0)]
+pub struct DampingRecordError(pub String);
+
 impl Asset {
+    /// The recorded damping, `Ok(None)` when none was fitted.
+    pub fn damping_record(&self) -> Result<Option<DampingRecord>, DampingRecordError> {
+        let Some(v) = self.parameters.get(DAMPING_RECORD_KEY) else {
+            return Ok(None);
+        };
+        let r: DampingRecord =
+            serde_json::from_value(v.clone()).map_err(|e| DampingRecordError(e.to_string()))?;
+        let b = r.stiffness_damping_s;
+        if !(b.is_finite() && b >= 0.0) {
+            return Err(DampingRecordError(format!(
+                "stiffness_damping_s {b} must be finite and >= 0"
+            )));
+        }
+        Ok(Some(r))
+    }
+
+    /// Records `record` (replacing an earlier one).
+    pub fn set_damping_record(&mut self, record: &DampingRecord) {
+        if !self.parameters.is_object() {
+            let old = std::mem::take(&mut self.parameters);
+            self.parameters = serde_json::json!({ "parameters": old });
+        }
+        let v = serde_json::to_value(record).expect("a damping record is plain data");
+        if let Some(o) = self.parameters.as_object_mut() {
+            o.insert(DAMPING_RECORD_KEY.to_string(), v);
+        }
+    }
+
     /// The recorded fit, `Ok(None)` when the asset was never fitted; an
     /// error names what is wrong with a malformed record.
     pub fn fit_record(&self) -> Result<Option<FitRecord>, FitRecordError> {

@@ -21,8 +21,8 @@ pub use asset::{
     Asset, AssetFibres, InputFile, NodeSteps, Provenance, DEFAULT_GAMMA_S, DEFAULT_GAMMA_V,
 };
 pub use asset::{
-    FitPose, FitRecord, FitRecordError, PoseLosses, TrainingFidelity, UniformMaterial,
-    FIT_RECORD_KEY,
+    DampingRecord, DampingRecordError, FitPose, FitRecord, FitRecordError, PoseLosses,
+    TrainingFidelity, UniformMaterial, DAMPING_RECORD_KEY, FIT_RECORD_KEY,
 };
 pub use error::GeomError;
 pub use excerpt::{cap_message, excerpt, excerpt_chars, num, MAX_EXCERPT_CHARS, MAX_MESSAGE_BYTES};

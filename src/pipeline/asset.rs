@@ -46,7 +46,7 @@ impl StageError {
     }
 }
 
-fn input_record(path: &Path) -> Result<InputFile, IoError> {
+pub(crate) fn input_record(path: &Path) -> Result<InputFile, IoError> {
     let sha256 = if path.is_file() {
         sha256_file(path)?
     } else {

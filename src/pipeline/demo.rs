@@ -301,6 +301,7 @@ fn fit_demo(dir: &Path, command: &str) -> Result<FitDemo, DemoError> {
         homogenized: Default::default(),
         truth: None,
         compare_vh: None,
+        fit_damping: None,
     }
     .run(&mut super::Quiet)?;
     Ok(FitDemo {

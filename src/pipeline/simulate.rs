@@ -149,6 +149,9 @@ pub struct SimulateReport {
     /// tolerance unless a step was capped).
     pub pd_tolerance: f64,
     pub pd_convergence_max: f64,
+    /// Stiffness-proportional damping `β` (s) of the asset's material
+    /// (its damping record from `knitvox fit-damping`; 0 without one).
+    pub pd_stiffness_damping_s: f64,
     /// Largest implicit-Euler residual over the steps (N).
     pub residual_max: f64,
     /// Largest penetration depth (m) of a free node into any collider over
@@ -635,6 +638,7 @@ pub fn simulate_chunk(
         pd_iterations_max: stats.iterations_max,
         pd_capped_steps: stats.capped_steps,
         pd_tolerance: sim.tolerance,
+        pd_stiffness_damping_s: asset_damping(asset, asset_path)?,
         pd_convergence_max: stats.convergence_max,
         residual_max: stats.residual_max,
         max_penetration_m: 0.0,
@@ -1021,7 +1025,10 @@ fn build_solver(
         model,
         &asset.node_mass,
         &setup.pinned,
-        pd_params(sim, setup.schedule.dt),
+        PdParams {
+            stiffness_damping: asset_damping(asset, asset_path)?,
+            ..pd_params(sim, setup.schedule.dt)
+        },
         stored.as_deref(),
     )
     .map_err(|e| invalid(asset_path, e.to_string()))?;
@@ -1072,6 +1079,15 @@ fn output_asset(
         });
     }
     Ok(out)
+}
+
+/// The stiffness-proportional damping (s) the asset records, 0 without a
+/// record; a malformed record is the asset's error.
+fn asset_damping(asset: &Asset, asset_path: &Path) -> Result<f64, SimulateError> {
+    asset
+        .damping_record()
+        .map(|r| r.map_or(0.0, |r| r.stiffness_damping_s))
+        .map_err(|e| invalid(asset_path, e.to_string()))
 }
 
 /// The PD parameters of a scene's `[simulation]` at step `dt` (s).

@@ -81,6 +81,34 @@ pub struct ValidateJob {
     /// reference to beat (VH Eq. 7 fitted on the same poses): run on the
     /// same scene, its distance is reported beside the asset's.
     pub compare_vh: Option<PathBuf>,
+    /// Fit the stiffness-proportional damping on this scene
+    /// (`knitvox fit-damping`) and write the asset with it to this path;
+    /// the report then describes the run with the fitted damping.
+    pub fit_damping: Option<PathBuf>,
+}
+
+/// Range of the damping search (s): `log10 β` in [-6, -2], plus `β = 0`.
+/// The hang of a 6 x 6 stockinette is overdamped from about 1e-3 s.
+pub const DAMPING_SEARCH_LOG10: (f64, f64) = (-6.0, -2.0);
+
+/// Golden-section refinements of the damping search after its first two
+/// points: the bracket of `log10 β` shrinks to 4 x 0.618^12 = 0.013 decades.
+pub const DAMPING_SEARCH_REFINEMENTS: usize = 12;
+
+/// What `knitvox fit-damping` found (`ValidateReport::damping_fit`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DampingFitReport {
+    /// The asset written, with its damping record.
+    pub output: PathBuf,
+    /// The damping found (s) and the RMS (yarn diameters) with it and
+    /// without damping, on the scene fitted.
+    pub stiffness_damping_s: f64,
+    pub rms_yarn_diameters: f64,
+    pub undamped_rms_yarn_diameters: f64,
+    /// Every `[β (s), RMS (yarn diameters)]` tried, in order.
+    pub evaluations: Vec<[f64; 2]>,
+    /// Wall time of the search (s).
+    pub search_s: f64,
 }
 
 /// Error of one frame (yarn diameters).
@@ -167,6 +195,14 @@ pub struct ValidateReport {
     pub pd_global_solver: &'static str,
     /// Colliders acting on both runs.
     pub colliders: usize,
+    /// PD only: what the colliders act on in the homogenized runs
+    /// ("yarns": the V2Y yarn vertices; "nodes": the tet nodes); "" for
+    /// Newton (yarn vertices, by its own contact term).
+    pub pd_contact: &'static str,
+    /// PD only (else 0): the stiffness-proportional damping `β` (s) of the
+    /// homogenized runs (`validate --stiffness-damping`, else the asset's
+    /// damping record, else 0).
+    pub pd_stiffness_damping_s: f64,
     /// Deepest collider penetration of a homogenized yarn vertex (m) and the
     /// most contacts in one frame ([`HomogenizedRun::max_contacts`]).
     pub max_penetration_m: f64,
@@ -201,6 +237,9 @@ pub struct ValidateReport {
     /// the wall time that file records, measured when it was made.
     pub truth_file: Option<PathBuf>,
     pub report_files: Vec<PathBuf>,
+    /// `knitvox fit-damping`: the damping search and the asset written;
+    /// the figures above are then those of the fitted damping.
+    pub damping_fit: Option<DampingFitReport>,
     /// One line in words: the held-out distance, against the uniform
     /// material, and whether the fitted material is better, the same or
     /// worse ([`verdict`]).
@@ -269,6 +308,29 @@ pub fn verdict(r: &ValidateReport) -> String {
         }
     }
     line
+}
+
+/// The damping search of `knitvox fit-damping` in words.
+pub fn damping_words(d: &DampingFitReport) -> String {
+    let how = if d.stiffness_damping_s > 0.0 {
+        format!(
+            "stiffness damping {:.3e} s brings the RMS from {:.3} (undamped) to {:.3} yarn diameters",
+            d.stiffness_damping_s, d.undamped_rms_yarn_diameters, d.rms_yarn_diameters
+        )
+    } else {
+        format!(
+            "no damping in {:.0e}-{:.0e} s comes closer than none ({:.3} yarn diameters RMS)",
+            10f64.powf(DAMPING_SEARCH_LOG10.0),
+            10f64.powf(DAMPING_SEARCH_LOG10.1),
+            d.undamped_rms_yarn_diameters
+        )
+    };
+    format!(
+        "damping: {how} in {} runs ({:.1} s); written to {}",
+        d.evaluations.len(),
+        d.search_s,
+        d.output.display()
+    )
 }
 
 /// A force in words at a readable scale (`12.3 mN`).
@@ -359,6 +421,12 @@ pub struct HomogenizedRunParams {
     /// global solver (default direct).
     pub backend: BackendChoice,
     pub global: SolverChoice,
+    /// PD: what the colliders act on (default the yarn vertices).
+    pub contact: super::validate_pd::ContactAt,
+    /// PD: stiffness-proportional damping `β` (s) of the homogenized
+    /// runs. None (default): the asset's damping record
+    /// ([`crate::geom::DampingRecord`]), else 0.
+    pub stiffness_damping: Option<f64>,
 }
 
 /// What the Newton reference ([`homogenized_frames`]) leaves out of a scene
@@ -412,6 +480,8 @@ pub fn homogenized_run(
                 iterations: how.pd_iterations.unwrap_or(d.iterations),
                 backend: how.backend,
                 global: how.global,
+                contact: how.contact,
+                stiffness_damping: how.stiffness_damping.unwrap_or(0.0),
             };
             super::validate_pd::pd_frames(
                 asset, gamma, &pinned, &target, gravity, times, colliders, &params,
@@ -679,6 +749,128 @@ fn with_swatch(text: &str, scene: &Path, swatch_file: &Path) -> Result<(String, 
     Ok((format!("{text}\n[swatch]\nfile = '{p}'\n"), true))
 }
 
+/// The scene a damping search runs (`ValidateJob::fit_damping`).
+struct DampingScene<'a> {
+    driver: &'a PoseDriver,
+    /// The scene's mass damping (1/s), as the yarn level's.
+    damping: f64,
+    frames: &'a YarnFrames,
+    colliders: &'a [Arc<dyn PointCollider>],
+}
+
+impl ValidateJob {
+    /// Searches the stiffness-proportional damping that brings the asset's
+    /// homogenized run closest (RMS over the frames) to the yarn level on
+    /// `scene`: `β = 0`, then a golden-section search of `log10 β` over
+    /// [`DAMPING_SEARCH_LOG10`]; keeps 0 unless a damping is closer. Writes
+    /// the asset with its [`crate::geom::DampingRecord`] to `out` and
+    /// returns the damping and the report.
+    #[allow(clippy::too_many_arguments)]
+    fn fit_damping(
+        &self,
+        out: &Path,
+        asset: &Asset,
+        gamma: &MaterialFields,
+        how: HomogenizedRunParams,
+        scene: &YlsScene,
+        ds: &DampingScene<'_>,
+        observer: &mut dyn Observer,
+    ) -> Result<(f64, DampingFitReport), Error> {
+        if how.solver != HomogenizedSolver::Pd {
+            return Err(Error::Usage(
+                "fit-damping fits the damping of PD runs: --solver newton has none".into(),
+            ));
+        }
+        let ts = Instant::now();
+        let nf = ds.frames.num_frames();
+        let sample = self.scene.display().to_string();
+        let mut evaluations: Vec<[f64; 2]> = Vec::new();
+        let mut rms_at = |beta: f64| -> Result<f64, Error> {
+            let t = Instant::now();
+            let params = HomogenizedRunParams {
+                stiffness_damping: Some(beta),
+                ..how
+            };
+            let hr = homogenized_run(
+                &params,
+                asset,
+                gamma,
+                ds.driver,
+                scene.gravity,
+                ds.damping,
+                &ds.frames.times,
+                ds.colliders,
+            )
+            .map_err(|m| {
+                setup(
+                    &self.scene,
+                    format!("homogenized run with damping {beta:e} s: {m}"),
+                )
+            })?;
+            let d: Vec<f64> = (1..nf)
+                .flat_map(|k| yarn_distances(asset, &hr.frames[k], ds.frames.frame(k)))
+                .collect();
+            let rms = rms_max(&d).0;
+            evaluations.push([beta, rms]);
+            observer.iteration(&crate::fit::elastic::FitProgress {
+                sample: sample.clone(),
+                stage: "damping".into(),
+                iteration: evaluations.len() as u32,
+                method: format!("beta {beta:.3e} s"),
+                loss: rms,
+                ms: t.elapsed().as_secs_f64() * 1e3,
+                direction_ms: 0.0,
+                halvings: 0,
+            });
+            Ok(rms)
+        };
+        let undamped = rms_at(0.0)?;
+        let (u, best) = crate::fit::golden::golden_section(
+            DAMPING_SEARCH_LOG10,
+            DAMPING_SEARCH_REFINEMENTS,
+            true,
+            |u| rms_at(10f64.powf(u)),
+        )?;
+        let (beta, rms) = if best < undamped {
+            (10f64.powf(u), best)
+        } else {
+            (0.0, undamped)
+        };
+        let mut fitted = asset.clone();
+        let scene_input = crate::pipeline::asset::input_record(&self.scene)?;
+        let scene_sha256 = scene_input.sha256.clone();
+        fitted.set_damping_record(&crate::geom::DampingRecord {
+            knitvox_version: env!("CARGO_PKG_VERSION").to_string(),
+            stiffness_damping_s: beta,
+            scene: self.scene.display().to_string(),
+            scene_sha256,
+            rms_yarn_diameters: rms,
+            undamped_rms_yarn_diameters: undamped,
+            evaluations: evaluations.clone(),
+        });
+        fitted.provenance.inputs.push(scene_input);
+        fitted.provenance.command = format!(
+            "{} && knitvox fit-damping {} --scene {} -o {}",
+            fitted.provenance.command,
+            self.asset.display(),
+            self.scene.display(),
+            out.display()
+        );
+        io::vtkhdf::write_asset(out, &fitted)?;
+        Ok((
+            beta,
+            DampingFitReport {
+                output: out.to_path_buf(),
+                stiffness_damping_s: beta,
+                rms_yarn_diameters: rms,
+                undamped_rms_yarn_diameters: undamped,
+                evaluations,
+                search_s: ts.elapsed().as_secs_f64(),
+            },
+        ))
+    }
+}
+
 impl Stage for ValidateJob {
     type Report = ValidateReport;
     const NAME: &'static str = "validate";
@@ -687,7 +879,21 @@ impl Stage for ValidateJob {
         if let Some(r) = &self.report {
             io::overwrite::refuse_inputs(&[r], &[&self.asset, &self.scene])?;
         }
+        if let Some(out) = &self.fit_damping {
+            check_asset_ext(out)?;
+            let mut inputs: Vec<&Path> = vec![&self.asset, &self.scene];
+            inputs.extend(self.truth.as_deref());
+            io::overwrite::refuse_inputs(&[out], &inputs)?;
+        }
         let asset = io::vtkhdf::read_asset(&self.asset)?;
+        // A bad damping record fails before any run.
+        let recorded =
+            asset
+                .damping_record()
+                .map_err(|e| crate::pipeline::asset::StageError::Invalid {
+                    path: self.asset.clone(),
+                    message: e.to_string(),
+                })?;
         let vh = match &self.compare_vh {
             Some(p) => {
                 check_asset_ext(p)?;
@@ -847,11 +1053,39 @@ impl Stage for ValidateJob {
                 }
             ));
         }
+        // The damping of the homogenized runs: as given, else the asset's
+        // record, else none; `fit-damping` searches it here.
+        let mut how = self.homogenized;
+        if how.stiffness_damping.is_none() {
+            how.stiffness_damping = Some(recorded.as_ref().map_or(0.0, |r| r.stiffness_damping_s));
+        }
+        let ga = asset_materials(&asset);
+        let damping_fit = match &self.fit_damping {
+            Some(out) => {
+                let (beta, fit) = self.fit_damping(
+                    out,
+                    &asset,
+                    &ga,
+                    how,
+                    &scene,
+                    &DampingScene {
+                        driver: &driver,
+                        damping: yarn_params.global_damping,
+                        frames: &frames,
+                        colliders: &colliders,
+                    },
+                    observer,
+                )?;
+                how.stiffness_damping = Some(beta);
+                Some(fit)
+            }
+            None => None,
+        };
         // Homogenized, with the asset's material, then the uniform one.
         let t = Instant::now();
         let run_with = |gamma: &MaterialFields| {
             homogenized_run(
-                &self.homogenized,
+                &how,
                 &asset,
                 gamma,
                 &driver,
@@ -861,7 +1095,6 @@ impl Stage for ValidateJob {
                 &colliders,
             )
         };
-        let ga = asset_materials(&asset);
         let hr = run_with(&ga).map_err(|m| setup(&self.scene, format!("homogenized run: {m}")))?;
         let homogenized_s = t.elapsed().as_secs_f64();
         let xs = &hr.frames;
@@ -1070,6 +1303,14 @@ impl Stage for ValidateJob {
             pd_backend: hr.backend,
             pd_global_solver: hr.global_solver,
             colliders: colliders.len(),
+            pd_contact: match self.homogenized.solver {
+                HomogenizedSolver::Pd => self.homogenized.contact.name(),
+                HomogenizedSolver::Newton => "",
+            },
+            pd_stiffness_damping_s: match self.homogenized.solver {
+                HomogenizedSolver::Pd => how.stiffness_damping.unwrap_or(0.0),
+                HomogenizedSolver::Newton => 0.0,
+            },
             max_penetration_m: hr.max_penetration_m,
             max_contacts: hr.max_contacts,
             max_substeps: hr.substeps,
@@ -1085,6 +1326,7 @@ impl Stage for ValidateJob {
             motion,
             truth_file: self.truth.clone(),
             report_files: Vec::new(),
+            damping_fit,
             verdict: String::new(),
         };
         report.verdict = verdict(&report);

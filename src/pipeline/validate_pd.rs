@@ -9,24 +9,33 @@
 //! the yarn simulator's). Pins: the four nodes of every tet holding a
 //! clamped yarn vertex follow that vertex's band map at the step's time.
 //!
-//! Contacts: the scene's colliders (plane, sphere, character; the yarn-level
-//! objects with their friction coefficients and surface velocities) project
-//! the free tet nodes, so that the yarns the nodes carry keep their radius
-//! from the collider. Node `i` carries the yarn vertices embedded in its
-//! tets (its star); with `o_v = y_v - x_i` their offsets at the start of
-//! the step (`y = V2Y(x)`, VH Eq. 4) and `n` the collider's outward normal,
-//! the node keeps the directional thickness `max_v (r_v - o_v · n)`. For a
-//! plane this is exact and conservative: when the four nodes of a yarn
-//! vertex's tet satisfy their constraints, `φ(y_v) = Σ_a w_a φ(x_a) >=
-//! Σ_a w_a (r_v - o_{v,a} · n) = r_v`, since `Σ_a w_a o_{v,a} = 0`. Only
-//! nodes are constrained, so the PD global matrix keeps its diagonal
-//! contact form (a per-yarn-vertex constraint would couple four nodes).
+//! Contacts ([`ContactAt`]): the scene's colliders (plane, sphere,
+//! character; the yarn-level objects with their friction coefficients and
+//! surface velocities) act where the yarn level applies them, on the yarn
+//! vertices: each V2Y yarn vertex (VH Eq. 4) keeps its radius from the
+//! collider, with its own depth, slip and Coulomb cone, and its contact
+//! and friction forces reach the tet nodes through its embedding weights
+//! ([`crate::sim::contact`], "Contacts at embedded points"; the vertices
+//! carry the yarn mass by their segments, scaled to the nodes' total).
+//!
+//! With [`ContactAt::Nodes`] the colliders project the free tet nodes
+//! instead, so that the yarns the nodes carry keep their radius from the
+//! collider. Node `i` carries the yarn vertices embedded in its tets (its
+//! star); with `o_v = y_v - x_i` their offsets at the start of the step
+//! and `n` the collider's outward normal, the node keeps the directional
+//! thickness `max_v (r_v - o_v · n)`. For a plane this is exact and
+//! conservative: when the four nodes of a yarn vertex's tet satisfy their
+//! constraints, `φ(y_v) = Σ_a w_a φ(x_a) >= Σ_a w_a (r_v - o_{v,a} · n) =
+//! r_v`, since `Σ_a w_a o_{v,a} = 0`. Normal force and friction then act at
+//! the nodes, up to half a voxel from the yarns, and the conservative
+//! thickness holds the fabric off the collider where a node's star spans
+//! yarns at several heights.
 
 use std::sync::Arc;
 
 use crate::geom::vec3::{dot, sub};
 use crate::geom::{Asset, Vec3};
-use crate::sim::contact::{Contact, NodeProjector};
+use crate::sim::contact::{Contact, EmbeddedPoints, NodeProjector, PointProjector};
 use crate::sim::pd::{PdParams, PdSolver};
 use crate::sim::SimError;
 use crate::yarn::sim::PointCollider;
@@ -82,8 +91,8 @@ pub struct HomogenizedRun {
     /// Deepest penetration of a yarn vertex into a collider (m).
     pub max_penetration_m: f64,
     /// Most contacts in one frame (Newton: yarn vertices within their
-    /// radius of a collider; PD: free tet nodes with an active contact
-    /// constraint in a step).
+    /// radius of a collider; PD: yarn vertices, or with node contacts free
+    /// tet nodes, with an active contact constraint in a step).
     pub max_contacts: usize,
     /// Most backward-Euler substeps a frame needed (1: none); for PD the
     /// implicit-Euler steps per frame.
@@ -160,6 +169,33 @@ pub struct PdRunParams {
     pub backend: BackendChoice,
     /// The global solver. Default direct (sparse Cholesky).
     pub global: SolverChoice,
+    /// What the colliders act on. Default [`ContactAt::Yarns`].
+    pub contact: ContactAt,
+    /// Stiffness-proportional damping `β` (s) of the homogenized material
+    /// ([`PdParams::stiffness_damping`]). Default 0.
+    pub stiffness_damping: f64,
+}
+
+/// Where the homogenized run's colliders act (module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ContactAt {
+    /// At the V2Y yarn vertices, each keeping its radius, the forces
+    /// reaching the nodes through the embedding weights (as the yarn level
+    /// applies them).
+    #[default]
+    Yarns,
+    /// At the free tet nodes, each keeping its directional thickness.
+    Nodes,
+}
+
+impl ContactAt {
+    /// The name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            ContactAt::Yarns => "yarns",
+            ContactAt::Nodes => "nodes",
+        }
+    }
 }
 
 impl Default for PdRunParams {
@@ -171,6 +207,8 @@ impl Default for PdRunParams {
             iterations: d.max_iterations,
             backend: BackendChoice::default(),
             global: SolverChoice::default(),
+            contact: ContactAt::default(),
+            stiffness_damping: 0.0,
         }
     }
 }
@@ -300,6 +338,93 @@ impl NodeProjector for YarnColliders<'_> {
     }
 }
 
+/// The yarn-level colliders at one step's end time, each V2Y yarn vertex
+/// keeping its radius (module doc).
+struct YarnVertexColliders<'a> {
+    colliders: &'a [Arc<dyn PointCollider>],
+    radius: &'a [f64],
+    /// End time of the step (s) and its length (s).
+    t: f64,
+    dt: f64,
+}
+
+impl PointProjector for YarnVertexColliders<'_> {
+    fn contact(&self, point: usize, p: Vec3) -> Option<Contact> {
+        let r = self.radius[point];
+        let mut q = p;
+        let mut hit: Option<&Arc<dyn PointCollider>> = None;
+        for _ in 0..PROJECTION_PASSES {
+            let mut moved = false;
+            for c in self.colliders {
+                let (d, n) = c.signed_distance(q, self.t);
+                if d.is_finite() && d < r {
+                    q = std::array::from_fn(|k| q[k] + (r - d) * n[k]);
+                    hit = Some(c);
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        hit.map(|c| {
+            let u = c.velocity(q, self.t);
+            Contact {
+                target: q,
+                surface_motion: u.map(|u| u * self.dt),
+                friction: c.friction(),
+            }
+        })
+    }
+}
+
+/// The asset's yarn vertices as contact points: their tets' nodes and
+/// weights, and per vertex half the yarn of each segment at it (linear
+/// density of the curve when the yarns carry one, else proportional to
+/// `r²`), scaled so the vertices carry the nodes' total mass.
+pub fn yarn_contact_points(asset: &Asset) -> EmbeddedPoints {
+    let yarns = &asset.rest_yarns;
+    let nv = asset.embedding.num_vertices();
+    let mut share = vec![0.0f64; nv];
+    for c in 0..yarns.num_curves() {
+        for [a, b] in yarns.segments_of(c) {
+            let ld = yarns
+                .linear_density
+                .as_ref()
+                .map_or_else(|| yarns.radius_at(a).powi(2), |d| d[c]);
+            let m = 0.5 * ld * crate::geom::dist(yarns.points[a], yarns.points[b]);
+            for v in [a, b] {
+                if let Some(s) = share.get_mut(v) {
+                    *s += m;
+                }
+            }
+        }
+    }
+    let total: f64 = share.iter().sum();
+    let node_total: f64 = asset.node_mass.iter().sum();
+    let scale = if total > 0.0 { node_total / total } else { 0.0 };
+    // A vertex on no segment (or a zero-length one) still gets a small
+    // weight: every contact point needs one.
+    let floor = if nv > 0 {
+        1e-6 * node_total / nv as f64
+    } else {
+        0.0
+    };
+    EmbeddedPoints {
+        nodes: asset
+            .embedding
+            .tet
+            .iter()
+            .map(|&t| asset.mesh.tets[t as usize])
+            .collect(),
+        weights: asset.embedding.weights.clone(),
+        mass: share
+            .iter()
+            .map(|s| (s * scale).max(floor).max(f64::MIN_POSITIVE))
+            .collect(),
+    }
+}
+
 /// Deepest penetration (m, >= 0) of a V2Y yarn vertex into its radius
 /// around a collider at `t` (the Newton run's measure).
 fn yarn_penetration(
@@ -362,6 +487,7 @@ pub fn pd_frames(
         dt: first_dt,
         gravity,
         mass_damping: params.mass_damping,
+        stiffness_damping: params.stiffness_damping,
         max_iterations: params.iterations,
         // The end-of-step residual tells how far each step is from the
         // exact implicit-Euler solution (one more gradient per step).
@@ -373,6 +499,11 @@ pub fn pd_frames(
     let mut solver = PdSolver::with_model(mesh, model, &asset.node_mass, pinned, pd, None)?;
     run_backend(&mut solver, params.backend)?;
     let stars = NodeStars::new(asset);
+    let points = if params.contact == ContactAt::Yarns && !colliders.is_empty() {
+        yarn_contact_points(asset)
+    } else {
+        EmbeddedPoints::default()
+    };
     let radius: Vec<f64> = (0..asset.rest_yarns.num_points())
         .map(|v| asset.rest_yarns.radius_at(v))
         .collect();
@@ -397,30 +528,41 @@ pub fn pd_frames(
             let t = t0 + dt * j as f64;
             let pins: Vec<Vec3> = pinned.iter().map(|&i| target(i, t)).collect();
             let x0 = x.clone();
-            let (y0, reach) = if colliders.is_empty() {
+            let (y0, reach) = if colliders.is_empty() || params.contact == ContactAt::Yarns {
                 (Vec::new(), Vec::new())
             } else {
                 let y0 = asset.embedding.v2y(mesh, &x0);
                 let reach = node_reach(&stars, &radius, &x0, &y0);
                 (y0, reach)
             };
-            let proj = YarnColliders {
-                colliders,
-                stars: &stars,
-                radius: &radius,
-                x0: &x0,
-                y0: &y0,
-                reach: &reach,
-                t,
-                dt,
-            };
-            let st = solver
-                .step_with_contacts(&mut x, &mut v, &pins, &proj)
-                .map_err(|source| HomogenizedRunError::PdStep {
-                    frame: k,
-                    time: t,
-                    source,
-                })?;
+            let st = if colliders.is_empty() {
+                solver.step(&mut x, &mut v, &pins)
+            } else if params.contact == ContactAt::Yarns {
+                let proj = YarnVertexColliders {
+                    colliders,
+                    radius: &radius,
+                    t,
+                    dt,
+                };
+                solver.step_with_point_contacts(&mut x, &mut v, &pins, &points, &proj)
+            } else {
+                let proj = YarnColliders {
+                    colliders,
+                    stars: &stars,
+                    radius: &radius,
+                    x0: &x0,
+                    y0: &y0,
+                    reach: &reach,
+                    t,
+                    dt,
+                };
+                solver.step_with_contacts(&mut x, &mut v, &pins, &proj)
+            }
+            .map_err(|source| HomogenizedRunError::PdStep {
+                frame: k,
+                time: t,
+                source,
+            })?;
             run.iterations += st.iterations as u64;
             run.steps += 1;
             run.capped_steps += u64::from(st.capped);

@@ -20,6 +20,26 @@
 //! the implicit step, so friction acts inside the solve rather than on a
 //! node already moved onto the surface (whose projection depth would be 0).
 //!
+//! # Contacts at embedded points
+//! The homogenized mesh stands for yarns that lie inside its tets, up to
+//! half a voxel from the nodes. Contact and friction can act where the
+//! yarns are ([`EmbeddedPoints`], [`PointProjector`]): point `j` at
+//! `y_j = Σ_a λ_ja x_a` (its tet's nodes `a`, barycentric weights `λ`, VH
+//! Eq. 4) gets the constraint `½ w_j |y_j - P_j|²`, `w_j = κ m_j / Δt²`
+//! with `m_j` the yarn mass the point stands for, and `P_j` its friction
+//! target as above (depth, slip and the Coulomb cone per point). Its force
+//! `w_j (P_j - y_j)` reaches node `a` as `λ_ja w_j (P_j - y_j)`, the
+//! gradient through the embedding. The exact Hessian `w_j λ_j λ_jᵀ` would
+//! couple the four nodes in the PD matrix; PD takes its row-sum lumping
+//! `w_j diag(λ_j)` instead: the same gradient at every iterate (so the same
+//! converged step), a diagonal the solver's contact path already handles,
+//! and a majorizer of the exact term (`diag(λ) - λ λᵀ` is diagonally
+//! dominant, since `Σ λ = 1` and `λ >= 0`), so the PD surrogate stays an
+//! upper bound. Node `a` then carries the weight `W_a = Σ_j λ_ja w_j` and
+//! the target `x_a + Σ_j λ_ja w_j (P_j - y_j) / W_a`; a single point in a
+//! tet moves all four nodes by its own correction, which puts it on its
+//! target in one iteration.
+//!
 //! This module holds the interface shared by the colliders (`sim::collide`)
 //! and the time loop (`sim::pd`), and the friction rule.
 
@@ -54,6 +74,80 @@ pub trait NodeProjector: Sync {
             surface_motion: [0.0; 3],
             friction: 0.0,
         })
+    }
+}
+
+/// Something the embedded points ([`EmbeddedPoints`]) must stay out of
+/// during one time step: colliders posed at the step's end time, each
+/// point keeping its own distance (a yarn vertex: its radius).
+pub trait PointProjector: Sync {
+    /// The contact of point `point` at `p` (m), None when admissible. Must
+    /// be cheap and thread-safe: the solver calls it for every point in
+    /// every PD iteration.
+    fn contact(&self, point: usize, p: Vec3) -> Option<Contact>;
+}
+
+/// Points embedded in the tets that contacts act on (module doc,
+/// "Contacts at embedded points"): yarn vertices, by their tet's nodes and
+/// barycentric weights (VH Eq. 4), and the yarn mass each stands for.
+#[derive(Debug, Clone, Default)]
+pub struct EmbeddedPoints {
+    /// The four nodes of each point's tet.
+    pub nodes: Vec<[u32; 4]>,
+    /// Barycentric weights of each point in its tet (>= 0, sum 1).
+    pub weights: Vec<[f64; 4]>,
+    /// Mass (kg, > 0) each point stands for: the scale of its contact
+    /// weight `κ m / Δt²`.
+    pub mass: Vec<f64>,
+}
+
+impl EmbeddedPoints {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Whether there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+
+    /// Position (m) of point `j` for node positions `x` (V2Y, VH Eq. 4).
+    pub fn position(&self, j: usize, x: &[Vec3]) -> Vec3 {
+        let (ids, w) = (&self.nodes[j], &self.weights[j]);
+        let mut p = [0.0; 3];
+        for a in 0..4 {
+            let q = x[ids[a] as usize];
+            for k in 0..3 {
+                p[k] += w[a] * q[k];
+            }
+        }
+        p
+    }
+
+    /// Why these points cannot serve a mesh of `num_nodes` nodes (lengths
+    /// that differ, a node out of range, weights or masses that are not
+    /// finite and non-negative), or None.
+    pub fn check(&self, num_nodes: usize) -> Option<String> {
+        if self.weights.len() != self.len() || self.mass.len() != self.len() {
+            return Some(format!(
+                "{} points with {} weight rows and {} masses",
+                self.len(),
+                self.weights.len(),
+                self.mass.len()
+            ));
+        }
+        for j in 0..self.len() {
+            if let Some(&a) = self.nodes[j].iter().find(|&&a| a as usize >= num_nodes) {
+                return Some(format!("point {j} names node {a} of {num_nodes}"));
+            }
+            let ok = |v: f64| v.is_finite() && v >= 0.0;
+            if !self.weights[j].iter().all(|&w| ok(w)) || !(ok(self.mass[j]) && self.mass[j] > 0.0)
+            {
+                return Some(format!("point {j} has a bad weight or mass"));
+            }
+        }
+        None
     }
 }
 

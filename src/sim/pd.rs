@@ -34,6 +34,18 @@
 //! [`super::energy`] evaluates and differentiates (the printed form
 //! corresponds to stiffnesses halved).
 //!
+//! # Stiffness-proportional damping
+//! With [`PdParams::stiffness_damping`] `β` (s) the step also carries the
+//! implicit Rayleigh damping force `-β L v`, `v = (x - x*) / Δt`, where `L =
+//! Σ_e 2 V_e (γs + γv) G_eᵀ G_e` (plus the fibre terms) is the elastic part
+//! of `K`: the potential `β / (2 Δt) |x - x*|²_L`. It damps the rates of
+//! deformation (and of rotation) and leaves translation free, unlike the
+//! mass-proportional `c`, which also slows a falling or sliding body: the
+//! homogenized counterpart of the yarn-yarn friction and contact damping
+//! that dissipate energy inside the fabric at yarn level. `K`'s elastic
+//! part is scaled by `1 + β / Δt` and `b` gains `(β / Δt) L x*`; `L` is
+//! constant, so the factorization stays once per (materials, Δt, damping).
+//!
 //! Pinned nodes are eliminated: their columns of `K` move to the right-hand
 //! side. The free block is factored with a sparse Cholesky: the symbolic
 //! factorization once per mesh and pin set, the numeric one once per
@@ -88,6 +100,17 @@
 //! a step inside a collider); pinned nodes are never projected. Velocities
 //! are then the finite differences of the final positions.
 //!
+//! [`PdSolver::step_with_point_contacts`] puts the same constraints on
+//! points embedded in the tets (yarn vertices) instead of on the nodes:
+//! each point's lumped weight and correction are added to the diagonal
+//! and the right-hand side of its tet's four nodes (`super::contact`,
+//! "Contacts at embedded points"), so every solver path above takes them
+//! unchanged; the set of points grows within a step like the set of nodes,
+//! and a node's weight grows with it (a refactorization, as for a node
+//! that joins with other weights). The end-of-step guarantee moves the
+//! nodes of points still inside by their lumped corrections, up to
+//! 8 passes (one puts a point alone in its tet exactly on its target).
+//!
 //! Coulomb friction (`super::contact`): a contact with a coefficient
 //! replaces `P(x_i)` by a target that also holds the node's place on the
 //! surface since the start of the step (static friction) or pulls it back
@@ -136,7 +159,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::backend::{ElasticRhs, IterStats, JacobiSolve};
-use super::contact::{friction_target, NoContact, NodeProjector};
+use super::contact::{friction_target, EmbeddedPoints, NoContact, NodeProjector, PointProjector};
 use super::cpu::CpuElasticRhs;
 use super::dd::{DdParams, DdSolver, DdStats, Interiors};
 use super::energy::ElasticModel;
@@ -152,6 +175,21 @@ use crate::linalg::woodbury::LowRankUpdate;
 
 /// Standard gravity (m/s²): the displacement floor of [`PdParams::tolerance`].
 pub const STANDARD_GRAVITY: f64 = 9.81;
+
+/// What a step's contacts act on.
+#[derive(Clone, Copy)]
+pub enum Contacts<'a> {
+    /// The free nodes, each projected by itself (module doc, "Contacts").
+    Nodes(&'a dyn NodeProjector),
+    /// Points embedded in the tets (yarn vertices), their forces reaching
+    /// the nodes through the embedding weights (`super::contact`,
+    /// "Contacts at embedded points").
+    Points(&'a EmbeddedPoints, &'a dyn PointProjector),
+}
+
+/// Passes of the end-of-step fix-up for embedded points: each moves the
+/// nodes of the points still in contact by their lumped correction.
+const POINT_FIX_PASSES: usize = 8;
 
 /// Which solver does the global step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -198,6 +236,10 @@ pub struct PdParams {
     /// Mass-proportional damping `c` (1/s), applied implicitly (module doc).
     /// Default 0.
     pub mass_damping: f64,
+    /// Stiffness-proportional damping `β` (s, >= 0), applied implicitly
+    /// (module doc, "Stiffness-proportional damping"): the elastic force's
+    /// rate term. Default 0.
+    pub stiffness_damping: f64,
     /// Most PD iterations (local + global) per time step: the cap on
     /// [`Self::tolerance`]. Default 100; a step that reaches it is
     /// [`StepStats::capped`] (simulate and validate count and warn).
@@ -280,6 +322,7 @@ impl Default for PdParams {
             dt: 1.0 / 150.0,
             gravity: [0.0, -9.81, 0.0],
             mass_damping: 0.0,
+            stiffness_damping: 0.0,
             max_iterations: 100,
             tolerance: 0.01,
             max_speed: 100.0,
@@ -306,6 +349,12 @@ impl PdParams {
         }
         if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
             return bad("gravity (must be finite)", *g);
+        }
+        if !(self.stiffness_damping.is_finite() && self.stiffness_damping >= 0.0) {
+            return bad(
+                "stiffness_damping (must be finite and >= 0 s)",
+                self.stiffness_damping,
+            );
         }
         if !(self.mass_damping.is_finite() && self.mass_damping >= 0.0) {
             return bad("mass_damping (must be finite and >= 0)", self.mass_damping);
@@ -340,6 +389,11 @@ impl PdParams {
     /// `(1 + c Δt) / Δt²` (1/s²): the scale of the mass term in `K`.
     fn mass_scale(&self) -> f64 {
         (1.0 + self.mass_damping * self.dt) / (self.dt * self.dt)
+    }
+
+    /// `1 + β / Δt`: the scale of the elastic part of `K`.
+    fn stiffness_scale(&self) -> f64 {
+        1.0 + self.stiffness_damping / self.dt
     }
 }
 
@@ -449,6 +503,9 @@ pub struct PdSolver {
     elastic: Box<dyn ElasticRhs>,
     /// Per-tet domain ids given by the caller (else automatic bisection).
     tet_domains: Option<Vec<u32>>,
+    /// The elastic part `L` of `K` over all nodes, with stiffness-
+    /// proportional damping (module doc), else None.
+    damping_matrix: Option<std::sync::Arc<CsrMatrix>>,
     /// The pinned columns of `K`: (free row, node, value).
     k_fp: Vec<(usize, usize, f64)>,
     /// `½ M_total max_speed²` (J): floor of the energy guard.
@@ -593,6 +650,7 @@ fn assemble(
     model: &ElasticModel,
     mass: &[f64],
     mass_scale: f64,
+    stiffness_scale: f64,
     free_index: &[Option<usize>],
     num_free: usize,
 ) -> Assembled {
@@ -625,8 +683,9 @@ fn assemble(
                 continue;
             };
             for b in 0..4 {
-                let val = w * g[a].dot(&g[b])
-                    + fibres.iter().map(|(wf, c)| wf * c[a] * c[b]).sum::<f64>();
+                let val = stiffness_scale
+                    * (w * g[a].dot(&g[b])
+                        + fibres.iter().map(|(wf, c)| wf * c[a] * c[b]).sum::<f64>());
                 match free_index[r.nodes[b]] {
                     Some(fj) => {
                         if fi >= fj {
@@ -642,6 +701,32 @@ fn assemble(
         }
     }
     Assembled { lower, k_fp, diag }
+}
+
+/// The elastic part `L` of `K` over all nodes (both triangles; module doc,
+/// "Stiffness-proportional damping").
+fn elastic_matrix(model: &ElasticModel, num_nodes: usize) -> Result<CsrMatrix, SimError> {
+    let all: Vec<Option<usize>> = (0..num_nodes).map(Some).collect();
+    let asm = assemble(model, &vec![0.0; num_nodes], 0.0, 1.0, &all, num_nodes);
+    full_csr(num_nodes, &asm.lower)
+}
+
+/// `y = A x` for an n x n scalar matrix and n points.
+fn mul_points(a: &CsrMatrix, x: &[Vec3]) -> Vec<Vec3> {
+    (0..a.n)
+        .into_par_iter()
+        .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
+        .map(|i| {
+            let mut s = [0.0; 3];
+            for e in a.row_ptr[i]..a.row_ptr[i + 1] {
+                let (c, v) = (a.col[e], a.val[e]);
+                for k in 0..3 {
+                    s[k] += v * x[c][k];
+                }
+            }
+            s
+        })
+        .collect()
 }
 
 /// Both triangles of the matrix whose lower triangle is `lower`.
@@ -822,6 +907,7 @@ impl PdSolver {
             jacobi: None,
             elastic,
             tet_domains: tet_domains.map(<[u32]>::to_vec),
+            damping_matrix: None,
             k_fp: Vec::new(),
             energy_floor,
             last: None,
@@ -842,9 +928,18 @@ impl PdSolver {
             &self.model,
             &self.mass,
             self.params.mass_scale(),
+            self.params.stiffness_scale(),
             &self.free_index,
             nf,
         );
+        self.damping_matrix = if self.params.stiffness_damping > 0.0 {
+            Some(std::sync::Arc::new(elastic_matrix(
+                &self.model,
+                self.mass.len(),
+            )?))
+        } else {
+            None
+        };
         if let Some(fi) = asm.diag.iter().position(|d| !(*d > 0.0)) {
             return Err(SimError::Inconsistent(format!(
                 "free node {} has neither mass nor stiffness (K is singular)",
@@ -1246,6 +1341,47 @@ impl PdSolver {
         contacts: &dyn NodeProjector,
     ) -> Result<StepStats, SimError> {
         let t0 = Instant::now();
+        self.step_any(x, v, pinned_positions, Contacts::Nodes(contacts), t0)
+    }
+
+    /// [`Self::step_with_contacts`] with the contacts acting on the points
+    /// `points` (yarn vertices) instead of on the nodes: `contacts` is
+    /// asked about each point at its embedded position, and the constraint
+    /// forces reach the nodes through the embedding weights
+    /// (`super::contact`, "Contacts at embedded points"). After the last
+    /// iteration the nodes of points still not admissible are moved by
+    /// their lumped corrections (up to 8 passes), so the points, not the
+    /// nodes, end the step outside the colliders.
+    pub fn step_with_point_contacts(
+        &mut self,
+        x: &mut [Vec3],
+        v: &mut [Vec3],
+        pinned_positions: &[Vec3],
+        points: &EmbeddedPoints,
+        contacts: &dyn PointProjector,
+    ) -> Result<StepStats, SimError> {
+        let t0 = Instant::now();
+        if let Some(why) = points.check(self.mass.len()) {
+            return Err(SimError::Inconsistent(format!("contact points: {why}")));
+        }
+        self.step_any(
+            x,
+            v,
+            pinned_positions,
+            Contacts::Points(points, contacts),
+            t0,
+        )
+    }
+
+    /// Checks the inputs of a step and runs it.
+    fn step_any(
+        &mut self,
+        x: &mut [Vec3],
+        v: &mut [Vec3],
+        pinned_positions: &[Vec3],
+        contacts: Contacts<'_>,
+        t0: Instant,
+    ) -> Result<StepStats, SimError> {
         let n = self.mass.len();
         if x.len() != n || v.len() != n || pinned_positions.len() != self.pinned.len() {
             return Err(SimError::Inconsistent(format!(
@@ -1285,7 +1421,7 @@ impl PdSolver {
         x: &mut [Vec3],
         v: &mut [Vec3],
         pinned_positions: &[Vec3],
-        contacts: &dyn NodeProjector,
+        contacts: Contacts<'_>,
         free_nodes: &[usize],
         step: u64,
         t0: Instant,
@@ -1346,6 +1482,40 @@ impl PdSolver {
                 rhs0[3 * fi + k] -= val * xk[node][k];
             }
         }
+        // Stiffness-proportional damping: (β / Δt) L x* (module doc).
+        let beta_dt = p.stiffness_damping / dt;
+        let damping = self.damping_matrix.clone().filter(|_| beta_dt > 0.0);
+        let damping = damping.as_deref();
+        if let Some(l) = damping {
+            let lx = mul_points(l, x);
+            for (fi, &i) in free_nodes.iter().enumerate() {
+                for k in 0..3 {
+                    rhs0[3 * fi + k] += beta_dt * lx[i][k];
+                }
+            }
+        }
+        // Its potential β / (2 Δt) |x - x*|²_L at an iterate, and the
+        // gradient (β / Δt) L (x - x*).
+        let damping_at = |xk: &[Vec3]| -> (f64, Vec<Vec3>) {
+            let Some(l) = damping else {
+                return (0.0, Vec::new());
+            };
+            let d: Vec<Vec3> = xk
+                .iter()
+                .zip(x.iter())
+                .map(|(a, b)| std::array::from_fn(|k| a[k] - b[k]))
+                .collect();
+            let ld = mul_points(l, &d);
+            let e: f64 = d
+                .iter()
+                .zip(&ld)
+                .map(|(a, b)| a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+                .sum();
+            (
+                0.5 * beta_dt * e,
+                ld.iter().map(|g| g.map(|v| beta_dt * v)).collect(),
+            )
+        };
 
         let mut objectives = Vec::with_capacity(p.max_iterations as usize + 1);
         let mut iterations = 0u32;
@@ -1367,6 +1537,19 @@ impl PdSolver {
         // uninterrupted one (carrying the last step's set saved 12 of 179
         // refactorizations on the held-out drape, and broke that).
         let mut in_set = vec![false; nf];
+        // The same for embedded points, and each node's free row (pinned
+        // nodes: none).
+        let mut in_points = match contacts {
+            Contacts::Points(pts, _) => vec![false; pts.len()],
+            Contacts::Nodes(_) => Vec::new(),
+        };
+        let mut free_index = Vec::new();
+        if let Contacts::Points(..) = contacts {
+            free_index = vec![usize::MAX; n];
+            for (fi, &i) in free_nodes.iter().enumerate() {
+                free_index[i] = fi;
+            }
+        }
         // The weights `w_i` of the nodes in the set (0 elsewhere), and
         // whether any node has joined.
         let mut weights = vec![0.0; nf];
@@ -1385,22 +1568,16 @@ impl PdSolver {
             let eval = self.elastic.evaluate(&xk, &mut out)?;
             local_ms += tl.elapsed().as_secs_f64() * 1e3;
             clamped_tets = clamped_tets.max(eval.clamped_tets);
-            // Contact targets at the current iterate (local step).
-            let proj: Vec<Option<Vec3>> = free_nodes
-                .par_iter()
-                .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
-                .map(|&i| contact_target(contacts, i, xk[i], x[i]))
-                .collect();
-            let active: Vec<bool> = proj.iter().map(|q| q.is_some()).collect();
-            let mut contact_energy = 0.0;
-            for (fi, q) in proj.iter().enumerate() {
-                if let Some(q) = q {
-                    let i = free_nodes[fi];
-                    let w = wscale * self.mass[i];
-                    let d: Vec3 = std::array::from_fn(|k| xk[i][k] - q[k]);
-                    contact_energy += 0.5 * w * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            // Contact targets and weights at the current iterate (local step).
+            let stage = match contacts {
+                Contacts::Nodes(c) => {
+                    node_contact_stage(c, free_nodes, &xk, x, wscale, &self.mass, &mut in_set)
                 }
-            }
+                Contacts::Points(pts, c) => {
+                    point_contact_stage(pts, c, &free_index, &xk, x, wscale, &mut in_points)
+                }
+            };
+            let contact_energy = stage.energy;
             let inertia: f64 = free_nodes
                 .iter()
                 .map(|&i| {
@@ -1408,7 +1585,7 @@ impl PdSolver {
                     0.5 * ms * self.mass[i] * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
                 })
                 .sum();
-            let phi = inertia + eval.elastic_energy + contact_energy;
+            let phi = inertia + eval.elastic_energy + contact_energy + damping_at(&xk).0;
             if let Some(plain) = fallback.take() {
                 // Safeguard (Peng et al. 2018 Alg. 2): an accelerated
                 // iterate must lower Φ, else the plain one replaces it.
@@ -1425,22 +1602,20 @@ impl PdSolver {
                     continue;
                 }
             }
-            contacts_active = active.iter().filter(|&&a| a).count();
-            // The constrained set only grows within a step: a node that met
-            // a collider keeps its weight with the projection of an
-            // admissible point, itself, as target. That is still PD on
-            // `½ w dist(x, C)²` (same fixed point), and the weights, hence
-            // the factor of `K + W`, change only when a node joins; letting
-            // nodes leave made the set chatter at the contact boundary
-            // (held-out drape: 452 refactorizations in 474 iterations).
-            let mut grew = false;
-            for (fi, &a) in active.iter().enumerate() {
-                if a && !in_set[fi] {
-                    in_set[fi] = true;
-                    weights[fi] = wscale * self.mass[free_nodes[fi]];
-                    grew = true;
-                }
+            contacts_active = stage.active;
+            // The constrained set only grows within a step: a node (or
+            // point) that met a collider keeps its weight with the
+            // projection of an admissible point, itself, as target. That is
+            // still PD on `½ w dist(x, C)²` (same fixed point), and the
+            // weights, hence the factor of `K + W`, change only when one
+            // joins; letting them leave made the set chatter at the contact
+            // boundary (held-out drape: 452 refactorizations in 474
+            // iterations).
+            let grew = stage.weights != weights;
+            if grew {
+                weights.copy_from_slice(&stage.weights);
             }
+            let proj = stage.targets;
             constrained |= grew;
             let changed = grew && iterations > 0;
             objectives.push(phi);
@@ -1459,7 +1634,7 @@ impl PdSolver {
                 }
             }
             for (fi, q) in proj.iter().enumerate() {
-                if in_set[fi] {
+                if weights[fi] > 0.0 {
                     let q = q.unwrap_or(xk[free_nodes[fi]]);
                     for k in 0..3 {
                         rhs[3 * fi + k] += weights[fi] * q[k];
@@ -1538,17 +1713,25 @@ impl PdSolver {
             }
         };
 
-        // Hard guarantee: no free node ends the step inside a collider (and
-        // a sticking node keeps its place on the surface: no creep).
-        let fixes: Vec<(usize, Vec3)> = free_nodes
-            .par_iter()
-            .filter_map(|&i| contact_target(contacts, i, xk[i], x[i]).map(|q| (i, q)))
-            .collect();
-        let mut max_projection = 0.0f64;
-        for &(i, q) in &fixes {
-            max_projection = max_projection.max(norm(std::array::from_fn(|k| q[k] - xk[i][k])));
-            xk[i] = q;
-        }
+        // Hard guarantee: no free node (or embedded point) ends the step
+        // inside a collider (and a sticking one keeps its place on the
+        // surface: no creep).
+        let (projected, max_projection) = match contacts {
+            Contacts::Nodes(c) => {
+                let fixes: Vec<(usize, Vec3)> = free_nodes
+                    .par_iter()
+                    .filter_map(|&i| contact_target(c, i, xk[i], x[i]).map(|q| (i, q)))
+                    .collect();
+                let mut max_projection = 0.0f64;
+                for &(i, q) in &fixes {
+                    max_projection =
+                        max_projection.max(norm(std::array::from_fn(|k| q[k] - xk[i][k])));
+                    xk[i] = q;
+                }
+                (fixes.len(), max_projection)
+            }
+            Contacts::Points(pts, c) => fix_points(pts, c, &free_index, &mut xk, x),
+        };
 
         let v_new: Vec<Vec3> = xk
             .iter()
@@ -1580,7 +1763,7 @@ impl PdSolver {
         }
 
         // Residual of the implicit-Euler equations at the returned positions.
-        let residual = if p.report_residual && fixes.is_empty() && nf > 0 {
+        let residual = if p.report_residual && projected == 0 && nf > 0 {
             // The last local step ran at these positions, and for the PD
             // energy ∇E(x) = K_el x - b_el(x) (the projections minimize it),
             // so ∇Φ = K x - rhs0 - out: one product with K instead of a
@@ -1600,11 +1783,14 @@ impl PdSolver {
                 .fold(0.0, f64::max)
         } else if p.report_residual {
             let grad = self.model.gradient(&xk)?;
+            let (_, dgrad) = damping_at(&xk);
             free_nodes
                 .iter()
                 .map(|&i| {
                     norm(std::array::from_fn(|k| {
-                        ms * self.mass[i] * (xk[i][k] - s[i][k]) + grad[i][k]
+                        ms * self.mass[i] * (xk[i][k] - s[i][k])
+                            + grad[i][k]
+                            + dgrad.get(i).map_or(0.0, |g| g[k])
                     }))
                 })
                 .fold(0.0, f64::max)
@@ -1637,7 +1823,7 @@ impl PdSolver {
             global_residual,
             contact_refactors: self.contact_refactors,
             contacts: contacts_active,
-            projected: fixes.len(),
+            projected,
             max_projection,
             accelerations_rejected,
             local_ms,
@@ -1645,6 +1831,204 @@ impl PdSolver {
             ms: t0.elapsed().as_secs_f64() * 1e3,
         })
     }
+}
+
+/// The contacts of one PD iterate: per free row its target (None: the
+/// node's own position) and weight (0: not constrained), the contact
+/// energy (J) and the active contacts (nodes or points).
+struct ContactStage {
+    targets: Vec<Option<Vec3>>,
+    weights: Vec<f64>,
+    energy: f64,
+    active: usize,
+}
+
+/// [`ContactStage`] of the free nodes at `xk` (started the step at `x`)
+/// against node projections; `in_set` (per free row) marks the nodes that
+/// have met a collider in this step and grows.
+fn node_contact_stage(
+    contacts: &dyn NodeProjector,
+    free_nodes: &[usize],
+    xk: &[Vec3],
+    x: &[Vec3],
+    wscale: f64,
+    mass: &[f64],
+    in_set: &mut [bool],
+) -> ContactStage {
+    let targets: Vec<Option<Vec3>> = free_nodes
+        .par_iter()
+        .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
+        .map(|&i| contact_target(contacts, i, xk[i], x[i]))
+        .collect();
+    let mut energy = 0.0;
+    let mut active = 0;
+    for (fi, q) in targets.iter().enumerate() {
+        if let Some(q) = q {
+            let i = free_nodes[fi];
+            let d: Vec3 = std::array::from_fn(|k| xk[i][k] - q[k]);
+            energy += 0.5 * wscale * mass[i] * dot_v(d, d);
+            active += 1;
+            in_set[fi] = true;
+        }
+    }
+    let weights = free_nodes
+        .iter()
+        .zip(in_set.iter())
+        .map(|(&i, &a)| if a { wscale * mass[i] } else { 0.0 })
+        .collect();
+    ContactStage {
+        targets,
+        weights,
+        energy,
+        active,
+    }
+}
+
+/// The friction target of each embedded point at node positions `xk`
+/// (started the step at `x`) minus its position, None where admissible.
+fn point_corrections(
+    points: &EmbeddedPoints,
+    contacts: &dyn PointProjector,
+    xk: &[Vec3],
+    x: &[Vec3],
+) -> Vec<Option<Vec3>> {
+    (0..points.len())
+        .into_par_iter()
+        .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
+        .map(|j| {
+            let y = points.position(j, xk);
+            let c = contacts.contact(j, y)?;
+            let mut t = friction_target(&c, y, points.position(j, x));
+            if t != c.target {
+                // As for nodes (contact_target): friction can move the
+                // target back into a concave collider.
+                if let Some(q) = contacts.contact(j, t) {
+                    t = q.target;
+                }
+            }
+            Some(std::array::from_fn(|k| t[k] - y[k]))
+        })
+        .collect()
+}
+
+/// [`ContactStage`] of the embedded points at `xk` (started the step at
+/// `x`), lumped onto the free rows (`free_index`: each node's free row,
+/// `usize::MAX` when pinned; `super::contact`, "Contacts at embedded
+/// points"); `in_set` (per point) grows like [`node_contact_stage`]'s.
+fn point_contact_stage(
+    points: &EmbeddedPoints,
+    contacts: &dyn PointProjector,
+    free_index: &[usize],
+    xk: &[Vec3],
+    x: &[Vec3],
+    wscale: f64,
+    in_set: &mut [bool],
+) -> ContactStage {
+    let nf = free_index.iter().filter(|&&f| f != usize::MAX).count();
+    let corr = point_corrections(points, contacts, xk, x);
+    let mut weights = vec![0.0; nf];
+    let mut force = vec![[0.0; 3]; nf];
+    let mut energy = 0.0;
+    let mut active = 0;
+    for (j, d) in corr.iter().enumerate() {
+        if let Some(d) = d {
+            in_set[j] = true;
+            active += 1;
+            energy += 0.5 * wscale * points.mass[j] * dot_v(*d, *d);
+        }
+        if !in_set[j] {
+            continue;
+        }
+        let wj = wscale * points.mass[j];
+        for a in 0..4 {
+            let fi = free_index[points.nodes[j][a] as usize];
+            if fi == usize::MAX {
+                continue;
+            }
+            let w = wj * points.weights[j][a];
+            weights[fi] += w;
+            if let Some(d) = d {
+                for k in 0..3 {
+                    force[fi][k] += w * d[k];
+                }
+            }
+        }
+    }
+    let mut node_of = vec![0usize; nf];
+    for (i, &fi) in free_index.iter().enumerate() {
+        if fi != usize::MAX {
+            node_of[fi] = i;
+        }
+    }
+    let targets = (0..nf)
+        .map(|fi| {
+            (weights[fi] > 0.0).then(|| {
+                let p = xk[node_of[fi]];
+                std::array::from_fn(|k| p[k] + force[fi][k] / weights[fi])
+            })
+        })
+        .collect();
+    ContactStage {
+        targets,
+        weights,
+        energy,
+        active,
+    }
+}
+
+/// End-of-step fix-up for embedded points: up to [`POINT_FIX_PASSES`]
+/// passes, each moving the free nodes of the points still in contact by
+/// their mass-weighted lumped correction. Returns the nodes moved and the
+/// largest total move (m).
+fn fix_points(
+    points: &EmbeddedPoints,
+    contacts: &dyn PointProjector,
+    free_index: &[usize],
+    xk: &mut [Vec3],
+    x: &[Vec3],
+) -> (usize, f64) {
+    let n = xk.len();
+    let start = xk.to_vec();
+    let mut moved = vec![false; n];
+    for _ in 0..POINT_FIX_PASSES {
+        let corr = point_corrections(points, contacts, xk, x);
+        if corr.iter().all(|d| d.is_none()) {
+            break;
+        }
+        let mut num = vec![[0.0; 3]; n];
+        let mut den = vec![0.0; n];
+        for (j, d) in corr.iter().enumerate() {
+            let Some(d) = d else { continue };
+            for a in 0..4 {
+                let i = points.nodes[j][a] as usize;
+                if free_index[i] == usize::MAX {
+                    continue;
+                }
+                let w = points.mass[j] * points.weights[j][a];
+                den[i] += w;
+                for k in 0..3 {
+                    num[i][k] += w * d[k];
+                }
+            }
+        }
+        for i in 0..n {
+            if den[i] > 0.0 {
+                for k in 0..3 {
+                    xk[i][k] += num[i][k] / den[i];
+                }
+                moved[i] = true;
+            }
+        }
+    }
+    let most = (0..n)
+        .filter(|&i| moved[i])
+        .map(|i| norm(std::array::from_fn(|k| xk[i][k] - start[i][k])))
+        .fold(0.0, f64::max);
+    (moved.iter().filter(|&&m| m).count(), most)
+}
+
+fn dot_v(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// The constraint target of free node `i` at `p` that started the step at
@@ -1667,6 +2051,105 @@ mod tests {
     use super::*;
     use crate::embed::box_mesh;
     use crate::sim::collide::{Collider, ColliderSet, Shape};
+    use crate::sim::contact::Contact;
+
+    /// Points must stay above y = 0 by 1 mm (frictionless).
+    struct Floor;
+    impl PointProjector for Floor {
+        fn contact(&self, _point: usize, p: Vec3) -> Option<Contact> {
+            (p[1] < 1e-3).then_some(Contact {
+                target: [p[0], 1e-3, p[2]],
+                surface_motion: [0.0; 3],
+                friction: 0.0,
+            })
+        }
+    }
+
+    /// A point alone in its tet is put on its target by one lumped pass:
+    /// all four nodes move by its correction; a second point sharing no
+    /// node is untouched.
+    #[test]
+    fn one_point_in_a_tet_lands_on_its_target_in_one_fix_pass() {
+        let (mesh, _) = box_mesh([3, 1, 1], 0.01, 100.0);
+        let tet = mesh.tets[0];
+        let far = *mesh
+            .tets
+            .iter()
+            .find(|t| t.iter().all(|a| !tet.contains(a)))
+            .expect("a tet sharing no node");
+        let pts = EmbeddedPoints {
+            nodes: vec![tet, far],
+            weights: vec![[0.1, 0.2, 0.3, 0.4], [0.25; 4]],
+            mass: vec![1e-4, 1e-4],
+        };
+        // Lower the first tet's nodes so its point is 2 mm deep.
+        let mut x = mesh.nodes.clone();
+        let y = pts.position(0, &x)[1];
+        assert!(pts.position(1, &x)[1] > 1e-3);
+        for &a in &tet {
+            x[a as usize][1] -= y + 2e-3;
+        }
+        let start = x.clone();
+        let free_index: Vec<usize> = (0..x.len()).collect();
+        let (moved, most) = fix_points(&pts, &Floor, &free_index, &mut x, &start);
+        let after = pts.position(0, &x);
+        assert!((after[1] - 1e-3).abs() < 1e-15, "{after:?}");
+        assert_eq!(moved, 4);
+        assert!((most - 3e-3).abs() < 1e-12, "{most}");
+        for &a in &far {
+            if !tet.contains(&a) {
+                assert_eq!(x[a as usize], start[a as usize]);
+            }
+        }
+    }
+
+    #[test]
+    fn contact_points_that_do_not_fit_the_mesh_are_refused() {
+        let (mesh, mass) = box_mesh([1, 1, 1], 0.01, 100.0);
+        let nt = mesh.num_tets();
+        let mut solver = PdSolver::new(
+            &mesh,
+            &mass,
+            &vec![1e4; nt],
+            &vec![1e4; nt],
+            &[],
+            PdParams::default(),
+        )
+        .unwrap();
+        let n = mesh.num_nodes();
+        let (mut x, mut v) = (mesh.nodes.clone(), vec![[0.0; 3]; n]);
+        let good = EmbeddedPoints {
+            nodes: vec![mesh.tets[0]],
+            weights: vec![[0.25; 4]],
+            mass: vec![1e-4],
+        };
+        for bad in [
+            EmbeddedPoints {
+                nodes: vec![[0, 1, 2, n as u32]],
+                ..good.clone()
+            },
+            EmbeddedPoints {
+                mass: vec![0.0],
+                ..good.clone()
+            },
+            EmbeddedPoints {
+                weights: vec![[f64::NAN, 0.25, 0.25, 0.25]],
+                ..good.clone()
+            },
+            EmbeddedPoints {
+                mass: vec![],
+                ..good.clone()
+            },
+        ] {
+            let e = solver
+                .step_with_point_contacts(&mut x, &mut v, &[], &bad, &Floor)
+                .unwrap_err();
+            assert!(e.to_string().contains("contact points"), "{e}");
+        }
+        assert!(solver
+            .step_with_point_contacts(&mut x, &mut v, &[], &good, &Floor)
+            .is_ok());
+    }
 
     /// A step that uses every iteration without meeting the tolerance says
     /// so; one that meets it, or stops on it, does not.

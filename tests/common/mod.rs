@@ -264,3 +264,165 @@ pub fn embedded_pattern(
     }
     asset
 }
+
+/// Embedded contact points of a mesh: `points` located in `mesh`'s tets
+/// (the first tet whose barycentric weights are all >= -1e-12), each
+/// standing for an equal share of `total_mass` (kg). Panics on a point
+/// outside the mesh (a test's own setup).
+pub fn embed_points(
+    mesh: &knitvox::geom::TetMesh,
+    points: &[knitvox::geom::Vec3],
+    total_mass: f64,
+) -> knitvox::sim::contact::EmbeddedPoints {
+    use knitvox::sim::contact::EmbeddedPoints;
+    let mut e = EmbeddedPoints::default();
+    for p in points {
+        let (ids, w) = mesh
+            .tets
+            .iter()
+            .find_map(|t| {
+                let x: Vec<_> = t.iter().map(|&i| mesh.nodes[i as usize]).collect();
+                let w = barycentric(&x, *p)?;
+                w.iter().all(|&c| c >= -1e-12).then_some((*t, w))
+            })
+            .unwrap_or_else(|| panic!("point {p:?} is outside the mesh"));
+        e.nodes.push(ids);
+        e.weights.push(w.map(|c| c.max(0.0)));
+        e.mass.push(total_mass / points.len() as f64);
+    }
+    e
+}
+
+/// Barycentric weights of `p` in the tet `x` (4 corners), None when flat.
+fn barycentric(x: &[knitvox::geom::Vec3], p: knitvox::geom::Vec3) -> Option<[f64; 4]> {
+    let e: Vec<[f64; 3]> = (1..4)
+        .map(|a| std::array::from_fn(|k| x[a][k] - x[0][k]))
+        .collect();
+    let r: [f64; 3] = std::array::from_fn(|k| p[k] - x[0][k]);
+    let det3 = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| {
+        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+            + a[2] * (b[0] * c[1] - b[1] * c[0])
+    };
+    let d = det3(e[0], e[1], e[2]);
+    if d.abs() < 1e-300 {
+        return None;
+    }
+    let l1 = det3(r, e[1], e[2]) / d;
+    let l2 = det3(e[0], r, e[2]) / d;
+    let l3 = det3(e[0], e[1], r) / d;
+    Some([1.0 - l1 - l2 - l3, l1, l2, l3])
+}
+
+/// What [`slide_points_on_incline`] measured.
+pub struct PointSlide {
+    /// Largest displacement of a contact point (m).
+    pub largest: f64,
+    /// Mean displacement of the points downhill (m).
+    pub along: f64,
+    /// Smallest and largest signed distance of a bottom-layer point from
+    /// the plane at the end, minus its radius (m): 0 is touching.
+    pub gap: [f64; 2],
+    /// Smallest signed distance of a node from the plane at the end (m).
+    pub lowest_node: f64,
+}
+
+/// The friction-on-a-slope scene of [`slide_on_incline`] with the contact
+/// acting on embedded points instead of on the nodes: the block's yarns
+/// stand in as a 5 x 2 x 5 grid of points in each of its two layers of
+/// voxels, at a quarter and three quarters of each voxel's height
+/// (2.5 mm above the bottom face), each keeping a radius of 1 mm from the
+/// plane; the block starts with its lowest points touching. The bottom
+/// nodes then lie 1.5 mm inside the plane.
+pub fn slide_points_on_incline(mu: f64, steps: usize) -> PointSlide {
+    use knitvox::embed::box_mesh;
+    use knitvox::geom::Vec3;
+    use knitvox::sim::contact::{Contact, PointProjector};
+    use knitvox::sim::pd::{PdParams, PdSolver};
+    let (mesh, mass) = box_mesh([3, 2, 3], 0.01, 200.0);
+    let nt = mesh.num_tets();
+    let th = SLOPE_DEG.to_radians();
+    let (c, s) = (th.cos(), th.sin());
+    let normal = [s, c, 0.0];
+    let radius = 1e-3;
+    let lift = radius - 2.5e-3;
+    let place = |p: &Vec3| -> Vec3 {
+        let r = [p[0] * c + p[1] * s, -p[0] * s + p[1] * c, p[2]];
+        std::array::from_fn(|k| r[k] + lift * normal[k])
+    };
+    // Points in the rest block, then the block placed on the slope.
+    let mut rest_points = Vec::new();
+    for i in 0..5 {
+        for j in 0..4 {
+            for k in 0..5 {
+                rest_points.push([
+                    0.003 + 0.006 * i as f64,
+                    0.0025 + 0.005 * j as f64,
+                    0.003 + 0.006 * k as f64,
+                ]);
+            }
+        }
+    }
+    let total: f64 = mass.iter().sum();
+    let points = embed_points(&mesh, &rest_points, total);
+    let x0: Vec<Vec3> = mesh.nodes.iter().map(place).collect();
+    let mut solver = PdSolver::new(
+        &mesh,
+        &mass,
+        &vec![1e4; nt],
+        &vec![1e4; nt],
+        &[],
+        PdParams::default(),
+    )
+    .unwrap();
+    struct Slope {
+        normal: Vec3,
+        radius: f64,
+        mu: f64,
+    }
+    impl PointProjector for Slope {
+        fn contact(&self, _point: usize, p: Vec3) -> Option<Contact> {
+            let d: f64 = (0..3).map(|k| p[k] * self.normal[k]).sum();
+            (d < self.radius).then(|| Contact {
+                target: std::array::from_fn(|k| p[k] + (self.radius - d) * self.normal[k]),
+                surface_motion: [0.0; 3],
+                friction: self.mu,
+            })
+        }
+    }
+    let slope = Slope { normal, radius, mu };
+    let (mut x, mut v) = (x0.clone(), vec![[0.0; 3]; x0.len()]);
+    for _ in 0..steps {
+        solver
+            .step_with_point_contacts(&mut x, &mut v, &[], &points, &slope)
+            .unwrap();
+    }
+    let y0: Vec<Vec3> = (0..points.len()).map(|j| points.position(j, &x0)).collect();
+    let y: Vec<Vec3> = (0..points.len()).map(|j| points.position(j, &x)).collect();
+    let dot = |a: Vec3, b: Vec3| (0..3).map(|k| a[k] * b[k]).sum::<f64>();
+    let d: Vec<Vec3> = y
+        .iter()
+        .zip(&y0)
+        .map(|(a, b)| std::array::from_fn(|k| a[k] - b[k]))
+        .collect();
+    let largest = d.iter().map(|u| dot(*u, *u).sqrt()).fold(0.0, f64::max);
+    let along = d.iter().map(|u| u[0] * c - u[1] * s).sum::<f64>() / d.len() as f64;
+    // The bottom layer: points 0, 4, 8, ... (j = 0).
+    let bottom: Vec<f64> = (0..points.len())
+        .filter(|j| (j / 5) % 4 == 0)
+        .map(|j| dot(y[j], normal) - radius)
+        .collect();
+    let gap = [
+        bottom.iter().cloned().fold(f64::INFINITY, f64::min),
+        bottom.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+    ];
+    let lowest_node = x
+        .iter()
+        .map(|p| dot(*p, normal))
+        .fold(f64::INFINITY, f64::min);
+    PointSlide {
+        largest,
+        along,
+        gap,
+        lowest_node,
+    }
+}
