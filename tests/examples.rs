@@ -485,6 +485,25 @@ fn every_yarn_level_example_scene_runs_through_knitvox_yls() {
     }
 }
 
+/// The damping scene of `fit-damping` runs on the asset's rest yarns (no
+/// `[swatch]`): a cantilever released under gravity, the rods model at 30
+/// frames/s over 0.4 s, no collider.
+#[test]
+fn the_damping_scene_is_a_cantilever_release_on_the_assets_yarns() {
+    let path = examples().join("damping/swing.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let table: toml::Table = text.parse().unwrap();
+    assert!(!table.contains_key("swatch"));
+    let with = format!("{text}\n[swatch]\nfile = 'rest.h5'\n");
+    let scene = YlsScene::parse(&with, &path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.pose.kind, PoseKind::Cantilever);
+    assert!(scene.colliders.is_empty());
+    assert_eq!(scene.model, knitvox::pipeline::yls_scene::YarnModel::Rods);
+    assert_eq!(scene.duration, 0.4);
+    assert_eq!(scene.frame_rate, 30.0);
+    assert!(scene.gravity[1] < -9.0, "{:?}", scene.gravity);
+}
+
 /// The held-out scenes of `examples/validate/`: each has no `[swatch]` (it
 /// runs on the asset's rest yarns), reads as a yls scene once a swatch file
 /// is named, as `validate` names it, and is the pose its name says, with

@@ -957,3 +957,84 @@ pin_distance = 0.004
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("character cache"), "{err}");
 }
+
+/// Heights (m) of the nodes and of the V2Y yarn vertices at the end of a
+/// 0.5 s drop onto the floor y = 0 (collider thickness 1 mm) from 6 mm,
+/// with `[simulation] contact = "{contact}"`, and what the report says.
+fn drop_on_the_floor(dir: &Path, asset_path: &Path, contact: &str) -> (Vec<f64>, Vec<f64>, String) {
+    let asset = vtkhdf::read_asset(asset_path).unwrap();
+    let scene = Scene::parse(
+        &format!(
+            r#"
+[simulation]
+contact = "{contact}"
+[garment]
+rotate_deg = [-90, 0, 0]
+center = [0.0, 0.006, 0.0]
+[[collider]]
+type = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+"#
+        ),
+        Path::new("scene.toml"),
+    )
+    .unwrap();
+    let r = simulate(
+        &asset,
+        asset_path,
+        &scene,
+        &request(dir, (1..=13).collect(), None),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let said = serde_json::to_value(&r).unwrap()["contact"].to_string();
+    let out = vtkhdf::read_asset(&dir.join("out.vtkhdf")).unwrap();
+    let n = out.mesh.num_nodes();
+    let last = out.steps.step(out.steps.times.len() - 1, n);
+    let y = asset.embedding.v2y(&asset.mesh, last);
+    (
+        last.iter().map(|p| p[1]).collect(),
+        y.iter().map(|p| p[1]).collect(),
+        said,
+    )
+}
+
+#[test]
+fn yarn_contact_rests_the_yarns_their_radius_off_the_floor_where_node_contact_holds_the_nodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let r = asset.rest_yarns.radius_at(0);
+    let (nodes_n, yarns_n, said_n) = drop_on_the_floor(dir.path(), &asset_path, "nodes");
+    let (nodes_y, yarns_y, said_y) = drop_on_the_floor(dir.path(), &asset_path, "yarns");
+    let min = |v: &[f64]| v.iter().cloned().fold(f64::INFINITY, f64::min);
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    eprintln!(
+        "radius {r:.2e} m; node contact: lowest node {:.3e} m, lowest yarn {:.3e} m, mean yarn {:.3e} m; \
+         yarn contact: lowest node {:.3e} m, lowest yarn {:.3e} m, mean yarn {:.3e} m",
+        min(&nodes_n),
+        min(&yarns_n),
+        mean(&yarns_n),
+        min(&nodes_y),
+        min(&yarns_y),
+        mean(&yarns_y)
+    );
+    assert_eq!(said_n, "\"nodes\"");
+    assert_eq!(said_y, "\"yarns\"");
+    // Node contact: every node keeps the 1 mm thickness.
+    assert!(min(&nodes_n) > 1e-3 - 1e-9, "{}", min(&nodes_n));
+    // Yarn contact: every yarn vertex keeps its radius beyond it, the swatch
+    // has landed (its lowest yarns within 0.1 mm of that), nodes under the
+    // yarns go below the thickness, and the yarns rest lower than on nodes.
+    let band = 1e-3 + r;
+    assert!(min(&yarns_y) > band - 1e-9, "{} vs {band}", min(&yarns_y));
+    assert!(min(&yarns_y) < band + 1e-4, "{} vs {band}", min(&yarns_y));
+    assert!(min(&nodes_y) < 1e-3, "{}", min(&nodes_y));
+    assert!(
+        mean(&yarns_y) < mean(&yarns_n),
+        "{} vs {}",
+        mean(&yarns_y),
+        mean(&yarns_n)
+    );
+}

@@ -13,7 +13,9 @@ use std::path::Path;
 use nalgebra::{Rotation3, Vector3};
 
 use super::shot_error::{invalid, SimulateError};
-use super::sim_scene::{CharacterSection, ColliderSection, Scene, SimulationSection};
+use super::sim_scene::{
+    CharacterSection, ColliderSection, ContactChoice, Scene, SimulationSection,
+};
 use crate::anim::cache::BodyCache;
 use crate::anim::pins::BodyPins;
 use crate::anim::{Character, TriangleMesh};
@@ -21,8 +23,12 @@ use crate::geom::bvh::{BvhError, MeshCollider, MeshTopology};
 use crate::geom::{Asset, Vec3};
 use crate::io;
 use crate::sim::collide::{Collider, ColliderSet, Shape};
-use crate::sim::contact::{Contact, NodeProjector};
+use std::sync::Arc;
+
+use crate::sim::collide::PointColliders;
+use crate::sim::contact::{Contact, EmbeddedPoints, NodeProjector, PointProjector};
 use crate::sim::shot::Schedule;
+use crate::sim::shot::StepContacts;
 
 /// Default pre-roll (s) of a scene with a character when the scene gives
 /// none: 0.2 s (30 steps of 1/150 s) to blend from the bind pose.
@@ -158,6 +164,37 @@ pub(super) struct Posed {
     pub set: ColliderSet,
     pub verts: Option<Vec<Vec3>>,
     pub body_set: Option<ColliderSet>,
+    /// With `[simulation] contact = "yarns"`: the yarn vertices the
+    /// colliders act on.
+    pub yarn_points: Option<Arc<YarnPoints>>,
+}
+
+/// The asset's yarn vertices as contact points and their radii (m).
+#[derive(Debug)]
+pub(super) struct YarnPoints {
+    pub points: EmbeddedPoints,
+    pub radius: Vec<f64>,
+}
+
+/// Node contacts, or with yarn points the contacts of the yarn vertices.
+impl StepContacts for Posed {
+    fn points(&self) -> Option<(&EmbeddedPoints, &dyn PointProjector)> {
+        self.yarn_points
+            .as_ref()
+            .map(|y| (&y.points, self as &dyn PointProjector))
+    }
+}
+
+/// Each yarn vertex keeps its radius beyond every collider's thickness.
+impl PointProjector for Posed {
+    fn contact(&self, point: usize, p: Vec3) -> Option<Contact> {
+        let radius = self.yarn_points.as_ref().map_or(&[][..], |y| &y.radius[..]);
+        PointColliders {
+            set: &self.set,
+            radius,
+        }
+        .contact(point, p)
+    }
 }
 
 /// The contacts of a step are those of every collider.
@@ -184,6 +221,9 @@ pub(super) struct ShotSetup {
     pub pinned: Vec<usize>,
     pub statics: Vec<Collider>,
     pub friction: f64,
+    /// With `[simulation] contact = "yarns"`: the yarn vertices the
+    /// colliders act on.
+    pub yarn_points: Option<Arc<YarnPoints>>,
     pub schedule: Schedule,
     /// Remarks for the report (ignored triangles, empty pin groups).
     pub notes: Vec<String>,
@@ -250,6 +290,14 @@ pub(super) fn setup(
         pinned,
         statics: static_colliders(scene),
         friction: sim.friction,
+        yarn_points: (sim.contact == ContactChoice::Yarns).then(|| {
+            Arc::new(YarnPoints {
+                points: super::asset::yarn_contact_points(asset),
+                radius: (0..asset.rest_yarns.num_points())
+                    .map(|v| asset.rest_yarns.radius_at(v))
+                    .collect(),
+            })
+        }),
         schedule,
         notes,
     })
@@ -627,6 +675,7 @@ impl ShotSetup {
             set,
             verts,
             body_set,
+            yarn_points: self.yarn_points.clone(),
         })
     }
 

@@ -28,6 +28,19 @@ pub enum SolverChoice {
     Dd,
 }
 
+/// What a shot's colliders act on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ContactChoice {
+    /// The free tet nodes, each keeping the collider's thickness.
+    #[default]
+    Nodes,
+    /// The yarn vertices (V2Y), each keeping its yarn radius plus the
+    /// collider's thickness, their forces reaching the nodes through the
+    /// embedding weights (sim::contact, "Contacts at embedded points").
+    Yarns,
+}
+
 /// Most PD iterations per step a scene may ask for (8 is the default; more
 /// than this is a typo, not a setting).
 pub const MAX_PD_ITERATIONS: u32 = 10_000;
@@ -215,6 +228,8 @@ pub struct SimulationSection {
     pub solver: SolverChoice,
     /// Backend. Default auto.
     pub backend: BackendChoice,
+    /// What the colliders act on. Default nodes.
+    pub contact: ContactChoice,
 }
 
 /// Longest pre-roll (s) a shot may ask for: an hour of shot time before the
@@ -262,6 +277,7 @@ impl Default for SimulationSection {
             preroll: None,
             solver: SolverChoice::Direct,
             backend: BackendChoice::Auto,
+            contact: ContactChoice::Nodes,
         }
     }
 }

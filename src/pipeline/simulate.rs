@@ -149,6 +149,9 @@ pub struct SimulateReport {
     /// tolerance unless a step was capped).
     pub pd_tolerance: f64,
     pub pd_convergence_max: f64,
+    /// What the colliders acted on (`[simulation] contact`: "nodes" or
+    /// "yarns").
+    pub contact: super::sim_scene::ContactChoice,
     /// Stiffness-proportional damping `β` (s) of the asset's material
     /// (its damping record from `knitvox fit-damping`; 0 without one).
     pub pd_stiffness_damping_s: f64,
@@ -638,6 +641,7 @@ pub fn simulate_chunk(
         pd_iterations_max: stats.iterations_max,
         pd_capped_steps: stats.capped_steps,
         pd_tolerance: sim.tolerance,
+        contact: sim.contact,
         pd_stiffness_damping_s: asset_damping(asset, asset_path)?,
         pd_convergence_max: stats.convergence_max,
         residual_max: stats.residual_max,

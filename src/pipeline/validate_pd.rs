@@ -378,53 +378,6 @@ impl PointProjector for YarnVertexColliders<'_> {
     }
 }
 
-/// The asset's yarn vertices as contact points: their tets' nodes and
-/// weights, and per vertex half the yarn of each segment at it (linear
-/// density of the curve when the yarns carry one, else proportional to
-/// `r²`), scaled so the vertices carry the nodes' total mass.
-pub fn yarn_contact_points(asset: &Asset) -> EmbeddedPoints {
-    let yarns = &asset.rest_yarns;
-    let nv = asset.embedding.num_vertices();
-    let mut share = vec![0.0f64; nv];
-    for c in 0..yarns.num_curves() {
-        for [a, b] in yarns.segments_of(c) {
-            let ld = yarns
-                .linear_density
-                .as_ref()
-                .map_or_else(|| yarns.radius_at(a).powi(2), |d| d[c]);
-            let m = 0.5 * ld * crate::geom::dist(yarns.points[a], yarns.points[b]);
-            for v in [a, b] {
-                if let Some(s) = share.get_mut(v) {
-                    *s += m;
-                }
-            }
-        }
-    }
-    let total: f64 = share.iter().sum();
-    let node_total: f64 = asset.node_mass.iter().sum();
-    let scale = if total > 0.0 { node_total / total } else { 0.0 };
-    // A vertex on no segment (or a zero-length one) still gets a small
-    // weight: every contact point needs one.
-    let floor = if nv > 0 {
-        1e-6 * node_total / nv as f64
-    } else {
-        0.0
-    };
-    EmbeddedPoints {
-        nodes: asset
-            .embedding
-            .tet
-            .iter()
-            .map(|&t| asset.mesh.tets[t as usize])
-            .collect(),
-        weights: asset.embedding.weights.clone(),
-        mass: share
-            .iter()
-            .map(|s| (s * scale).max(floor).max(f64::MIN_POSITIVE))
-            .collect(),
-    }
-}
-
 /// Deepest penetration (m, >= 0) of a V2Y yarn vertex into its radius
 /// around a collider at `t` (the Newton run's measure).
 fn yarn_penetration(
@@ -500,7 +453,7 @@ pub fn pd_frames(
     run_backend(&mut solver, params.backend)?;
     let stars = NodeStars::new(asset);
     let points = if params.contact == ContactAt::Yarns && !colliders.is_empty() {
-        yarn_contact_points(asset)
+        super::asset::yarn_contact_points(asset)
     } else {
         EmbeddedPoints::default()
     };

@@ -28,7 +28,7 @@
 // Small fixed-size loops over x, y, z read better indexed.
 #![allow(clippy::needless_range_loop)]
 
-use super::contact::{Contact, NodeProjector};
+use super::contact::{Contact, NodeProjector, PointProjector};
 use crate::geom::bvh::{normalized, MeshCollider};
 use crate::geom::vec3::{add, dot, norm, scale, sub};
 use crate::geom::Vec3;
@@ -73,6 +73,11 @@ impl Collider {
     /// [`Self::distance`] and, when `motion` is set, the displacement (m) of
     /// the closest surface point over the time step.
     fn probe(&self, p: Vec3, motion: bool) -> Option<(Distance, Vec3)> {
+        self.probe_within(p, motion, self.thickness)
+    }
+
+    /// [`Self::probe`] with the surface motion read only within `thickness`.
+    fn probe_within(&self, p: Vec3, motion: bool, thickness: f64) -> Option<(Distance, Vec3)> {
         let still = |d: Distance| (d, [0.0; 3]);
         match &self.shape {
             Shape::Plane { point, normal } => {
@@ -97,7 +102,7 @@ impl Collider {
             }
             Shape::Mesh(m) => m.closest(p).map(|h| {
                 // Only contacts need the motion.
-                let u = if motion && h.signed_distance < self.thickness {
+                let u = if motion && h.signed_distance < thickness {
                     m.surface_motion(&h)
                 } else {
                     [0.0; 3]
@@ -120,14 +125,20 @@ impl Collider {
     /// [`Self::project`] and the displacement (m) of the surface there over
     /// the time step.
     pub fn project_moving(&self, p: Vec3) -> Option<(Vec3, Vec3)> {
-        let (d, u) = self.probe(p, true)?;
-        if d.signed >= self.thickness || !d.signed.is_finite() {
+        self.project_moving_by(p, self.thickness)
+    }
+
+    /// [`Self::project_moving`] keeping `thickness` (m) instead of the
+    /// collider's own.
+    fn project_moving_by(&self, p: Vec3, thickness: f64) -> Option<(Vec3, Vec3)> {
+        let (d, u) = self.probe_within(p, true, thickness)?;
+        if d.signed >= thickness || !d.signed.is_finite() {
             return None;
         }
         // Onto the surface first, then out by the thickness: exact for a
         // plane through the origin (fewer roundings than one combined step).
         let on = add(p, scale(d.outward, -d.signed));
-        Some((add(on, scale(d.outward, self.thickness)), u))
+        Some((add(on, scale(d.outward, thickness)), u))
     }
 }
 
@@ -181,12 +192,18 @@ impl ColliderSet {
     /// The closest admissible position of `p` over the projection passes
     /// and the surface motion of the last collider that moved it.
     fn resolve(&self, p: Vec3) -> Option<(Vec3, Vec3)> {
+        self.resolve_with(p, 0.0)
+    }
+
+    /// [`Self::resolve`] for a point that keeps `extra` (m) beyond each
+    /// collider's thickness.
+    fn resolve_with(&self, p: Vec3, extra: f64) -> Option<(Vec3, Vec3)> {
         let mut q = p;
         let mut motion = None;
         for _ in 0..PROJECTION_PASSES {
             let mut any = false;
             for c in &self.colliders {
-                if let Some((r, u)) = c.project_moving(q) {
+                if let Some((r, u)) = c.project_moving_by(q, c.thickness + extra) {
                     q = r;
                     motion = Some(u);
                     any = true;
@@ -210,6 +227,28 @@ impl NodeProjector for ColliderSet {
             surface_motion,
             friction: self.friction,
         })
+    }
+}
+
+/// Colliders acting on embedded points (yarn vertices): point `j` keeps
+/// `radius[j]` beyond each collider's thickness.
+#[derive(Debug, Clone, Copy)]
+pub struct PointColliders<'a> {
+    pub set: &'a ColliderSet,
+    /// Per point (m, >= 0).
+    pub radius: &'a [f64],
+}
+
+impl PointProjector for PointColliders<'_> {
+    fn contact(&self, point: usize, p: Vec3) -> Option<Contact> {
+        let r = self.radius.get(point).copied().unwrap_or(0.0);
+        self.set
+            .resolve_with(p, r)
+            .map(|(target, surface_motion)| Contact {
+                target,
+                surface_motion,
+                friction: self.set.friction,
+            })
     }
 }
 

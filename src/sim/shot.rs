@@ -7,7 +7,20 @@
 //! frame `k` (0 = the first frame, shot time 0) is reached after
 //! `preroll_steps + k steps_per_frame` steps.
 
-use super::contact::NodeProjector;
+use super::contact::{EmbeddedPoints, NodeProjector, PointProjector};
+
+/// The contacts of one step of the loop: node projections, or embedded
+/// points and what they must stay out of (`PdSolver::step_with_point_contacts`).
+pub trait StepContacts: NodeProjector {
+    /// The embedded points the contacts act on instead of the nodes, and
+    /// their projector; None (the default): the nodes.
+    fn points(&self) -> Option<(&EmbeddedPoints, &dyn PointProjector)> {
+        None
+    }
+}
+
+impl StepContacts for super::contact::NoContact {}
+impl StepContacts for super::collide::ColliderSet {}
 use super::pd::{PdSolver, StepStats};
 use super::SimError;
 use crate::geom::Vec3;
@@ -164,7 +177,7 @@ pub fn run<C, E>(
     stop: &dyn Fn() -> bool,
 ) -> Result<LoopStats, LoopError<E>>
 where
-    C: NodeProjector,
+    C: StepContacts,
 {
     let total = schedule.total_steps().ok_or_else(|| LoopError::Diverged {
         step: 0,
@@ -199,14 +212,16 @@ where
         let t = schedule.time(s);
         pins.clear();
         let contacts = update(s, t, &mut pins).map_err(LoopError::Callback)?;
-        let st = solver
-            .step_with_contacts(x, v, &pins, &contacts)
-            .map_err(|source| LoopError::Diverged {
-                step: s,
-                time: t,
-                frame: schedule.frame_of_step(s),
-                source,
-            })?;
+        let st = match contacts.points() {
+            Some((pts, pp)) => solver.step_with_point_contacts(x, v, &pins, pts, pp),
+            None => solver.step_with_contacts(x, v, &pins, &contacts),
+        }
+        .map_err(|source| LoopError::Diverged {
+            step: s,
+            time: t,
+            frame: schedule.frame_of_step(s),
+            source,
+        })?;
         stats.add(&st);
         residual = residual.max(st.residual);
         if let Some(k) = schedule.frame_at(s) {
