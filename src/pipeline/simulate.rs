@@ -655,7 +655,7 @@ pub fn simulate_chunk(
         character: setup.character.take(),
         notes: std::mem::take(&mut setup.notes),
     };
-    measures.fill(&mut report);
+    measures.fill(&mut report, sim.contact);
     if report.pd_capped_steps > 0 {
         let m = format!(
             "{} of {} PD steps stopped at the {}-iteration cap short of the tolerance {:e} (convergence up to {:.2e}, largest residual {:.3e} N): \
@@ -1120,10 +1120,13 @@ struct Measures {
 
 impl Measures {
     /// Puts the figures into `report`, with a warning in its notes for
-    /// tet nodes or yarn vertices deeper than the tolerance.
-    fn fill(&self, report: &mut SimulateReport) {
+    /// tet nodes (only where the colliders act on them: with yarn contact
+    /// the nodes under the yarns may enter a collider) or yarn vertices
+    /// deeper than the tolerance.
+    fn fill(&self, report: &mut SimulateReport, contact: super::sim_scene::ContactChoice) {
+        let on_nodes = contact == super::sim_scene::ContactChoice::Nodes;
         for (what, pen) in [
-            ("tet nodes", Some(self.max_pen)),
+            ("tet nodes", Some(self.max_pen).filter(|_| on_nodes)),
             ("yarn vertices", self.max_pen_yarns),
         ] {
             if let Some(p) = pen.filter(|&p| p > PENETRATION_TOLERANCE_M) {

@@ -1571,10 +1571,10 @@ impl PdSolver {
             // Contact targets and weights at the current iterate (local step).
             let stage = match contacts {
                 Contacts::Nodes(c) => {
-                    node_contact_stage(c, free_nodes, &xk, x, wscale, &self.mass, &mut in_set)
+                    node_contact_stage(c, free_nodes, &xk, x, wscale, &self.mass, &in_set)
                 }
                 Contacts::Points(pts, c) => {
-                    point_contact_stage(pts, c, &free_index, &xk, x, wscale, &mut in_points)
+                    point_contact_stage(pts, c, &free_index, &xk, x, wscale, &in_points)
                 }
             };
             let contact_energy = stage.energy;
@@ -1603,6 +1603,14 @@ impl PdSolver {
                 }
             }
             contacts_active = stage.active;
+            // The iterate is accepted: its new contacts join the set.
+            let set = match contacts {
+                Contacts::Nodes(_) => &mut in_set,
+                Contacts::Points(..) => &mut in_points,
+            };
+            for &j in &stage.joined {
+                set[j] = true;
+            }
             // The constrained set only grows within a step: a node (or
             // point) that met a collider keeps its weight with the
             // projection of an admissible point, itself, as target. That is
@@ -1835,17 +1843,20 @@ impl PdSolver {
 
 /// The contacts of one PD iterate: per free row its target (None: the
 /// node's own position) and weight (0: not constrained), the contact
-/// energy (J) and the active contacts (nodes or points).
+/// energy (J), the active contacts (nodes or points) and those of them
+/// not yet in the step's set (free rows or points), which join it once the
+/// iterate is accepted.
 struct ContactStage {
     targets: Vec<Option<Vec3>>,
     weights: Vec<f64>,
     energy: f64,
     active: usize,
+    joined: Vec<usize>,
 }
 
 /// [`ContactStage`] of the free nodes at `xk` (started the step at `x`)
 /// against node projections; `in_set` (per free row) marks the nodes that
-/// have met a collider in this step and grows.
+/// have met a collider in this step.
 fn node_contact_stage(
     contacts: &dyn NodeProjector,
     free_nodes: &[usize],
@@ -1853,7 +1864,7 @@ fn node_contact_stage(
     x: &[Vec3],
     wscale: f64,
     mass: &[f64],
-    in_set: &mut [bool],
+    in_set: &[bool],
 ) -> ContactStage {
     let targets: Vec<Option<Vec3>> = free_nodes
         .par_iter()
@@ -1862,25 +1873,33 @@ fn node_contact_stage(
         .collect();
     let mut energy = 0.0;
     let mut active = 0;
+    let mut joined = Vec::new();
     for (fi, q) in targets.iter().enumerate() {
         if let Some(q) = q {
             let i = free_nodes[fi];
             let d: Vec3 = std::array::from_fn(|k| xk[i][k] - q[k]);
             energy += 0.5 * wscale * mass[i] * dot_v(d, d);
             active += 1;
-            in_set[fi] = true;
+            if !in_set[fi] {
+                joined.push(fi);
+            }
         }
     }
-    let weights = free_nodes
-        .iter()
-        .zip(in_set.iter())
-        .map(|(&i, &a)| if a { wscale * mass[i] } else { 0.0 })
+    let weights = (0..free_nodes.len())
+        .map(|fi| {
+            if in_set[fi] || targets[fi].is_some() {
+                wscale * mass[free_nodes[fi]]
+            } else {
+                0.0
+            }
+        })
         .collect();
     ContactStage {
         targets,
         weights,
         energy,
         active,
+        joined,
     }
 }
 
@@ -1914,7 +1933,7 @@ fn point_corrections(
 /// [`ContactStage`] of the embedded points at `xk` (started the step at
 /// `x`), lumped onto the free rows (`free_index`: each node's free row,
 /// `usize::MAX` when pinned; `super::contact`, "Contacts at embedded
-/// points"); `in_set` (per point) grows like [`node_contact_stage`]'s.
+/// points"); `in_set` (per point) as [`node_contact_stage`]'s.
 fn point_contact_stage(
     points: &EmbeddedPoints,
     contacts: &dyn PointProjector,
@@ -1922,7 +1941,7 @@ fn point_contact_stage(
     xk: &[Vec3],
     x: &[Vec3],
     wscale: f64,
-    in_set: &mut [bool],
+    in_set: &[bool],
 ) -> ContactStage {
     let nf = free_index.iter().filter(|&&f| f != usize::MAX).count();
     let corr = point_corrections(points, contacts, xk, x);
@@ -1930,13 +1949,15 @@ fn point_contact_stage(
     let mut force = vec![[0.0; 3]; nf];
     let mut energy = 0.0;
     let mut active = 0;
+    let mut joined = Vec::new();
     for (j, d) in corr.iter().enumerate() {
         if let Some(d) = d {
-            in_set[j] = true;
+            if !in_set[j] {
+                joined.push(j);
+            }
             active += 1;
             energy += 0.5 * wscale * points.mass[j] * dot_v(*d, *d);
-        }
-        if !in_set[j] {
+        } else if !in_set[j] {
             continue;
         }
         let wj = wscale * points.mass[j];
@@ -1973,6 +1994,7 @@ fn point_contact_stage(
         weights,
         energy,
         active,
+        joined,
     }
 }
 
