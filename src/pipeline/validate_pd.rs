@@ -304,38 +304,55 @@ impl NodeProjector for YarnColliders<'_> {
         self.contact(node, p).map(|c| c.target)
     }
     fn contact(&self, node: usize, p: Vec3) -> Option<Contact> {
-        let mut q = p;
-        let mut hit: Option<&Arc<dyn PointCollider>> = None;
-        for _ in 0..PROJECTION_PASSES {
-            let mut moved = false;
-            for c in self.colliders {
-                let (d, n) = c.signed_distance(q, self.t);
-                // Far outside (the common case): the thickness cannot reach.
-                // (`reach` is empty without colliders: index inside the loop.)
-                let [rm, om] = self.reach[node];
-                if d >= rm + om * dot(n, n).sqrt() {
-                    continue;
-                }
-                let r = self.thickness(node, n);
-                if d.is_finite() && r.is_finite() && d < r {
-                    q = std::array::from_fn(|k| q[k] + (r - d) * n[k]);
-                    hit = Some(c);
-                    moved = true;
-                }
+        push_out(self.colliders, p, self.t, self.dt, |d, n| {
+            // Far outside (the common case): the thickness cannot reach.
+            // (`reach` is empty without colliders: index inside the call.)
+            let [rm, om] = self.reach[node];
+            if d >= rm + om * dot(n, n).sqrt() {
+                return None;
             }
-            if !moved {
-                break;
-            }
-        }
-        hit.map(|c| {
-            let u = c.velocity(q, self.t);
-            Contact {
-                target: q,
-                surface_motion: u.map(|u| u * self.dt),
-                friction: c.friction(),
-            }
+            let r = self.thickness(node, n);
+            (d.is_finite() && r.is_finite() && d < r).then_some(r)
         })
     }
+}
+
+/// Pushes `p` out of `colliders` at time `t` (a step of `dt` s): over
+/// [`PROJECTION_PASSES`] passes, every collider at signed distance `d`
+/// with outward normal `n` for which `keep(d, n)` gives a distance moves
+/// the point along `n` to it. The contact of the last collider that moved
+/// it, None when none did.
+fn push_out(
+    colliders: &[Arc<dyn PointCollider>],
+    p: Vec3,
+    t: f64,
+    dt: f64,
+    keep: impl Fn(f64, Vec3) -> Option<f64>,
+) -> Option<Contact> {
+    let mut q = p;
+    let mut hit: Option<&Arc<dyn PointCollider>> = None;
+    for _ in 0..PROJECTION_PASSES {
+        let mut moved = false;
+        for c in colliders {
+            let (d, n) = c.signed_distance(q, t);
+            if let Some(r) = keep(d, n) {
+                q = std::array::from_fn(|k| q[k] + (r - d) * n[k]);
+                hit = Some(c);
+                moved = true;
+            }
+        }
+        if !moved {
+            break;
+        }
+    }
+    hit.map(|c| {
+        let u = c.velocity(q, t);
+        Contact {
+            target: q,
+            surface_motion: u.map(|u| u * dt),
+            friction: c.friction(),
+        }
+    })
 }
 
 /// The yarn-level colliders at one step's end time, each V2Y yarn vertex
@@ -351,29 +368,8 @@ struct YarnVertexColliders<'a> {
 impl PointProjector for YarnVertexColliders<'_> {
     fn contact(&self, point: usize, p: Vec3) -> Option<Contact> {
         let r = self.radius[point];
-        let mut q = p;
-        let mut hit: Option<&Arc<dyn PointCollider>> = None;
-        for _ in 0..PROJECTION_PASSES {
-            let mut moved = false;
-            for c in self.colliders {
-                let (d, n) = c.signed_distance(q, self.t);
-                if d.is_finite() && d < r {
-                    q = std::array::from_fn(|k| q[k] + (r - d) * n[k]);
-                    hit = Some(c);
-                    moved = true;
-                }
-            }
-            if !moved {
-                break;
-            }
-        }
-        hit.map(|c| {
-            let u = c.velocity(q, self.t);
-            Contact {
-                target: q,
-                surface_motion: u.map(|u| u * self.dt),
-                friction: c.friction(),
-            }
+        push_out(self.colliders, p, self.t, self.dt, |d, _| {
+            (d.is_finite() && d < r).then_some(r)
         })
     }
 }

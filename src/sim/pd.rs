@@ -446,9 +446,11 @@ pub struct StepStats {
     /// nodes added to it by the Woodbury identity would exceed 64; module
     /// doc).
     pub contact_refactors: u32,
-    /// Free nodes with an active contact constraint in the last PD iteration.
+    /// Free nodes (or embedded points, [`PdSolver::step_with_point_contacts`])
+    /// with an active contact constraint in the last PD iteration.
     pub contacts: usize,
-    /// Free nodes moved onto their projection after the last iteration.
+    /// Free nodes moved onto their projection (or by the points' fix-up)
+    /// after the last iteration.
     pub projected: usize,
     /// Largest distance (m) one of them moved.
     pub max_projection: f64,
