@@ -1621,7 +1621,9 @@ impl PdSolver {
             // joins; letting them leave made the set chatter at the contact
             // boundary (held-out drape: 452 refactorizations in 474
             // iterations).
-            let grew = stage.weights != weights;
+            // A node (or point) joining counts even where it adds no weight
+            // (a node without mass): it restarts the acceleration's history.
+            let grew = !stage.joined.is_empty();
             if grew {
                 weights.copy_from_slice(&stage.weights);
             }
