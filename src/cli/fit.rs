@@ -388,6 +388,11 @@ pub fn fit_damping(a: &FitDampingArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_validate(a: &ValidateArgs, fit_damping: Option<PathBuf>) -> anyhow::Result<ExitCode> {
+    let label = if fit_damping.is_some() {
+        "fit-damping"
+    } else {
+        "validate: yarn level"
+    };
     let job = crate::pipeline::validate::ValidateJob {
         asset: a.asset.clone(),
         scene: a.scene.clone(),
@@ -413,7 +418,7 @@ fn run_validate(a: &ValidateArgs, fit_damping: Option<PathBuf>) -> anyhow::Resul
         fit_damping,
     };
     let mode = super::console::ProgressMode::on_stderr(a.progress, a.no_progress);
-    let mut console = super::console::Console::with_mode(mode, 0, "validate: yarn level");
+    let mut console = super::console::Console::with_mode(mode, 0, label);
     let result = job.run(&mut console);
     drop(console);
     let r = result?;
