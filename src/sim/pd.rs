@@ -1576,7 +1576,7 @@ impl PdSolver {
                     node_contact_stage(c, free_nodes, &xk, x, wscale, &self.mass, &in_set)
                 }
                 Contacts::Points(pts, c) => {
-                    point_contact_stage(pts, c, &free_index, &xk, x, wscale, &in_points)
+                    point_contact_stage(pts, c, free_nodes, &free_index, &xk, x, wscale, &in_points)
                 }
             };
             let contact_energy = stage.energy;
@@ -1935,19 +1935,21 @@ fn point_corrections(
 }
 
 /// [`ContactStage`] of the embedded points at `xk` (started the step at
-/// `x`), lumped onto the free rows (`free_index`: each node's free row,
+/// `x`), lumped onto the free rows (`free_nodes`: each row's node; `free_index`: each node's free row,
 /// `usize::MAX` when pinned; `super::contact`, "Contacts at embedded
 /// points"); `in_set` (per point) as [`node_contact_stage`]'s.
+#[allow(clippy::too_many_arguments)]
 fn point_contact_stage(
     points: &EmbeddedPoints,
     contacts: &dyn PointProjector,
+    free_nodes: &[usize],
     free_index: &[usize],
     xk: &[Vec3],
     x: &[Vec3],
     wscale: f64,
     in_set: &[bool],
 ) -> ContactStage {
-    let nf = free_index.iter().filter(|&&f| f != usize::MAX).count();
+    let nf = free_nodes.len();
     let corr = point_corrections(points, contacts, xk, x);
     let mut weights = vec![0.0; nf];
     let mut force = vec![[0.0; 3]; nf];
@@ -1979,16 +1981,10 @@ fn point_contact_stage(
             }
         }
     }
-    let mut node_of = vec![0usize; nf];
-    for (i, &fi) in free_index.iter().enumerate() {
-        if fi != usize::MAX {
-            node_of[fi] = i;
-        }
-    }
     let targets = (0..nf)
         .map(|fi| {
             (weights[fi] > 0.0).then(|| {
-                let p = xk[node_of[fi]];
+                let p = xk[free_nodes[fi]];
                 std::array::from_fn(|k| p[k] + force[fi][k] / weights[fi])
             })
         })
