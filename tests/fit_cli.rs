@@ -1012,6 +1012,8 @@ fn fit_damping_keeps_the_closest_damping_records_it_and_validate_runs_with_it() 
         .any(|e| e[0].as_f64() == Some(beta) && e[1].as_f64() == Some(best)));
     assert_eq!(r["pd_stiffness_damping_s"].as_f64(), Some(beta), "{r}");
     assert_eq!(r["rms_yarn_diameters"].as_f64(), Some(best), "{r}");
+    // The homogenized runs step as the yarn level does (1/600 s).
+    assert_eq!(r["pd_max_dt_s"].as_f64(), Some(1.0 / 600.0), "{r}");
 
     // The written asset records it, and the scene among its inputs.
     let damped = io::vtkhdf::read_asset(&out).unwrap();
@@ -1019,6 +1021,7 @@ fn fit_damping_keeps_the_closest_damping_records_it_and_validate_runs_with_it() 
     assert_eq!(record.stiffness_damping_s, beta);
     assert_eq!(record.undamped_rms_yarn_diameters, undamped);
     assert_eq!(record.evaluations.len(), 15);
+    assert_eq!(record.dt_s, Some(1.0 / 600.0));
     assert!(damped
         .provenance
         .inputs
@@ -1048,6 +1051,47 @@ fn fit_damping_keeps_the_closest_damping_records_it_and_validate_runs_with_it() 
     assert_eq!(v["rms_yarn_diameters"].as_f64(), Some(best), "{v}");
     let v = validate(&out, &["--stiffness-damping", "0"]);
     assert_eq!(v["rms_yarn_diameters"].as_f64(), Some(undamped), "{v}");
+    let v = validate(&out, &["--dt", "1/150"]);
+    assert_eq!(v["pd_max_dt_s"].as_f64(), Some(1.0 / 150.0), "{v}");
+    assert_ne!(v["rms_yarn_diameters"].as_f64(), Some(best), "{v}");
+
+    // A shot stepping 4x longer than a damping was fitted at is warned
+    // about; one at the fitted step is not.
+    let mut fitted = damped.clone();
+    fitted.parameters["damping"]["stiffness_damping_s"] = serde_json::json!(1e-4);
+    let fitted_path = d.join("fitted.vtkhdf");
+    io::vtkhdf::write_asset(&fitted_path, &fitted).unwrap();
+    let shot = |dt: &str| -> serde_json::Value {
+        let sc = d.join(format!("shot{}.toml", dt.replace('/', "_")));
+        std::fs::write(&sc, format!("[simulation]\nfps = 30\ndt = \"{dt}\"\n")).unwrap();
+        let o = knitvox(&[
+            "simulate",
+            s(&fitted_path),
+            "--scene",
+            s(&sc),
+            "--frames",
+            "1-1",
+            "--backend",
+            "cpu",
+            "-o",
+            s(&d.join(format!("shot{}.vtkhdf", dt.replace('/', "_")))),
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text = String::from_utf8_lossy(&o.stdout);
+        serde_json::from_str(text.lines().last().unwrap()).unwrap()
+    };
+    let warned = |r: &serde_json::Value| {
+        r["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("was fitted with PD steps of"))
+    };
+    let r = shot("1/150");
+    assert!(warned(&r), "{r}");
+    let r = shot("1/600");
+    assert!(!warned(&r), "{r}");
 
     // A record with a negative damping is the asset's fault (65).
     let mut bad = damped.clone();

@@ -283,12 +283,13 @@ pub struct ValidateArgs {
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
     /// Integrator of the homogenized runs: `pd` (projective dynamics, as
-    /// `simulate` runs shots; steps of 1/150 s) or `newton` (one exact
+    /// `simulate` runs shots; steps as `--dt`) or `newton` (one exact
     /// backward-Euler step per frame; a slower reference).
     #[arg(long, value_enum, default_value = "pd")]
     pub solver: SolverArg,
     /// Largest PD time step (s), a number or a fraction, as `simulate --dt`
-    /// [default: 1/150].
+    /// [default: the yarn level's step for `model = "rods"` scenes (1/600
+    /// unless `[rods] max_dt`), so that both levels step alike; else 1/150].
     #[arg(long, value_name = "SECONDS", value_parser = crate::pipeline::sim_scene::parse_seconds)]
     pub dt: Option<f64>,
     /// Most PD iterations per step (local + global; Anderson-accelerated) of

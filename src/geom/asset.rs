@@ -216,6 +216,11 @@ pub struct DampingRecord {
     pub undamped_rms_yarn_diameters: f64,
     /// Every damping tried and its RMS (yarn diameters), in order.
     pub evaluations: Vec<[f64; 2]>,
+    /// The largest PD step (s) of the runs it was fitted with (absent in
+    /// records made before it was kept). Implicit Euler dissipates by
+    /// itself, the more the longer the step, so `β` holds at that step.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dt_s: Option<f64>,
 }
 
 /// A damping record in an asset's parameters that does not parse or holds

@@ -665,8 +665,31 @@ pub fn simulate_chunk(
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));
     }
+    if let Some(m) = damping_step_mismatch(asset, schedule.dt) {
+        observer.warning(&m);
+        report.notes.push(format!("warning: {m}"));
+    }
     report.ms_total = t_total.elapsed().as_secs_f64() * 1e3;
     Ok(report)
+}
+
+/// A warning when the asset's fitted damping was found at a PD step more
+/// than 1.5x longer or shorter than the shot's `dt` (s): implicit Euler's
+/// own dissipation differs there, so the damping does not carry as fitted.
+fn damping_step_mismatch(asset: &Asset, dt: f64) -> Option<String> {
+    let r = asset.damping_record().ok().flatten()?;
+    let fitted = r.dt_s?;
+    let ratio = dt / fitted;
+    (r.stiffness_damping_s > 0.0 && !(1.0 / 1.5..=1.5).contains(&ratio)).then(|| {
+        format!(
+            "the asset's damping ({:.3e} s) was fitted with PD steps of {} s; this shot steps {} s, whose own \
+             numerical dissipation differs: the motion is damped differently than fitted (set `dt` in the scene's \
+             [simulation] to the fitted step, or fit the damping again at this one)",
+            r.stiffness_damping_s,
+            crate::geom::num(fitted),
+            crate::geom::num(dt)
+        )
+    })
 }
 
 /// What identifies a shot's checkpoints.

@@ -38,7 +38,7 @@ use crate::pipeline::validate_forces::{self, ForceMatch};
 use crate::pipeline::validate_motion::{self, MotionReport, MotionScene};
 use crate::pipeline::validate_pd::{HomogenizedRun, HomogenizedRunError};
 use crate::pipeline::yls::{self, YlsError};
-use crate::pipeline::yls_scene::YlsScene;
+use crate::pipeline::yls_scene::{YarnModel, YlsScene};
 use crate::pipeline::{Error, Observer, Stage};
 use crate::sim::SimError;
 use std::sync::Arc;
@@ -203,12 +203,15 @@ pub struct ValidateReport {
     /// homogenized runs (`validate --stiffness-damping`, else the asset's
     /// damping record, else 0).
     pub pd_stiffness_damping_s: f64,
+    /// PD only (else 0): the largest step of the homogenized runs (s;
+    /// `--dt`, else [`default_pd_step`]).
+    pub pd_max_dt_s: f64,
     /// Deepest collider penetration of a homogenized yarn vertex (m) and the
     /// most contacts in one frame ([`HomogenizedRun::max_contacts`]).
     pub max_penetration_m: f64,
     pub max_contacts: usize,
     /// Most implicit-Euler steps a homogenized frame took: PD splits every
-    /// frame into steps of at most 1/150 s; Newton takes one unless its solve
+    /// frame into steps of at most `pd_max_dt_s`; Newton takes one unless its solve
     /// fails, then retries in 2, 4, .. 16.
     pub max_substeps: usize,
     /// Total node mass of the asset and the yarn-level mass (kg).
@@ -413,7 +416,8 @@ pub enum HomogenizedSolver {
 pub struct HomogenizedRunParams {
     /// The integrator. Default PD.
     pub solver: HomogenizedSolver,
-    /// Largest PD time step (s). None: `PdRunParams::default()` (1/150 s).
+    /// Largest PD time step (s). None: `PdRunParams::default()` (1/150 s);
+    /// `validate` passes [`default_pd_step`].
     pub max_dt: Option<f64>,
     /// Most PD iterations per step. None: `PdRunParams::default()` (100, the cap on the tolerance).
     pub pd_iterations: Option<u32>,
@@ -427,6 +431,25 @@ pub struct HomogenizedRunParams {
     /// runs. None (default): the asset's damping record
     /// ([`crate::geom::DampingRecord`]), else 0.
     pub stiffness_damping: Option<f64>,
+}
+
+/// The homogenized runs' PD step for `scene` when none is given: the yarn
+/// level's own step where it has a fixed one (`model = "rods"`: `[rods]
+/// max_dt`, default 1/600 s), so that the comparison measures the
+/// homogenization and not two time steps (implicit Euler's own
+/// dissipation grows with the step: a 20 degree slide with friction keeps
+/// 0.77x the yarn level's slip at 1/150 s and 0.97x at the yarn level's
+/// 1/600 s, docs/fidelity.md, the time step); else PD's default (1/150 s;
+/// the explicit yarn model's adaptive steps are far shorter).
+pub fn default_pd_step(scene: &YlsScene) -> f64 {
+    match scene.model {
+        YarnModel::Rods => scene
+            .rods
+            .as_ref()
+            .and_then(|r| r.max_dt)
+            .unwrap_or(crate::yarn::fabric::RodDynamicsParams::default().max_dt),
+        YarnModel::Explicit => super::validate_pd::PdRunParams::default().max_dt,
+    }
 }
 
 /// What the Newton reference ([`homogenized_frames`]) leaves out of a scene
@@ -847,6 +870,7 @@ impl ValidateJob {
             rms_yarn_diameters: rms,
             undamped_rms_yarn_diameters: undamped,
             evaluations: evaluations.clone(),
+            dt_s: how.max_dt,
         });
         fitted.provenance.inputs.push(scene_input);
         fitted.provenance.command = format!(
@@ -1056,6 +1080,7 @@ impl Stage for ValidateJob {
         // The damping of the homogenized runs: as given, else the asset's
         // record, else none; `fit-damping` searches it here.
         let mut how = self.homogenized;
+        how.max_dt = Some(how.max_dt.unwrap_or_else(|| default_pd_step(&scene)));
         if how.stiffness_damping.is_none() {
             how.stiffness_damping = Some(recorded.as_ref().map_or(0.0, |r| r.stiffness_damping_s));
         }
@@ -1309,6 +1334,10 @@ impl Stage for ValidateJob {
             },
             pd_stiffness_damping_s: match self.homogenized.solver {
                 HomogenizedSolver::Pd => how.stiffness_damping.unwrap_or(0.0),
+                HomogenizedSolver::Newton => 0.0,
+            },
+            pd_max_dt_s: match self.homogenized.solver {
+                HomogenizedSolver::Pd => how.max_dt.unwrap_or(0.0),
                 HomogenizedSolver::Newton => 0.0,
             },
             max_penetration_m: hr.max_penetration_m,

@@ -334,6 +334,11 @@ pub struct PointSlide {
 /// plane; the block starts with its lowest points touching. The bottom
 /// nodes then lie 1.5 mm inside the plane.
 pub fn slide_points_on_incline(mu: f64, steps: usize) -> PointSlide {
+    slide_points_on_incline_at(mu, steps, knitvox::sim::pd::PdParams::default().dt)
+}
+
+/// [`slide_points_on_incline`] with steps of `dt` (s).
+pub fn slide_points_on_incline_at(mu: f64, steps: usize, dt: f64) -> PointSlide {
     use knitvox::embed::box_mesh;
     use knitvox::geom::Vec3;
     use knitvox::sim::contact::{Contact, PointProjector};
@@ -371,7 +376,10 @@ pub fn slide_points_on_incline(mu: f64, steps: usize) -> PointSlide {
         &vec![1e4; nt],
         &vec![1e4; nt],
         &[],
-        PdParams::default(),
+        PdParams {
+            dt,
+            ..PdParams::default()
+        },
     )
     .unwrap();
     struct Slope {
