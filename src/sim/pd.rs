@@ -268,13 +268,15 @@ pub struct PdParams {
     /// contact weights (a sliding block freezes), the second the stiff
     /// elastic modes. `D = max(max_i |G(x)_i - x_i^n|, g₀ Δt²)` is the
     /// step's displacement over free nodes, at least one step of free fall
-    /// from rest (`g₀ = 9.81 m/s²`). `s = min(1, Δt / Δt₀)²` with `Δt₀` =
+    /// from rest (`g₀ = 9.81 m/s²`). `s = min(1, Δt / Δt₀)` with `Δt₀` =
     /// [`TOLERANCE_REFERENCE_STEP`] (1/150 s): what a stop leaves undone of
-    /// a step's move the next steps carry as lost velocity, a drag that
-    /// adds up over the steps, so shorter steps stop tighter. Measured on
-    /// a frictionless block sliding 0.5 s (`tests/sim_pd.rs`): 0.7% short
-    /// of implicit Euler's travel at 1/150 s; at 1/600 s 1.9% short with
-    /// `s = Δt / Δt₀`, 0.0% with its square.
+    /// a step's move the next steps carry as lost velocity, a drag of up to
+    /// `tolerance · s / Δt` per second, so shorter steps stop tighter and
+    /// the drag per second stays about that of 1/150 s steps. Measured on a
+    /// frictionless block sliding 0.5 s (`tests/sim_pd.rs`): 0.7% short of
+    /// implicit Euler's travel at 1/150 s; at 1/600 s 14.2% short without
+    /// the scale, 1.9% with it (0.0% with its square, at twice the
+    /// iterations and many steps at the cap).
     /// [`StepStats::convergence`] is the left side over `D · s` at the last
     /// iteration.
     ///
@@ -1538,7 +1540,7 @@ impl PdSolver {
         // that met it, its local step still to evaluate.
         let mut converged = false;
         let rest_displacement = STANDARD_GRAVITY * dt * dt;
-        let step_scale = (dt / TOLERANCE_REFERENCE_STEP).min(1.0).powi(2);
+        let step_scale = (dt / TOLERANCE_REFERENCE_STEP).min(1.0);
         let mean_mass = free_nodes.iter().map(|&i| self.mass[i]).sum::<f64>() / nf.max(1) as f64;
         let mut kx = vec![0.0; 3 * nf];
         let mut clamped_tets = 0usize;
