@@ -508,7 +508,7 @@ fn the_damping_scene_is_a_cantilever_release_on_the_assets_yarns() {
 /// runs on the asset's rest yarns), reads as a yls scene once a swatch file
 /// is named, as `validate` names it, and is the pose its name says, with
 /// the rods model at 30 frames/s over 0.4 s (the posed scenes and the drape)
-/// or 0.5 s (the free drops and the slide).
+/// or 0.5 s (the free drops, the slide and the shoulder).
 #[test]
 fn every_held_out_example_scene_reads_with_the_assets_yarns() {
     let dir = examples().join("validate");
@@ -521,6 +521,7 @@ fn every_held_out_example_scene_reads_with_the_assets_yarns() {
         ("hang.toml", PoseKind::Hang, 0.0, 0, 0.4),
         ("multi_fold.toml", PoseKind::MultiFold, 0.3, 0, 0.4),
         ("shear.toml", PoseKind::Shear, 0.1, 0, 0.4),
+        ("shoulder.toml", PoseKind::Free, 0.0, 1, 0.5),
         ("slide.toml", PoseKind::Free, 0.0, 1, 0.5),
         ("stretch_wales.toml", PoseKind::StretchWales, 0.3, 0, 0.4),
     ];

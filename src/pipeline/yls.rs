@@ -655,6 +655,7 @@ pub fn scene_colliders(
                 offset,
                 radius,
                 friction,
+                velocity,
             } => Box::new(SphereCollider {
                 center: center.unwrap_or_else(|| {
                     let o = offset.unwrap_or([0.0; 3]);
@@ -665,7 +666,7 @@ pub fn scene_colliders(
                     ]
                 }),
                 radius: *radius,
-                velocity: [0.0; 3],
+                velocity: velocity.unwrap_or([0.0; 3]),
                 friction: *friction,
             }),
             ColliderSpec::Character {

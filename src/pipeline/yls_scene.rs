@@ -68,13 +68,16 @@ pub enum ColliderSpec {
     /// A ball. Without `center` it sits under the swatch's centre with its
     /// top a yarn diameter below the lowest yarn point. `friction` as for
     /// the plane. `offset` (m, only without `center`) shifts that
-    /// default placement (an off-centre drop).
+    /// default placement (an off-centre drop). `velocity` (m/s, default
+    /// 0): the centre moves at it from its placement at t = 0 (a body
+    /// moving under the fabric).
     Sphere {
         center: Option<Vec3>,
         offset: Option<Vec3>,
         radius: f64,
         #[serde(default)]
         friction: f64,
+        velocity: Option<Vec3>,
     },
     /// The skinned body of a glTF character, posed through one animation.
     Character {
@@ -157,6 +160,10 @@ fn default_gravity() -> Vec3 {
 /// Most output frames a scene may ask for (a guard against typos such as
 /// `duration = 1e6`).
 pub const MAX_SCENE_FRAMES: f64 = 1e6;
+
+/// Fastest a collider may move (m/s): the yarn simulators count a vertex
+/// faster than 100 m/s as diverged.
+pub const MAX_COLLIDER_SPEED: f64 = 50.0;
 
 /// A scene file that cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -282,8 +289,19 @@ impl YlsScene {
                     offset,
                     radius,
                     friction,
+                    velocity,
                 } => {
                     non_negative("friction", *friction)?;
+                    if let Some(v) = velocity {
+                        finite("velocity", v)?;
+                        let speed = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+                        if speed > MAX_COLLIDER_SPEED {
+                            return Err(err(format!(
+                                "key `{}` is {speed} m/s fast; at most {MAX_COLLIDER_SPEED} m/s",
+                                key("velocity")
+                            )));
+                        }
+                    }
                     if let Some(c) = center {
                         finite("center", c)?;
                     }
@@ -437,6 +455,36 @@ scale = 0.01
             mu(&GOOD.replace("radius = 0.05", "radius = 0.05\nfriction = 0.4")),
             0.4
         );
+    }
+
+    #[test]
+    fn a_sphere_moves_at_its_velocity_and_a_runaway_one_is_refused() {
+        let mut rest = crate::geom::Yarns::new();
+        rest.push_curve(&[[0.0; 3], [0.01, 0.0, 0.0]], false, 0.001);
+        let text = GOOD.replace("radius = 0.05", "radius = 0.05\nvelocity = [0.3, 0.0, 0.0]");
+        let s = YlsScene::parse(&text, Path::new("/scenes/a.toml")).unwrap();
+        let c = crate::pipeline::yls::scene_colliders(&s.colliders[..1], &rest).unwrap();
+        assert_eq!(c[0].velocity([0.0; 3], 0.2), [0.3, 0.0, 0.0]);
+        // The same point 0.2 s later: the centre has moved 6 cm along +X.
+        let p = [0.06, 0.0, 0.0];
+        let (d0, _) = c[0].signed_distance(p, 0.0);
+        let (d1, _) = c[0].signed_distance(p, 0.2);
+        assert!(d1 < d0 - 0.01, "{d0} -> {d1}");
+        let still = crate::pipeline::yls::scene_colliders(
+            &YlsScene::parse(GOOD, Path::new("/scenes/a.toml"))
+                .unwrap()
+                .colliders[..1],
+            &rest,
+        )
+        .unwrap();
+        assert_eq!(still[0].velocity([0.0; 3], 0.2), [0.0; 3]);
+        let e = YlsScene::parse(
+            &GOOD.replace("radius = 0.05", "radius = 0.05\nvelocity = [1e3, 0.0, 0.0]"),
+            Path::new("/scenes/a.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("velocity") && e.contains("at most"), "{e}");
     }
 
     #[test]
