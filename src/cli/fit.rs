@@ -311,7 +311,8 @@ pub struct ValidateArgs {
     #[arg(long, value_enum, default_value = "yarns")]
     pub contact: ContactArg,
     /// Stiffness-proportional damping of the homogenized PD runs (s, >= 0):
-    /// the implicit force -beta L v on the rates of deformation, the
+    /// the implicit force -beta L v on the rates of deformation (co-rotated:
+    /// rigid rotation is not damped), the
     /// homogenized stand-in for the yarns' internal friction [default: the
     /// asset's, from `knitvox fit-damping`, else 0].
     #[arg(long, value_name = "SECONDS", value_parser = non_negative_seconds)]

@@ -221,6 +221,26 @@ pub struct DampingRecord {
     /// itself, the more the longer the step, so `β` holds at that step.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dt_s: Option<f64>,
+    /// Whether `β` was fitted with the co-rotated damping, which leaves
+    /// rigid rotation free (false in records made before it: that linear
+    /// form damped rotations too, so its `β` does not carry).
+    #[serde(default)]
+    pub corotated: bool,
+}
+
+impl DampingRecord {
+    /// A warning for a damping fitted with the earlier linear form, which
+    /// the PD step no longer has.
+    pub fn superseded(&self) -> Option<String> {
+        (!self.corotated && self.stiffness_damping_s > 0.0).then(|| {
+            format!(
+                "the asset's damping ({:.3e} s) was fitted with the linear stiffness damping of an earlier \
+                 knitvox, which also damped rigid rotation; the PD step now damps only deformation, so \
+                 that value does not carry (run `knitvox fit-damping` again)",
+                self.stiffness_damping_s
+            )
+        })
+    }
 }
 
 /// A damping record in an asset's parameters that does not parse or holds

@@ -665,6 +665,15 @@ pub fn simulate_chunk(
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));
     }
+    if let Some(m) = asset
+        .damping_record()
+        .ok()
+        .flatten()
+        .and_then(|r| r.superseded())
+    {
+        observer.warning(&m);
+        report.notes.push(format!("warning: {m}"));
+    }
     if let Some(m) = damping_step_mismatch(asset, schedule.dt) {
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));

@@ -87,12 +87,13 @@ pub struct ValidateJob {
     pub fit_damping: Option<PathBuf>,
 }
 
-/// Range of the damping search (s): `log10 β` in [-6, -2], plus `β = 0`.
-/// The hang of a 6 x 6 stockinette is overdamped from about 1e-3 s.
-pub const DAMPING_SEARCH_LOG10: (f64, f64) = (-6.0, -2.0);
+/// Range of the damping search (s): `log10 β` in [-6, -1], plus `β = 0`.
+/// The swing of a 6 x 6 stockinette or rib follows best at about 1e-2 s
+/// (co-rotated, 1/600 s steps); 0.1 s damps every mode a swatch shows.
+pub const DAMPING_SEARCH_LOG10: (f64, f64) = (-6.0, -1.0);
 
 /// Golden-section refinements of the damping search after its first two
-/// points: the bracket of `log10 β` shrinks to 4 x 0.618^12 = 0.013 decades.
+/// points: the bracket of `log10 β` shrinks to 5 x 0.618^12 = 0.016 decades.
 pub const DAMPING_SEARCH_REFINEMENTS: usize = 12;
 
 /// What `knitvox fit-damping` found (`ValidateReport::damping_fit`).
@@ -871,6 +872,7 @@ impl ValidateJob {
             undamped_rms_yarn_diameters: undamped,
             evaluations: evaluations.clone(),
             dt_s: how.max_dt,
+            corotated: true,
         });
         fitted.provenance.inputs.push(scene_input);
         fitted.provenance.command = format!(
@@ -1083,6 +1085,9 @@ impl Stage for ValidateJob {
         how.max_dt = Some(how.max_dt.unwrap_or_else(|| default_pd_step(&scene)));
         if how.stiffness_damping.is_none() {
             how.stiffness_damping = Some(recorded.as_ref().map_or(0.0, |r| r.stiffness_damping_s));
+            if let Some(m) = recorded.as_ref().and_then(|r| r.superseded()) {
+                observer.warning(&format!("{}: {m}", self.asset.display()));
+            }
         }
         let ga = asset_materials(&asset);
         let damping_fit = match &self.fit_damping {

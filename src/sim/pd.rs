@@ -35,16 +35,23 @@
 //! corresponds to stiffnesses halved).
 //!
 //! # Stiffness-proportional damping
-//! With [`PdParams::stiffness_damping`] `β` (s) the step also carries the
-//! implicit Rayleigh damping force `-β L v`, `v = (x - x*) / Δt`, where `L =
-//! Σ_e 2 V_e (γs + γv) G_eᵀ G_e` (plus the fibre terms) is the elastic part
-//! of `K`: the potential `β / (2 Δt) |x - x*|²_L`. It damps the rates of
-//! deformation (and of rotation) and leaves translation free, unlike the
-//! mass-proportional `c`, which also slows a falling or sliding body: the
-//! homogenized counterpart of the yarn-yarn friction and contact damping
-//! that dissipate energy inside the fabric at yarn level. `K`'s elastic
-//! part is scaled by `1 + β / Δt` and `b` gains `(β / Δt) L x*`; `L` is
-//! constant, so the factorization stays once per (materials, Δt, damping).
+//! With [`PdParams::stiffness_damping`] `β` (s) the step also carries a
+//! Rayleigh damping of the rates of deformation, co-rotated so that a rigid
+//! rotation, like a translation, is not damped: the potential
+//! `β / (2 Δt) Σ_e |F_e(x) - R_e F_e(x*)|²_{L_e}`, `x*` the step's start,
+//! `L_e` the tet's block of the elastic part `L = Σ_e 2 V_e (γs + γv) G_eᵀ
+//! G_e` of `K` (plus the fibre terms) and `R_e` the rotation that minimizes
+//! it, the polar factor of `Σ_a x_a (L_e x*)_aᵀ`. Its force is `-β L v`
+//! (`v = (x - x*) / Δt`) for a motion without rotation; the linear form
+//! `β/(2 Δt) |x - x*|²_L` damped rotations too (a spinning or swinging
+//! swatch slowed as if it deformed, a slide's landing tilt with it). It is
+//! a PD constraint: the local step finds `R_e`, the global step keeps the
+//! matrix, `K`'s elastic part scaled by `1 + β / Δt` and `b` gaining `(β /
+//! Δt) Σ_e R_e L_e x*`; so the factorization stays once per (materials,
+//! Δt, damping). It is the homogenized counterpart of the yarn-yarn
+//! friction and contact damping that dissipate energy inside the fabric at
+//! yarn level; the mass-proportional `c` also slows a falling or sliding
+//! body.
 //!
 //! Pinned nodes are eliminated: their columns of `K` move to the right-hand
 //! side. The free block is factored with a sparse Cholesky: the symbolic
@@ -241,8 +248,8 @@ pub struct PdParams {
     /// Default 0.
     pub mass_damping: f64,
     /// Stiffness-proportional damping `β` (s, >= 0), applied implicitly
-    /// (module doc, "Stiffness-proportional damping"): the elastic force's
-    /// rate term. Default 0.
+    /// and co-rotated (module doc, "Stiffness-proportional damping"): the
+    /// elastic force's rate term, zero for rigid motion. Default 0.
     pub stiffness_damping: f64,
     /// Most PD iterations (local + global) per time step: the cap on
     /// [`Self::tolerance`]. Default 100; a step that reaches it is
@@ -518,9 +525,9 @@ pub struct PdSolver {
     elastic: Box<dyn ElasticRhs>,
     /// Per-tet domain ids given by the caller (else automatic bisection).
     tet_domains: Option<Vec<u32>>,
-    /// The elastic part `L` of `K` over all nodes, with stiffness-
+    /// Per tet the block `L_e` of the elastic part of `K`, with stiffness-
     /// proportional damping (module doc), else None.
-    damping_matrix: Option<std::sync::Arc<CsrMatrix>>,
+    damping_blocks: Option<std::sync::Arc<Vec<DampingBlock>>>,
     /// The pinned columns of `K`: (free row, node, value).
     k_fp: Vec<(usize, usize, f64)>,
     /// `½ M_total max_speed²` (J): floor of the energy guard.
@@ -680,27 +687,13 @@ fn assemble(
         }
     }
     for (e, r) in model.rest().iter().enumerate() {
-        let w = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]);
-        let g = shape_gradients(&r.dm_inv);
-        // Fibre selections F d = Σ c_a x_a, weight 2 γ V (super::fibre;
-        // a stiffening fibre's tangent at the reference strain).
-        let fibres: Vec<(f64, [f64; 4])> = model
-            .fibres()
-            .iter()
-            .filter(|fam| fam.gamma[e] > 0.0)
-            .map(|fam| {
-                let c = super::fibre::node_coefficients(r, &fam.directions[e]);
-                (fam.pd_weight(e, r.volume), c)
-            })
-            .collect();
+        let le = element_block(model, e);
         for a in 0..4 {
             let Some(fi) = free_index[r.nodes[a]] else {
                 continue;
             };
             for b in 0..4 {
-                let val = stiffness_scale
-                    * (w * g[a].dot(&g[b])
-                        + fibres.iter().map(|(wf, c)| wf * c[a] * c[b]).sum::<f64>());
+                let val = stiffness_scale * le[a][b];
                 match free_index[r.nodes[b]] {
                     Some(fj) => {
                         if fi >= fj {
@@ -718,30 +711,106 @@ fn assemble(
     Assembled { lower, k_fp, diag }
 }
 
-/// The elastic part `L` of `K` over all nodes (both triangles; module doc,
-/// "Stiffness-proportional damping").
-fn elastic_matrix(model: &ElasticModel, num_nodes: usize) -> Result<CsrMatrix, SimError> {
-    let all: Vec<Option<usize>> = (0..num_nodes).map(Some).collect();
-    let asm = assemble(model, &vec![0.0; num_nodes], 0.0, 1.0, &all, num_nodes);
-    full_csr(num_nodes, &asm.lower)
+/// One tet's block `L_e` of the elastic part of `K` (N/m per node pair,
+/// the same for x, y, z): `2 V (γs + γv) ∇N_a · ∇N_b` plus each fibre's
+/// `w_f c_a c_b` (its selection `F d = Σ c_a x_a`, weight 2 γ V;
+/// super::fibre, a stiffening fibre's tangent at the reference strain).
+/// Rows sum to zero: a translation costs nothing.
+fn element_block(model: &ElasticModel, e: usize) -> [[f64; 4]; 4] {
+    let r = &model.rest()[e];
+    let w = 2.0 * r.volume * (model.gamma_s()[e] + model.gamma_v()[e]);
+    let g = shape_gradients(&r.dm_inv);
+    let fibres: Vec<(f64, [f64; 4])> = model
+        .fibres()
+        .iter()
+        .filter(|fam| fam.gamma[e] > 0.0)
+        .map(|fam| {
+            let c = super::fibre::node_coefficients(r, &fam.directions[e]);
+            (fam.pd_weight(e, r.volume), c)
+        })
+        .collect();
+    std::array::from_fn(|a| {
+        std::array::from_fn(|b| {
+            w * g[a].dot(&g[b]) + fibres.iter().map(|(wf, c)| wf * c[a] * c[b]).sum::<f64>()
+        })
+    })
 }
 
-/// `y = A x` for an n x n scalar matrix and n points.
-fn mul_points(a: &CsrMatrix, x: &[Vec3]) -> Vec<Vec3> {
-    (0..a.n)
-        .into_par_iter()
-        .with_min_len(super::jacobi::MIN_ROWS_PER_TASK)
-        .map(|i| {
-            let mut s = [0.0; 3];
-            for e in a.row_ptr[i]..a.row_ptr[i + 1] {
-                let (c, v) = (a.col[e], a.val[e]);
+/// The co-rotated stiffness damping of one step (module doc,
+/// "Stiffness-proportional damping"): per tet its block `L_e` and
+/// `y_a = (L_e x*)_a`, the elastic force of the step's start positions
+/// `x*` on its nodes.
+struct CorotatedDamping {
+    blocks: std::sync::Arc<Vec<DampingBlock>>,
+    y: Vec<[Vec3; 4]>,
+    /// Per tet `x*ᵀ L_e x*` (N m): the potential's constant.
+    start: Vec<f64>,
+}
+
+/// A tet's nodes and its block `L_e` ([`element_block`]).
+type DampingBlock = ([usize; 4], [[f64; 4]; 4]);
+
+impl CorotatedDamping {
+    fn new(blocks: std::sync::Arc<Vec<DampingBlock>>, x: &[Vec3]) -> Self {
+        let y: Vec<[Vec3; 4]> = blocks
+            .par_iter()
+            .with_min_len(256)
+            .map(|(nodes, le)| {
+                std::array::from_fn(|a| {
+                    std::array::from_fn(|k| (0..4).map(|b| le[a][b] * x[nodes[b]][k]).sum())
+                })
+            })
+            .collect();
+        let start = blocks
+            .iter()
+            .zip(&y)
+            .map(|((nodes, _), ya)| (0..4).map(|a| dot_v(x[nodes[a]], ya[a])).sum::<f64>())
+            .collect();
+        Self { blocks, y, start }
+    }
+
+    /// At an iterate `xk`: `Σ_e |F_e(xk) - R_e F_e(x*)|²_{L_e}` (N m)
+    /// with each `R_e` the rotation that minimizes it (the polar factor of
+    /// `Σ_a xk_a y_aᵀ`), the targets `Σ_e R_e y_a` on every node (N) and
+    /// `L xk` (N).
+    fn at(&self, xk: &[Vec3]) -> (f64, Vec<Vec3>, Vec<Vec3>) {
+        let per: Vec<(f64, [Vec3; 4], [Vec3; 4])> = self
+            .blocks
+            .par_iter()
+            .zip(self.y.par_iter())
+            .with_min_len(256)
+            .map(|((nodes, le), y)| {
+                let xa: [Vec3; 4] = std::array::from_fn(|a| xk[nodes[a]]);
+                let mut m = nalgebra::Matrix3::zeros();
+                for a in 0..4 {
+                    m += Vector3::from(xa[a]) * Vector3::from(y[a]).transpose();
+                }
+                let rot = super::projection::project_rotation(&m);
+                let q: [Vec3; 4] = std::array::from_fn(|a| (rot * Vector3::from(y[a])).into());
+                let lx: [Vec3; 4] = std::array::from_fn(|a| {
+                    std::array::from_fn(|k| (0..4).map(|b| le[a][b] * xa[b][k]).sum())
+                });
+                let e = (0..4)
+                    .map(|a| dot_v(xa[a], lx[a]) - 2.0 * dot_v(xa[a], q[a]))
+                    .sum::<f64>();
+                (e, q, lx)
+            })
+            .collect();
+        let n = xk.len();
+        let (mut targets, mut lx) = (vec![[0.0; 3]; n], vec![[0.0; 3]; n]);
+        let mut e: f64 = self.start.iter().sum();
+        for ((nodes, _), (ee, q, l)) in self.blocks.iter().zip(&per) {
+            e += ee;
+            for a in 0..4 {
                 for k in 0..3 {
-                    s[k] += v * x[c][k];
+                    targets[nodes[a]][k] += q[a][k];
+                    lx[nodes[a]][k] += l[a][k];
                 }
             }
-            s
-        })
-        .collect()
+        }
+        // Rounding can take a rigid motion's value under zero.
+        (e.max(0.0), targets, lx)
+    }
 }
 
 /// Both triangles of the matrix whose lower triangle is `lower`.
@@ -922,7 +991,7 @@ impl PdSolver {
             jacobi: None,
             elastic,
             tet_domains: tet_domains.map(<[u32]>::to_vec),
-            damping_matrix: None,
+            damping_blocks: None,
             k_fp: Vec::new(),
             energy_floor,
             last: None,
@@ -947,14 +1016,13 @@ impl PdSolver {
             &self.free_index,
             nf,
         );
-        self.damping_matrix = if self.params.stiffness_damping > 0.0 {
-            Some(std::sync::Arc::new(elastic_matrix(
-                &self.model,
-                self.mass.len(),
-            )?))
-        } else {
-            None
-        };
+        self.damping_blocks = (self.params.stiffness_damping > 0.0).then(|| {
+            std::sync::Arc::new(
+                (0..self.model.rest().len())
+                    .map(|e| (self.model.rest()[e].nodes, element_block(&self.model, e)))
+                    .collect(),
+            )
+        });
         if let Some(fi) = asm.diag.iter().position(|d| !(*d > 0.0)) {
             return Err(SimError::Inconsistent(format!(
                 "free node {} has neither mass nor stiffness (K is singular)",
@@ -1497,38 +1565,30 @@ impl PdSolver {
                 rhs0[3 * fi + k] -= val * xk[node][k];
             }
         }
-        // Stiffness-proportional damping: (β / Δt) L x* (module doc).
+        // Co-rotated stiffness-proportional damping (module doc): its
+        // targets join the right-hand side at every iterate.
         let beta_dt = p.stiffness_damping / dt;
-        let damping = self.damping_matrix.clone().filter(|_| beta_dt > 0.0);
-        let damping = damping.as_deref();
-        if let Some(l) = damping {
-            let lx = mul_points(l, x);
-            for (fi, &i) in free_nodes.iter().enumerate() {
-                for k in 0..3 {
-                    rhs0[3 * fi + k] += beta_dt * lx[i][k];
-                }
-            }
-        }
-        // Its potential β / (2 Δt) |x - x*|²_L at an iterate, and the
-        // gradient (β / Δt) L (x - x*).
-        let damping_at = |xk: &[Vec3]| -> (f64, Vec<Vec3>) {
-            let Some(l) = damping else {
-                return (0.0, Vec::new());
+        let damping = self
+            .damping_blocks
+            .clone()
+            .filter(|_| beta_dt > 0.0)
+            .map(|b| CorotatedDamping::new(b, x));
+        // Its potential at an iterate (J), the targets (β / Δt) Σ_e R_e y
+        // and the gradient (β / Δt) (L x - Σ_e R_e y) per node.
+        let damping_at = |xk: &[Vec3]| -> (f64, Vec<Vec3>, Vec<Vec3>) {
+            let Some(d) = damping.as_ref() else {
+                return (0.0, Vec::new(), Vec::new());
             };
-            let d: Vec<Vec3> = xk
+            let (e, t, lx) = d.at(xk);
+            let grad = lx
                 .iter()
-                .zip(x.iter())
-                .map(|(a, b)| std::array::from_fn(|k| a[k] - b[k]))
+                .zip(&t)
+                .map(|(l, q)| std::array::from_fn(|k| beta_dt * (l[k] - q[k])))
                 .collect();
-            let ld = mul_points(l, &d);
-            let e: f64 = d
-                .iter()
-                .zip(&ld)
-                .map(|(a, b)| a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-                .sum();
             (
                 0.5 * beta_dt * e,
-                ld.iter().map(|g| g.map(|v| beta_dt * v)).collect(),
+                t.iter().map(|q| q.map(|v| beta_dt * v)).collect(),
+                grad,
             )
         };
 
@@ -1579,7 +1639,7 @@ impl PdSolver {
         // The plain PD iterate while `xk` is an accelerated one.
         let mut fallback: Option<Vec<f64>> = None;
         let mut accelerations_rejected = 0u32;
-        let elastic_after = loop {
+        let (elastic_after, damping_after) = loop {
             let tl = Instant::now();
             let eval = self.elastic.evaluate(&xk, &mut out)?;
             local_ms += tl.elapsed().as_secs_f64() * 1e3;
@@ -1601,7 +1661,8 @@ impl PdSolver {
                     0.5 * ms * self.mass[i] * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
                 })
                 .sum();
-            let phi = inertia + eval.elastic_energy + contact_energy + damping_at(&xk).0;
+            let (damping_energy, damping_targets, _) = damping_at(&xk);
+            let phi = inertia + eval.elastic_energy + contact_energy + damping_energy;
             if let Some(plain) = fallback.take() {
                 // Safeguard (Peng et al. 2018 Alg. 2): an accelerated
                 // iterate must lower Φ, else the plain one replaces it.
@@ -1646,16 +1707,16 @@ impl PdSolver {
             let changed = grew && iterations > 0;
             objectives.push(phi);
             if nf == 0 || converged {
-                break eval.elastic_energy;
+                break (eval.elastic_energy, damping_targets);
             }
             if iterations >= p.max_iterations {
                 capped = true;
-                break eval.elastic_energy;
+                break (eval.elastic_energy, damping_targets);
             }
             rhs.copy_from_slice(&rhs0);
             for (fi, &i) in free_nodes.iter().enumerate() {
                 for k in 0..3 {
-                    rhs[3 * fi + k] += out[i][k];
+                    rhs[3 * fi + k] += out[i][k] + damping_targets.get(i).map_or(0.0, |q| q[k]);
                     xf[3 * fi + k] = xk[i][k];
                 }
             }
@@ -1803,13 +1864,16 @@ impl PdSolver {
                 .map(|fi| {
                     let i = free_nodes[fi];
                     norm(std::array::from_fn(|k| {
-                        kx[3 * fi + k] - rhs0[3 * fi + k] - out[i][k]
+                        kx[3 * fi + k]
+                            - rhs0[3 * fi + k]
+                            - out[i][k]
+                            - damping_after.get(i).map_or(0.0, |q| q[k])
                     }))
                 })
                 .fold(0.0, f64::max)
         } else if p.report_residual {
             let grad = self.model.gradient(&xk)?;
-            let (_, dgrad) = damping_at(&xk);
+            let (_, _, dgrad) = damping_at(&xk);
             free_nodes
                 .iter()
                 .map(|&i| {
@@ -2098,6 +2162,83 @@ mod tests {
                 surface_motion: [0.0; 3],
                 friction: 0.0,
             })
+        }
+    }
+
+    /// The co-rotated damping potential costs nothing for a rigid motion of
+    /// the step's start (a rotation by 0.7 rad and a shift), and its
+    /// gradient `L x - targets` is the potential's derivative (central
+    /// differences; the optimal rotations make it exact, by the envelope
+    /// theorem) at a deformed iterate.
+    #[test]
+    fn corotated_damping_is_free_for_rigid_motion_and_its_gradient_matches_differences() {
+        let (mesh, _) = box_mesh([2, 2, 1], 0.01, 100.0);
+        let nt = mesh.num_tets();
+        let model = ElasticModel::new(&mesh, &vec![2.0; nt], &vec![5.0; nt]).unwrap();
+        let blocks: Vec<DampingBlock> = (0..nt)
+            .map(|e| (model.rest()[e].nodes, element_block(&model, e)))
+            .collect();
+        for (_, le) in &blocks {
+            for row in le {
+                assert!(row.iter().sum::<f64>().abs() < 1e-9 * row[0].abs().max(1.0));
+            }
+        }
+        let blocks = std::sync::Arc::new(blocks);
+        let start: Vec<Vec3> = mesh
+            .nodes
+            .iter()
+            .map(|p| [p[0] * 1.05, p[1] + 0.1 * p[0], p[2] * 0.97])
+            .collect();
+        let rot = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.7)
+            * nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::x_axis(), 0.3);
+        let rigid: Vec<Vec3> = start
+            .iter()
+            .map(|p| (rot * Vector3::from(*p) + Vector3::new(0.02, -0.01, 0.3)).into())
+            .collect();
+        let xk: Vec<Vec3> = rigid
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let s = (i as f64 * 0.37).sin();
+                [
+                    p[0] + 1e-3 * s,
+                    p[1] - 2e-3 * s * s,
+                    p[2] + 5e-4 * (i % 3) as f64,
+                ]
+            })
+            .collect();
+        let d = CorotatedDamping::new(blocks, &start);
+        let total: f64 = d.start.iter().sum();
+        {
+            let (e_rigid, t, lx) = d.at(&rigid);
+            let (e_start, _, _) = d.at(&start);
+            let scale = start.len() as f64 * 1e-3;
+            assert!(e_rigid.abs() < 1e-9 * total, "{e_rigid} (start {total})");
+            assert!(e_start.abs() < 1e-9 * total, "{e_start}");
+            for (l, q) in lx.iter().zip(&t) {
+                for k in 0..3 {
+                    assert!((l[k] - q[k]).abs() < 1e-9 * scale, "{l:?} {q:?}");
+                }
+            }
+            let (e0, t, lx) = d.at(&xk);
+            assert!(e0 > 0.0);
+            let h = 1e-7;
+            let mut worst = 0.0f64;
+            let mut largest = 0.0f64;
+            for i in 0..xk.len() {
+                for k in 0..3 {
+                    let mut xp = xk.clone();
+                    xp[i][k] += h;
+                    let mut xm = xk.clone();
+                    xm[i][k] -= h;
+                    // d/dx of |F - R F*|² is twice the gradient L x - targets.
+                    let fd = (d.at(&xp).0 - d.at(&xm).0) / (2.0 * h) / 2.0;
+                    let g = lx[i][k] - t[i][k];
+                    worst = worst.max((fd - g).abs());
+                    largest = largest.max(g.abs());
+                }
+            }
+            assert!(worst < 1e-5 * largest, "worst {worst} of {largest}");
         }
     }
 
