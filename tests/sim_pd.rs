@@ -782,6 +782,18 @@ fn angular_momentum(mass: &[f64], x: &[Vec3], v: &[Vec3]) -> Vec3 {
     l
 }
 
+/// Steps without gravity with the stiffness damping `beta` (s), converged
+/// far past the default tolerance (1e-6, up to 1000 iterations).
+fn weightless_converged(beta: f64) -> PdParams {
+    PdParams {
+        gravity: [0.0; 3],
+        stiffness_damping: beta,
+        tolerance: 1e-6,
+        max_iterations: 1000,
+        ..Default::default()
+    }
+}
+
 #[test]
 fn stiffness_damping_leaves_a_rigid_spin_free() {
     // A block spinning rigidly at 4 rad/s about the normal of its long axis
@@ -802,13 +814,7 @@ fn stiffness_damping_leaves_a_rigid_spin_free() {
     });
     let omega = 4.0;
     let run = |beta: f64| {
-        let params = PdParams {
-            gravity: [0.0; 3],
-            stiffness_damping: beta,
-            tolerance: 1e-6,
-            max_iterations: 1000,
-            ..Default::default()
-        };
+        let params = weightless_converged(beta);
         let mut solver =
             PdSolver::new(&mesh, &mass, &vec![1e3; nt], &vec![3e3; nt], &[], params).unwrap();
         let mut x = mesh.nodes.clone();
@@ -869,12 +875,8 @@ fn stiffness_damping_leaves_translation_free_and_damps_a_vibration() {
     let model = ElasticModel::new(&mesh, &vec![1.0; nt], &vec![3.0; nt]).unwrap();
     let run = |beta: f64| {
         let params = PdParams {
-            gravity: [0.0; 3],
-            stiffness_damping: beta,
-            tolerance: 1e-6,
-            max_iterations: 1000,
             report_residual: true,
-            ..Default::default()
+            ..weightless_converged(beta)
         };
         let mut solver =
             PdSolver::new(&mesh, &mass, &vec![1.0; nt], &vec![3.0; nt], &[], params).unwrap();

@@ -96,6 +96,15 @@ pub const DAMPING_SEARCH_LOG10: (f64, f64) = (-6.0, -1.0);
 /// points: the bracket of `log10 β` shrinks to 5 x 0.618^12 = 0.016 decades.
 pub const DAMPING_SEARCH_REFINEMENTS: usize = 12;
 
+/// `beta` to 6 significant digits, the damping search's points: a decimal
+/// that short reads back as the same f64 from any JSON parser (the record
+/// is JSON), so a run with the recorded damping repeats the search's bit
+/// for bit. The search's bracket is 0.016 decades; 6 digits change `β` by
+/// at most 5e-6 of itself.
+fn damping_digits(beta: f64) -> f64 {
+    format!("{beta:.5e}").parse().unwrap_or(beta)
+}
+
 /// What `knitvox fit-damping` found (`ValidateReport::damping_fit`).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct DampingFitReport {
@@ -810,6 +819,7 @@ impl ValidateJob {
         let sample = self.scene.display().to_string();
         let mut evaluations: Vec<[f64; 2]> = Vec::new();
         let mut rms_at = |beta: f64| -> Result<f64, Error> {
+            let beta = damping_digits(beta);
             let t = Instant::now();
             let params = HomogenizedRunParams {
                 stiffness_damping: Some(beta),
@@ -856,7 +866,7 @@ impl ValidateJob {
             |u| rms_at(10f64.powf(u)),
         )?;
         let (beta, rms) = if best < undamped {
-            (10f64.powf(u), best)
+            (damping_digits(10f64.powf(u)), best)
         } else {
             (0.0, undamped)
         };
