@@ -3,8 +3,8 @@
 mod common;
 
 use knitvox::embed::{
-    default_voxel_size, embed, kuhn_weights, locate, tetrahedralize, voxelize, EmbedError,
-    EmbedParams, Embedded,
+    compare_inertia, default_voxel_size, embed, kuhn_weights, locate, tetrahedralize, voxelize,
+    EmbedError, EmbedParams, Embedded,
 };
 use knitvox::geom::{Vec3, VoxelGrid, Yarns};
 use proptest::prelude::*;
@@ -82,6 +82,18 @@ fn check_masses_and_embedding(y: &Yarns, e: &Embedded) {
             (yarn - nodes).abs() <= 1e-11 * yarn_mass * (far + diag),
             "first moment {k}: yarn {yarn} vs nodes {nodes}"
         );
+    }
+
+    // Second moments: each yarn point's mass goes to nodes around it with
+    // convex weights, so about any axis through the centre the lumped
+    // inertia is at least the yarns' (Jensen), never less.
+    if let Some(c) = compare_inertia(y, &e.segment_linear_density, &e.mesh.nodes, &e.node_mass) {
+        for (k, r) in c.ratios().into_iter().enumerate() {
+            assert!(
+                r >= 1.0 - 1e-9,
+                "lumped inertia {r} of the yarns' about axis {k}: {c:?}"
+            );
+        }
     }
 
     // Every vertex in its tet; V2Y of the rest nodes gives the rest yarns.
@@ -388,6 +400,27 @@ proptest! {
         let (h, rule) = default_voxel_size(&y, &EmbedParams::default()).unwrap();
         prop_assert_eq!(h, e.grid.h);
         prop_assert!(rule.contains("nodes"));
+    }
+}
+
+/// The lumped mass of a knitted swatch at the default voxel size (about
+/// half as many nodes as yarn vertices) spins with 1.01-1.05x the yarns'
+/// inertia: most about the axis along the swatch (the smallest moment,
+/// where a voxel is large against the thickness), least about the normal.
+#[test]
+fn lumped_mass_of_a_knit_swatch_keeps_the_yarns_inertia_within_eight_percent() {
+    for pattern in ["stockinette", "rib"] {
+        let y = common::flat_swatch(pattern, 6, 6);
+        let e = embed(&y, &EmbedParams::default()).unwrap();
+        let c = compare_inertia(&y, &e.segment_linear_density, &e.mesh.nodes, &e.node_mass)
+            .expect("a swatch's inertia");
+        let r = c.ratios();
+        eprintln!("{pattern}: lumped / yarn inertia {r:?}");
+        assert!(
+            r.iter().all(|&x| (1.0..1.08).contains(&x)),
+            "{pattern}: {r:?}"
+        );
+        assert!(r[0] > r[2], "{pattern}: {r:?}");
     }
 }
 

@@ -2,6 +2,7 @@
 //! supercover), tetrahedralize (6 tets per voxel, conforming), lumped masses
 //! (VH Eq. 1-3), and the V2Y embedding (VH Eq. 4). Pure: no files, no printing.
 
+mod inertia;
 mod keys;
 mod mass;
 pub mod orientation;
@@ -10,6 +11,7 @@ mod size;
 mod tetrahedralize;
 mod voxelize;
 
+pub use inertia::{compare_inertia, InertiaComparison};
 pub use params::{EmbedError, EmbedParams};
 pub use size::default_voxel_size;
 pub use tetrahedralize::{kuhn_tet, kuhn_weights, locate, tetrahedralize, Location, PERMS};
@@ -255,6 +257,17 @@ fn check_params(params: &EmbedParams) -> Result<(), EmbedError> {
         )));
     }
     Ok(())
+}
+
+/// Per segment (in `yarns.segments()` order) the linear density (kg/m) an
+/// embedding gives it: the yarn's own, else `density` (kg/m³) times the
+/// cross-section of its radius, as [`embed`] lumps it.
+pub fn segment_linear_densities(yarns: &Yarns, density: f64) -> Vec<f64> {
+    let lengths: Vec<f64> = yarns
+        .segments()
+        .map(|[a, b]| dist(yarns.points[a], yarns.points[b]))
+        .collect();
+    linear_densities(yarns, density, &lengths).0
 }
 
 /// Linear densities (kg/m): per segment (in `Yarns::segments()` order) and per
