@@ -16,19 +16,25 @@ pub struct InertiaComparison {
     /// The lumped node masses' moments about the same centre and the same
     /// principal axes.
     pub lumped_moments: [f64; 3],
+    /// The yarns' and the nodes' total mass (kg).
+    pub yarn_mass: f64,
+    pub lumped_mass: f64,
 }
 
 impl InertiaComparison {
-    /// Lumped over yarn moment per principal axis (1: the same inertia).
+    /// Lumped over yarn moment per principal axis, each per unit of its
+    /// total mass (1: the same inertia; a line density off by a constant,
+    /// as from another material density, does not change it).
     pub fn ratios(&self) -> [f64; 3] {
-        std::array::from_fn(|k| self.lumped_moments[k] / self.yarn_moments[k])
+        let scale = self.yarn_mass / self.lumped_mass;
+        std::array::from_fn(|k| scale * self.lumped_moments[k] / self.yarn_moments[k])
     }
 }
 
 /// Compares the inertia of the yarns (`segment_linear_density` in kg/m per
 /// segment, in `yarns.segments()` order) with that of the node masses
-/// (kg) at `nodes` (m). `None` without mass or with a degenerate (zero)
-/// principal moment.
+/// (kg) at `nodes` (m). `None` without mass (yarns or nodes) or with a
+/// degenerate (zero) principal moment.
 pub fn compare_inertia(
     yarns: &Yarns,
     segment_linear_density: &[f64],
@@ -48,7 +54,8 @@ pub fn compare_inertia(
         mass += m;
         first += m * 0.5 * (pa + pb);
     }
-    if !(mass > 0.0) {
+    let lumped_mass: f64 = node_mass.iter().sum();
+    if !(mass > 0.0 && lumped_mass > 0.0) {
         return None;
     }
     let c = first / mass;
@@ -83,6 +90,8 @@ pub fn compare_inertia(
     Some(InertiaComparison {
         yarn_moments,
         lumped_moments,
+        yarn_mass: mass,
+        lumped_mass,
     })
 }
 

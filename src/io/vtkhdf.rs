@@ -550,23 +550,13 @@ fn range(v: &[f64]) -> Option<[f64; 2]> {
 
 /// [`AssetSummary::lumped_inertia_ratio`]: the yarns' line density as the
 /// embedding made it (the parameters' material density, 1200 kg/m³ when
-/// they hold none), scaled to the nodes' total mass.
+/// they hold none; the ratio is per unit mass, so only its variation along
+/// the yarns matters).
 fn lumped_inertia_ratio(a: &Asset) -> Option<[f64; 3]> {
     let density = a.parameters["embed"]["material_density"]
         .as_f64()
         .unwrap_or(crate::embed::EmbedParams::default().material_density);
-    let mut lambda = crate::embed::segment_linear_densities(&a.rest_yarns, density);
-    let yarn_mass: f64 = a
-        .rest_yarns
-        .segments()
-        .zip(&lambda)
-        .map(|([i, j], d)| d * crate::geom::dist(a.rest_yarns.points[i], a.rest_yarns.points[j]))
-        .sum();
-    let node_mass: f64 = a.node_mass.iter().sum();
-    if !(yarn_mass > 0.0 && node_mass > 0.0) {
-        return None;
-    }
-    lambda.iter_mut().for_each(|d| *d *= node_mass / yarn_mass);
+    let lambda = crate::embed::segment_linear_densities(&a.rest_yarns, density);
     crate::embed::compare_inertia(&a.rest_yarns, &lambda, &a.mesh.nodes, &a.node_mass)
         .map(|c| c.ratios())
 }

@@ -665,16 +665,7 @@ pub fn simulate_chunk(
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));
     }
-    if let Some(m) = asset
-        .damping_record()
-        .ok()
-        .flatten()
-        .and_then(|r| r.superseded())
-    {
-        observer.warning(&m);
-        report.notes.push(format!("warning: {m}"));
-    }
-    if let Some(m) = damping_step_mismatch(asset, schedule.dt) {
+    for m in damping_warnings(asset, schedule.dt) {
         observer.warning(&m);
         report.notes.push(format!("warning: {m}"));
     }
@@ -682,23 +673,32 @@ pub fn simulate_chunk(
     Ok(report)
 }
 
-/// A warning when the asset's fitted damping was found at a PD step more
-/// than 1.5x longer or shorter than the shot's `dt` (s): implicit Euler's
-/// own dissipation differs there, so the damping does not carry as fitted.
-fn damping_step_mismatch(asset: &Asset, dt: f64) -> Option<String> {
-    let r = asset.damping_record().ok().flatten()?;
-    let fitted = r.dt_s?;
-    let ratio = dt / fitted;
-    (r.stiffness_damping_s > 0.0 && !(1.0 / 1.5..=1.5).contains(&ratio)).then(|| {
-        format!(
-            "the asset's damping ({:.3e} s) was fitted with PD steps of {} s; this shot steps {} s, whose own \
-             numerical dissipation differs: the motion is damped differently than fitted (set `dt` in the scene's \
-             [simulation] to the fitted step, or fit the damping again at this one)",
-            r.stiffness_damping_s,
-            crate::geom::num(fitted),
-            crate::geom::num(dt)
-        )
-    })
+/// Warnings about the asset's fitted damping for a shot stepping `dt` (s):
+/// a record of the earlier linear form
+/// ([`crate::geom::DampingRecord::superseded`]), and a damping found at a
+/// PD step more than 1.5x longer or shorter than `dt`, where implicit
+/// Euler's own dissipation differs, so it does not carry as fitted.
+fn damping_warnings(asset: &Asset, dt: f64) -> Vec<String> {
+    let Some(r) = asset.damping_record().ok().flatten() else {
+        return Vec::new();
+    };
+    let mismatch = r.dt_s.and_then(|fitted| {
+        let ratio = dt / fitted;
+        (r.stiffness_damping_s > 0.0 && !(1.0 / 1.5..=1.5).contains(&ratio))
+            .then(|| step_mismatch(r.stiffness_damping_s, fitted, dt))
+    });
+    r.superseded().into_iter().chain(mismatch).collect()
+}
+
+/// [`damping_warnings`]' step mismatch in words.
+fn step_mismatch(beta: f64, fitted: f64, dt: f64) -> String {
+    format!(
+        "the asset's damping ({beta:.3e} s) was fitted with PD steps of {} s; this shot steps {} s, whose own \
+         numerical dissipation differs: the motion is damped differently than fitted (set `dt` in the scene's \
+         [simulation] to the fitted step, or fit the damping again at this one)",
+        crate::geom::num(fitted),
+        crate::geom::num(dt)
+    )
 }
 
 /// What identifies a shot's checkpoints.

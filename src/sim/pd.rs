@@ -1574,22 +1574,14 @@ impl PdSolver {
             .filter(|_| beta_dt > 0.0)
             .map(|b| CorotatedDamping::new(b, x));
         // Its potential at an iterate (J), the targets (β / Δt) Σ_e R_e y
-        // and the gradient (β / Δt) (L x - Σ_e R_e y) per node.
+        // and L x per node (the gradient is (β / Δt) L x - targets).
         let damping_at = |xk: &[Vec3]| -> (f64, Vec<Vec3>, Vec<Vec3>) {
             let Some(d) = damping.as_ref() else {
                 return (0.0, Vec::new(), Vec::new());
             };
             let (e, t, lx) = d.at(xk);
-            let grad = lx
-                .iter()
-                .zip(&t)
-                .map(|(l, q)| std::array::from_fn(|k| beta_dt * (l[k] - q[k])))
-                .collect();
-            (
-                0.5 * beta_dt * e,
-                t.iter().map(|q| q.map(|v| beta_dt * v)).collect(),
-                grad,
-            )
+            let t = t.into_iter().map(|q| q.map(|c| beta_dt * c)).collect();
+            (0.5 * beta_dt * e, t, lx)
         };
 
         let mut objectives = Vec::with_capacity(p.max_iterations as usize + 1);
@@ -1873,14 +1865,15 @@ impl PdSolver {
                 .fold(0.0, f64::max)
         } else if p.report_residual {
             let grad = self.model.gradient(&xk)?;
-            let (_, _, dgrad) = damping_at(&xk);
+            let (_, dtargets, dlx) = damping_at(&xk);
             free_nodes
                 .iter()
                 .map(|&i| {
                     norm(std::array::from_fn(|k| {
                         ms * self.mass[i] * (xk[i][k] - s[i][k])
                             + grad[i][k]
-                            + dgrad.get(i).map_or(0.0, |g| g[k])
+                            + dlx.get(i).map_or(0.0, |l| beta_dt * l[k])
+                            - dtargets.get(i).map_or(0.0, |q| q[k])
                     }))
                 })
                 .fold(0.0, f64::max)
