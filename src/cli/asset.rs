@@ -11,6 +11,7 @@ use crate::fit::ShapeFitParams;
 use crate::geom::{FrameSpec, Units, UpAxis};
 use crate::io::{Format, WriteOptions};
 use crate::pipeline::asset as stages;
+use crate::pipeline::card_transfer as stages_card;
 use crate::pipeline::{Quiet, Stage};
 
 /// The command line as typed, for provenance.
@@ -34,11 +35,37 @@ pub struct EmbedArgs {
     /// Yarn material density (kg/m^3) for yarns without a linear density.
     #[arg(long, default_value_t = EmbedParams::default().material_density, value_parser = super::parse::parse_positive)]
     pub density: f64,
+    /// Material card (`knitvox card`) for the garment's tets: `CARD.toml`
+    /// for every tet, `CARD.toml@curves=0-3,7` for the yarn vertices of
+    /// those curves, `CARD.toml@box=X0,Y0,Z0,X1,Y1,Z1` (m, +Y up) for those
+    /// inside the box. Repeatable; a later region card wins where regions
+    /// overlap [default: the placeholder material].
+    #[arg(long, value_name = "CARD[@REGION]", value_parser = parse_card_spec)]
+    pub card: Vec<stages_card::CardSpec>,
     #[command(flatten)]
     pub read: ReadArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `CARD` or `CARD@curves=..` / `CARD@box=..`.
+fn parse_card_spec(s: &str) -> Result<stages_card::CardSpec, String> {
+    let split = s.rfind('@').filter(|&i| {
+        ["curves=", "box="]
+            .iter()
+            .any(|k| s[i + 1..].trim_start().starts_with(k))
+    });
+    match split {
+        Some(i) => Ok(stages_card::CardSpec {
+            path: PathBuf::from(&s[..i]),
+            region: stages_card::CardRegion::parse(&s[i + 1..])?,
+        }),
+        None => Ok(stages_card::CardSpec {
+            path: PathBuf::from(s),
+            region: stages_card::CardRegion::Rest,
+        }),
+    }
 }
 
 #[derive(Debug, Args)]
@@ -103,6 +130,7 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         },
         output: a.output.clone(),
         command: command_line(),
+        cards: a.card.clone(),
     };
     let mut console = super::console::Console::new(false, 0, "");
     let r = job
@@ -113,7 +141,7 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "warnings": console.warnings })
+                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "cards": r.cards, "warnings": console.warnings })
             )?
         );
     } else {
@@ -129,6 +157,36 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
             stats.nodes as f64 / stats.yarn_vertices.max(1) as f64,
             stats.total_yarn_mass
         );
+        if let Some(t) = &r.cards {
+            for c in &t.cards {
+                println!(
+                    "  card {} ({}): {} tets, {} yarn vertices, stiffness x {:.3} (mesh {:.2} mm thick \
+                     over {:.4} m^2 of fabric): gamma_s {:.4e} Pa, course {:.4e} Pa (beta {:.3e}), wale {:.4e} Pa (beta {:.3e})",
+                    c.path.display(),
+                    c.name,
+                    c.tets,
+                    c.yarn_vertices,
+                    c.scale.factor,
+                    1e3 * c.scale.mesh_thickness_m,
+                    c.scale.fabric_area_m2,
+                    c.material.gamma_s_pa,
+                    c.material.course_pa,
+                    c.material.course_beta,
+                    c.material.wale_pa,
+                    c.material.wale_beta
+                );
+            }
+            println!(
+                "  cards carried in {:.2} s; fibre directions from the rest yarns (anisotropy {:.3}){}",
+                t.seconds,
+                t.fibre_anisotropy,
+                if t.uncovered_tets > 0 {
+                    format!("; {} tets keep the placeholder", t.uncovered_tets)
+                } else {
+                    String::new()
+                }
+            );
+        }
     }
     Ok(ExitCode::Success)
 }

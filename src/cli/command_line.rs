@@ -4,7 +4,9 @@ use clap::{Parser, Subcommand};
 
 use super::bench::BenchArgs;
 use super::commands::{ConvertArgs, DemoArgs, InspectArgs};
-use super::{asset, bake, fabric_test, fit, parse, pattern, run, simulate, train, watch, yls};
+use super::{
+    asset, bake, card, fabric_test, fit, parse, pattern, run, simulate, train, watch, yls,
+};
 
 /// knitvox: yarn-level knitwear to homogenized tetrahedral simulation, for render farms.
 #[derive(Debug, Parser)]
@@ -50,6 +52,8 @@ pub enum Command {
     Yls(yls::YlsArgs),
     /// Run one training pose (VH §8.6) quasi-statically on an asset's rest yarns (knitvox HDF5 frames for `fit`).
     Train(train::TrainArgs),
+    /// Fit a material card on a swatch of a stitch pattern (docs/guides/cards.md): `embed --card` carries it onto garments.
+    Card(card::CardArgs),
     /// Run a benchmark and print its figures (`--json` for machine-readable output).
     Bench(BenchArgs),
     /// Generate a stitch pattern (built-in or K/P grid) as yarn curves: a flat swatch or a tube.

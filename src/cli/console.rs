@@ -140,6 +140,17 @@ impl crate::pipeline::Observer for Console {
             }
         }
     }
+    fn step(&mut self, message: &str) {
+        match self.mode {
+            ProgressMode::Off => {}
+            ProgressMode::Json => print_event("step", &serde_json::json!({ "step": message })),
+            ProgressMode::Bar => match &self.bar {
+                Some(b) => b.println(format!("{}: {message}", self.label)),
+                None => eprintln!("{}: {message}", self.label),
+            },
+            ProgressMode::Lines => eprintln!("{}: {message}", self.label),
+        }
+    }
     fn iteration(&mut self, p: &crate::fit::elastic::FitProgress) {
         match self.mode {
             ProgressMode::Off | ProgressMode::Bar => {}

@@ -6,6 +6,7 @@ mod asset;
 mod bake;
 mod bench;
 mod budget;
+mod card;
 mod command_line;
 mod commands;
 mod console;
@@ -54,6 +55,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Pattern(a) => pattern::pattern(&a),
         Command::Yls(a) => yls::yls(&a),
         Command::Train(a) => train::train(&a),
+        Command::Card(a) => card::card(&a),
         Command::FabricTest(k) => fabric_test::fabric_test(&k),
         Command::Demo(a) => commands::demo(&a),
         Command::Completions { shell } => {

@@ -7,6 +7,7 @@ mod keys;
 mod mass;
 pub mod orientation;
 mod params;
+pub mod regions;
 mod size;
 mod tetrahedralize;
 mod voxelize;

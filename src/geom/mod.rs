@@ -7,6 +7,7 @@
 
 mod asset;
 pub mod bvh;
+pub mod card;
 mod error;
 pub mod excerpt;
 mod frame_spec;

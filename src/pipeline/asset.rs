@@ -424,6 +424,10 @@ pub struct EmbedJob {
     pub output: PathBuf,
     /// The command line, for provenance.
     pub command: String,
+    /// Material cards carried onto the garment (`--card`,
+    /// [`crate::pipeline::card_transfer::apply_cards`]); empty: the placeholder
+    /// material.
+    pub cards: Vec<crate::pipeline::card_transfer::CardSpec>,
 }
 
 /// What `embed` did.
@@ -431,6 +435,8 @@ pub struct EmbedJob {
 pub struct EmbedReport {
     pub asset: PathBuf,
     pub stats: EmbedStats,
+    /// The cards' transfer (null without `--card`).
+    pub cards: Option<crate::pipeline::card_transfer::CardTransfer>,
 }
 
 impl Stage for EmbedJob {
@@ -438,14 +444,57 @@ impl Stage for EmbedJob {
     const NAME: &'static str = "embed";
     fn run(&self, observer: &mut dyn Observer) -> Result<EmbedReport, Error> {
         check_asset_ext(&self.output)?;
-        let (asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;
+        // Cards are read (and refused) before the embedding's work.
+        let cards = self
+            .cards
+            .iter()
+            .map(|c| {
+                let card = crate::pipeline::card_transfer::read_card(&c.path)?;
+                Ok((c.clone(), card, super::util::sha256_file(&c.path)?))
+            })
+            .collect::<Result<Vec<_>, Error>>()?;
+        let (mut asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;
         if let Some(w) = size_warning(&asset) {
             observer.warning(&format!("{}: {w}", self.yarns.display()));
         }
+        let transfer = if cards.is_empty() {
+            None
+        } else {
+            let specs: Vec<_> = cards
+                .iter()
+                .map(|(s, c, _)| (s.clone(), c.clone()))
+                .collect();
+            let mut t = crate::pipeline::card_transfer::apply_cards(&mut asset, &specs).map_err(
+                |source| StageError::Embed {
+                    path: self.yarns.clone(),
+                    source,
+                },
+            )?;
+            for (applied, (_, _, sha)) in t.cards.iter_mut().zip(&cards) {
+                applied.sha256 = sha.clone();
+            }
+            for w in &t.warnings {
+                observer.warning(&format!("{}: {w}", self.yarns.display()));
+            }
+            if let Some(o) = asset.parameters.as_object_mut() {
+                o.insert(
+                    "cards".into(),
+                    serde_json::to_value(&t.cards).unwrap_or_default(),
+                );
+            }
+            for (spec, _, sha) in &cards {
+                asset.provenance.inputs.push(crate::geom::InputFile {
+                    path: spec.path.display().to_string(),
+                    sha256: sha.clone(),
+                });
+            }
+            Some(t)
+        };
         io::vtkhdf::write_asset(&self.output, &asset)?;
         Ok(EmbedReport {
             asset: self.output.clone(),
             stats,
+            cards: transfer,
         })
     }
 }
@@ -699,6 +748,7 @@ mod tests {
             },
             output: dir.join("a.vtkhdf"),
             command: "test".into(),
+            cards: Vec::new(),
         }
     }
 

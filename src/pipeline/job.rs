@@ -1427,6 +1427,7 @@ impl Job {
             },
             output: self.garment_asset(),
             command: command.into(),
+            cards: Vec::new(),
         };
         Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.asset]))))
     }

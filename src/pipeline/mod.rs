@@ -48,6 +48,8 @@
 pub mod asset;
 pub mod bake;
 pub mod bench;
+pub mod card;
+pub mod card_transfer;
 pub mod clamp_drive;
 pub mod classify;
 pub mod demo;
@@ -187,6 +189,9 @@ pub trait Observer {
     }
     /// An iteration of a material fit is done.
     fn iteration(&mut self, _p: &crate::fit::elastic::FitProgress) {}
+    /// A step of a command that runs several stages begins (`card`: the
+    /// swatch, each training pose, the fit).
+    fn step(&mut self, _message: &str) {}
 }
 
 /// An observer that ignores everything.
