@@ -112,9 +112,13 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
     if a.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(
-                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "warnings": console.warnings })
-            )?
+            serde_json::to_string_pretty(&serde_json::json!({
+                "asset": a.output.display().to_string(),
+                "stats": stats,
+                "welded_points": r.welded_points,
+                "dropped_curves": r.dropped_curves,
+                "warnings": console.warnings,
+            }))?
         );
     } else {
         println!(

@@ -15,6 +15,7 @@ mod plausible;
 mod rest;
 mod units;
 pub(crate) mod vec3;
+mod weld;
 mod yarns;
 
 pub use asset::{
@@ -34,6 +35,7 @@ pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
 pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
 pub use units::{Units, UnknownUnit, UnknownUpAxis, UpAxis};
+pub use weld::{Weld, WELD_TOLERANCE_RADII};
 pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// A 3D point or vector in metres.

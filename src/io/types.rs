@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use super::confined;
 
-use crate::geom::{Units, UpAxis, YarnFrames, Yarns, DEFAULT_RADIUS_M};
+use crate::geom::{Units, UpAxis, Weld, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// Largest number of points a reader accepts by default (2^31): beyond every real garment,
 /// well below what would exhaust memory.
@@ -224,6 +224,10 @@ pub struct YarnData {
     pub up_axis: (UpAxis, Provenance),
     pub radius: Provenance,
     pub notes: Vec<String>,
+    /// How the file's points map onto `yarns`' (repeated points welded,
+    /// [`crate::geom::Yarns::weld`]): per-vertex data of the file, such as
+    /// forces stored beside its frames, goes through it.
+    pub weld: Weld,
 }
 
 impl YarnData {

@@ -91,6 +91,8 @@ pub fn build_asset(
             "up_axis": data.up_axis.0,
             "up_axis_source": data.up_axis.1,
             "radius_source": data.radius,
+            "welded_points": data.weld.welded_points,
+            "dropped_curves": data.weld.dropped_curves.len(),
         },
         "materials": { "gamma_s_default": DEFAULT_GAMMA_S, "gamma_v_default": DEFAULT_GAMMA_V },
     });
@@ -431,6 +433,22 @@ pub struct EmbedJob {
 pub struct EmbedReport {
     pub asset: PathBuf,
     pub stats: EmbedStats,
+    /// Repeated points of the yarn file welded on read, and curves
+    /// dropped for it ([`crate::geom::Yarns::weld`]).
+    pub welded_points: usize,
+    pub dropped_curves: usize,
+}
+
+/// The welding an asset's read recorded (`parameters.read`): points
+/// welded and curves dropped (0 for assets from before it was recorded).
+pub fn recorded_weld(asset: &Asset) -> (usize, usize) {
+    let read = asset.parameters.get("read");
+    let count = |k: &str| {
+        read.and_then(|r| r.get(k))
+            .and_then(|v| v.as_u64())
+            .map_or(0, |n| n as usize)
+    };
+    (count("welded_points"), count("dropped_curves"))
 }
 
 impl Stage for EmbedJob {
@@ -442,10 +460,25 @@ impl Stage for EmbedJob {
         if let Some(w) = size_warning(&asset) {
             observer.warning(&format!("{}: {w}", self.yarns.display()));
         }
+        let (welded_points, dropped_curves) = recorded_weld(&asset);
+        if welded_points > 0 || dropped_curves > 0 {
+            // A repair of the file, said where the operator looks.
+            observer.warning(&format!(
+                "{}: welded {welded_points} repeated point(s) (zero-length segments){}",
+                self.yarns.display(),
+                if dropped_curves > 0 {
+                    format!(" and dropped {dropped_curves} curve(s) left with too few points")
+                } else {
+                    String::new()
+                }
+            ));
+        }
         io::vtkhdf::write_asset(&self.output, &asset)?;
         Ok(EmbedReport {
             asset: self.output.clone(),
             stats,
+            welded_points,
+            dropped_curves,
         })
     }
 }

@@ -35,6 +35,10 @@ pub struct YarnReport {
     pub up_axis_source: Provenance,
     pub frames: usize,
     pub frame_times_s: Option<MinMax<f64>>,
+    /// Repeated points welded on read, and curves dropped for it
+    /// ([`crate::geom::Yarns::weld`]); the counts above are after it.
+    pub welded_points: usize,
+    pub dropped_curves: usize,
     pub notes: Vec<String>,
 }
 
@@ -105,6 +109,8 @@ pub fn summarize(path: &str, d: &YarnData) -> YarnReport {
             .as_ref()
             .filter(|f| f.num_frames() > 0)
             .map(|f| min_max(f.times.iter().copied(), 0.0)),
+        welded_points: d.weld.welded_points,
+        dropped_curves: d.weld.dropped_curves.len(),
         notes: d.notes.clone(),
     }
 }
