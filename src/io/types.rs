@@ -130,6 +130,9 @@ impl fmt::Display for Format {
     }
 }
 
+/// Most repeats of a periodic tile along one period ([`ReadOptions::tile`]).
+pub const MAX_TILE_REPEATS: usize = 10_000;
+
 /// Options for reading yarn files.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadOptions {
