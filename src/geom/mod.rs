@@ -32,7 +32,7 @@ pub use frame_spec::{
     MAX_SPEC_FRAMES,
 };
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
-pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
+pub use plausible::{garment_size_warning, yarn_radius_warning, GARMENT_DIAGONAL_M, YARN_RADIUS_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
 pub use units::{Units, UnknownUnit, UnknownUpAxis, UpAxis};
 pub use weld::{Weld, WELD_TOLERANCE_RADII};

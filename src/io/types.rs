@@ -246,6 +246,28 @@ impl YarnData {
         let b = self.yarns.bounds()?;
         crate::geom::garment_size_warning(&b, self.units.0, &self.assumed())
     }
+
+    /// A warning when the yarn radii are implausible for knitting yarn
+    /// ([`crate::geom::yarn_radius_warning`]): a file's radii read in the
+    /// wrong unit, or a radius option given in millimetres.
+    pub fn radius_warning(&self) -> Option<String> {
+        let y = &self.yarns;
+        let radii = y.vertex_radius.as_ref().unwrap_or(&y.radius);
+        if radii.is_empty() {
+            return None;
+        }
+        let min = radii.iter().copied().fold(f64::INFINITY, f64::min);
+        let max = radii.iter().copied().fold(0.0, f64::max);
+        crate::geom::yarn_radius_warning(min, max, self.units.0, self.radius == Provenance::File)
+    }
+
+    /// The size and radius warnings of the read, in that order.
+    pub fn warnings(&self) -> Vec<String> {
+        self.size_warning()
+            .into_iter()
+            .chain(self.radius_warning())
+            .collect()
+    }
 }
 
 /// The names of the assumed ones of a read's unit and up axis.

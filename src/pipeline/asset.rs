@@ -344,6 +344,26 @@ pub fn size_warning(asset: &Asset) -> Option<String> {
     crate::geom::garment_size_warning(&b, units, &assumed)
 }
 
+/// The radius warning of an asset (see [`crate::geom::yarn_radius_warning`]):
+/// its rest yarns' radii, from the file or not as `parameters.read`
+/// records. None for assets without that record.
+pub fn radius_warning(asset: &Asset) -> Option<String> {
+    let read = asset.parameters.get("read")?;
+    let units = read
+        .get("units")
+        .and_then(|v| v.as_f64())
+        .and_then(crate::geom::Units::from_scale)?;
+    let from_file = read.get("radius_source").and_then(|v| v.as_str()) == Some("file");
+    let y = &asset.rest_yarns;
+    let radii = y.vertex_radius.as_ref().unwrap_or(&y.radius);
+    if radii.is_empty() {
+        return None;
+    }
+    let min = radii.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = radii.iter().copied().fold(0.0, f64::max);
+    crate::geom::yarn_radius_warning(min, max, units, from_file)
+}
+
 /// Refuses an asset path without the `.vtkhdf` extension.
 pub fn check_asset_ext(path: &Path) -> Result<(), IoError> {
     let ext = path
@@ -457,7 +477,10 @@ impl Stage for EmbedJob {
     fn run(&self, observer: &mut dyn Observer) -> Result<EmbedReport, Error> {
         check_asset_ext(&self.output)?;
         let (asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;
-        if let Some(w) = size_warning(&asset) {
+        for w in size_warning(&asset)
+            .into_iter()
+            .chain(radius_warning(&asset))
+        {
             observer.warning(&format!("{}: {w}", self.yarns.display()));
         }
         let (welded_points, dropped_curves) = recorded_weld(&asset);

@@ -40,6 +40,9 @@ pub struct YarnReport {
     pub welded_points: usize,
     pub dropped_curves: usize,
     pub notes: Vec<String>,
+    /// An implausible garment size with an assumed unit, an implausible
+    /// yarn radius: each with the option that would fix it.
+    pub warnings: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -112,6 +115,7 @@ pub fn summarize(path: &str, d: &YarnData) -> YarnReport {
         welded_points: d.weld.welded_points,
         dropped_curves: d.weld.dropped_curves.len(),
         notes: d.notes.clone(),
+        warnings: d.warnings(),
     }
 }
 
@@ -192,6 +196,9 @@ impl YarnReport {
         }
         for n in &self.notes {
             let _ = writeln!(s, "  note          {n}");
+        }
+        for w in &self.warnings {
+            let _ = writeln!(s, "  warning       {w}");
         }
         s
     }
