@@ -584,3 +584,85 @@ fn bench_sim_reports_the_deviation_from_its_converged_reference() {
         "{none}"
     );
 }
+
+/// A small swatch with points 5 and 17 of every curve written twice (the
+/// repeats real BCC files carry), and its curves without the repeats.
+fn swatch_with_repeats() -> (knitvox::geom::Yarns, knitvox::geom::Yarns) {
+    use knitvox::yarn::analytic::{knit_swatch, SwatchParams};
+    let clean = knit_swatch(&SwatchParams {
+        courses: 3,
+        wales: 3,
+        with_ring: false,
+        points_per_loop: 12,
+        ..SwatchParams::default()
+    });
+    let mut dup = knitvox::geom::Yarns::new();
+    for c in 0..clean.num_curves() {
+        let mut pts = Vec::new();
+        for (i, q) in clean.curve(c).iter().enumerate() {
+            pts.push(*q);
+            if i == 5 || i == 17 {
+                pts.push(*q);
+            }
+        }
+        dup.push_curve(&pts, clean.closed[c], clean.radius[c]);
+    }
+    (dup, clean)
+}
+
+/// Repeated points are welded on read: `inspect` says how many (text and
+/// JSON), `embed` warns and reports it, and a frame sequence of the same
+/// garment whose later frame moved the repeats apart is welded by its
+/// first frame's map, so it still matches the asset (`shapefit`).
+#[test]
+fn repeated_points_are_welded_reported_and_frames_still_match() {
+    let dir = tempfile::tempdir().unwrap();
+    let (dup, clean) = swatch_with_repeats();
+    let welded = 2 * clean.num_curves();
+    assert_eq!(dup.num_points(), clean.num_points() + welded);
+    let w = knitvox::io::WriteOptions::default();
+    let rest = dir.path().join("dup.bcc");
+    knitvox::io::write_path(&rest, &dup, None, &w).unwrap();
+    let o = knitvox(&["inspect", p(&rest), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = &json_of(&o)[0];
+    assert_eq!(r["welded_points"], welded, "{r}");
+    assert_eq!(r["points"], clean.num_points(), "{r}");
+    assert!(r["segment_length_m"]["min"].as_f64().unwrap() > 1e-6, "{r}");
+    let o = knitvox(&["inspect", p(&rest)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains(&format!("welded {welded} repeated point")),
+        "{text}"
+    );
+    let asset = dir.path().join("dup.vtkhdf");
+    let o = knitvox(&["embed", p(&rest), "-o", p(&asset), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(json_of(&o)["welded_points"], welded);
+    assert!(
+        stderr(&o).contains(&format!(
+            "warning: {}: welded {welded} repeated point",
+            p(&rest)
+        )),
+        "{}",
+        stderr(&o)
+    );
+    // Frame 1 as the rest; frame 2 moved, its repeats pulled apart
+    // halfway along their next segment.
+    let seq = dir.path().join("seq.####.bcc");
+    knitvox::io::write_path(&dir.path().join("seq.0001.bcc"), &dup, None, &w).unwrap();
+    let mut moved = dup.clone();
+    for c in 0..moved.num_curves() {
+        let r = moved.curve_range(c);
+        for i in [6, 19] {
+            let (a, b) = (moved.points[r.start + i], moved.points[r.start + i + 1]);
+            moved.points[r.start + i] = std::array::from_fn(|k| 0.5 * (a[k] + b[k]));
+        }
+    }
+    moved.map_points(|q| [q[0] + 1e-4, q[1], q[2]]);
+    knitvox::io::write_path(&dir.path().join("seq.0002.bcc"), &moved, None, &w).unwrap();
+    let fitted = dir.path().join("fitted.vtkhdf");
+    let o = knitvox(&["shapefit", p(&asset), p(&seq), "-o", p(&fitted), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(json_of(&o)["frames"], 2);
+}

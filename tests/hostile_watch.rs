@@ -462,6 +462,62 @@ fn a_jobs_warnings_are_kept_beside_its_drop_and_logged() {
     assert_eq!(status_json(&root)["done"], 1);
 }
 
+/// A shot's stretch warning (its yarns stretched past the bounds, as a
+/// swatch pulled apart fast does) is kept in the job's record beside the
+/// filed drop, as every warning of the run is.
+#[test]
+fn a_shots_stretch_warning_is_kept_in_the_jobs_record() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("root");
+    std::fs::create_dir_all(root.join("inbox")).unwrap();
+    let staging = dir.path().join("staging");
+    let job = job_folder(
+        &staging,
+        "pulled",
+        "frames = \"1-3\"\n[garment]\nyarns = \"swatch.bcc\"\n[shot]\nscene = \"pull.toml\"\nbackend = \"cpu\"\n",
+    );
+    let bcc = job.join("swatch.bcc");
+    std::fs::write(&bcc, swatch_bytes(3, "bcc")).unwrap();
+    let b = io::read_path(&bcc, &Default::default())
+        .unwrap()
+        .yarns
+        .bounds()
+        .unwrap();
+    let (lo, hi) = (b.min[0], b.max[0]);
+    // One edge held, the other pulled half the width away over the shot.
+    let scene = format!(
+        "[simulation]\ngravity = [0.0, 0.0, 0.0]\n\
+         [[pin]]\nname = \"left\"\nbox_min = [-1.0, -1.0, -1.0]\nbox_max = [{l}, 1.0, 1.0]\n\
+         [[pin]]\nname = \"right\"\nbox_min = [{r}, -1.0, -1.0]\nbox_max = [1.0, 1.0, 1.0]\nvelocity = [{v}, 0.0, 0.0]\n",
+        l = lo + 1e-4,
+        r = hi - 1e-4,
+        v = 0.5 * (hi - lo) * 12.0
+    );
+    std::fs::write(job.join("pull.toml"), scene).unwrap();
+    std::fs::rename(&job, root.join("inbox/pulled")).unwrap();
+    let d = once(&root, &[]);
+    assert_eq!(d.jobs("done"), ["pulled"], "{}", d.dump());
+    let w = json_file(&root.join("done/pulled.warnings.json"));
+    let stretch: Vec<&str> = w["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|w| w.as_str())
+        .filter(|w| w.contains("the yarns stretch"))
+        .collect();
+    assert_eq!(stretch.len(), 1, "{w}");
+    assert!(
+        stretch[0].contains("(frame 3)") && stretch[0].contains("knitvox fit"),
+        "{w}"
+    );
+    assert!(
+        d.events("warning").iter().any(|e| e["job"] == "pulled"
+            && e["message"].as_str().unwrap().contains("the yarns stretch")),
+        "{}",
+        d.dump()
+    );
+}
+
 /// A swatch dropped on a sphere (examples/drape-sphere.toml).
 const SPHERE: &str = r#"
 [simulation]

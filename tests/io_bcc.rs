@@ -150,3 +150,47 @@ fn bcc_round_trips_published_model() {
     assert_eq!(&again[64..], &data[64..]);
     assert_eq!(&again[6..24], &data[6..24]);
 }
+
+/// Cem Yuksel's glove repeats 8 points (segments of length 0): read in
+/// cm with a 0.25 mm yarn, they are welded, the curves keep every other
+/// point, and no segment is shorter than the weld tolerance.
+#[test]
+fn the_yuksel_glove_welds_its_8_repeated_points() {
+    let Some(dir) = common::external_data("yarns") else {
+        return;
+    };
+    let path = dir.join("yuksel_glove.bcc");
+    let opts = ReadOptions {
+        units: Some(knitvox::geom::Units::CENTIMETRES),
+        radius: 0.00025,
+        ..ReadOptions::default()
+    };
+    let raw = decode(
+        Format::Bcc,
+        &std::fs::read(&path).unwrap(),
+        &opts,
+        &NoResources,
+    )
+    .unwrap();
+    let d = knitvox::io::read_path(&path, &opts).unwrap();
+    assert_eq!(d.weld.welded_points, 8);
+    assert!(d.weld.dropped_curves.is_empty());
+    assert_eq!(d.yarns.num_points(), raw.yarns.num_points() - 8);
+    assert_eq!(d.yarns.num_curves(), 70);
+    let shortest = d
+        .yarns
+        .segments()
+        .map(|[a, b]| knitvox::geom::dist(d.yarns.points[a], d.yarns.points[b]))
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        shortest > knitvox::geom::WELD_TOLERANCE_RADII * 0.00025,
+        "{shortest}"
+    );
+    assert!(
+        d.notes
+            .iter()
+            .any(|n| n.contains("welded 8 repeated point")),
+        "{:?}",
+        d.notes
+    );
+}

@@ -180,6 +180,44 @@ proptest! {
     }
 }
 
+/// A file whose rest yarns repeat a point has its frames welded by the
+/// rest yarns' map (their numbering follows the rest yarns'), even in a
+/// frame that moved the repeat away.
+#[test]
+fn frames_are_welded_by_the_rest_yarns_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut y = Yarns::new();
+    let pts = [
+        [0.0, 0.0, 0.0],
+        [0.01, 0.0, 0.0],
+        [0.01, 0.0, 0.0],
+        [0.02, 0.0, 0.0],
+    ];
+    y.push_curve(&pts, false, 0.001);
+    y.vertex_radius = Some(vec![1e-3, 2e-3, 3e-3, 4e-3]);
+    let mut fr = YarnFrames::new(4);
+    fr.push_frame(0.0, &pts).unwrap();
+    let apart = [
+        [0.0, 0.0, 0.0],
+        [0.01, 0.0, 0.0],
+        [0.015, 0.0, 0.0],
+        [0.02, 0.0, 0.0],
+    ];
+    fr.push_frame(0.1, &apart).unwrap();
+    let p = dir.path().join("dup.h5");
+    h5::write_file(&p, &y, Some(&fr)).unwrap();
+    let d = io::read_path(&p, &ReadOptions::default()).unwrap();
+    assert_eq!(d.weld.welded_points, 1);
+    assert_eq!(d.yarns.num_points(), 3);
+    assert_eq!(
+        d.yarns.vertex_radius.as_deref(),
+        Some(&[1e-3, 2e-3, 4e-3][..])
+    );
+    let f = d.frames.unwrap();
+    assert_eq!(f.num_vertices, 3);
+    assert_eq!(f.frame(1), [apart[0], apart[1], apart[3]]);
+}
+
 #[test]
 fn write_path_and_read_path_dispatch_to_hdf5() {
     let dir = tempfile::tempdir().unwrap();

@@ -323,6 +323,9 @@ proptest! {
         let ropts = ReadOptions { units: Some(Units::CENTIMETRES), up_axis: Some(UpAxis::Z), ..opts() };
         let d = io::decode(Format::Obj, &bytes, &ropts, &io::NoResources).unwrap();
         let back = io::finish(Format::Obj, d, &ropts).unwrap();
+        // Reading welds repeated points (the generator makes them: zeros,
+        // tiny magnitudes); the conversions are what is checked here.
+        let y = y.weld().0;
         prop_assert!(back.yarns.same_topology(&y));
         for (a, b) in back.yarns.points.iter().zip(&y.points) {
             for k in 0..3 {

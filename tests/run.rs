@@ -162,6 +162,53 @@ fn stage_option_runs_that_stage_and_what_it_needs() {
     assert_eq!(bad.status.code(), Some(2));
 }
 
+/// `[garment]`'s read options reach the embedding, and a changed radius
+/// changes the embed key, so the stage runs again.
+#[test]
+fn garment_read_options_reach_the_asset_and_rerun_embed() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = job_dir(dir.path());
+    let with = |extra: &str| manifest("m").replace("[garment]\n", &format!("[garment]\n{extra}\n"));
+    let radius_of = || {
+        let a =
+            knitvox::io::vtkhdf::read_asset(&dir.path().join("job.out/garment.vtkhdf")).unwrap();
+        a.rest_yarns.radius[0]
+    };
+    std::fs::write(&job, with("radius = 0.0004")).unwrap();
+    let first = run(&job, &["--stage", "embed", "--json"]);
+    assert_eq!(statuses(&first), pairs(&[("embed", "ran")]));
+    assert_eq!(radius_of(), 0.0004);
+    // Unchanged: cached; the tile written either way is the same key.
+    std::fs::write(&job, with("radius = 0.0004\ntile = \"1x1\"")).unwrap();
+    let tiled = run(&job, &["--stage", "embed", "--json"]);
+    std::fs::write(&job, with("radius = 0.0004\ntile = [1, 1]")).unwrap();
+    let pair = run(&job, &["--stage", "embed", "--json"]);
+    assert_eq!(statuses(&pair), pairs(&[("embed", "cached")]));
+    let key = |o: &Output| report(o)["stages"][0]["key"].as_str().unwrap().to_string();
+    assert_eq!(key(&tiled), key(&pair));
+    std::fs::write(&job, with("radius = 0.0003")).unwrap();
+    let second = run(&job, &["--stage", "embed", "--json"]);
+    assert_eq!(statuses(&second), pairs(&[("embed", "ran")]));
+    assert_ne!(key(&first), key(&second));
+    assert_eq!(radius_of(), 0.0003);
+    for (extra, key) in [
+        ("radius = -1.0", "garment.radius"),
+        ("spline_samples = 0", "garment.spline_samples"),
+        ("tile = \"3\"", "garment.tile"),
+        ("tile = [1, 2, 3]", "garment.tile"),
+        ("tile = [0, 2]", "garment.tile"),
+    ] {
+        std::fs::write(&job, with(extra)).unwrap();
+        let out = run(&job, &[]);
+        assert_eq!(out.status.code(), Some(65), "{extra}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("job.toml") && err.contains(key),
+            "{extra}: {err}"
+        );
+    }
+}
+
 #[test]
 fn unknown_key_exits_65_naming_file_and_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -220,6 +267,10 @@ frames = "1"
 yarns = "y.bcc"
 units = "mm"
 up_axis = "z"
+radius = 0.0005
+override_radius = true
+spline_samples = 4
+tile = "2x3"
 [character]
 file = "c.glb"
 animation = "Walk"

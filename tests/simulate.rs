@@ -614,6 +614,94 @@ velocity = [0.02, 0.0, 0.0]
         .any(|(a, b)| a[0] - b[0] > 1e-5));
 }
 
+/// The shot measures how far its yarns (V2Y of the nodes) stretch from
+/// their rest segment lengths: a free fall moves them rigidly (no stretch,
+/// no warning); an edge pulled away fast stretches them past the bounds,
+/// which warns naming the frame of the largest stretch.
+#[test]
+fn yarn_stretch_is_measured_over_the_shot_and_warned_past_its_bounds() {
+    use knitvox::pipeline::simulate::{STRETCH_MAX_BOUND, STRETCH_P99_BOUND};
+    let dir = tempfile::tempdir().unwrap();
+    let asset_path = small_asset(dir.path());
+    let asset = vtkhdf::read_asset(&asset_path).unwrap();
+    let shot = |scene: &str| {
+        let scene = Scene::parse(scene, Path::new("s.toml")).unwrap();
+        simulate(
+            &asset,
+            &asset_path,
+            &scene,
+            &request(dir.path(), (1..=3).collect(), None),
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    let stretch_notes = |r: &knitvox::pipeline::simulate::SimulateReport| {
+        r.notes
+            .iter()
+            .filter(|n| n.contains("the yarns stretch"))
+            .cloned()
+            .collect::<Vec<_>>()
+    };
+    let fall = shot("[simulation]\ngravity = [0.0, -9.81, 0.0]\n");
+    let (p99, max) = (
+        fall.yarn_stretch_p99.unwrap(),
+        fall.yarn_stretch_max.unwrap(),
+    );
+    assert!(p99 < 1e-6 && max < 1e-6, "{p99} {max}");
+    assert!(stretch_notes(&fall).is_empty(), "{:?}", fall.notes);
+    assert_eq!(fall.yarn_stretch_bound_p99, STRETCH_P99_BOUND);
+    let (lo, hi) = asset
+        .mesh
+        .nodes
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p[0]), b.max(p[0]))
+        });
+    let pulled = shot(&format!(
+        r#"
+[simulation]
+gravity = [0.0, 0.0, 0.0]
+[[pin]]
+name = "left"
+box_min = [-1.0, -1.0, -1.0]
+box_max = [{l}, 1.0, 1.0]
+[[pin]]
+name = "right"
+box_min = [{r}, -1.0, -1.0]
+box_max = [1.0, 1.0, 1.0]
+velocity = [{v}, 0.0, 0.0]
+"#,
+        l = lo + 1e-4,
+        r = hi - 1e-4,
+        // Half the width over the two frame intervals.
+        v = 0.5 * (hi - lo) * 12.0
+    ));
+    let (p99, max) = (
+        pulled.yarn_stretch_p99.unwrap(),
+        pulled.yarn_stretch_max.unwrap(),
+    );
+    assert!(max > STRETCH_MAX_BOUND && p99 <= max, "{p99} {max}");
+    // Stretched more at each frame: the largest is the last frame's.
+    assert_eq!(pulled.yarn_stretch_max_frame, Some(3));
+    let w = stretch_notes(&pulled);
+    assert_eq!(w.len(), 1, "{:?}", pulled.notes);
+    assert!(
+        w[0].starts_with("warning: ") && w[0].contains("(frame 3)"),
+        "{w:?}"
+    );
+    assert!(w[0].contains("knitvox fit"), "{w:?}");
+    let v = serde_json::to_value(&pulled).unwrap();
+    for k in [
+        "yarn_stretch_p99",
+        "yarn_stretch_max",
+        "yarn_stretch_max_frame",
+        "yarn_stretch_bound_p99",
+        "yarn_stretch_bound_max",
+    ] {
+        assert!(v[k].is_number(), "{k}: {v}");
+    }
+}
+
 /// Every frame or none appears under its final name: a failing
 /// `--yarns-out` leaves no fresh asset and no partial frame sequence; `-o` equal to the asset is refused (exit 2).
 #[test]

@@ -394,6 +394,46 @@ fn an_asset_without_a_rest_shape_trains_from_its_positions_with_a_warning() {
     );
 }
 
+/// Yarns read with a radius too large for the file overlap at rest: the
+/// refusal names the radius the asset was embedded with, the closest
+/// distance found and how to give a smaller one.
+#[test]
+fn rest_yarns_read_with_too_large_a_radius_are_refused_with_the_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let (yarns, asset) = (dir.path().join("rib.bcc"), dir.path().join("thick.vtkhdf"));
+    let (code, _, err) = run(&[
+        "pattern",
+        "rib1x1",
+        "--courses",
+        "2",
+        "--wales",
+        "4",
+        "--no-relax",
+        "-o",
+        path_str(&yarns),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    // The pattern's yarns are about 2 mm apart (radius 1 mm): read as 3 mm.
+    let (code, _, err) = run(&[
+        "embed",
+        path_str(&yarns),
+        "--radius",
+        "0.003",
+        "--override-radius",
+        "-o",
+        path_str(&asset),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let err = refused_at_once(&asset, &dir.path().join("pose.h5"));
+    assert!(err.contains("pass through each other"), "{err}");
+    assert!(err.contains("radius of 3.000e-3 m"), "{err}");
+    assert!(err.contains("m apart, rA + rB = 6.000e-3 m"), "{err}");
+    assert!(
+        err.contains("--radius") && err.contains("[garment] radius") && err.contains("too large"),
+        "{err}"
+    );
+}
+
 /// Runs a one-step shear on `asset` into `out`, which must fail as bad
 /// input (65) within seconds and write nothing; returns stderr.
 fn refused_at_once(asset: &Path, out: &Path) -> String {

@@ -140,9 +140,14 @@ pub fn embed(a: &EmbedArgs) -> anyhow::Result<ExitCode> {
     if a.json {
         println!(
             "{}",
-            serde_json::to_string_pretty(
-                &serde_json::json!({ "asset": a.output.display().to_string(), "stats": stats, "cards": r.cards, "warnings": console.warnings })
-            )?
+            serde_json::to_string_pretty(&serde_json::json!({
+                "asset": a.output.display().to_string(),
+                "stats": stats,
+                "welded_points": r.welded_points,
+                "dropped_curves": r.dropped_curves,
+                "cards": r.cards,
+                "warnings": console.warnings,
+            }))?
         );
     } else {
         println!(

@@ -265,7 +265,7 @@ pub fn convert(a: &ConvertArgs) -> anyhow::Result<ExitCode> {
             ));
         }
     }
-    if let Some(w) = d.size_warning() {
+    for w in d.warnings() {
         warnings.push(format!("{}: {w}", a.input.display()));
     }
     let warnings = super::console::warn_all(warnings);

@@ -143,7 +143,7 @@ pub fn parse_tile(s: &str) -> Result<[usize; 2], ValueError> {
         t.trim()
             .parse::<usize>()
             .ok()
-            .filter(|n| (1..=10_000).contains(n))
+            .filter(|n| (1..=crate::io::MAX_TILE_REPEATS).contains(n))
     };
     match (parse(&a), parse(&b)) {
         (Some(n), Some(m)) => Ok([n, m]),

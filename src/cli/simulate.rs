@@ -290,6 +290,19 @@ pub fn simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         if let Some(p) = r.max_penetration_pinned_m {
             println!("  pinned nodes: max penetration into the body {p:.3e} m");
         }
+        if let (Some(p99), Some(max), Some(f)) = (
+            r.yarn_stretch_p99,
+            r.yarn_stretch_max,
+            r.yarn_stretch_max_frame,
+        ) {
+            println!(
+                "  yarn stretch |l/l0 - 1|: 99th percentile {:.2}%, max {:.2}% (frame {f}); bounds {}% / {}%",
+                100.0 * p99,
+                100.0 * max,
+                100.0 * r.yarn_stretch_bound_p99,
+                100.0 * r.yarn_stretch_bound_max
+            );
+        }
         if r.max_contact_correction_m > 0.0 {
             println!(
                 "  largest contact correction of a step {:.3e} m",

@@ -928,6 +928,37 @@ mod tests {
         assert_eq!(f.class, ErrorClass::Missing, "{}", f.message);
     }
 
+    /// A sidecar's `[garment]` read options reach the job the child runs
+    /// (the yarn file set to the drop's).
+    #[test]
+    fn a_sidecars_read_options_reach_the_job() {
+        let d = tempfile::tempdir().unwrap();
+        let paths = Paths::new(&d.path().join("root"));
+        paths.create().unwrap();
+        let dir = paths.work.join("glove");
+        std::fs::create_dir_all(dir.join("input")).unwrap();
+        std::fs::write(dir.join("input/glove.bcc"), b"").unwrap();
+        std::fs::write(
+            dir.join("input/glove.job.toml"),
+            "[garment]\nunits = \"cm\"\nradius = 0.00025\ntile = [1, 1]\n",
+        )
+        .unwrap();
+        let drop = Drop {
+            name: "glove".into(),
+            kind: DropKind::Yarns {
+                file: "glove.bcc".into(),
+                sidecar: Some("glove.job.toml".into()),
+            },
+        };
+        derive_manifest(&paths, &dir, &drop, &[]).unwrap();
+        let job = crate::pipeline::job::Job::load(&dir.join("job.toml")).unwrap();
+        let g = &job.manifest.garment;
+        assert_eq!(g.yarns, Path::new("input/glove.bcc"));
+        assert_eq!(g.units.as_deref(), Some("cm"));
+        assert_eq!(g.radius, Some(0.00025));
+        assert_eq!(g.tile, Some(crate::pipeline::job::Tile::Pair(vec![1, 1])));
+    }
+
     #[test]
     fn exit_codes_map_back_to_classes() {
         for c in ErrorClass::ALL {

@@ -14,8 +14,10 @@ mod frame_spec;
 mod mesh;
 mod plausible;
 mod rest;
+mod stretch;
 mod units;
 pub(crate) mod vec3;
+mod weld;
 mod yarns;
 
 pub use asset::{
@@ -32,9 +34,11 @@ pub use frame_spec::{
     MAX_SPEC_FRAMES,
 };
 pub use mesh::{Embedding, TetMesh, VoxelGrid, YarnPiece};
-pub use plausible::{garment_size_warning, GARMENT_DIAGONAL_M};
+pub use plausible::{garment_size_warning, yarn_radius_warning, GARMENT_DIAGONAL_M, YARN_RADIUS_M};
 pub use rest::{MaterialOverrides, RestShape, YarnMaterial};
+pub use stretch::{SegmentStretch, StretchSummary};
 pub use units::{Units, UnknownUnit, UnknownUpAxis, UpAxis};
+pub use weld::{Weld, WELD_TOLERANCE_RADII};
 pub use yarns::{bounds_of, dist, is_unit_vector, Bounds, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// A 3D point or vector in metres.

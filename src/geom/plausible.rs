@@ -21,12 +21,13 @@ pub fn garment_size_warning(bounds: &Bounds, units: Units, assumed: &[String]) -
         return None;
     }
     let s = bounds.size();
-    let hint = suggested_unit(d, units).map_or(String::from("give --units"), |u| {
-        format!("give --units {u} if that is the file's unit")
-    });
+    let hint = suggested_unit(d, units).map_or(
+        String::from("give --units (`[garment] units` in a job) with the file's unit"),
+        |u| format!("is the file in {u}? try --units {u} (`[garment] units` in a job)"),
+    );
     Some(format!(
-        "the yarns are {:.3} x {:.3} x {:.3} m (diagonal {d:.3} m), implausible for clothing ({lo} to {hi} m), \
-         and the {} assumed, not declared by the file: {hint}",
+        "a {d:.3} m garment: the yarns are {:.3} x {:.3} x {:.3} m (diagonal {d:.3} m), implausible for \
+         clothing ({lo} to {hi} m), and the {} assumed, not declared by the file: {hint}",
         s[0],
         s[1],
         s[2],
@@ -40,14 +41,66 @@ pub fn garment_size_warning(bounds: &Bounds, units: Units, assumed: &[String]) -
 /// The named unit (mm, cm, m) that brings diagonal `d` (m, read in `units`)
 /// closest to half a metre within the clothing range, if one does.
 fn suggested_unit(d: f64, units: Units) -> Option<&'static str> {
-    let (lo, hi) = GARMENT_DIAGONAL_M;
-    let file_d = d / units.metres_per_unit;
+    unit_into(d, d, units, GARMENT_DIAGONAL_M, 0.5)
+}
+
+/// The named unit (mm, cm, m) other than `units` that brings lengths
+/// `lo..=hi` (m, read in `units`) inside `range`, the one closest to
+/// `typical` (m), if one does.
+fn unit_into(
+    lo: f64,
+    hi: f64,
+    units: Units,
+    range: (f64, f64),
+    typical: f64,
+) -> Option<&'static str> {
+    let s = 1.0 / units.metres_per_unit;
     [("mm", 0.001), ("cm", 0.01), ("m", 1.0)]
         .into_iter()
-        .map(|(name, m)| (name, file_d * m))
-        .filter(|&(_, dm)| (lo..=hi).contains(&dm))
-        .min_by(|a, b| (a.1 / 0.5).ln().abs().total_cmp(&(b.1 / 0.5).ln().abs()))
-        .map(|(name, _)| name)
+        .filter(|&(_, m)| m != units.metres_per_unit)
+        .map(|(name, m)| (name, lo * s * m, hi * s * m))
+        .filter(|&(_, a, b)| range.0 <= a && b <= range.1)
+        .min_by(|a, b| {
+            let off = |x: f64| (x / typical).ln().abs();
+            off(a.2).total_cmp(&off(b.2))
+        })
+        .map(|(name, _, _)| name)
+}
+
+/// Yarn radii (m) taken as knitting yarn: 0.01 mm (a fine thread) to 10 mm
+/// (the thickest roving is about 2 cm across). Outside them a file's radius
+/// was read in the wrong unit, or `--radius` was given in millimetres.
+pub const YARN_RADIUS_M: (f64, f64) = (1e-5, 1e-2);
+
+/// A warning (one line) when yarn radii `min..=max` (m) are implausible for
+/// knitting yarn. `from_file`: the radii are the file's, read in `units`
+/// (a wrong unit scales them too); otherwise they were given in metres
+/// (`--radius`, `[garment] radius`). None when they are plausible.
+pub fn yarn_radius_warning(min: f64, max: f64, units: Units, from_file: bool) -> Option<String> {
+    let (lo, hi) = YARN_RADIUS_M;
+    if !(min.is_finite() && max.is_finite()) || (lo <= min && max <= hi) {
+        return None;
+    }
+    let shown = if min < max {
+        format!("{min:.3e} to {max:.3e} m")
+    } else {
+        format!("{max:.3e} m")
+    };
+    let range = format!("{} to {} mm", lo * 1e3, hi * 1e3);
+    if from_file {
+        let hint = unit_into(min, max, units, YARN_RADIUS_M, 1e-3).map_or(
+            String::from("check the file's unit (--units) or give --radius with --override-radius"),
+            |u| format!("is the file in {u}? try --units {u} (`[garment] units` in a job)"),
+        );
+        Some(format!(
+            "the file's yarn radius is {shown} read in {units}, implausible for knitting yarn ({range}): {hint}"
+        ))
+    } else {
+        Some(format!(
+            "the yarn radius is {shown}, implausible for knitting yarn ({range}): --radius \
+             (`[garment] radius` in a job) is in metres (1 mm is 0.001)"
+        ))
+    }
 }
 
 #[cfg(test)]
@@ -72,6 +125,10 @@ mod tests {
         );
         assert!(garment_size_warning(&cube(20.0), Units::METRES, &[]).is_none());
         assert!(garment_size_warning(&cube(0.2), Units::METRES, &assumed).is_none());
+        assert!(
+            w.starts_with("a 34.641 m garment") && w.contains("is the file in cm?"),
+            "{w}"
+        );
         // 1 mm across: no named unit makes it larger; only the generic hint.
         let w = garment_size_warning(&cube(0.001), Units::METRES, &assumed).unwrap();
         assert!(
@@ -83,5 +140,28 @@ mod tests {
         assert!(garment_size_warning(&diag(4.99), Units::METRES, &assumed).is_none());
         assert!(garment_size_warning(&diag(5.1), Units::METRES, &assumed).is_some());
         assert!(garment_size_warning(&diag(0.0099), Units::METRES, &assumed).is_some());
+    }
+
+    #[test]
+    fn an_implausible_radius_suggests_the_unit_or_says_radii_are_in_metres() {
+        // A file in cm read as metres: a 0.25 mm yarn is 25 mm thick.
+        let w = yarn_radius_warning(0.025, 0.025, Units::METRES, true).unwrap();
+        assert!(
+            w.contains("try --units cm") && w.contains("2.500e-2 m"),
+            "{w}"
+        );
+        // Read in mm where the file is in m: 0.25 µm.
+        let w = yarn_radius_warning(2.5e-7, 2.5e-7, Units::MILLIMETRES, true).unwrap();
+        assert!(w.contains("try --units m ("), "{w}");
+        // `--radius 0.5` meant as mm: 50 cm.
+        let w = yarn_radius_warning(0.5, 0.5, Units::METRES, false).unwrap();
+        assert!(w.contains("in metres") && !w.contains("--units"), "{w}");
+        for r in [1e-5, 2.5e-4, 1e-3, 1e-2] {
+            assert!(
+                yarn_radius_warning(r, r, Units::METRES, true).is_none(),
+                "{r}"
+            );
+        }
+        assert!(yarn_radius_warning(1e-3, 0.02, Units::METRES, false).is_some());
     }
 }

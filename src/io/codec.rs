@@ -29,8 +29,20 @@ pub fn decode(
     }
 }
 
-/// Converts a decoded file into knitvox's frame (metres, +Y up), fills radii, validates.
-pub fn finish(format: Format, mut d: Decoded, opts: &ReadOptions) -> Result<YarnData, GeomError> {
+/// Converts a decoded file into knitvox's frame (metres, +Y up), fills
+/// radii, welds repeated points ([`crate::geom::Yarns::weld`]), validates.
+pub fn finish(format: Format, d: Decoded, opts: &ReadOptions) -> Result<YarnData, GeomError> {
+    finish_with(format, d, opts, true)
+}
+
+/// [`finish`], welding only when `weld` is set (a sequence's later frames
+/// are welded by its first frame's map instead).
+fn finish_with(
+    format: Format,
+    mut d: Decoded,
+    opts: &ReadOptions,
+    weld: bool,
+) -> Result<YarnData, GeomError> {
     let units = match (opts.units, d.units) {
         (Some(u), _) => (u, Provenance::Option),
         (None, Some(u)) => (u, Provenance::File),
@@ -56,19 +68,74 @@ pub fn finish(format: Format, mut d: Decoded, opts: &ReadOptions) -> Result<Yarn
             Provenance::Assumed
         }
     };
-    d.yarns.validate()?;
+    let had_rest = d.yarns.rest.is_some();
+    // Welded in metres, with the radii the read settled on: the
+    // tolerance is a fraction of the yarn radius.
+    let (yarns, weld) = if weld {
+        d.yarns.weld()
+    } else {
+        let w = crate::geom::Weld::identity(&d.yarns);
+        (d.yarns, w)
+    };
+    if !weld.is_identity() {
+        d.notes.extend(weld_notes(&weld, had_rest));
+        if let Some(f) = &mut d.frames {
+            if f.num_vertices == weld.input_points() {
+                *f = weld.frames(f);
+            }
+        }
+    }
+    yarns.validate()?;
     if let Some(f) = &d.frames {
         f.validate()?;
     }
     Ok(YarnData {
         format,
-        yarns: d.yarns,
+        yarns,
         frames: d.frames,
         units,
         up_axis: up,
         radius,
         notes: d.notes,
+        weld,
     })
+}
+
+/// What a read's welding did, for `inspect` and the stages' warnings.
+pub(crate) fn weld_notes(weld: &crate::geom::Weld, had_rest: bool) -> Vec<String> {
+    let mut notes = Vec::new();
+    if weld.welded_points > 0 {
+        notes.push(format!(
+            "welded {} repeated point(s) (consecutive points closer than {} yarn radii or of the curve's mean segment: zero-length segments)",
+            weld.welded_points,
+            crate::geom::WELD_TOLERANCE_RADII
+        ));
+    }
+    if !weld.dropped_curves.is_empty() {
+        let shown: Vec<String> = weld
+            .dropped_curves
+            .iter()
+            .take(8)
+            .map(|c| c.to_string())
+            .collect();
+        notes.push(format!(
+            "dropped {} curve(s) that welding left with too few points (curve {}{})",
+            weld.dropped_curves.len(),
+            shown.join(", "),
+            if weld.dropped_curves.len() > 8 {
+                ", ..."
+            } else {
+                ""
+            }
+        ));
+    }
+    if had_rest {
+        notes.push(
+            "the stored rest shape is dropped: its segments no longer match the welded curves"
+                .into(),
+        );
+    }
+    notes
 }
 
 /// The format of `path`, or an error naming it.
@@ -84,6 +151,15 @@ pub fn format_of(path: &Path) -> Result<Format, IoError> {
 
 /// Reads one file (never a sequence).
 pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError> {
+    read_single_with(path, opts, true)
+}
+
+/// [`read_single`], welding repeated points only when `weld` is set.
+pub(crate) fn read_single_with(
+    path: &Path,
+    opts: &ReadOptions,
+    weld: bool,
+) -> Result<YarnData, IoError> {
     let format = format_of(path)?;
     let decoded = if format == Format::Hdf5 {
         h5::read_file(path, opts)?
@@ -105,7 +181,7 @@ pub fn read_single(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoError>
             source,
         })?
     };
-    finish(format, decoded, opts).map_err(|source| IoError::Invalid {
+    finish_with(format, decoded, opts, weld).map_err(|source| IoError::Invalid {
         path: path.to_path_buf(),
         format,
         source,

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::codec::read_single_with;
 use super::{atomic, encode, read_single, Format, IoError, ReadOptions, WriteOptions, YarnData};
 use crate::geom::{YarnFrames, Yarns};
 
@@ -102,11 +103,19 @@ pub fn read_sequence(path: &Path, opts: &ReadOptions) -> Result<YarnData, IoErro
     let mut data = read_single(first_path, opts)?;
     let mut seq = YarnFrames::new(data.yarns.num_points());
     for (n, p) in &frames {
-        let frame = if p == first_path {
+        let mut frame = if p == first_path {
             data.clone()
         } else {
-            read_single(p, opts)?
+            // Welded by the first frame's map, not its own: a later frame
+            // may have moved the first frame's repeated points apart, and
+            // the sequence keeps one numbering.
+            read_single_with(p, opts, false)?
         };
+        if p != first_path && data.weld.is_input_topology(&frame.yarns) {
+            frame.yarns.points = data.weld.pick(&frame.yarns.points);
+            frame.yarns.offsets = data.yarns.offsets.clone();
+            frame.yarns.closed = data.yarns.closed.clone();
+        }
         if !frame.yarns.same_topology(&data.yarns) {
             return Err(IoError::Invalid {
                 path: p.clone(),

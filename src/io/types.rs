@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use super::confined;
 
-use crate::geom::{Units, UpAxis, YarnFrames, Yarns, DEFAULT_RADIUS_M};
+use crate::geom::{Units, UpAxis, Weld, YarnFrames, Yarns, DEFAULT_RADIUS_M};
 
 /// Largest number of points a reader accepts by default (2^31): beyond every real garment,
 /// well below what would exhaust memory.
@@ -130,6 +130,9 @@ impl fmt::Display for Format {
     }
 }
 
+/// Most repeats of a periodic tile along one period ([`ReadOptions::tile`]).
+pub const MAX_TILE_REPEATS: usize = 10_000;
+
 /// Options for reading yarn files.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadOptions {
@@ -224,6 +227,10 @@ pub struct YarnData {
     pub up_axis: (UpAxis, Provenance),
     pub radius: Provenance,
     pub notes: Vec<String>,
+    /// How the file's points map onto `yarns`' (repeated points welded,
+    /// [`crate::geom::Yarns::weld`]): per-vertex data of the file, such as
+    /// forces stored beside its frames, goes through it.
+    pub weld: Weld,
 }
 
 impl YarnData {
@@ -238,6 +245,28 @@ impl YarnData {
     pub fn size_warning(&self) -> Option<String> {
         let b = self.yarns.bounds()?;
         crate::geom::garment_size_warning(&b, self.units.0, &self.assumed())
+    }
+
+    /// A warning when the yarn radii are implausible for knitting yarn
+    /// ([`crate::geom::yarn_radius_warning`]): a file's radii read in the
+    /// wrong unit, or a radius option given in millimetres.
+    pub fn radius_warning(&self) -> Option<String> {
+        let y = &self.yarns;
+        let radii = y.vertex_radius.as_ref().unwrap_or(&y.radius);
+        if radii.is_empty() {
+            return None;
+        }
+        let min = radii.iter().copied().fold(f64::INFINITY, f64::min);
+        let max = radii.iter().copied().fold(0.0, f64::max);
+        crate::geom::yarn_radius_warning(min, max, self.units.0, self.radius == Provenance::File)
+    }
+
+    /// The size and radius warnings of the read, in that order.
+    pub fn warnings(&self) -> Vec<String> {
+        self.size_warning()
+            .into_iter()
+            .chain(self.radius_warning())
+            .collect()
     }
 }
 

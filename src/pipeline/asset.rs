@@ -91,6 +91,8 @@ pub fn build_asset(
             "up_axis": data.up_axis.0,
             "up_axis_source": data.up_axis.1,
             "radius_source": data.radius,
+            "welded_points": data.weld.welded_points,
+            "dropped_curves": data.weld.dropped_curves.len(),
         },
         "materials": { "gamma_s_default": DEFAULT_GAMMA_S, "gamma_v_default": DEFAULT_GAMMA_V },
     });
@@ -342,6 +344,26 @@ pub fn size_warning(asset: &Asset) -> Option<String> {
     crate::geom::garment_size_warning(&b, units, &assumed)
 }
 
+/// The radius warning of an asset (see [`crate::geom::yarn_radius_warning`]):
+/// its rest yarns' radii, from the file or not as `parameters.read`
+/// records. None for assets without that record.
+pub fn radius_warning(asset: &Asset) -> Option<String> {
+    let read = asset.parameters.get("read")?;
+    let units = read
+        .get("units")
+        .and_then(|v| v.as_f64())
+        .and_then(crate::geom::Units::from_scale)?;
+    let from_file = read.get("radius_source").and_then(|v| v.as_str()) == Some("file");
+    let y = &asset.rest_yarns;
+    let radii = y.vertex_radius.as_ref().unwrap_or(&y.radius);
+    if radii.is_empty() {
+        return None;
+    }
+    let min = radii.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = radii.iter().copied().fold(0.0, f64::max);
+    crate::geom::yarn_radius_warning(min, max, units, from_file)
+}
+
 /// Refuses an asset path without the `.vtkhdf` extension.
 pub fn check_asset_ext(path: &Path) -> Result<(), IoError> {
     let ext = path
@@ -437,6 +459,22 @@ pub struct EmbedReport {
     pub stats: EmbedStats,
     /// The cards' transfer (null without `--card`).
     pub cards: Option<crate::pipeline::card_transfer::CardTransfer>,
+    /// Repeated points of the yarn file welded on read, and curves
+    /// dropped for it ([`crate::geom::Yarns::weld`]).
+    pub welded_points: usize,
+    pub dropped_curves: usize,
+}
+
+/// The welding an asset's read recorded (`parameters.read`): points
+/// welded and curves dropped (0 for assets from before it was recorded).
+pub fn recorded_weld(asset: &Asset) -> (usize, usize) {
+    let read = asset.parameters.get("read");
+    let count = |k: &str| {
+        read.and_then(|r| r.get(k))
+            .and_then(|v| v.as_u64())
+            .map_or(0, |n| n as usize)
+    };
+    (count("welded_points"), count("dropped_curves"))
 }
 
 impl Stage for EmbedJob {
@@ -454,8 +492,24 @@ impl Stage for EmbedJob {
             })
             .collect::<Result<Vec<_>, Error>>()?;
         let (mut asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;
-        if let Some(w) = size_warning(&asset) {
+        for w in size_warning(&asset)
+            .into_iter()
+            .chain(radius_warning(&asset))
+        {
             observer.warning(&format!("{}: {w}", self.yarns.display()));
+        }
+        let (welded_points, dropped_curves) = recorded_weld(&asset);
+        if welded_points > 0 || dropped_curves > 0 {
+            // A repair of the file, said where the operator looks.
+            observer.warning(&format!(
+                "{}: welded {welded_points} repeated point(s) (zero-length segments){}",
+                self.yarns.display(),
+                if dropped_curves > 0 {
+                    format!(" and dropped {dropped_curves} curve(s) left with too few points")
+                } else {
+                    String::new()
+                }
+            ));
         }
         let transfer = if cards.is_empty() {
             None
@@ -495,6 +549,8 @@ impl Stage for EmbedJob {
             asset: self.output.clone(),
             stats,
             cards: transfer,
+            welded_points,
+            dropped_curves,
         })
     }
 }

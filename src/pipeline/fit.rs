@@ -377,9 +377,11 @@ fn mechanics(
     path: &Path,
     name: &str,
     nf: usize,
-    n: usize,
+    weld: &crate::geom::Weld,
     up: crate::geom::UpAxis,
 ) -> Result<Option<Vec<Vec<Vec3>>>, IoError> {
+    // Stored per point of the file: welded points carry their run's sum.
+    let n = weld.input_points();
     if io::format_of(path)? != io::Format::Hdf5 {
         return Ok(None);
     }
@@ -399,9 +401,15 @@ fn mechanics(
     Ok(Some(
         v.chunks_exact(3 * n.max(1))
             .map(|fr| {
-                fr.chunks_exact(3)
+                let f: Vec<Vec3> = fr
+                    .chunks_exact(3)
                     .map(|c| up.to_internal([c[0], c[1], c[2]]))
-                    .collect()
+                    .collect();
+                if weld.is_identity() {
+                    f
+                } else {
+                    weld.sum(&f)
+                }
             })
             .collect(),
     ))
@@ -544,8 +552,8 @@ fn read_pose(
         _ => choose_frames(nf, cx.samples),
     };
     let up = data.up_axis.0;
-    let reactions = mechanics(path, "reaction_forces", nf, n, up)?;
-    let external = mechanics(path, "external_forces", nf, n, up)?;
+    let reactions = mechanics(path, "reaction_forces", nf, &data.weld, up)?;
+    let external = mechanics(path, "external_forces", nf, &data.weld, up)?;
     let energies = energies_of(path, nf)?;
     let scene = if reactions.is_none() || external.is_none() {
         scene_of(path)?

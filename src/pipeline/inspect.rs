@@ -35,7 +35,14 @@ pub struct YarnReport {
     pub up_axis_source: Provenance,
     pub frames: usize,
     pub frame_times_s: Option<MinMax<f64>>,
+    /// Repeated points welded on read, and curves dropped for it
+    /// ([`crate::geom::Yarns::weld`]); the counts above are after it.
+    pub welded_points: usize,
+    pub dropped_curves: usize,
     pub notes: Vec<String>,
+    /// An implausible garment size with an assumed unit, an implausible
+    /// yarn radius: each with the option that would fix it.
+    pub warnings: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -105,7 +112,10 @@ pub fn summarize(path: &str, d: &YarnData) -> YarnReport {
             .as_ref()
             .filter(|f| f.num_frames() > 0)
             .map(|f| min_max(f.times.iter().copied(), 0.0)),
+        welded_points: d.weld.welded_points,
+        dropped_curves: d.weld.dropped_curves.len(),
         notes: d.notes.clone(),
+        warnings: d.warnings(),
     }
 }
 
@@ -186,6 +196,9 @@ impl YarnReport {
         }
         for n in &self.notes {
             let _ = writeln!(s, "  note          {n}");
+        }
+        for w in &self.warnings {
+            let _ = writeln!(s, "  warning       {w}");
         }
         s
     }

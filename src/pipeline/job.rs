@@ -165,6 +165,61 @@ pub struct Garment {
     pub units: Option<String>,
     /// Up axis (`y` or `z`) [default: the file's, else y].
     pub up_axis: Option<String>,
+    /// Yarn radius (m) for files without one, or for all with
+    /// `override_radius` (`--radius`) [default 1 mm].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// Use `radius` even where the file gives radii (`--override-radius`)
+    /// [default false].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub override_radius: Option<bool>,
+    /// Polyline samples per span of BCC spline curves, 1 to 64
+    /// (`--spline-samples`) [default 1].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spline_samples: Option<i64>,
+    /// Repeats of a periodic `.pyp` tile along its two periods, `"NxM"`
+    /// or `[N, M]` (`--tile`) [default 1x1].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tile: Option<Tile>,
+}
+
+/// `[garment] tile`: `"NxM"` or `[N, M]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Tile {
+    Text(String),
+    Pair(Vec<i64>),
+}
+
+impl Tile {
+    /// The repeats, each 1 to [`io::MAX_TILE_REPEATS`], or what is wrong.
+    pub fn repeats(&self) -> Result<[usize; 2], String> {
+        let max = io::MAX_TILE_REPEATS;
+        let each = |n: i64| {
+            usize::try_from(n)
+                .ok()
+                .filter(|n| (1..=max).contains(n))
+                .ok_or_else(|| format!("{n} repeats is out of range (each must be 1 to {max})"))
+        };
+        match self {
+            Tile::Pair(v) => match v[..] {
+                [a, b] => Ok([each(a)?, each(b)?]),
+                _ => Err(format!("give two repeats, [N, M], not {}", v.len())),
+            },
+            Tile::Text(t) => {
+                let shown = crate::geom::excerpt(t);
+                let (a, b) = t
+                    .to_ascii_lowercase()
+                    .split_once('x')
+                    .map(|(a, b)| (a.trim().to_string(), b.trim().to_string()))
+                    .ok_or_else(|| format!("'{shown}' is not NxM (e.g. \"2x3\")"))?;
+                match (a.parse::<i64>(), b.parse::<i64>()) {
+                    (Ok(a), Ok(b)) => Ok([each(a)?, each(b)?]),
+                    _ => Err(format!("'{shown}' is not NxM (e.g. \"2x3\")")),
+                }
+            }
+        }
+    }
 }
 
 /// The character driving the shot (as `simulate --character` takes it).
@@ -607,6 +662,7 @@ impl Job {
         let p = &self.path;
         parse_key::<Units>(p, "garment.units", &m.garment.units)?;
         parse_key::<UpAxis>(p, "garment.up_axis", &m.garment.up_axis)?;
+        self.read_options()?;
         if m.garment.yarns.as_os_str().is_empty() {
             return Err(bad(p, "key 'garment.yarns' is required".into()));
         }
@@ -867,13 +923,64 @@ impl Job {
         Ok((pose, fabric))
     }
 
+    /// How the garment's yarns are read: `[garment]`'s read options as
+    /// `embed`'s flags give them (exit 65 naming the key when one is bad).
     fn read_options(&self) -> Result<ReadOptions, Error> {
         let g = &self.manifest.garment;
+        let p = &self.path;
+        let d = ReadOptions::default();
+        number(p, "garment.radius", g.radius, |x| x > 0.0, "> 0 m")?;
+        let max = io::bcc::MAX_SPLINE_SAMPLES;
+        let spline_samples = g
+            .spline_samples
+            .map(|k| {
+                usize::try_from(k)
+                    .ok()
+                    .filter(|k| (1..=max).contains(k))
+                    .ok_or_else(|| {
+                        bad(
+                            p,
+                            format!("key 'garment.spline_samples': {k} is out of range (must be 1 to {max})"),
+                        )
+                    })
+            })
+            .transpose()?;
+        let tile = match &g.tile {
+            Some(t) => t
+                .repeats()
+                .map_err(|e| bad(p, format!("key 'garment.tile': {e}")))?,
+            None => d.tile,
+        };
         Ok(ReadOptions {
-            units: parse_key(&self.path, "garment.units", &g.units)?,
-            up_axis: parse_key(&self.path, "garment.up_axis", &g.up_axis)?,
-            ..ReadOptions::default()
+            units: parse_key(p, "garment.units", &g.units)?,
+            up_axis: parse_key(p, "garment.up_axis", &g.up_axis)?,
+            spline_samples,
+            tile,
+            radius: g.radius.unwrap_or(d.radius),
+            override_radius: g.override_radius.unwrap_or(d.override_radius),
+            ..d
         })
+    }
+
+    /// The read options beyond the unit and axis that the embed key holds,
+    /// as read (a tile as `[N, M]` however written); None when none is
+    /// set, so the keys of jobs without them stay what they were.
+    fn read_key(&self) -> Result<Option<serde_json::Value>, Error> {
+        let g = &self.manifest.garment;
+        if g.radius.is_none()
+            && g.override_radius.is_none()
+            && g.spline_samples.is_none()
+            && g.tile.is_none()
+        {
+            return Ok(None);
+        }
+        let r = self.read_options()?;
+        Ok(Some(serde_json::json!({
+            "radius": r.radius,
+            "override_radius": r.override_radius,
+            "spline_samples": r.spline_samples,
+            "tile": r.tile,
+        })))
     }
 
     /// The shot's scene (the manifest's overrides applied) and the files it
@@ -1412,8 +1519,21 @@ impl Job {
     fn plan_embed(&self, command: &str) -> Result<(String, StageRun), Error> {
         let m = &self.manifest;
         let yarns = self.resolve(&m.garment.yarns);
-        let params = (&m.garment.units, &m.garment.up_axis, &m.embed);
-        let key = stage_key("embed", &params, std::slice::from_ref(&yarns), None)?;
+        let input = std::slice::from_ref(&yarns);
+        let key = match self.read_key()? {
+            None => stage_key(
+                "embed",
+                &(&m.garment.units, &m.garment.up_axis, &m.embed),
+                input,
+                None,
+            )?,
+            Some(read) => stage_key(
+                "embed",
+                &(&m.garment.units, &m.garment.up_axis, &m.embed, read),
+                input,
+                None,
+            )?,
+        };
         let e = m.embed.clone().unwrap_or_default();
         let d = EmbedParams::default();
         let stage = EmbedJob {
@@ -1638,6 +1758,55 @@ mod tests {
     }
 
     #[test]
+    fn garment_read_options_become_read_options_and_join_the_embed_key() {
+        let dir = tempfile::tempdir().unwrap();
+        write(dir.path(), "y.pyp", "");
+        let load = |extra: &str| {
+            let text = format!("[garment]\nyarns = \"y.pyp\"\nunits = \"cm\"\n{extra}");
+            Job::load(&write(dir.path(), "j.toml", &text)).unwrap()
+        };
+        let job =
+            load("radius = 0.0003\noverride_radius = true\nspline_samples = 4\ntile = \"2X3\"\n");
+        let r = job.read_options().unwrap();
+        assert_eq!(r.radius, 0.0003);
+        assert!(r.override_radius);
+        assert_eq!(r.spline_samples, Some(4));
+        assert_eq!(r.tile, [2, 3]);
+        assert_eq!(r.units, Some(Units::CENTIMETRES));
+        let key = |j: &Job| j.plan_embed("test").unwrap().0;
+        assert_eq!(
+            key(&job),
+            key(&load(
+                "radius = 0.0003\noverride_radius = true\nspline_samples = 4\ntile = [2, 3]\n"
+            ))
+        );
+        assert_ne!(
+            key(&job),
+            key(&load(
+                "radius = 0.0004\noverride_radius = true\nspline_samples = 4\ntile = [2, 3]\n"
+            ))
+        );
+        // Without them: the key of the unit, axis and [embed] alone, as
+        // before they existed, so earlier jobs stay cached.
+        let plain = load("");
+        assert_eq!(plain.read_options().unwrap().radius, io::DEFAULT_RADIUS_M);
+        let m = &plain.manifest;
+        let yarns = plain.resolve(&m.garment.yarns);
+        let old = stage_key(
+            "embed",
+            &(&m.garment.units, &m.garment.up_axis, &m.embed),
+            std::slice::from_ref(&yarns),
+            None,
+        )
+        .unwrap();
+        assert_eq!(key(&plain), old);
+        assert_ne!(key(&plain), key(&load("radius = 0.001\n")));
+        // The options survive the TOML the watch daemon writes.
+        let back: Manifest = toml::from_str(&job.manifest.to_toml().unwrap()).unwrap();
+        assert_eq!(back.garment, job.manifest.garment);
+    }
+
+    #[test]
     fn bad_manifests_name_the_key() {
         let dir = tempfile::tempdir().unwrap();
         for (text, key) in [
@@ -1662,6 +1831,11 @@ mod tests {
                 "frames = \"1\"\n[garment]\nyarns = \"y\"\n[shot]\nscene = \"s\"\n[export]\nname = \"../x\"\n",
                 "export.name",
             ),
+            ("[garment]\nyarns = \"y\"\nradius = 0.0\n", "garment.radius"),
+            ("[garment]\nyarns = \"y\"\nradius = nan\n", "garment.radius"),
+            ("[garment]\nyarns = \"y\"\nspline_samples = 65\n", "garment.spline_samples"),
+            ("[garment]\nyarns = \"y\"\ntile = \"2by3\"\n", "garment.tile"),
+            ("[garment]\nyarns = \"y\"\ntile = [2, 10001]\n", "garment.tile"),
         ] {
             let e = Job::load(&write(dir.path(), "j.toml", text)).unwrap_err();
             assert_eq!(e.class(), super::super::ErrorClass::BadInput, "{text}");

@@ -181,8 +181,57 @@ pub struct SimulateReport {
     /// projection moved a free node still inside a collider's thickness band
     /// after the PD iterations onto its contact target.
     pub max_contact_correction_m: f64,
+    /// Yarn-segment stretch `|l / l0 - 1|` of the output frames' yarns (V2Y
+    /// of the nodes) against the rest yarns: its 99th percentile and its
+    /// largest value over every segment of every frame, and the frame
+    /// holding the largest (None without frames). Past
+    /// [`STRETCH_P99_BOUND`] or [`STRETCH_MAX_BOUND`]: a warning.
+    pub yarn_stretch_p99: Option<f64>,
+    pub yarn_stretch_max: Option<f64>,
+    pub yarn_stretch_max_frame: Option<i64>,
+    /// The bounds the two figures above are held to.
+    pub yarn_stretch_bound_p99: f64,
+    pub yarn_stretch_bound_max: f64,
     pub character: Option<CharacterReport>,
     pub notes: Vec<String>,
+}
+
+/// The yarn-segment stretch that 99% of a shot's segments stay within
+/// without a warning (5%), and the bound on its largest (25%). Knit yarns
+/// barely stretch (a few percent at their breaking load), and a garment
+/// under its weight and a character's motion strains a few percent; the
+/// V2Y yarns follow the homogenized fabric, so stretch past these says the
+/// material is too soft for the shot, as the placeholder material of an
+/// unfitted asset is: fit it (`train`, `fit`).
+pub const STRETCH_P99_BOUND: f64 = 0.05;
+pub const STRETCH_MAX_BOUND: f64 = 0.25;
+
+/// The stretch warning of a shot whose yarn stretch passes a bound.
+fn stretch_warning(s: &crate::geom::StretchSummary) -> Option<String> {
+    let pct = |x: f64| 100.0 * x;
+    let mut past = Vec::new();
+    if s.p99 > STRETCH_P99_BOUND {
+        past.push(format!(
+            "{}% for the 99th percentile",
+            pct(STRETCH_P99_BOUND)
+        ));
+    }
+    if s.max > STRETCH_MAX_BOUND {
+        past.push(format!("{}% for the largest", pct(STRETCH_MAX_BOUND)));
+    }
+    (!past.is_empty()).then(|| {
+        format!(
+            "the yarns stretch: 99% of the yarn segments stay within {:.1}% of their rest length and the most \
+             stretched is {:.1}% off (frame {}), past the bound of {}: knit yarns barely stretch, so the \
+             asset's material is too soft for this shot (an asset straight from `embed` has a placeholder \
+             material): give it a material card of its stitch (`knitvox card`, `knitvox embed --card`; \
+             docs/guides/cards.md) or fit it to yarn-level poses (`knitvox train`, `knitvox fit`)",
+            pct(s.p99),
+            pct(s.max),
+            s.max_frame,
+            past.join(" and ")
+        )
+    })
 }
 
 /// Inputs of a shot besides the scene.
@@ -423,6 +472,15 @@ pub fn simulate_chunk(
     };
     let mut adopted = 0;
     let mut measures = Measures::default();
+    let mut stretch = crate::geom::SegmentStretch::new(&asset.rest_yarns);
+    // Frames a resumed run had computed count too (this request's only).
+    {
+        let n = x.len();
+        for (i, &f) in series_frames.iter().enumerate() {
+            let nodes = &out.steps.positions[i * n..(i + 1) * n];
+            stretch.add_frame(f, &asset.embedding.v2y(&asset.mesh, nodes));
+        }
+    }
     let mut last_checkpoint = None;
     let mut periodic: Option<PathBuf> = None;
     let mut body = || -> Result<_, SimulateError> {
@@ -480,14 +538,16 @@ pub fn simulate_chunk(
                         }
                     };
                     let time = f as f64 / sim.fps;
-                    let yarns = (writer.is_some() || !posed.set.colliders.is_empty())
-                        .then(|| asset.embedding.v2y(&asset.mesh, st.x));
-                    let pen = measures.add(st.x, yarns.as_deref(), posed, &setup.is_pinned);
+                    // Every output frame's yarns: for the stretch check, the
+                    // colliders and the yarn files (4 weights per vertex).
+                    let yarns = asset.embedding.v2y(&asset.mesh, st.x);
+                    stretch.add_frame(f, &yarns);
+                    let pen = measures.add(st.x, Some(&yarns), posed, &setup.is_pinned);
                     out.steps.times.push(time);
                     out.steps.positions.extend_from_slice(st.x);
                     series_frames.push(f);
-                    if let (Some(w), Some(y)) = (writer.as_mut(), &yarns) {
-                        w.push(f, time, y)?;
+                    if let Some(w) = writer.as_mut() {
+                        w.push(f, time, &yarns)?;
                     }
                     next_frame += 1;
                     observer.frame(&FrameProgress {
@@ -652,10 +712,24 @@ pub fn simulate_chunk(
         min_distance_m: None,
         max_penetration_pinned_m: None,
         max_contact_correction_m: stats.correction_max,
+        yarn_stretch_p99: None,
+        yarn_stretch_max: None,
+        yarn_stretch_max_frame: None,
+        yarn_stretch_bound_p99: STRETCH_P99_BOUND,
+        yarn_stretch_bound_max: STRETCH_MAX_BOUND,
         character: setup.character.take(),
         notes: std::mem::take(&mut setup.notes),
     };
     measures.fill(&mut report, sim.contact);
+    if let Some(st) = stretch.summary() {
+        report.yarn_stretch_p99 = Some(st.p99);
+        report.yarn_stretch_max = Some(st.max);
+        report.yarn_stretch_max_frame = Some(st.max_frame);
+        if let Some(m) = stretch_warning(&st) {
+            observer.warning(&m);
+            report.notes.push(format!("warning: {m}"));
+        }
+    }
     if report.pd_capped_steps > 0 {
         let m = format!(
             "{} of {} PD steps stopped at the {}-iteration cap short of the tolerance {:e} (convergence up to {:.2e}, largest residual {:.3e} N): \

@@ -110,6 +110,27 @@ impl TrainJob {
     }
 }
 
+/// What to do about rest yarns that pass through each other: the radius
+/// they were embedded with, and where a smaller one is given.
+fn radius_hint(rest: &crate::geom::Yarns) -> String {
+    let radii: Vec<f64> = match &rest.vertex_radius {
+        Some(v) => v.clone(),
+        None => rest.radius.clone(),
+    };
+    let lo = radii.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = radii.iter().copied().fold(0.0, f64::max);
+    let used = if lo < hi {
+        format!("{lo:.3e} to {hi:.3e} m")
+    } else {
+        format!("{hi:.3e} m")
+    };
+    format!(
+        "; the asset's yarns were read with a radius of {used}: embed the yarn file again with a \
+         smaller `--radius` (and `--override-radius` where the file gives radii; in a job, \
+         `[garment] radius`), or check its `--units`"
+    )
+}
+
 /// The JSON record of the pose and the asset stored as `/metadata/pose_json`.
 fn pose_record(job: &TrainJob, sha: &str, plane: FabricPlane, rest_shape: &str) -> String {
     let p = &job.pose.pose;
@@ -178,7 +199,10 @@ impl Stage for TrainJob {
         let run = run_pose(rest, &fabric, &self.pose, &mut on_frame).map_err(|e| match e {
             PoseRunError::Frame { error, .. } => Error::from(error),
             e => {
-                let what = format!("pose {}: {e}", kind_name(self.pose.pose.kind));
+                let mut what = format!("pose {}: {e}", kind_name(self.pose.pose.kind));
+                if let PoseRunError::Crossing { .. } = e {
+                    what.push_str(&radius_hint(rest));
+                }
                 if e.is_usage() {
                     Error::Usage(what)
                 } else {

@@ -206,7 +206,7 @@ pub fn default_amount(kind: PoseKind) -> Option<f64> {
 
 /// Smallest distance between two yarn segments, over the sum of their
 /// radii, that a pose's rest yarns may start at ([`run_pose`]); the
-/// issue's pull-through bound during a test is 0.75.
+/// pull-through bound during a test is 0.75.
 pub const MIN_START_DISTANCE_RATIO: f64 = 0.5;
 
 /// Why a pose run failed; `E` is the error of its frame callback (none
@@ -241,12 +241,20 @@ pub enum PoseRunError<E = Infallible> {
     },
     /// The rest yarns pass through each other: two segments start closer
     /// than [`MIN_START_DISTANCE_RATIO`] x (rA + rB) (the swatch's fault).
+    /// Their distance (m) and radius sum (m) say what radius would fit:
+    /// yarns read with a radius too large for the file overlap at rest.
     #[error(
         "yarn model: the rest yarns pass through each other: two segments are {ratio:.3} x \
-         (rA + rB) apart at rest (below {MIN_START_DISTANCE_RATIO}; a relaxed swatch keeps 0.86 \
-         or more)"
+         (rA + rB) apart at rest ({distance_m:.3e} m apart, rA + rB = {radius_sum_m:.3e} m; below \
+         {MIN_START_DISTANCE_RATIO}; a relaxed swatch keeps 0.86 or more): the yarn radius is \
+         probably too large for these yarns (a radius of {fit:.2e} m would just touch there)",
+        fit = distance_m / 2.0
     )]
-    Crossing { ratio: f64 },
+    Crossing {
+        ratio: f64,
+        distance_m: f64,
+        radius_sum_m: f64,
+    },
 }
 
 impl PoseRunError {
@@ -268,7 +276,15 @@ impl PoseRunError {
                 source,
             },
             PoseRunError::Frame { error, .. } => match error {},
-            PoseRunError::Crossing { ratio } => PoseRunError::Crossing { ratio },
+            PoseRunError::Crossing {
+                ratio,
+                distance_m,
+                radius_sum_m,
+            } => PoseRunError::Crossing {
+                ratio,
+                distance_m,
+                radius_sum_m,
+            },
         }
     }
 }
@@ -407,9 +423,13 @@ pub fn run_pose<E>(
     // Yarns that pass through each other at rest (a point moved across
     // another yarn) leave no load step an equilibrium to reach: the rounds
     // would run to their cap (a fuzzed asset: 62 rounds, 41 s) first.
-    let ratio = fabric.contact_stats().min_distance_ratio;
-    if ratio < MIN_START_DISTANCE_RATIO {
-        return Err(PoseRunError::Crossing { ratio });
+    let cs = fabric.contact_stats();
+    if cs.min_distance_ratio < MIN_START_DISTANCE_RATIO {
+        return Err(PoseRunError::Crossing {
+            ratio: cs.min_distance_ratio,
+            distance_m: cs.min_distance_m,
+            radius_sum_m: cs.min_distance_radius_sum_m,
+        });
     }
     let n = fabric.num_vertices();
     let mut clamped = vec![false; n];

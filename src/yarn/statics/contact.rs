@@ -49,6 +49,13 @@ pub struct ContactStats {
     pub contacts_per_vertex: f64,
     /// Smallest closest distance / (rA + rB) over the candidate pairs.
     pub min_distance_ratio: f64,
+    /// That pair's closest distance (m) and radius sum `rA + rB` (m), so
+    /// a caller can say which radius would fit (not in reports, which
+    /// give the ratio).
+    #[serde(skip)]
+    pub min_distance_m: f64,
+    #[serde(skip)]
+    pub min_distance_radius_sum_m: f64,
     /// Fraction of vertices within [`NEAR_FACTOR`] x (rA + rB) of a segment
     /// that is not their neighbour along the yarn (a relaxed knit's yarns
     /// lie against each other; the loose generated rib has ~3%).
@@ -151,6 +158,7 @@ impl ContactTerm {
         let mut near = vec![false; n];
         let mut active = 0usize;
         let mut min_ratio = f64::INFINITY;
+        let (mut min_d, mut min_rsum) = (f64::INFINITY, 0.0);
         for p in &self.set.pairs {
             let (a, b) = (&cs[p.a as usize], &cs[p.b as usize]);
             let [a0, a1] = [a.v[0] as usize, a.v[1] as usize];
@@ -158,7 +166,9 @@ impl ContactTerm {
             let rsum = a.radius + b.radius;
             let d = crate::yarn::sim::contact::segment_distance(x[a0], x[a1], x[b0], x[b1]);
             active += usize::from(d < rsum);
-            min_ratio = min_ratio.min(d / rsum);
+            if d / rsum < min_ratio {
+                (min_ratio, min_d, min_rsum) = (d / rsum, d, rsum);
+            }
             if d < NEAR_FACTOR * rsum {
                 for (v, (s0, s1)) in [
                     (a0, (b0, b1)),
@@ -176,6 +186,8 @@ impl ContactTerm {
             active_pairs: active,
             contacts_per_vertex: 2.0 * active as f64 / n.max(1) as f64,
             min_distance_ratio: min_ratio,
+            min_distance_m: min_d,
+            min_distance_radius_sum_m: min_rsum,
             near_fraction: near.iter().filter(|&&b| b).count() as f64 / n.max(1) as f64,
         }
     }
