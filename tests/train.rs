@@ -614,3 +614,34 @@ fn a_list_of_amounts_trains_each_amplitude_and_fit_reports_each() {
         assert!(f.is_finite() && f >= 0.0, "{t}");
     }
 }
+
+#[test]
+fn a_three_dimensional_garment_is_refused_at_once_pointing_to_material_cards() {
+    // A knit tube: a closed garment, no flat extent to clamp bands across.
+    let dir = tempfile::tempdir().unwrap();
+    let tube = dir.path().join("tube.h5");
+    let asset = dir.path().join("tube.vtkhdf");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (code, _, err) = run(&[
+        "pattern",
+        "stockinette",
+        "--courses",
+        "6",
+        "--wales",
+        "12",
+        "--tube-radius",
+        "0.008",
+        "--no-relax",
+        "-o",
+        &s(&tube),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run(&["embed", &s(&tube), "-o", &s(&asset)]);
+    assert_eq!(code, 0, "{err}");
+    let err = refused_at_once(&asset, &dir.path().join("pose.h5"));
+    assert!(err.contains("no flat swatch"), "{err}");
+    assert!(
+        err.contains("knitvox card") && err.contains("embed --card"),
+        "{err}"
+    );
+}

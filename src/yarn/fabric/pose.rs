@@ -209,10 +209,28 @@ pub fn default_amount(kind: PoseKind) -> Option<f64> {
 /// pull-through bound during a test is 0.75.
 pub const MIN_START_DISTANCE_RATIO: f64 = 0.5;
 
+/// Largest ratio of a swatch's thinnest bounding-box side to its middle
+/// one that the poses take as flat: knitvox's 6 x 6 and 10 x 10 swatches
+/// lie at 0.05-0.09 (curled stockinette included), the Yuksel glove at
+/// 0.93.
+pub const MAX_FLAT_RATIO: f64 = 0.4;
+
 /// Why a pose run failed; `E` is the error of its frame callback (none
 /// for the checks made before a run).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PoseRunError<E = Infallible> {
+    /// The yarns are no flat swatch (a 3-D garment): their bounding box's
+    /// thinnest side is more than [`MAX_FLAT_RATIO`] of its middle one,
+    /// and clamped bands across a flat extent mean nothing there.
+    #[error(
+        "the yarns are no flat swatch: their bounding box is {:.4} x {:.4} x {:.4} m, its thinnest side \
+         {:.2} of the middle one (a flat swatch's is under {MAX_FLAT_RATIO}); training poses clamp bands \
+         across a flat swatch and mean nothing on a 3-D garment: fit a material card on a flat swatch of \
+         its stitch (`knitvox card`) and carry it onto the garment with `knitvox embed --card` \
+         (docs/guides/cards.md)",
+        size[0], size[1], size[2], ratio
+    )]
+    NotFlat { size: [f64; 3], ratio: f64 },
     /// A parameter out of range (a usage error).
     #[error("pose parameter {0}")]
     Parameter(String),
@@ -261,6 +279,7 @@ impl PoseRunError {
     /// The same error as one of a run whose frame callback fails with `E`.
     pub fn in_run<E>(self) -> PoseRunError<E> {
         match self {
+            PoseRunError::NotFlat { size, ratio } => PoseRunError::NotFlat { size, ratio },
             PoseRunError::Parameter(m) => PoseRunError::Parameter(m),
             PoseRunError::Pose(e) => PoseRunError::Pose(e),
             PoseRunError::Model(e) => PoseRunError::Model(e),
@@ -401,6 +420,15 @@ pub fn run_pose<E>(
     on_frame: &mut dyn FnMut(&RigFrame) -> Result<(), E>,
 ) -> Result<PoseRun, PoseRunError<E>> {
     params.check().map_err(PoseRunError::in_run)?;
+    if let Some(b) = crate::geom::bounds_of(&yarns.points) {
+        let size: Vec3 = std::array::from_fn(|k| b.max[k] - b.min[k]);
+        let mut sorted = size;
+        sorted.sort_by(f64::total_cmp);
+        let ratio = sorted[0] / sorted[1].max(f64::MIN_POSITIVE);
+        if ratio > MAX_FLAT_RATIO {
+            return Err(PoseRunError::NotFlat { size, ratio });
+        }
+    }
     let t0 = Instant::now();
     let plane = FabricPlane::of(&yarns.points);
     let mut posed = yarns.clone();
