@@ -404,3 +404,63 @@ fn the_card_command_fits_a_card_that_beats_the_placeholder_and_transfers_back() 
     assert!(rel(mean(&bf.gamma_wale), f * mean(&ff.gamma_wale)) < 1e-9);
     assert!(rel(mean(&bf.beta_course), mean(&ff.beta_course)) < 1e-9);
 }
+
+/// `knitvox run JOB.toml --stage embed`: exit code and stderr.
+fn run_embed(job: &Path) -> (i32, String) {
+    let o = Command::new(common::knitvox_bin())
+        .args(["run", job.to_str().unwrap(), "--stage", "embed"])
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_job_manifest_embeds_with_its_cards_reruns_when_a_card_changes_and_keeps_cards_inside() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, asset) = embedded(dir.path(), "sw", &swatch(), None);
+    std::fs::write(
+        dir.path().join("st.toml"),
+        encode_card(&card_of(&asset, 60.0)).unwrap(),
+    )
+    .unwrap();
+    let job = dir.path().join("job.toml");
+    let manifest =
+        |cards: &str| format!("[garment]\nyarns = \"sw.ply\"\n\n[embed]\ncards = [{cards}]\n");
+    std::fs::write(&job, manifest("\"st.toml\"")).unwrap();
+    let (code, err) = run_embed(&job);
+    assert_eq!(code, 0, "{err}");
+    let out = dir.path().join("job.out").join("garment.vtkhdf");
+    let first = io::vtkhdf::read_asset(&out).unwrap();
+    let g0 = first.gamma_s[0];
+    assert!(first.gamma_s.iter().all(|&g| g == g0) && g0 < 1e3, "{g0}");
+    // A refitted card (another material) re-runs the stage.
+    std::fs::write(
+        dir.path().join("st.toml"),
+        encode_card(&card_of(&asset, 120.0)).unwrap(),
+    )
+    .unwrap();
+    let (code, err) = run_embed(&job);
+    assert_eq!(code, 0, "{err}");
+    let second = io::vtkhdf::read_asset(&out).unwrap();
+    assert!(
+        (second.gamma_s[0] / g0 - 2.0).abs() < 1e-9,
+        "{} vs {g0}",
+        second.gamma_s[0]
+    );
+    // A card outside the manifest's folder and a bad region are refused
+    // naming the key.
+    let outside = tempfile::tempdir().unwrap();
+    let far = outside.path().join("far.toml");
+    std::fs::copy(dir.path().join("st.toml"), &far).unwrap();
+    std::fs::write(&job, manifest(&format!("{:?}", far.display().to_string()))).unwrap();
+    let (code, err) = run_embed(&job);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("[embed] cards"), "{err}");
+    std::fs::write(&job, manifest("\"st.toml@box=1,2\"")).unwrap();
+    let (code, err) = run_embed(&job);
+    assert_eq!(code, 65, "{err}");
+    assert!(err.contains("embed.cards"), "{err}");
+}

@@ -51,21 +51,7 @@ pub struct EmbedArgs {
 
 /// `CARD` or `CARD@curves=..` / `CARD@box=..`.
 fn parse_card_spec(s: &str) -> Result<stages_card::CardSpec, String> {
-    let split = s.rfind('@').filter(|&i| {
-        ["curves=", "box="]
-            .iter()
-            .any(|k| s[i + 1..].trim_start().starts_with(k))
-    });
-    match split {
-        Some(i) => Ok(stages_card::CardSpec {
-            path: PathBuf::from(&s[..i]),
-            region: stages_card::CardRegion::parse(&s[i + 1..])?,
-        }),
-        None => Ok(stages_card::CardSpec {
-            path: PathBuf::from(s),
-            region: stages_card::CardRegion::Rest,
-        }),
-    }
+    stages_card::CardSpec::parse(s)
 }
 
 #[derive(Debug, Args)]

@@ -219,6 +219,28 @@ pub struct CardSpec {
     pub region: CardRegion,
 }
 
+impl CardSpec {
+    /// `CARD` (every tet), `CARD@curves=..` or `CARD@box=..` (as `embed
+    /// --card` and a manifest's `[embed] cards` give it).
+    pub fn parse(s: &str) -> Result<CardSpec, String> {
+        let split = s.rfind('@').filter(|&i| {
+            ["curves=", "box="]
+                .iter()
+                .any(|k| s[i + 1..].trim_start().starts_with(k))
+        });
+        match split {
+            Some(i) => Ok(CardSpec {
+                path: PathBuf::from(&s[..i]),
+                region: CardRegion::parse(&s[i + 1..])?,
+            }),
+            None => Ok(CardSpec {
+                path: PathBuf::from(s),
+                region: CardRegion::Rest,
+            }),
+        }
+    }
+}
+
 /// What one card of a transfer did.
 #[derive(Debug, Clone, Serialize)]
 pub struct CardApplied {

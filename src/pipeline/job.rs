@@ -248,6 +248,11 @@ pub struct EmbedSection {
     pub max_voxels: Option<u64>,
     /// Yarn material density (kg/m^3).
     pub density: Option<f64>,
+    /// Material cards (`CARD.toml`, `CARD.toml@curves=..`,
+    /// `CARD.toml@box=..`; paths relative to the manifest), as `embed
+    /// --card` takes them [default: the placeholder material].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cards: Option<Vec<String>>,
 }
 
 /// `[shot]`: a scene file, or the top-level `[character]` with these options.
@@ -567,6 +572,10 @@ impl Job {
             &self.resolve(&m.garment.yarns),
             roots,
         )?];
+        for spec in self.card_specs()? {
+            let resolved = self.resolve(&spec.path);
+            inputs.push(self.confine("[embed] cards", &spec.path, &resolved, roots)?);
+        }
         if let Some(c) = &m.character {
             inputs.push(self.confine(
                 "[character] file",
@@ -812,6 +821,27 @@ impl Job {
 
     fn resolve(&self, p: &Path) -> PathBuf {
         self.base.join(p)
+    }
+
+    /// `[embed] cards` parsed (paths as written; exit 65 naming the key).
+    fn card_specs(&self) -> Result<Vec<crate::pipeline::card_transfer::CardSpec>, Error> {
+        let cards = self
+            .manifest
+            .embed
+            .as_ref()
+            .and_then(|e| e.cards.clone())
+            .unwrap_or_default();
+        cards
+            .iter()
+            .map(|c| {
+                crate::pipeline::card_transfer::CardSpec::parse(c).map_err(|e| {
+                    bad(
+                        &self.path,
+                        format!("key 'embed.cards': {:?}: {e}", crate::geom::excerpt(c)),
+                    )
+                })
+            })
+            .collect()
     }
 
     /// The stages this job holds, in run order (`train` is one stage of
@@ -1519,7 +1549,20 @@ impl Job {
     fn plan_embed(&self, command: &str) -> Result<(String, StageRun), Error> {
         let m = &self.manifest;
         let yarns = self.resolve(&m.garment.yarns);
-        let input = std::slice::from_ref(&yarns);
+        // The cards' contents are inputs of the stage: a refitted card
+        // re-runs it.
+        let cards: Vec<_> = self
+            .card_specs()?
+            .into_iter()
+            .map(|c| crate::pipeline::card_transfer::CardSpec {
+                path: self.resolve(&c.path),
+                ..c
+            })
+            .collect();
+        let inputs: Vec<PathBuf> = std::iter::once(yarns.clone())
+            .chain(cards.iter().map(|c| c.path.clone()))
+            .collect();
+        let input = inputs.as_slice();
         let key = match self.read_key()? {
             None => stage_key(
                 "embed",
@@ -1547,7 +1590,7 @@ impl Job {
             },
             output: self.garment_asset(),
             command: command.into(),
-            cards: Vec::new(),
+            cards,
         };
         Ok((key, Box::new(move |o| Ok(vec![stage.run(o)?.asset]))))
     }
