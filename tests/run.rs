@@ -281,6 +281,7 @@ fit_joint = "j"
 voxel_size = 0.001
 max_voxels = 10
 density = 1000.0
+cards = ["st.toml", "rib.toml@curves=0-3"]
 [[train]]
 kind = "shear"
 amount = 0.1

@@ -11,15 +11,12 @@ use crate::pipeline::pattern::PatternSource;
 use crate::pipeline::Stage;
 use crate::yarn::fabric::FabricParams;
 
-/// The built-in knit patterns `--library` makes cards for.
-pub const LIBRARY_PATTERNS: [&str; 6] = [
-    "stockinette",
-    "garter",
-    "rib1x1",
-    "rib2x2",
-    "seed",
-    "basketweave",
-];
+/// The built-in knit patterns `--library` makes cards for (the built-ins
+/// list the knits first, then the wovens, which no card is made for).
+pub const LIBRARY_PATTERNS: &[&str] = {
+    let (knits, _wovens) = crate::yarn::pattern::BUILTIN_NAMES.split_at(6);
+    knits
+};
 
 #[derive(Debug, Args)]
 pub struct CardArgs {
@@ -141,7 +138,7 @@ pub fn card(a: &CardArgs) -> anyhow::Result<ExitCode> {
     let mode = super::console::ProgressMode::on_stderr(false, a.no_progress);
     let mut jobs = Vec::new();
     if let Some(dir) = &a.library {
-        for name in LIBRARY_PATTERNS {
+        for &name in LIBRARY_PATTERNS {
             let out = dir.join(format!("{name}.toml"));
             let work = dir.join(format!("{name}.work"));
             let mut j = job(
