@@ -495,6 +495,52 @@ fn inspect_character_reports_rig_and_scale() {
     }
 }
 
+/// `inspect CHAR.glb --animation A --time T` places every joint in that
+/// pose: bones keep their lengths (the fox's limbs are rigid), joints move,
+/// the arm chain is in order; an unknown animation is bad input naming the
+/// ones the file has.
+#[test]
+fn inspect_character_places_joints_in_a_chosen_pose() {
+    let fox = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/Fox.glb");
+    let places = |extra: &[&str]| {
+        let o = knitvox(&[&["inspect", fox, "--json"], extra].concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+        json_of(&o)[0]["joint_places"].as_array().unwrap().clone()
+    };
+    let bind = places(&[]);
+    let walk = places(&["--animation", "Walk", "--time", "0.3"]);
+    assert_eq!(bind.len(), 24);
+    assert_eq!(walk.len(), 24);
+    let mut moved = 0;
+    for (b, w) in bind.iter().zip(&walk) {
+        assert_eq!(b["name"], w["name"]);
+        assert_eq!(b["parent"], w["parent"]);
+        // The hip rides on the root with the walk's root motion; every
+        // other bone is rigid.
+        let rooted = b["parent"].as_str().is_some_and(|p| p.contains("Root"));
+        if let (Some(lb), Some(lw), false) =
+            (b["bone_length"].as_f64(), w["bone_length"].as_f64(), rooted)
+        {
+            assert!((lb - lw).abs() < 1e-3 * lb.max(1.0), "{b} / {w}");
+        }
+        let d: f64 = (0..3)
+            .map(|k| {
+                (b["position"][k].as_f64().unwrap() - w["position"][k].as_f64().unwrap()).powi(2)
+            })
+            .sum::<f64>()
+            .sqrt();
+        moved += usize::from(d > 1.0);
+    }
+    assert!(moved > 10, "{moved} joints moved");
+    let hand = walk.iter().find(|j| j["name"] == "b_LeftHand_011").unwrap();
+    assert_eq!(hand["parent"], "b_LeftForeArm_010");
+    assert!(hand["bone_length"].as_f64().unwrap() > 10.0, "{hand}");
+    let o = knitvox(&["inspect", fox, "--animation", "Jump"]);
+    assert_eq!(o.status.code(), Some(65));
+    let e = stderr(&o);
+    assert!(e.contains("Jump") && e.contains("Survey, Walk, Run"), "{e}");
+}
+
 /// Completion scripts and --help offer the values of
 /// --backend, --solver and --format.
 #[test]

@@ -47,6 +47,31 @@ pub struct CharacterSummary {
     /// height is already within [`PLAUSIBLE_HEIGHT_M`], else
     /// [`TARGET_HEIGHT_M`] / height (2 significant digits). None without a height.
     pub suggested_character_scale: Option<f64>,
+    /// Where every joint is in the pose [`summarize`] was asked for (the
+    /// bind pose by default; `inspect --animation --time`).
+    pub pose: PoseChoice,
+    pub joint_places: Vec<JointPlace>,
+}
+
+/// The pose joint places are given in.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PoseChoice {
+    /// The animation (None: the bind pose).
+    pub animation: Option<String>,
+    /// Time into it (s).
+    pub time_s: f64,
+}
+
+/// A joint's place in a pose: for dressing a garment onto a limb.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct JointPlace {
+    pub name: String,
+    /// The nearest ancestor that is a joint too (None: a root joint).
+    pub parent: Option<String>,
+    /// World position (file units, the file's axes: glTF +Y up).
+    pub position: Vec3,
+    /// Distance to the parent joint (file units): the bone's length.
+    pub bone_length: Option<f64>,
 }
 
 fn node_name(ch: &Character, i: usize) -> String {
@@ -76,6 +101,54 @@ pub fn suggested_scale(height: f64) -> Option<f64> {
 }
 
 /// The summary of `ch` (bind pose: no animation applied).
+/// Every skin joint's world position at time `t` of animation `anim`
+/// (`None`: the bind pose), with its parent joint and bone length, in skin
+/// order.
+pub fn joint_places(ch: &Character, anim: Option<usize>, t: f64) -> Vec<JointPlace> {
+    let world = ch.node_world_matrices(anim, t);
+    let mut joints: Vec<usize> = Vec::new();
+    for &j in ch.skins.iter().flat_map(|s| &s.joints) {
+        if !joints.contains(&j) {
+            joints.push(j);
+        }
+    }
+    let at = |i: usize| -> Option<Vec3> { world.get(i).map(|m| [m[(0, 3)], m[(1, 3)], m[(2, 3)]]) };
+    joints
+        .iter()
+        .filter_map(|&j| {
+            let position = at(j)?;
+            // The nearest ancestor among the joints (bounded: a cycle ends it).
+            let mut parent = ch.skeleton.get(j).and_then(|n| n.parent);
+            let mut hops = 0;
+            while let Some(p) = parent {
+                if joints.contains(&p) || hops > ch.skeleton.len() {
+                    break;
+                }
+                parent = ch.skeleton.get(p).and_then(|n| n.parent);
+                hops += 1;
+            }
+            let parent = parent.filter(|p| joints.contains(p));
+            Some(JointPlace {
+                name: node_name(ch, j),
+                parent: parent.map(|p| node_name(ch, p)),
+                position,
+                bone_length: parent.and_then(at).map(|q| crate::geom::dist(position, q)),
+            })
+        })
+        .collect()
+}
+
+/// [`summarize`] with the joints placed at time `t` of animation `anim`.
+pub fn summarize_at(ch: &Character, anim: Option<usize>, t: f64) -> CharacterSummary {
+    let mut s = summarize(ch);
+    s.pose = PoseChoice {
+        animation: anim.and_then(|a| ch.animation_names().get(a).cloned()),
+        time_s: t,
+    };
+    s.joint_places = joint_places(ch, anim, t);
+    s
+}
+
 pub fn summarize(ch: &Character) -> CharacterSummary {
     let skins: Vec<SkinSummary> = ch
         .skins
@@ -114,6 +187,11 @@ pub fn summarize(ch: &Character) -> CharacterSummary {
         bind_bbox_max: bounds.as_ref().map(|b| b.max),
         height,
         suggested_character_scale: suggested_scale(height),
+        pose: PoseChoice {
+            animation: None,
+            time_s: 0.0,
+        },
+        joint_places: joint_places(ch, None, 0.0),
     }
 }
 

@@ -20,6 +20,13 @@ pub struct InspectArgs {
     /// Print one JSON array instead of text.
     #[arg(long)]
     pub json: bool,
+    /// glTF characters: give the joints' places in this animation
+    /// [default: the bind pose].
+    #[arg(long, value_name = "NAME")]
+    pub animation: Option<String>,
+    /// glTF characters: time into `--animation` (s) of the joints' places.
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.0, value_parser = super::parse::parse_non_negative)]
+    pub time: f64,
     #[command(flatten)]
     pub read: ReadArgs,
 }
@@ -72,7 +79,7 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
     let mut code = ExitCode::Success;
     let mut json = Vec::new();
     for path in &a.files {
-        match inspect_one(path, &opts) {
+        match inspect_one(path, &opts, (a.animation.as_deref(), a.time)) {
             Ok((value, text)) => {
                 if a.json {
                     json.push(value);
@@ -102,6 +109,7 @@ pub fn inspect(a: &InspectArgs) -> anyhow::Result<ExitCode> {
 fn inspect_one(
     path: &std::path::Path,
     opts: &io::ReadOptions,
+    pose: (Option<&str>, f64),
 ) -> Result<(serde_json::Value, String), io::IoError> {
     use std::fmt::Write;
     let mut text = String::new();
@@ -121,7 +129,7 @@ fn inspect_one(
         }
         return Ok((v, text));
     }
-    if let Some(c) = character(path) {
+    if let Some(c) = character(path, pose)? {
         return Ok(character_report(path, &c));
     }
     if io::Format::from_path(path) == Some(io::Format::Hdf5)
@@ -164,17 +172,45 @@ fn inspect_one(
 
 /// The summary of a glTF that is a character (triangle meshes with a skin
 /// or animations); None for anything else, yarn glTFs included.
-fn character(path: &std::path::Path) -> Option<crate::anim::summary::CharacterSummary> {
+/// `pose`: the animation (by name) and time the joints are placed at; an
+/// unknown animation is an error naming the file and the ones it has.
+fn character(
+    path: &std::path::Path,
+    pose: (Option<&str>, f64),
+) -> Result<Option<crate::anim::summary::CharacterSummary>, io::IoError> {
     let glb_or_gltf = matches!(
         io::Format::from_path(path),
         Some(io::Format::Gltf | io::Format::Glb)
     );
     if !glb_or_gltf || io::sequence::is_pattern(path) {
-        return None;
+        return Ok(None);
     }
-    let ch = io::gltf_skin::read_character(path).ok()?;
+    let Ok(ch) = io::gltf_skin::read_character(path) else {
+        return Ok(None);
+    };
     let animated = !ch.skins.is_empty() || !ch.animations.is_empty();
-    (!ch.meshes.is_empty() && animated).then(|| crate::anim::summary::summarize(&ch))
+    if ch.meshes.is_empty() || !animated {
+        return Ok(None);
+    }
+    let anim = match pose.0 {
+        None => None,
+        Some(name) => Some(
+            ch.animation_index(name)
+                .ok_or_else(|| io::IoError::Unsupported {
+                    path: path.to_path_buf(),
+                    message: format!(
+                        "--animation {:?}: no such animation; the file has {}",
+                        crate::geom::excerpt(name),
+                        ch.animation_names()
+                            .iter()
+                            .map(|n| crate::geom::excerpt(n))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                })?,
+        ),
+    };
+    Ok(Some(crate::anim::summary::summarize_at(&ch, anim, pose.1)))
 }
 
 /// JSON and text of a character (names cut like any quoted input).
@@ -229,6 +265,30 @@ fn character_report(
         crate::anim::summary::PLAUSIBLE_HEIGHT_M.0,
         crate::anim::summary::PLAUSIBLE_HEIGHT_M.1,
     );
+    let mut text = text;
+    {
+        use std::fmt::Write;
+        let _ = writeln!(
+            text,
+            "  joint places  {} (file units; for --fit-joint and dressing)",
+            match &c.pose.animation {
+                None => "bind pose".to_string(),
+                Some(a) => format!("{} at {} s", excerpt(a), c.pose.time_s),
+            }
+        );
+        for j in &c.joint_places {
+            let _ = writeln!(
+                text,
+                "    {:<24} [{:.4}, {:.4}, {:.4}]  bone {} from {}",
+                excerpt(&j.name),
+                j.position[0],
+                j.position[1],
+                j.position[2],
+                j.bone_length.map_or("-".into(), |l| format!("{l:.4}")),
+                j.parent.as_deref().map_or("-".into(), excerpt)
+            );
+        }
+    }
     (v, text)
 }
 
