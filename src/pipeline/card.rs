@@ -368,9 +368,11 @@ impl Stage for CardJob {
             &f.beta_wale,
         ];
         if let Some(s) = fields.iter().map(|v| spread(v)).find(|s| *s > 1e-6) {
-            warnings.push(format!(
+            let w = format!(
                 "the fitted swatch's material varies by {s:.2e} of its mean; the card takes the mean"
-            ));
+            );
+            observer.warning(&w);
+            warnings.push(w);
         }
         let material = CardMaterial {
             gamma_s_pa: mean(&asset.gamma_s),
