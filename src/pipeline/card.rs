@@ -440,14 +440,35 @@ impl Stage for CardJob {
         card.check()
             .map_err(|e| Error::Internal(format!("the fitted card is not valid: {e}")))?;
         io::atomic::write_bytes(&self.output, encode_card(&card)?.as_bytes())?;
+        let (rms, placeholder) = (
+            card_fit.rms_yarn_diameters,
+            card_fit.placeholder_rms_yarn_diameters,
+        );
+        let judged = if rms < placeholder {
+            format!(
+                "{:.2}x closer than the placeholder",
+                placeholder / rms.max(1e-12)
+            )
+        } else {
+            let w = format!(
+                "card {:?}: its material carries the swatch no closer to the yarn level than the \
+                 placeholder on its own training poses ({rms:.3} against {placeholder:.3} yarn \
+                 diameters, force misfit {:.3}): do not use it as fitted (try more courses and \
+                 wales, or --steps)",
+                card.name, card_fit.force_misfit
+            );
+            observer.warning(&w);
+            warnings.push(w);
+            "no better than the placeholder: not a usable card".to_string()
+        };
         let verdict = format!(
             "verdict: card {:?} fitted on {} training poses: the swatch under it stays {:.3} yarn \
              diameters RMS from the yarn level (the placeholder material {:.3}, the mesh's floor \
-             {:.3}); clamp-force misfit {:.3}",
+             {:.3}), {judged}; clamp-force misfit {:.3}",
             card.name,
             card.poses.len(),
-            card_fit.rms_yarn_diameters,
-            card_fit.placeholder_rms_yarn_diameters,
+            rms,
+            placeholder,
             card_fit.floor_rms_yarn_diameters,
             card_fit.force_misfit
         );
