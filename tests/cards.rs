@@ -370,7 +370,7 @@ fn the_card_command_fits_a_card_that_beats_the_placeholder_and_transfers_back() 
     }
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("verdict: card"), "{stdout}");
-    let c = knitvox::pipeline::card_transfer::read_card(&card).unwrap();
+    let (c, _) = knitvox::pipeline::card_transfer::read_card(&card).unwrap();
     assert_eq!(c.poses.len(), 3);
     assert!(
         c.fit.rms_yarn_diameters < c.fit.placeholder_rms_yarn_diameters,

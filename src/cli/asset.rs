@@ -40,18 +40,13 @@ pub struct EmbedArgs {
     /// those curves, `CARD.toml@box=X0,Y0,Z0,X1,Y1,Z1` (m, +Y up) for those
     /// inside the box. Repeatable; a later region card wins where regions
     /// overlap [default: the placeholder material].
-    #[arg(long, value_name = "CARD[@REGION]", value_parser = parse_card_spec)]
+    #[arg(long, value_name = "CARD[@REGION]", value_parser = stages_card::CardSpec::parse)]
     pub card: Vec<stages_card::CardSpec>,
     #[command(flatten)]
     pub read: ReadArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
-}
-
-/// `CARD` or `CARD@curves=..` / `CARD@box=..`.
-fn parse_card_spec(s: &str) -> Result<stages_card::CardSpec, String> {
-    stages_card::CardSpec::parse(s)
 }
 
 #[derive(Debug, Args)]

@@ -6,6 +6,7 @@
 //! until it holds a vertex. [`fabric_area`] measures the fabric a set of
 //! voxels holds. Pure: no files, no printing.
 
+use crate::geom::vec3::{dot, norm};
 use crate::geom::{Embedding, VoxelGrid};
 
 /// Widest neighbourhood (Chebyshev radius, voxels) searched for a vote;
@@ -93,11 +94,7 @@ pub fn fabric_area(
             member[v] = true;
             if let Some(d) = normal.get(t) {
                 // Normals are signless: align with the voxel's first.
-                let s = if n[v].iter().zip(d).map(|(a, b)| a * b).sum::<f64>() < 0.0 {
-                    -1.0
-                } else {
-                    1.0
-                };
+                let s = if dot(n[v], *d) < 0.0 { -1.0 } else { 1.0 };
                 for k in 0..3 {
                     n[v][k] += s * d[k];
                 }
@@ -134,11 +131,7 @@ pub fn fabric_area(
             let mut acc = [0.0; 3];
             for d in around(c) {
                 if let Some(v) = own(d) {
-                    let s = if acc.iter().zip(&v).map(|(a, b)| a * b).sum::<f64>() < 0.0 {
-                        -1.0
-                    } else {
-                        1.0
-                    };
+                    let s = if dot(acc, v) < 0.0 { -1.0 } else { 1.0 };
                     for k in 0..3 {
                         acc[k] += s * v[k];
                     }
@@ -146,7 +139,7 @@ pub fn fabric_area(
             }
             acc
         });
-        let len = m.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let len = norm(m);
         (len > 0.0).then(|| {
             m.iter_mut().for_each(|x| *x /= len);
             m

@@ -487,8 +487,8 @@ impl Stage for EmbedJob {
             .cards
             .iter()
             .map(|c| {
-                let card = crate::pipeline::card_transfer::read_card(&c.path)?;
-                Ok((c.clone(), card, super::util::sha256_file(&c.path)?))
+                let (card, sha) = crate::pipeline::card_transfer::read_card(&c.path)?;
+                Ok((c.clone(), card, sha))
             })
             .collect::<Result<Vec<_>, Error>>()?;
         let (mut asset, stats) = build_asset(&self.yarns, &self.read, &self.params, &self.command)?;

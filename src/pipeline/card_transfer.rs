@@ -58,12 +58,20 @@ impl From<CardFileError> for Error {
 }
 
 /// Reads and checks a card (bounded: [`MAX_CARD_BYTES`]).
-pub fn read_card(path: &Path) -> Result<MaterialCard, CardFileError> {
+/// It returns the card and the SHA-256 (hex) of the bytes it was read from,
+/// so the provenance names exactly the card used.
+pub fn read_card(path: &Path) -> Result<(MaterialCard, String), CardFileError> {
+    use sha2::{Digest, Sha256};
     let text = io::input::read_input_text(path, "material card", MAX_CARD_BYTES)?;
-    decode_card(&text).map_err(|message| CardFileError::Invalid {
+    let card = decode_card(&text).map_err(|message| CardFileError::Invalid {
         path: path.to_path_buf(),
         message,
-    })
+    })?;
+    let sha = Sha256::digest(text.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    Ok((card, sha))
 }
 
 /// A card from its TOML text, checked ([`MaterialCard::check`]).
@@ -114,14 +122,11 @@ fn tet_normals(cw: &crate::embed::orientation::CourseWale) -> Vec<Vec3> {
         .iter()
         .zip(&cw.wale)
         .map(|(c, w)| {
-            let n = [
-                c[1] * w[2] - c[2] * w[1],
-                c[2] * w[0] - c[0] * w[2],
-                c[0] * w[1] - c[1] * w[0],
-            ];
-            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            use crate::geom::vec3::{cross, norm, scale};
+            let n = cross(*c, *w);
+            let l = norm(n);
             if l > 0.0 {
-                [n[0] / l, n[1] / l, n[2] / l]
+                scale(n, 1.0 / l)
             } else {
                 [0.0; 3]
             }
@@ -318,20 +323,17 @@ pub fn apply_cards(
     );
     let cw = course_and_wale(y, &asset.grid, &asset.tet_voxel, &Default::default())?;
     let nt = asset.mesh.num_tets();
-    let mut fibres = asset.fibres.clone().unwrap_or(AssetFibres {
-        course: cw.course.clone(),
-        wale: cw.wale.clone(),
+    // A fresh embedding has no fibres: every tet gets the garment's own
+    // directions, and no stiffness until a card reaches it.
+    let fibre_anisotropy = cw.mean_anisotropy;
+    let mut fibres = AssetFibres {
+        course: cw.course,
+        wale: cw.wale,
         gamma_course: vec![0.0; nt],
         gamma_wale: vec![0.0; nt],
         beta_course: vec![0.0; nt],
         beta_wale: vec![0.0; nt],
-    });
-    fibres.course = cw.course.clone();
-    fibres.wale = cw.wale.clone();
-    if fibres.beta_course.len() != nt {
-        fibres.beta_course = vec![0.0; nt];
-        fibres.beta_wale = vec![0.0; nt];
-    }
+    };
     // Yarn length per label: each segment's half to each end vertex.
     let mut length = vec![0.0; specs.len() + 1];
     for [a, b] in y.segments() {
@@ -426,7 +428,7 @@ pub fn apply_cards(
     Ok(CardTransfer {
         cards,
         uncovered_tets: uncovered,
-        fibre_anisotropy: cw.mean_anisotropy,
+        fibre_anisotropy,
         warnings,
         seconds: t0.elapsed().as_secs_f64(),
     })
